@@ -1,0 +1,151 @@
+"""Reading and writing a job's artifacts (DESIGN.md "Artifacts"), always atomically."""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import trimesh
+import yaml
+
+from .errors import InputError
+from .stages.drips import DripResult
+from .stages.trajectories import TrajectoryResult
+
+
+def atomic_write(path: Path, data: bytes | str) -> None:
+    """Write ``data`` to ``path`` through a temporary file and a rename: never half a file."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data.encode() if isinstance(data, str) else data)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def write_json(path: Path, value: Any) -> None:
+    atomic_write(path, json.dumps(value, indent=1, default=_plain) + "\n")
+
+
+def write_yaml(path: Path, value: Any) -> None:
+    atomic_write(path, yaml.safe_dump(value, sort_keys=False))
+
+
+def _plain(value: Any) -> Any:
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    raise TypeError(f"cannot write {type(value).__name__} as JSON")
+
+
+def write_mesh(path: Path, mesh: trimesh.Trimesh) -> None:
+    atomic_write(path, mesh.export(file_type="ply"))
+
+
+def water_colors(supply: np.ndarray, water: np.ndarray) -> np.ndarray:
+    """``(n, 4) uint8``: the paper's Figures 2-3 in one: supply red, water a blue ramp.
+
+    Dry vertices are white, supply vertices red; wet vertices outside the supply go from
+    light to dark blue with their water coefficient.
+    """
+    colors = np.full((len(water), 4), 255, dtype=np.uint8)
+    top = float(water.max()) if len(water) and water.max() > 0 else 1.0
+    ramp = np.clip(water / top, 0, 1)[:, None]
+    wet = (water > 0) & ~supply
+    light, dark = np.array([200, 225, 255]), np.array([10, 40, 160])
+    colors[wet, :3] = (light + (dark - light) * ramp[wet]).astype(np.uint8)
+    colors[supply, :3] = [220, 30, 30]
+    return colors
+
+
+def write_water_ply(path: Path, mesh: trimesh.Trimesh, supply: np.ndarray, water: np.ndarray) -> None:
+    """The flow surface with vertex properties ``supply``, ``water`` and a colour code."""
+    out = trimesh.Trimesh(mesh.vertices, mesh.faces, process=False)
+    out.visual.vertex_colors = water_colors(supply, water)
+    out.vertex_attributes["supply"] = supply.astype(np.uint8)
+    out.vertex_attributes["water"] = water.astype(np.float32)
+    write_mesh(path, out)
+
+
+def read_water_ply(path: Path, vertex_count: int) -> tuple[np.ndarray, np.ndarray]:
+    """``supply`` and ``water`` from a (possibly hand-painted) water.ply."""
+    try:
+        loaded = trimesh.load(path, process=False)
+        data = loaded.metadata["_ply_raw"]["vertex"]["data"]
+        supply, water = np.asarray(data["supply"]).astype(bool), np.asarray(data["water"], dtype=np.float64)
+    except Exception as exc:
+        raise InputError(f"{path}: not a water.ply with vertex properties supply and water ({exc})") from None
+    if len(water) != vertex_count:
+        raise InputError(f"{path}: {len(water)} vertices, but the flow surface has {vertex_count}")
+    return supply, water
+
+
+def drips_to_json(drips: DripResult) -> dict:
+    return {
+        "drip_points": [
+            {"position": p.tolist(), "normal": n.tolist(), "water": float(w), "face": int(f)}
+            for p, n, w, f in zip(drips.positions, drips.normals, drips.water, drips.faces)
+        ],
+        "region_faces": drips.region_faces.tolist(),
+    }
+
+
+def drips_from_json(path: Path) -> DripResult:
+    try:
+        data = json.loads(Path(path).read_text())
+        points = data["drip_points"]
+        return DripResult(
+            region_faces=np.asarray(data.get("region_faces", []), dtype=np.int64),
+            positions=np.asarray([p["position"] for p in points], dtype=np.float64).reshape(-1, 3),
+            normals=np.asarray([p["normal"] for p in points], dtype=np.float64).reshape(-1, 3),
+            water=np.asarray([p["water"] for p in points], dtype=np.float64),
+            faces=np.asarray([p.get("face", -1) for p in points], dtype=np.int64),
+        )
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise InputError(f"{path}: not a drips.json ({exc})") from None
+
+
+def trajectories_to_json(traj: TrajectoryResult) -> dict:
+    icicles: dict[int, dict] = {}
+    first_branch: dict[int, int] = {}
+    for b in range(traj.n_branches):
+        i = int(traj.branch_icicle[b])
+        entry = icicles.setdefault(i, {"id": len(icicles), "drip_point": i, "branches": []})
+        first_branch.setdefault(i, b)
+        parent = int(traj.branch_parent[b])
+        entry["branches"].append({
+            "parent": -1 if parent < 0 else parent - first_branch[i],
+            "points": np.round(traj.branch(b), 6).tolist(),
+        })
+    return {"icicles": list(icicles.values())}
+
+
+def trajectories_from_json(path: Path) -> TrajectoryResult:
+    try:
+        data = json.loads(Path(path).read_text())
+        points, offsets, icicle, parent = [], [0], [], []
+        for entry in data["icicles"]:
+            base = len(icicle)
+            for branch in entry["branches"]:
+                pts = np.asarray(branch["points"], dtype=np.float64).reshape(-1, 3)
+                points.append(pts)
+                offsets.append(offsets[-1] + len(pts))
+                icicle.append(int(entry["drip_point"]))
+                parent.append(-1 if branch["parent"] < 0 else base + int(branch["parent"]))
+        return TrajectoryResult(
+            points=np.concatenate(points) if points else np.zeros((0, 3)),
+            branch_offsets=np.asarray(offsets, dtype=np.int64),
+            branch_icicle=np.asarray(icicle, dtype=np.int64),
+            branch_parent=np.asarray(parent, dtype=np.int64),
+        )
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise InputError(f"{path}: not a trajectories.json ({exc})") from None

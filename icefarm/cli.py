@@ -1,0 +1,153 @@
+"""The ``icefarm`` command line."""
+
+from __future__ import annotations
+
+import json
+import statistics
+import sys
+from pathlib import Path
+
+import click
+
+from . import __version__, params
+from .errors import InputError
+
+
+class _Group(click.Group):
+    """Turns `InputError` into one clean line and exit status 2 instead of a traceback."""
+
+    def invoke(self, ctx):
+        try:
+            return super().invoke(ctx)
+        except InputError as exc:
+            click.echo(f"error: {exc}", err=True)
+            sys.exit(2)
+
+
+@click.group(cls=_Group, context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(__version__, prog_name="icefarm")
+def main():
+    """Grow icicles and glaze ice on any mesh, render them, and sweep parameters in batch.
+
+    Start with `icefarm run MESH --size-m 0.3 -o out/` for one object, `icefarm params` for
+    every parameter, and `icefarm sweep scenes/demo.yaml` for a whole sweep.
+    """
+
+
+def _assignments(values: tuple[str, ...]) -> dict:
+    return dict(params.parse_assignment(v) for v in values)
+
+
+def _box(text: str) -> tuple:
+    try:
+        v = [float(x) for x in text.split(",")]
+    except ValueError:
+        v = []
+    if len(v) != 6:
+        raise InputError(f"--exclude takes xmin,ymin,zmin,xmax,ymax,zmax in meters, got {text!r}")
+    return (tuple(v[:3]), tuple(v[3:]))
+
+
+@main.command()
+@click.argument("mesh", type=click.Path(dir_okay=False))
+@click.option("--size-m", type=float, required=True,
+              help="Real height of the object's bounding box along gravity, in meters.")
+@click.option("--set", "assignments", multiple=True, metavar="GROUP.PARAM=VALUE",
+              help="Override a parameter (repeatable); `icefarm params` lists them.")
+@click.option("--seed", type=int, default=0, show_default=True, help="Random seed of the job.")
+@click.option("-o", "--out", type=click.Path(file_okay=False), required=True,
+              help="Folder that receives the job's artifacts.")
+@click.option("--until", type=click.Choice(["water", "drips", "trajectories", "surface"]),
+              help="Stop after this stage (default: all four stages, then the render).")
+@click.option("--render", "render", default="preview", show_default=True, metavar="CONFIG",
+              help="Render config: a name in render_configs/ (preview, lookdev, final) or a YAML path.")
+@click.option("--no-render", is_flag=True, help="Skip the scene files and the render.")
+@click.option("--exclude", multiple=True, metavar="X0,Y0,Z0,X1,Y1,Z1",
+              help="Keep icicles out of this box (meters, object centred on the origin); repeatable.")
+@click.option("--cache", type=click.Path(file_okay=False),
+              help="Stage cache folder to reuse results across runs (default: none).")
+def run(mesh, size_m, assignments, seed, out, until, render, no_render, exclude, cache):
+    """Run one job on MESH (any format trimesh reads, or generator:NAME) into OUT.
+
+    Writes params.yaml, water.ply (vertex colours: supply red, water blue), drips.json,
+    trajectories.json, ice.ply, scene.xml/scene.pov, render.exr/png and timings.json.
+    """
+    from .pipeline import GENERATOR_PREFIX, JobSpec, Stage, run_job
+
+    resolved = params.resolve(_assignments(assignments))
+    if not mesh.startswith(GENERATOR_PREFIX):
+        if not Path(mesh).is_file():
+            raise InputError(f"mesh file not found: {mesh}")
+        mesh = str(Path(mesh).resolve())
+    spec = JobSpec(object_id=Path(mesh).stem, mesh=mesh, size_m=size_m, params=resolved, seed=seed,
+                   render=None if no_render else render, exclude=tuple(_box(b) for b in exclude))
+    outcome = run_job(spec, Path(out), Path(cache) if cache else None, Stage(until) if until else None)
+    if outcome.status != "done":
+        click.echo(f"error: job failed in stage {outcome.failed_stage}: {outcome.error} "
+                   f"(details in {Path(out) / 'error.json'})", err=True)
+        sys.exit(1)
+    timings = json.loads((Path(out) / "timings.json").read_text())
+    for stage, seconds in outcome.seconds.items():
+        click.echo(f"  {stage:<13} {seconds:8.3f} s")
+    _print_plausibility(timings)
+    click.echo(f"done: {out}")
+
+
+def _print_plausibility(timings: dict) -> None:
+    if "ice_faces" not in timings:
+        return
+    ratios = timings.get("length_to_diameter") or []
+    click.echo(f"  ice: {timings['ice_faces']} faces, {timings.get('icicles', 0)} icicles")
+    click.echo(f"  tip radius {timings['tip_radius_mm']:.2f} mm (real: 2.44 mm); ripple wavelength "
+               f"{timings['ripple_wavelength_cm']:.2f} cm (real: about 1 cm)")
+    if ratios:
+        click.echo(f"  length / base diameter: median {statistics.median(ratios):.1f}, "
+                   f"range {min(ratios):.1f}-{max(ratios):.1f} (real icicles: 8-32)")
+
+
+@main.command(name="params")
+@click.option("--json", "as_json", is_flag=True, help="Print the table as JSON for scripts.")
+def params_command(as_json):
+    """List every parameter: group, name, the paper's symbol, unit, domain, default."""
+    rows = params.table()
+    if as_json:
+        click.echo(json.dumps(rows, indent=1))
+        return
+    header = ("parameter", "symbol", "unit", "domain", "default")
+    lines = [(f"{r['group']}.{r['name']}", r["symbol"], r["unit"], r["domain"], str(r["default"])) for r in rows]
+    widths = [max(len(x[i]) for x in [header, *lines]) for i in range(len(header))]
+    click.echo("  ".join(h.ljust(w) for h, w in zip(header, widths)))
+    group = None
+    for row, line in zip(rows, lines):
+        if row["group"] != group:
+            group = row["group"]
+            click.echo(f"[{group}]")
+        click.echo("  ".join(v.ljust(w) for v, w in zip(line, widths)) + "  " + row["doc"])
+
+
+@main.group()
+def bench():
+    """Benchmarks: medians over repeated runs (never run them as tests)."""
+
+
+@bench.command(name="stages")
+@click.argument("mesh", type=click.Path(dir_okay=False))
+@click.option("--size-m", type=float, default=0.3, show_default=True, help="Object height in meters.")
+@click.option("--drips", type=int, default=200, show_default=True, help="Drip points (drips.count).")
+@click.option("--repeat", type=int, default=7, show_default=True, help="Runs; the median is printed.")
+@click.option("--set", "assignments", multiple=True, metavar="GROUP.PARAM=VALUE", help="Override a parameter.")
+@click.option("--surface", is_flag=True, help="Also time stage 4 (the ice surface).")
+def bench_stages(mesh, size_m, drips, repeat, assignments, surface):
+    """Median seconds per stage on MESH (mesh loading and the BVH build excluded)."""
+    from .bench import stage_timings
+
+    values = {"drips.count": drips, **_assignments(assignments)}
+    runs = stage_timings(mesh, size_m, params.resolve(values), repeat, surface)
+    click.echo(f"{mesh}: {runs.faces} faces, {runs.icicles} icicles, {repeat} runs (median, min)")
+    for stage, samples in runs.seconds.items():
+        click.echo(f"  {stage:<13} {statistics.median(samples):8.4f} s  {min(samples):8.4f} s")
+    totals = [sum(v) for v in zip(*(runs.seconds[s] for s in ("water", "drips", "trajectories")))]
+    click.echo(f"  {'stages 1-3':<13} {statistics.median(totals):8.4f} s  {min(totals):8.4f} s")
+    if surface:
+        rate = runs.ice_faces / statistics.median(runs.seconds["surface"])
+        click.echo(f"  ice: {runs.ice_faces} faces, {rate:,.0f} faces/s")

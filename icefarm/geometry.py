@@ -1,0 +1,87 @@
+"""Small geometric helpers shared by the stages: frames, sampling, chain sums."""
+
+from __future__ import annotations
+
+import numpy as np
+import trimesh
+
+
+def unit(vectors: np.ndarray) -> np.ndarray:
+    """Vectors ``(..., 3)`` scaled to unit length (zero vectors stay zero)."""
+    vectors = np.asarray(vectors, dtype=np.float64)
+    norm = np.linalg.norm(vectors, axis=-1, keepdims=True)
+    return np.divide(vectors, norm, out=np.zeros_like(vectors), where=norm > 0)
+
+
+def perpendicular_basis(direction: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit vectors ``(3,)`` that complete ``direction`` to a right-handed frame."""
+    d = unit(direction)
+    helper = np.eye(3)[np.argmin(np.abs(d))]
+    u = unit(np.cross(d, helper))
+    return u, np.cross(d, u)
+
+
+def sample_faces(mesh: trimesh.Trimesh, faces: np.ndarray, count: int,
+                 rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Uniform random points over a subset of faces, area-weighted.
+
+    Parameters
+    ----------
+    mesh : trimesh.Trimesh
+    faces : (m,) int
+        Candidate faces; empty or zero-area gives no points.
+    count : int
+        Points wanted.
+    rng : numpy.random.Generator
+
+    Returns
+    -------
+    points : (count, 3) float
+    face : (count,) int
+        Face of each point.
+    bary : (count, 3) float
+        Barycentric coordinates of each point in its face.
+    """
+    faces = np.asarray(faces, dtype=np.int64)
+    areas = mesh.area_faces[faces] if len(faces) else np.zeros(0)
+    if count <= 0 or areas.sum() <= 0:
+        return np.zeros((0, 3)), np.zeros(0, dtype=np.int64), np.zeros((0, 3))
+    face = faces[rng.choice(len(faces), size=count, p=areas / areas.sum())]
+    r1, r2 = rng.random(count), rng.random(count)
+    s = np.sqrt(r1)
+    bary = np.column_stack([1 - s, s * (1 - r2), s * r2])
+    points = np.einsum("ij,ijk->ik", bary, mesh.vertices[mesh.faces[face]])
+    return points, face, bary
+
+
+def chain_sums(parent: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Sum ``values`` along each vertex's chain of parents up to its root.
+
+    Pointer doubling: every chain advances at once, ``log2(longest chain)`` passes.
+
+    Parameters
+    ----------
+    parent : (n,) int
+        Next vertex of each chain; a root is its own parent. Chains must be acyclic.
+    values : (n, k) float
+        Value added when stepping from a vertex to its parent (ignored at roots).
+
+    Returns
+    -------
+    sums : (n, k) float
+        Sum of ``values`` from each vertex up to, excluding, its root.
+    root : (n,) int
+        Root reached from each vertex.
+    """
+    parent = np.asarray(parent, dtype=np.int64)
+    acc = np.array(values, dtype=np.float64, copy=True)
+    roots = parent == np.arange(len(parent))
+    acc[roots] = 0.0
+    ptr = parent.copy()
+    while True:
+        moving = ptr[ptr] != ptr
+        if not moving.any():
+            break
+        acc += acc[ptr]
+        ptr = ptr[ptr]
+    return acc, ptr

@@ -1,0 +1,165 @@
+"""Load any mesh trimesh reads, scale it to meters, clean it and report its problems."""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+from .errors import InputError
+
+
+@dataclass(frozen=True)
+class MeshProblems:
+    """What stands in the way of water flowing along the mesh edges.
+
+    Attributes
+    ----------
+    faces : int
+        Face count after cleaning.
+    components : int
+        Connected pieces (face adjacency).
+    boundary_edges : int
+        Edges used by one face only (open boundaries).
+    nonmanifold_edges : int
+        Edges shared by more than two faces.
+    self_intersections : int
+        Pairs of intersecting faces, or -1 when not measured.
+    """
+
+    faces: int
+    components: int
+    boundary_edges: int
+    nonmanifold_edges: int
+    self_intersections: int = -1
+
+    @property
+    def watertight(self) -> bool:
+        return self.boundary_edges == 0 and self.nonmanifold_edges == 0
+
+
+@dataclass(frozen=True)
+class PreparedMesh:
+    """A cleaned mesh in meters, centred on the origin.
+
+    Attributes
+    ----------
+    mesh : trimesh.Trimesh
+        Welded, without degenerate faces, in meters.
+    scale : float
+        Meters per input unit.
+    offset : (3,) float
+        Subtracted from the scaled input vertices (the bounding-box centre), in meters.
+    problems : MeshProblems
+    """
+
+    mesh: trimesh.Trimesh
+    scale: float
+    offset: np.ndarray
+    problems: MeshProblems
+
+
+def load_mesh(path: str | Path) -> trimesh.Trimesh:
+    """Read one mesh (OBJ, PLY, STL, OFF, GLB, ...) as a single `trimesh.Trimesh`.
+
+    Scenes are flattened into one mesh; a missing material file is ignored.
+
+    Raises
+    ------
+    InputError
+        The file is missing, unreadable, holds no triangles, or has non-finite vertices.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"mesh file not found: {path}")
+    logging.getLogger("trimesh").setLevel(logging.ERROR)  # missing .mtl files are noise here
+    try:
+        loaded = trimesh.load(path, force="mesh", process=False)
+    except Exception as exc:  # trimesh raises many types for unreadable files
+        raise InputError(f"cannot read mesh {path}: {exc}") from None
+    if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0 or len(loaded.vertices) == 0:
+        raise InputError(f"mesh {path} holds no triangles")
+    if not np.isfinite(loaded.vertices).all():
+        raise InputError(f"mesh {path} has NaN or infinite vertex coordinates")
+    return trimesh.Trimesh(np.asarray(loaded.vertices, dtype=np.float64),
+                           np.asarray(loaded.faces, dtype=np.int64), process=False)
+
+
+def clean(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
+    """Weld duplicate vertices, drop degenerate and duplicate faces and unused vertices."""
+    mesh = mesh.copy()
+    mesh.merge_vertices(merge_tex=True, merge_norm=True)
+    mesh.update_faces(mesh.nondegenerate_faces(height=1e-12))
+    mesh.update_faces(mesh.unique_faces())
+    mesh.remove_unreferenced_vertices()
+    return mesh
+
+
+def detect_problems(mesh: trimesh.Trimesh, self_intersections: bool = False) -> MeshProblems:
+    """Measure loose pieces, open boundaries and non-manifold edges of ``mesh``."""
+    edges = np.sort(mesh.edges, axis=1)
+    _, counts = np.unique(edges, axis=0, return_counts=True)
+    components = trimesh.graph.connected_components(mesh.face_adjacency, nodes=np.arange(len(mesh.faces)))
+    crossings = count_self_intersections(mesh) if self_intersections else -1
+    return MeshProblems(
+        faces=len(mesh.faces),
+        components=len(components),
+        boundary_edges=int((counts == 1).sum()),
+        nonmanifold_edges=int((counts > 2).sum()),
+        self_intersections=crossings,
+    )
+
+
+def count_self_intersections(mesh: trimesh.Trimesh) -> int:
+    """Pairs of faces that cross each other (sharing no vertex), via pymeshlab."""
+    import pymeshlab
+
+    ms = pymeshlab.MeshSet()
+    ms.add_mesh(pymeshlab.Mesh(mesh.vertices, mesh.faces))
+    ms.compute_selection_by_self_intersections_per_face()
+    return int(ms.current_mesh().selected_face_number())
+
+
+def prepare(path: str | Path | trimesh.Trimesh, size_m: float, gravity=(0.0, -1.0, 0.0)) -> PreparedMesh:
+    """Load, clean and scale a mesh so its height along gravity is ``size_m`` meters.
+
+    Parameters
+    ----------
+    path : path or trimesh.Trimesh
+        Any format trimesh reads, or a mesh already in memory.
+    size_m : float
+        Real height of the object's bounding box along gravity, in meters. Flat objects
+        (no height) take it as their largest extent instead.
+    gravity : (3,) float
+        Direction of gravity.
+
+    Raises
+    ------
+    InputError
+        Bad file or mesh, or a size that is not a positive number.
+    """
+    if not np.isfinite(size_m) or size_m <= 0:
+        raise InputError(f"size_m must be a positive number of meters, got {size_m!r}")
+    if isinstance(path, trimesh.Trimesh):
+        if len(path.faces) == 0 or not np.isfinite(path.vertices).all():
+            raise InputError("the generated mesh is empty or has non-finite vertices")
+        mesh = clean(path)
+        path = "(generated)"
+    else:
+        mesh = clean(load_mesh(path))
+    if len(mesh.faces) == 0:
+        raise InputError(f"mesh {path} has only degenerate faces")
+    g = np.asarray(gravity, dtype=np.float64)
+    g = g / np.linalg.norm(g)
+    heights = mesh.vertices @ g
+    height = float(heights.max() - heights.min())
+    extent = float(mesh.extents.max())
+    if extent <= 0:
+        raise InputError(f"mesh {path} has no extent: all its vertices coincide")
+    scale = size_m / (height if height > 1e-9 * extent else extent)
+    centre = mesh.bounds.mean(axis=0) * scale
+    mesh.vertices = mesh.vertices * scale - centre
+    return PreparedMesh(mesh=mesh, scale=scale, offset=centre, problems=detect_problems(mesh))

@@ -1,0 +1,281 @@
+"""Every parameter of the paper's Table 1, with a unit, a domain and a default.
+
+Parameters are addressed as ``group.name`` (``trajectories.curve_angle``); resolved
+values are plain nested dicts ``{group: {name: value}}`` so they round-trip through YAML
+and hash stably. Lengths are in meters, angles in degrees.
+"""
+
+from __future__ import annotations
+
+import difflib
+import enum
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import yaml
+
+from .errors import InputError
+
+
+class Kind(enum.Enum):
+    INT = "int"
+    FLOAT = "float"
+    CHOICE = "choice"
+    VECTOR = "vector"
+    TEXT = "text"
+
+
+@dataclass(frozen=True)
+class Param:
+    group: str
+    name: str
+    symbol: str
+    unit: str
+    kind: Kind
+    default: Any
+    doc: str
+    low: float | None = None
+    high: float | None = None
+    low_open: bool = False
+    high_open: bool = False
+    choices: tuple[str, ...] = ()
+
+    @property
+    def key(self) -> str:
+        return f"{self.group}.{self.name}"
+
+    @property
+    def domain(self) -> str:
+        if self.kind is Kind.CHOICE:
+            return " | ".join(self.choices)
+        if self.kind is Kind.VECTOR:
+            return "3 numbers, not all zero"
+        if self.kind is Kind.TEXT:
+            return "text"
+        low = "-inf" if self.low is None else _fmt(self.low)
+        high = "inf" if self.high is None else _fmt(self.high)
+        left = "]" if self.low_open or self.low is None else "["
+        right = "[" if self.high_open or self.high is None else "]"
+        return f"{left}{low}, {high}{right}"
+
+    def validate(self, value: Any) -> Any:
+        """Return ``value`` coerced to this parameter's type, or raise `InputError`."""
+        if self.kind is Kind.CHOICE:
+            if value not in self.choices:
+                raise self._refuse(value)
+            return value
+        if self.kind is Kind.TEXT:
+            if not isinstance(value, str) or not value:
+                raise self._refuse(value)
+            return value
+        if self.kind is Kind.VECTOR:
+            if isinstance(value, str):
+                value = [v for v in value.replace("(", "").replace(")", "").replace(",", " ").split()]
+            try:
+                vec = [float(v) for v in value]
+            except (TypeError, ValueError):
+                raise self._refuse(value) from None
+            if len(vec) != 3 or not all(map(math.isfinite, vec)) or not any(vec):
+                raise self._refuse(value)
+            return vec
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise self._refuse(value)
+        if self.kind is Kind.INT:
+            if float(value) != int(value):
+                raise self._refuse(value)
+            value = int(value)
+        else:
+            value = float(value)
+        if not math.isfinite(value) or not self._in_range(value):
+            raise self._refuse(value)
+        return value
+
+    def _in_range(self, value: float) -> bool:
+        if self.low is not None and (value < self.low or (self.low_open and value == self.low)):
+            return False
+        if self.high is not None and (value > self.high or (self.high_open and value == self.high)):
+            return False
+        return True
+
+    def _refuse(self, value: Any) -> InputError:
+        unit = f" ({self.unit})" if self.unit != "-" else ""
+        return InputError(
+            f"parameter {self.key} = {value!r} is out of its domain {self.domain}{unit}: {self.doc}"
+        )
+
+
+def _fmt(x: float) -> str:
+    return f"{x:g}"
+
+
+def _p(group, name, symbol, unit, kind, default, doc, **domain) -> Param:
+    return Param(group, name, symbol, unit, kind, default, doc, **domain)
+
+
+_F, _I = Kind.FLOAT, Kind.INT
+
+PARAMS: tuple[Param, ...] = (
+    # Stage 1: water coefficients (paper 4.1)
+    _p("water", "source", "ss", "-", Kind.TEXT, "auto",
+       "rain source surface: 'auto' (a rectangle above the object, facing along gravity) or a mesh file"),
+    _p("water", "gravity", "g", "-", Kind.VECTOR, [0.0, -1.0, 0.0],
+       "direction of gravity (normalised); nothing else assumes Y-up"),
+    _p("water", "rays", "nr", "-", _I, 4000, "number of rain rays cast from the source surface", low=1),
+    _p("water", "influence_radius", "rii", "m", _F, 0.01,
+       "vertices this close to a rain hit join the water supply", low=0.0, low_open=True),
+    # Stage 2: drip points (paper 4.2)
+    _p("drips", "count", "ns", "-", _I, 24, "number of drip points, one icicle each", low=0),
+    _p("drips", "drip_limit", "dl", "deg", _F, 75.0,
+       "water drips where every vertex normal of a face lies within this angle of gravity",
+       low=1.0, high=90.0, low_open=True, high_open=True),
+    # Stage 3: trajectories (paper 4.3)
+    _p("trajectories", "curve_angle", "c", "deg", _F, 2.0,
+       "turn applied at each L-system generation; 0 gives straight icicles",
+       low=0.0, high=360.0, high_open=True),
+    _p("trajectories", "division_probability", "d", "-", _F, 0.1,
+       "probability that a generation splits off a branch", low=0.0, high=1.0),
+    _p("trajectories", "roll_angle", "au", "deg", _F, 360.0,
+       "roll of growth and dispersal; each generation rolls by au*137.5/360 deg", low=0.0, high=360.0),
+    _p("trajectories", "step_length", "F", "m", _F, 0.004,
+       "length of one L-system F segment", low=0.0, low_open=True),
+    _p("trajectories", "length_scale", "kL", "m/m", _F, 0.6,
+       "icicle length per meter of water coefficient: sets the number of generations",
+       low=0.0, low_open=True),
+    _p("trajectories", "max_branches", "-", "-", _I, 32,
+       "branches per icicle at most; further divisions grow the trunk instead", low=1),
+    # Stage 4: surface (paper 4.4)
+    _p("surface", "mode", "-", "-", Kind.CHOICE, "metaballs",
+       "metaballs (fused, the paper's surface) or tubes (swept tubes, instant preview)",
+       choices=("metaballs", "tubes")),
+    _p("surface", "tip_radius", "tip", "m", _F, 0.00244,
+       "radius of the hemispherical drop at the tip (Maeno: 2.44 mm)", low=0.0, low_open=True),
+    _p("surface", "growth_ratio", "t", "m/m", _F, 0.02,
+       "radius added per meter from the tip: the cone of the icicle", low=0.0),
+    _p("surface", "ripple_amplitude", "as", "m", _F, 0.0004, "amplitude of the ripples", low=0.0),
+    _p("surface", "ripple_frequency", "fs", "rad/m", _F, 628.3,
+       "angular frequency of the ripples (628 rad/m: 1 cm apart, as on real icicles)", low=0.0),
+    _p("surface", "noise", "nc", "m", _F, 0.0004,
+       "metaballs move at random up to this far off the trajectory", low=0.0),
+    _p("surface", "base_extent", "eb", "m", _F, 0.015,
+       "ice at the base of an icicle spreads this far over the object", low=0.0),
+    _p("surface", "base_balls", "nmb", "-", _I, 60, "metaballs in the base of each icicle", low=0),
+    _p("surface", "base_scale", "kb", "m/m", _F, 0.04,
+       "base metaball radius per meter of water coefficient (Equation 2)", low=0.0),
+    _p("surface", "voxel_size", "-", "m", _F, 0.0008,
+       "edge of a marching-cubes voxel; must resolve the tip radius", low=0.0, low_open=True),
+    # Glaze ice (paper 4.4.4)
+    _p("glaze", "min_radius", "minGI", "m", _F, 0.0, "minimum thickness of the glaze ice", low=0.0),
+    _p("glaze", "balls", "ngi", "-", _I, 2000, "metaballs spread over the wet surface", low=0),
+    _p("glaze", "scale", "s", "m/m", _F, 0.01, "glaze thickness per meter of dUp/dDown", low=0.0),
+    _p("glaze", "lifetime", "lt", "-", _F, 0.5,
+       "water drop lifetime: 0 thick at the bottom (freezes fast), 1 thick at the top",
+       low=0.0, high=1.0),
+    # Approximate surface for problem meshes (paper 5.1)
+    _p("proxy", "mode", "-", "-", Kind.CHOICE, "auto",
+       "build an approximate surface for the water: auto (for problem meshes), always or never",
+       choices=("auto", "always", "never")),
+    _p("proxy", "face_budget", "-", "-", _I, 60000,
+       "meshes with more faces are decimated to this many for the water flow", low=100),
+    _p("proxy", "alpha", "-", "bbox", _F, 0.01,
+       "alpha-wrap ball size as a fraction of the bounding-box diagonal", low=0.0, low_open=True),
+    _p("proxy", "offset", "-", "bbox", _F, 0.002,
+       "alpha-wrap offset as a fraction of the bounding-box diagonal", low=0.0, low_open=True),
+    _p("proxy", "edge_length", "-", "bbox", _F, 0.008,
+       "target edge of the remeshed proxy as a fraction of the bounding-box diagonal",
+       low=0.0, low_open=True),
+)
+
+GROUPS: tuple[str, ...] = ("water", "drips", "trajectories", "surface", "glaze", "proxy")
+
+
+def param_index() -> dict[str, Param]:
+    """Map ``group.name`` to its `Param`."""
+    return {p.key: p for p in PARAMS}
+
+
+def lookup(key: str) -> Param:
+    """The `Param` named ``key``; an unknown key raises `InputError` with the nearest valid one."""
+    index = param_index()
+    if key in index:
+        return index[key]
+    hint = difflib.get_close_matches(key, list(index), n=1, cutoff=0.5)
+    if not hint and "." not in key:
+        hint = [k for k in index if k.endswith("." + key)][:1]
+    tip = f"; did you mean {hint[0]}?" if hint else "; `icefarm params` lists them"
+    raise InputError(f"unknown parameter {key!r}{tip}")
+
+
+def defaults() -> dict[str, dict[str, Any]]:
+    """All defaults as ``{group: {name: value}}`` (fresh copies)."""
+    out: dict[str, dict[str, Any]] = {g: {} for g in GROUPS}
+    for p in PARAMS:
+        out[p.group][p.name] = list(p.default) if isinstance(p.default, list) else p.default
+    return out
+
+
+def flatten(values: Mapping[str, Any]) -> dict[str, Any]:
+    """``{group: {name: v}}`` or already flat ``{"group.name": v}`` to flat keys."""
+    flat: dict[str, Any] = {}
+    for key, value in values.items():
+        if isinstance(value, Mapping):
+            for name, v in value.items():
+                flat[f"{key}.{name}"] = v
+        else:
+            flat[key] = value
+    return flat
+
+
+def resolve(*layers: Mapping[str, Any] | None) -> dict[str, dict[str, Any]]:
+    """Defaults overlaid with each layer in turn, every value validated.
+
+    Parameters
+    ----------
+    *layers
+        Mappings, nested ``{group: {name: value}}`` or flat ``{"group.name": value}``;
+        later layers win. ``None`` layers are skipped.
+
+    Returns
+    -------
+    dict
+        ``{group: {name: value}}`` with every parameter present.
+
+    Raises
+    ------
+    InputError
+        For an unknown key (with the nearest valid one) or a value outside its domain.
+    """
+    out = defaults()
+    for layer in layers:
+        for key, value in flatten(layer or {}).items():
+            param = lookup(key)
+            out[param.group][param.name] = param.validate(value)
+    for p in PARAMS:  # the defaults go through the same checks and coercions
+        out[p.group][p.name] = p.validate(out[p.group][p.name])
+    return out
+
+
+def parse_value(text: str) -> Any:
+    """A command-line value: YAML scalars (``2``, ``0.5``, ``tubes``, ``[0,-1,0]``)."""
+    try:
+        return yaml.safe_load(text)
+    except yaml.YAMLError:
+        return text
+
+
+def parse_assignment(text: str) -> tuple[str, Any]:
+    """``"group.name=value"`` to ``(key, value)``; the key is checked, the value parsed."""
+    key, sep, raw = text.partition("=")
+    if not sep or not key.strip():
+        raise InputError(f"expected group.param=value, got {text!r}")
+    return lookup(key.strip()).key, parse_value(raw.strip())
+
+
+def table() -> list[dict[str, Any]]:
+    """One row per parameter: group, name, symbol, unit, domain, default, doc."""
+    return [
+        {"group": p.group, "name": p.name, "symbol": p.symbol, "unit": p.unit,
+         "domain": p.domain, "default": p.default, "doc": p.doc}
+        for p in PARAMS
+    ]

@@ -1,0 +1,324 @@
+"""Run one job: prepare the mesh, the four stages, the scene and the render.
+
+Every stage result is cached under a key made from the hashes of its inputs and of the
+parameters it reads, so a sweep over surface parameters reuses stages 1-3 and one over
+trajectory parameters reuses stages 1-2. Artifacts follow DESIGN.md; ``done.json`` comes
+last and atomically, ``error.json`` names the failed stage.
+"""
+
+from __future__ import annotations
+
+import enum
+import hashlib
+import json
+import pickle
+import time
+import traceback
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import trimesh
+
+from . import artifacts
+from .errors import InputError
+from .mesh import PreparedMesh, prepare
+from .stages.drips import DripResult, find_drips
+from .stages.trajectories import TrajectoryResult, grow_trajectories
+from .stages.water import WaterResult, compute_water
+
+GENERATOR_PREFIX = "generator:"
+
+
+class Stage(enum.Enum):
+    WATER = "water"
+    DRIPS = "drips"
+    TRAJECTORIES = "trajectories"
+    SURFACE = "surface"
+    RENDER = "render"
+
+
+STAGE_ORDER = tuple(Stage)
+
+
+@dataclass(frozen=True)
+class JobSpec:
+    """Everything that defines one job; its hash is the job id.
+
+    ``mesh`` is an absolute path or ``generator:NAME``; ``params`` is
+    `icefarm.params.resolve` output; ``exclude`` holds boxes ``((lo), (hi))`` in meters in
+    the object's frame; ``overrides`` pairs a stage name with a file that replaces its
+    result; ``render`` is a render config name or path, None for no render.
+    """
+
+    object_id: str
+    mesh: str
+    size_m: float
+    params: dict
+    seed: int = 0
+    render: str | None = None
+    exclude: tuple = ()
+    overrides: tuple = ()
+    material: tuple = ()
+
+
+@dataclass(frozen=True)
+class JobOutcome:
+    status: str
+    seconds: dict = field(default_factory=dict)
+    reused: tuple = ()
+    failed_stage: str | None = None
+    error: str | None = None
+
+
+def _digest(*parts: Any) -> str:
+    h = hashlib.sha256()
+    for part in parts:
+        h.update(part if isinstance(part, bytes) else json.dumps(part, sort_keys=True, default=str).encode())
+        h.update(b"\0")
+    return h.hexdigest()
+
+
+def _file_digest(path: str | Path) -> str:
+    try:
+        return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+    except OSError:
+        return f"missing:{path}"
+
+
+def mesh_digest(mesh: str) -> str:
+    """Content hash of a mesh file (or of a generator's name)."""
+    return _digest(mesh) if mesh.startswith(GENERATOR_PREFIX) else _file_digest(mesh)
+
+
+def render_digest(render: str | None) -> str:
+    """Hash of the resolved render config, so editing a config file changes job ids."""
+    if render is None:
+        return "none"
+    from .scene.config import load_render_config, render_config_to_dict
+
+    return _digest(render_config_to_dict(load_render_config(render)))
+
+
+def job_id(spec: JobSpec) -> str:
+    """Short stable hash of mesh content, size, params, render config, seed and extras."""
+    return _digest(
+        mesh_digest(spec.mesh), spec.size_m, spec.params, render_digest(spec.render), spec.seed,
+        spec.exclude, [(stage, _file_digest(path)) for stage, path in spec.overrides], spec.material,
+    )[:12]
+
+
+def load_object(spec: JobSpec) -> PreparedMesh:
+    """The job's mesh, cleaned and in meters."""
+    gravity = spec.params["water"]["gravity"]
+    if spec.mesh.startswith(GENERATOR_PREFIX):
+        from .generators import generate
+
+        return prepare(generate(spec.mesh[len(GENERATOR_PREFIX):]), spec.size_m, gravity)
+    return prepare(spec.mesh, spec.size_m, gravity)
+
+
+class _Cache:
+    """Pickled stage results under ``root/<stage>/<key>.pkl``; no root, no cache."""
+
+    def __init__(self, root: Path | None):
+        self.root = root
+        self.reused: list[str] = []
+
+    def get(self, stage: str, key: str, compute: Callable[[], Any]) -> Any:
+        path = self.root / stage / f"{key}.pkl" if self.root else None
+        if path is not None and path.is_file():
+            try:
+                value = pickle.loads(path.read_bytes())
+                self.reused.append(stage)
+                return value
+            except Exception:  # a damaged entry is recomputed, not fatal
+                path.unlink(missing_ok=True)
+        value = compute()
+        if path is not None:
+            artifacts.atomic_write(path, pickle.dumps(value, protocol=pickle.HIGHEST_PROTOCOL))
+        return value
+
+
+def _rng(seed: int, stage: Stage) -> np.random.Generator:
+    """Each stage has its own stream, so a cached upstream stage changes nothing downstream."""
+    return np.random.default_rng([seed, STAGE_ORDER.index(stage)])
+
+
+def _load_source(spec: JobSpec, prepared: PreparedMesh) -> trimesh.Trimesh | None:
+    """The rain source surface, in the object's frame (same scale and offset)."""
+    source = spec.params["water"]["source"]
+    if source == "auto":
+        return None
+    path = Path(source)
+    if not path.is_absolute() and not spec.mesh.startswith(GENERATOR_PREFIX):
+        path = Path(spec.mesh).parent / path
+    mesh = trimesh.load(path, force="mesh", process=False) if path.is_file() else None
+    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
+        raise InputError(f"water.source {source!r}: no mesh found at {path}")
+    return trimesh.Trimesh(mesh.vertices * prepared.scale - prepared.offset, mesh.faces, process=False)
+
+
+@dataclass
+class _Run:
+    """The bookkeeping of one job in progress: which stage, how long each took."""
+
+    stage: str = "prepare"
+    seconds: dict = field(default_factory=dict)
+
+    def timed(self, stage: str, work: Callable[[], Any]) -> Any:
+        self.stage = stage
+        start = time.perf_counter()
+        value = work()
+        self.seconds[stage] = round(time.perf_counter() - start, 6)
+        return value
+
+
+def run_job(spec: JobSpec, job_dir: Path, cache_dir: Path | None = None,
+            until: Stage | None = None) -> JobOutcome:
+    """Run one job into ``job_dir``; never raises for a failure of the job itself.
+
+    A failure writes ``error.json`` (stage, message, traceback) and returns status
+    ``failed``; success writes ``done.json`` last. ``until`` stops after that stage.
+    """
+    job_dir = Path(job_dir)
+    job_dir.mkdir(parents=True, exist_ok=True)
+    for stale in ("done.json", "error.json"):
+        (job_dir / stale).unlink(missing_ok=True)
+    run, cache = _Run(), _Cache(Path(cache_dir) if cache_dir else None)
+    try:
+        summary = _run_stages(spec, job_dir, run, cache, until)
+    except Exception as exc:
+        message = str(exc) if isinstance(exc, InputError) else f"{type(exc).__name__}: {exc}"
+        artifacts.write_json(job_dir / "error.json", {
+            "stage": run.stage, "message": message, "traceback": traceback.format_exc(),
+            "seconds": run.seconds,
+        })
+        return JobOutcome("failed", dict(run.seconds), tuple(cache.reused), run.stage, message)
+    artifacts.write_json(job_dir / "timings.json", {"seconds": run.seconds, **summary, "reused": cache.reused})
+    artifacts.write_json(job_dir / "done.json", {
+        "job": spec.object_id, "seconds": run.seconds, "reused": cache.reused, **summary,
+    })
+    return JobOutcome("done", dict(run.seconds), tuple(cache.reused))
+
+
+def _stops(until: Stage | None, stage: Stage) -> bool:
+    return until is not None and STAGE_ORDER.index(stage) >= STAGE_ORDER.index(until)
+
+
+def _run_stages(spec: JobSpec, job_dir: Path, run: _Run, cache: _Cache, until: Stage | None) -> dict:
+    p = spec.params
+    gravity = np.asarray(p["water"]["gravity"], dtype=np.float64)
+    gravity = gravity / np.linalg.norm(gravity)
+    overrides = dict(spec.overrides)
+    artifacts.write_yaml(job_dir / "params.yaml", p)
+    prepared = run.timed("prepare", lambda: load_object(spec))
+    obj = prepared.mesh
+    mesh_key = _digest(mesh_digest(spec.mesh), spec.size_m, p["water"]["gravity"])
+    stats: dict[str, Any] = {"input_faces": prepared.problems.faces, "problems": vars(prepared.problems)}
+
+    flow, proxy_key = obj, "none"
+    if p["proxy"]["mode"] != "never":
+        from .proxy import build_proxy, proxy_reason
+
+        reason = proxy_reason(prepared.problems, p["proxy"]["mode"], p["proxy"]["face_budget"])
+        if reason:
+            proxy_key = _digest(mesh_key, p["proxy"])
+            proxy = run.timed("proxy", lambda: cache.get("proxy", proxy_key, lambda: build_proxy(obj, p["proxy"])))
+            flow = proxy.mesh
+            artifacts.write_mesh(job_dir / "proxy.ply", flow)
+            stats.update(proxy_reason=reason, proxy_faces=proxy.faces, proxy_components=proxy.components,
+                         proxy_build_seconds=proxy.seconds)
+    stats["flow_faces"] = len(flow.faces)
+
+    water_key = _digest(mesh_key, proxy_key, p["water"], spec.seed,
+                        _file_digest(overrides["water"]) if "water" in overrides else None)
+
+    def water_stage() -> WaterResult:
+        source = _load_source(spec, prepared)
+        result = compute_water(flow, gravity, p["water"]["rays"], p["water"]["influence_radius"],
+                               _rng(spec.seed, Stage.WATER), source)
+        if "water" in overrides:  # painted water replaces the coefficients, keeps the walks
+            supply, water = artifacts.read_water_ply(Path(overrides["water"]), len(flow.vertices))
+            result = WaterResult(supply, water, result.top, result.d_up, result.bottom, result.d_down, result.hits)
+        return result
+
+    water = run.timed("water", lambda: cache.get("water", water_key, water_stage))
+    artifacts.write_water_ply(job_dir / "water.ply", flow, water.supply, water.water)
+    if _stops(until, Stage.WATER):
+        return stats
+
+    drips_key = _digest(water_key, p["drips"], spec.exclude,
+                        _file_digest(overrides["drips"]) if "drips" in overrides else None)
+
+    def drips_stage() -> DripResult:
+        if "drips" in overrides:
+            return artifacts.drips_from_json(Path(overrides["drips"]))
+        found = find_drips(flow, water.water, gravity, p["drips"]["count"], p["drips"]["drip_limit"],
+                           _rng(spec.seed, Stage.DRIPS), exclude_boxes=spec.exclude)
+        if flow is obj:
+            return found
+        from .proxy import snap_to_surface
+
+        # Icicles hang from the real object: move each drip point onto it.
+        points, normals, faces = snap_to_surface(found.positions, obj)
+        return DripResult(found.region_faces, points, normals, found.water, faces)
+
+    drips = run.timed("drips", lambda: cache.get("drips", drips_key, drips_stage))
+    artifacts.write_json(job_dir / "drips.json", artifacts.drips_to_json(drips))
+    stats["icicles"] = len(drips.positions)
+    if _stops(until, Stage.DRIPS):
+        return stats
+
+    traj_key = _digest(drips_key, p["trajectories"], p["drips"]["drip_limit"],
+                       _file_digest(overrides["trajectories"]) if "trajectories" in overrides else None)
+
+    def trajectory_stage() -> TrajectoryResult:
+        if "trajectories" in overrides:
+            return artifacts.trajectories_from_json(Path(overrides["trajectories"]))
+        faces = np.clip(drips.faces, 0, len(obj.faces) - 1)
+        lift = np.where((drips.faces >= 0)[:, None], obj.face_normals[faces], drips.normals)
+        return grow_trajectories(obj, drips.positions, lift, drips.water, gravity,
+                                 _rng(spec.seed, Stage.TRAJECTORIES), drip_limit=p["drips"]["drip_limit"],
+                                 **p["trajectories"])
+
+    traj = run.timed("trajectories", lambda: cache.get("trajectories", traj_key, trajectory_stage))
+    artifacts.write_json(job_dir / "trajectories.json", artifacts.trajectories_to_json(traj))
+    stats["branches"] = traj.n_branches
+    if not _stops(until, Stage.TRAJECTORIES):
+        stats.update(_surface_and_render(spec, job_dir, run, cache, until, obj, flow, water, drips, traj,
+                                         gravity, _digest(traj_key, p["surface"], p["glaze"])))
+    return stats
+
+
+def _surface_and_render(spec, job_dir, run, cache, until, obj, flow, water, drips, traj, gravity, key) -> dict:
+    from .stages.surface import build_ice
+
+    p = spec.params
+    ice = run.timed("surface", lambda: cache.get("surface", key, lambda: build_ice(
+        obj, flow, water, drips, traj, p["surface"], p["glaze"], gravity, _rng(spec.seed, Stage.SURFACE))))
+    ice_mesh = trimesh.Trimesh(ice.vertices, ice.faces, process=False)
+    artifacts.write_mesh(job_dir / "ice.ply", ice_mesh)
+    stats = {
+        "ice_faces": len(ice.faces), "metaballs": ice.balls, "tip_radius_mm": ice.tip_radius_mm,
+        "length_to_diameter": [round(float(x), 3) for x in ice.length_to_diameter],
+        "ripple_wavelength_cm": ice.ripple_wavelength_cm,
+    }
+    if spec.render is None or _stops(until, Stage.SURFACE):
+        return stats
+    from .scene.config import load_render_config, material_from_dict
+    from .scene.render import render_job, write_scenes
+
+    config = load_render_config(spec.render)
+
+    def render() -> Any:
+        write_scenes(job_dir, obj, ice_mesh if len(ice.faces) else None, config, gravity,
+                     material_from_dict(dict(spec.material)))
+        return render_job(job_dir, config)
+
+    result = run.timed("render", render)
+    stats.update(render_variant=result.variant, renderer=result.renderer,
+                 render_seconds=result.seconds, scene_seconds=result.scene_seconds)
+    return stats

@@ -1,0 +1,90 @@
+"""The command line: runs, artifacts, and one clean line for every kind of bad input."""
+
+import json
+
+import numpy as np
+import pytest
+import trimesh
+from click.testing import CliRunner
+
+from icefarm.cli import main
+
+
+def run(*args):
+    result = CliRunner().invoke(main, [str(a) for a in args])
+    return result
+
+
+@pytest.fixture
+def sphere_file(tmp_path, sphere):
+    path = tmp_path / "sphere.ply"
+    sphere.export(path)
+    return path
+
+
+def test_version_and_help():
+    assert run("--version").exit_code == 0
+    for command in ([], ["run"], ["params"], ["bench", "stages"]):
+        result = run(*command, "--help")
+        assert result.exit_code == 0 and "Usage" in result.output
+
+
+def test_params_json_names_every_symbol():
+    rows = json.loads(run("params", "--json").output)
+    symbols = {r["symbol"] for r in rows}
+    assert {"nr", "rii", "ns", "dl", "c", "d", "au", "t", "as", "fs", "eb", "nmb", "nc",
+            "minGI", "ngi", "s", "lt"} <= symbols
+    assert all({"group", "name", "unit", "domain", "default"} <= set(r) for r in rows)
+
+
+def test_run_until_trajectories_writes_artifacts(sphere_file, tmp_path):
+    out = tmp_path / "job"
+    result = run("run", sphere_file, "--size-m", 0.3, "-o", out, "--until", "trajectories",
+                 "--set", "drips.count=12", "--set", "water.rays=2000", "--seed", 3)
+    assert result.exit_code == 0, result.output
+    for name in ("params.yaml", "water.ply", "drips.json", "trajectories.json", "timings.json", "done.json"):
+        assert (out / name).is_file(), name
+    water = trimesh.load(out / "water.ply", process=False)
+    props = water.metadata["_ply_raw"]["vertex"]["data"]
+    assert set(props.dtype.names) >= {"supply", "water", "red", "green", "blue"}
+    supply = props["supply"].astype(bool)
+    assert (props["red"][supply] > props["blue"][supply]).all()
+    drips = json.loads((out / "drips.json").read_text())
+    assert len(drips["drip_points"]) == 12
+    assert set(drips["drip_points"][0]) == {"position", "normal", "water", "face"}
+    traj = json.loads((out / "trajectories.json").read_text())
+    assert len(traj["icicles"]) == 12
+    assert all(b["parent"] == -1 for b in (i["branches"][0] for i in traj["icicles"]))
+    timings = json.loads((out / "timings.json").read_text())
+    assert {"water", "drips", "trajectories"} <= set(timings["seconds"])
+
+
+@pytest.mark.parametrize("case", ["missing", "empty", "nan", "garbage", "domain", "typo", "size"])
+def test_bad_input_is_one_clean_line(tmp_path, sphere, case):
+    mesh = tmp_path / "m.ply"
+    args = ["run", mesh, "--size-m", 0.3, "-o", tmp_path / "out", "--no-render"]
+    if case == "empty":
+        mesh.write_text("ply\nformat ascii 1.0\nelement vertex 0\nelement face 0\nend_header\n")
+    elif case == "nan":
+        bad = sphere.copy()
+        bad.vertices[3] = np.nan
+        mesh.write_bytes(trimesh.Trimesh(bad.vertices, bad.faces, process=False).export(file_type="ply"))
+    elif case == "garbage":
+        mesh.write_bytes(b"this is not a mesh at all")
+    elif case != "missing":
+        sphere.export(mesh)
+    if case == "domain":
+        args += ["--set", "drips.drip_limit=120"]
+    if case == "typo":
+        args += ["--set", "trajectories.curve_angel=3"]
+    if case == "size":
+        args[3] = -1
+    result = run(*args)
+    assert result.exit_code != 0
+    lines = [line for line in result.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and lines[0].startswith("error:"), result.stderr
+    assert "Traceback" not in result.output
+    expected = {"missing": "not found", "empty": "no triangles", "nan": "NaN", "garbage": "m.ply",
+                "domain": "drips.drip_limit", "typo": "did you mean trajectories.curve_angle",
+                "size": "size"}[case]
+    assert expected in lines[0]

@@ -1,0 +1,211 @@
+"""Properties of stages 1-3 (paper 4.1-4.3)."""
+
+import numpy as np
+import pytest
+import trimesh
+
+from icefarm.mesh import prepare
+from icefarm.stages.drips import find_drips
+from icefarm.stages.trajectories import GOLDEN_ROLL, grow_trajectories
+from icefarm.stages.water import compute_water, water_coefficients
+
+G = np.array([0.0, -1.0, 0.0])
+TRAJ = dict(curve_angle=2.0, division_probability=0.1, roll_angle=360.0, step_length=0.004,
+            length_scale=0.6, max_branches=32, drip_limit=75.0)
+
+
+def reference_water(mesh, supply, g):
+    """Algorithm 1 as the paper writes it: one walk per vertex, a Python loop."""
+    neighbours = mesh.vertex_neighbors
+    wc = np.zeros(len(mesh.vertices))
+    for v in range(len(mesh.vertices)):
+        c, total = v, 0.0
+        while True:
+            best, best_p = None, 0.0
+            for n in neighbours[c]:
+                cn = mesh.vertices[n] - mesh.vertices[c]
+                p = cn @ g / np.linalg.norm(cn)
+                if p < best_p:
+                    best, best_p = n, p
+            if best is None:
+                break
+            if supply[c] or supply[best]:
+                gain = np.linalg.norm(mesh.vertices[best] - mesh.vertices[c]) * -best_p
+                total += gain if supply[c] and supply[best] else gain / 2
+            c = best
+        wc[v] = total
+    return wc
+
+
+def test_water_matches_algorithm_1(rng):
+    mesh = trimesh.creation.icosphere(subdivisions=2, radius=0.15)
+    mesh.vertices += rng.normal(scale=0.004, size=mesh.vertices.shape)  # no ties between neighbours
+    supply = rng.random(len(mesh.vertices)) < 0.4
+    water, top, d_up, _, _ = water_coefficients(mesh, supply, G)
+    np.testing.assert_allclose(water, reference_water(mesh, supply, G), atol=1e-12)
+    # every walk ends at a vertex with no higher neighbour
+    for v in np.unique(top):
+        assert all(mesh.vertices[n] @ G >= mesh.vertices[v] @ G for n in mesh.vertex_neighbors[v])
+    assert (d_up >= 0).all()
+
+
+def test_water_only_where_walk_reaches_supply(sphere, rng):
+    result = compute_water(sphere, G, 2000, 0.01, rng)
+    assert result.supply.any() and not result.supply.all()
+    up_normals = sphere.vertex_normals @ G < 0
+    assert not (result.supply & ~up_normals).any(), "supply vertices must face against gravity"
+    # water > 0 exactly where the upward walk touches a supply vertex
+    neighbours = sphere.vertex_neighbors
+    for v in rng.choice(len(sphere.vertices), 120, replace=False):
+        c, touches = v, False
+        while True:
+            higher = [n for n in neighbours[c] if (sphere.vertices[n] - sphere.vertices[c]) @ G < 0]
+            if not higher:
+                break
+            n = min(higher, key=lambda n: (sphere.vertices[n] - sphere.vertices[c]) @ G
+                    / np.linalg.norm(sphere.vertices[n] - sphere.vertices[c]))
+            touches |= bool(result.supply[c] or result.supply[n])
+            c = n
+        assert (result.water[v] > 0) == touches
+
+
+def test_overhang_shadows_the_supply(sphere):
+    plate = trimesh.creation.box(extents=(0.12, 0.01, 0.12))
+    plate.apply_translation((0, 0.25, 0))
+    both = trimesh.util.concatenate([sphere, plate])
+    under = np.flatnonzero((np.linalg.norm(sphere.vertices[:, [0, 2]], axis=1) < 0.03)
+                           & (sphere.vertices[:, 1] > 0))
+    open_sky = compute_water(sphere, G, 20000, 0.01, np.random.default_rng(1))
+    shaded = compute_water(both, G, 20000, 0.01, np.random.default_rng(1))
+    assert open_sky.supply[under].all()
+    assert not shaded.supply[under].any()
+    assert shaded.supply[len(sphere.vertices):].any(), "the plate's top is wet"
+
+
+@pytest.mark.parametrize("drip_limit", [20.0, 45.0, 75.0])
+def test_every_drip_point_within_drip_limit(sphere, drip_limit):
+    water = compute_water(sphere, G, 4000, 0.01, np.random.default_rng(2))
+    drips = find_drips(sphere, water.water, G, 50, drip_limit, np.random.default_rng(3))
+    assert len(drips.positions) == 50
+    angles = np.degrees(np.arccos(np.clip(drips.normals @ G, -1, 1)))
+    assert (angles <= drip_limit + 1e-9).all()
+    vertex_angles = np.degrees(np.arccos(np.clip(sphere.vertex_normals[sphere.faces[drips.faces]] @ G, -1, 1)))
+    assert (vertex_angles <= drip_limit + 1e-9).all()
+    assert (drips.water > 0).all()
+
+
+def test_coarse_mesh_drips_on_transition(rng):
+    coarse = trimesh.creation.icosphere(subdivisions=0, radius=0.15)
+    # one vertex 10 degrees off straight down: its faces' other corners are ~60 degrees off
+    down = trimesh.geometry.align_vectors(coarse.vertices[0], G)
+    tilt = trimesh.transformations.rotation_matrix(np.radians(10), (1, 0, 0))
+    coarse.apply_transform(tilt @ down)
+    water = np.ones(len(coarse.vertices))
+    drips = find_drips(coarse, water, G, 5, 20.0, rng)
+    assert len(drips.region_faces) == 0
+    assert len(drips.positions) >= 1
+    assert (np.degrees(np.arccos(drips.normals @ G)) <= 20.0 + 1e-9).all()
+
+
+def test_exclusion_box_keeps_icicles_off(sphere, rng):
+    water = compute_water(sphere, G, 4000, 0.01, rng)
+    box = ((-1.0, -1.0, -1.0), (0.0, 1.0, 1.0))
+    drips = find_drips(sphere, water.water, G, 60, 75.0, rng, exclude_boxes=[box])
+    assert (drips.positions[:, 0] > 0).all()
+
+
+def grow(mesh, drips, seed=0, **overrides):
+    return grow_trajectories(mesh, drips.positions, mesh.face_normals[drips.faces], drips.water, G,
+                             np.random.default_rng(seed), **{**TRAJ, **overrides})
+
+
+@pytest.fixture
+def sphere_drips(sphere):
+    water = compute_water(sphere, G, 4000, 0.01, np.random.default_rng(2))
+    return find_drips(sphere, water.water, G, 30, 60.0, np.random.default_rng(3))
+
+
+def test_straight_icicles_when_c_and_d_are_zero(sphere, sphere_drips):
+    traj = grow(sphere, sphere_drips, curve_angle=0.0, division_probability=0.0)
+    assert traj.n_branches == len(sphere_drips.positions)
+    assert (traj.branch_parent == -1).all()
+    for b in range(traj.n_branches):
+        pts = traj.branch(b)
+        assert len(pts) >= 2
+        np.testing.assert_allclose(pts[:, [0, 2]] - pts[0, [0, 2]], 0.0, atol=1e-12)
+        assert (np.diff(pts[:, 1]) < 0).all()
+
+
+def lsystem_branches(generations: int) -> int:
+    """Branches of the paper's L-system with d = 1, by rewriting the string."""
+    word = "FX"
+    for _ in range(generations):
+        word = "".join({"X": "[+F-FX]A", "A": "+FFF/X"}.get(ch, ch) for ch in word)
+    return word.count("[")
+
+
+def test_full_division_branches_every_generation_at_30_degrees():
+    mesh = trimesh.creation.box(extents=(0.1, 0.02, 0.1))
+    start = np.array([[0.0, -0.01, 0.0]])
+    gens = 5
+    traj = grow_trajectories(mesh, start, [[0, -1, 0]], [0.004 * (1 + 3 * gens) / 0.6], G,
+                             np.random.default_rng(0), **{**TRAJ, "curve_angle": 0.0,
+                                                           "division_probability": 1.0, "max_branches": 1000})
+    assert traj.n_branches - 1 == lsystem_branches(gens)
+    for b in np.flatnonzero(traj.branch_parent >= 0):
+        pts = traj.branch(b)
+        first = (pts[1] - pts[0]) / np.linalg.norm(pts[1] - pts[0])
+        second = (pts[2] - pts[1]) / np.linalg.norm(pts[2] - pts[1])
+        assert np.degrees(np.arccos(np.clip(first @ G, -1, 1))) == pytest.approx(30.0, abs=1e-6)
+        np.testing.assert_allclose(second, G, atol=1e-9)  # then parallel to the (straight) parent
+
+
+@pytest.mark.parametrize("roll_angle", [0.0, 90.0, 360.0])
+def test_roll_follows_au(roll_angle):
+    mesh = trimesh.creation.box(extents=(0.1, 0.02, 0.1))
+    traj = grow_trajectories(mesh, np.array([[0.0, -0.01, 0.0]]), [[0, -1, 0]], [0.5], G,
+                             np.random.default_rng(0), **{**TRAJ, "curve_angle": 0.0, "roll_angle": roll_angle,
+                                                           "division_probability": 1.0, "max_branches": 1000})
+    trunk_children = np.flatnonzero(traj.branch_parent == 0)
+    assert len(trunk_children) >= 4
+    out = np.array([traj.branch(b)[1] - traj.branch(b)[0] for b in trunk_children])
+    azimuth = np.degrees(np.arctan2(out[:, 2], out[:, 0]))
+    steps = np.mod(np.diff(azimuth), 360.0)
+    expected = roll_angle * GOLDEN_ROLL / 360.0
+    np.testing.assert_allclose(np.minimum(steps, 360 - steps), min(expected, 360 - expected), atol=1e-6)
+
+
+def test_trajectories_are_seeded(sphere, sphere_drips):
+    a = grow(sphere, sphere_drips, seed=5, division_probability=0.5)
+    b = grow(sphere, sphere_drips, seed=5, division_probability=0.5)
+    c = grow(sphere, sphere_drips, seed=6, division_probability=0.5)
+    np.testing.assert_array_equal(a.points, b.points)
+    assert a.points.shape != c.points.shape or not np.array_equal(a.points, c.points)
+
+
+def crossing_segments(mesh, traj) -> int:
+    starts, ends = [], []
+    for b in range(traj.n_branches):
+        pts = traj.branch(b)
+        starts.append(pts[:-1])
+        ends.append(pts[1:])
+    a, b = np.concatenate(starts), np.concatenate(ends)
+    length = np.linalg.norm(b - a, axis=1)
+    loc, ray, _ = mesh.ray.intersects_location(a, (b - a) / length[:, None], multiple_hits=False)
+    return int((np.linalg.norm(loc - a[ray], axis=1) < length[ray]).sum())
+
+
+@pytest.mark.parametrize("name", ["cow.obj", "teapot.obj", "stanford-bunny.obj"])
+def test_no_trajectory_enters_the_object(shared_mesh, name):
+    mesh = prepare(shared_mesh(name), 0.3).mesh
+    water = compute_water(mesh, G, 4000, 0.01, np.random.default_rng(0))
+    drips = find_drips(mesh, water.water, G, 120, 75.0, np.random.default_rng(1))
+    traj = grow(mesh, drips, curve_angle=8.0, division_probability=0.3)
+    assert traj.n_branches >= len(drips.positions) > 50
+    if mesh.is_watertight:
+        assert not mesh.contains(traj.points).any()
+    assert crossing_segments(mesh, traj) == 0
+    # every icicle hangs: its lowest point lies below its drip point
+    for b in np.flatnonzero(traj.branch_parent == -1):
+        pts = traj.branch(b)
+        assert pts[:, 1].min() < pts[0, 1]
