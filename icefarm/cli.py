@@ -151,3 +151,20 @@ def bench_stages(mesh, size_m, drips, repeat, assignments, surface):
     if surface:
         rate = runs.ice_faces / statistics.median(runs.seconds["surface"])
         click.echo(f"  ice: {runs.ice_faces} faces, {rate:,.0f} faces/s")
+
+
+@main.command()
+@click.argument("run_dir", type=click.Path(file_okay=False, exists=True))
+@click.option("--cell-width", type=int, default=320, show_default=True, help="Width of one cell in pixels.")
+@click.option("--name", help="Sweep name for the header (default: from manifest.resolved.yaml or the folder).")
+def sheet(run_dir, cell_width, name):
+    """Build contact sheets (PNG and linear EXR, one per object) and sheets/index.html for RUN_DIR.
+
+    RUN_DIR is a sweep folder (<out>/<sweep name>) as `icefarm sweep` writes it.
+    """
+    from .sheets import build_sheets
+
+    results = build_sheets(Path(run_dir), cell_width, name)
+    for r in results:
+        click.echo(f"  {r.object_id}: {r.png} ({r.rows}x{r.cols}, {r.cells} cells, {r.failed} failed)")
+    click.echo(f"gallery: {Path(run_dir) / 'sheets' / 'index.html'}")

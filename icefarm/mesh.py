@@ -27,7 +27,7 @@ class MeshProblems:
     nonmanifold_edges : int
         Edges shared by more than two faces.
     self_intersections : int
-        Pairs of intersecting faces, or -1 when not measured.
+        Faces that cross another face, or -1 when not measured.
     """
 
     faces: int
@@ -98,15 +98,28 @@ def clean(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
     return mesh
 
 
-def detect_problems(mesh: trimesh.Trimesh, self_intersections: bool = False) -> MeshProblems:
-    """Measure loose pieces, open boundaries and non-manifold edges of ``mesh``."""
+def detect_problems(mesh: trimesh.Trimesh, self_intersections: bool = True) -> MeshProblems:
+    """Measure loose pieces, open boundaries, non-manifold edges and crossing faces of ``mesh``.
+
+    Parameters
+    ----------
+    mesh : trimesh.Trimesh
+        A welded mesh (see `clean`): unwelded seams count as open boundaries.
+    self_intersections : bool
+        Also count faces that cross another face (about 10 us a face, via pymeshlab);
+        without it ``self_intersections`` is -1.
+    """
+    faces = len(mesh.faces)
+    if faces == 0:
+        return MeshProblems(faces=0, components=0, boundary_edges=0, nonmanifold_edges=0,
+                            self_intersections=0 if self_intersections else -1)
     edges = np.sort(mesh.edges, axis=1)
     _, counts = np.unique(edges, axis=0, return_counts=True)
-    components = trimesh.graph.connected_components(mesh.face_adjacency, nodes=np.arange(len(mesh.faces)))
+    labels = trimesh.graph.connected_component_labels(mesh.face_adjacency, node_count=faces)
     crossings = count_self_intersections(mesh) if self_intersections else -1
     return MeshProblems(
-        faces=len(mesh.faces),
-        components=len(components),
+        faces=faces,
+        components=int(labels.max()) + 1,
         boundary_edges=int((counts == 1).sum()),
         nonmanifold_edges=int((counts > 2).sum()),
         self_intersections=crossings,
@@ -114,11 +127,18 @@ def detect_problems(mesh: trimesh.Trimesh, self_intersections: bool = False) -> 
 
 
 def count_self_intersections(mesh: trimesh.Trimesh) -> int:
-    """Pairs of faces that cross each other (sharing no vertex), via pymeshlab."""
+    """Faces of ``mesh`` that cross another face they share no vertex with (pymeshlab).
+
+    Counts faces, not pairs: two crossing triangles count 2. Folds of clean meshes cross a
+    few (cow.obj: 82 of 5,804); parts passing through each other cross many.
+    """
+    if len(mesh.faces) == 0:
+        return 0
     import pymeshlab
 
     ms = pymeshlab.MeshSet()
-    ms.add_mesh(pymeshlab.Mesh(mesh.vertices, mesh.faces))
+    ms.add_mesh(pymeshlab.Mesh(np.asarray(mesh.vertices, dtype=np.float64),
+                               np.asarray(mesh.faces, dtype=np.int32)))
     ms.compute_selection_by_self_intersections_per_face()
     return int(ms.current_mesh().selected_face_number())
 

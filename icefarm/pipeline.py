@@ -226,7 +226,7 @@ def _run_stages(spec: JobSpec, job_dir: Path, run: _Run, cache: _Cache, until: S
         reason = proxy_reason(prepared.problems, p["proxy"]["mode"], p["proxy"]["face_budget"])
         if reason:
             proxy_key = _digest(mesh_key, p["proxy"])
-            proxy = run.timed("proxy", lambda: cache.get("proxy", proxy_key, lambda: build_proxy(obj, p["proxy"])))
+            proxy = run.timed("proxy", lambda: cache.get("proxy", proxy_key, lambda: build_proxy(obj, p["proxy"], prepared.problems)))
             flow = proxy.mesh
             artifacts.write_mesh(job_dir / "proxy.ply", flow)
             stats.update(proxy_reason=reason, proxy_faces=proxy.faces, proxy_components=proxy.components,
@@ -278,8 +278,11 @@ def _run_stages(spec: JobSpec, job_dir: Path, run: _Run, cache: _Cache, until: S
     def trajectory_stage() -> TrajectoryResult:
         if "trajectories" in overrides:
             return artifacts.trajectories_from_json(Path(overrides["trajectories"]))
+        # Lift each start off the surface along its face normal; on a proxy run the snap
+        # already turned normals towards the outside, which the face winding may not be.
         faces = np.clip(drips.faces, 0, len(obj.faces) - 1)
-        lift = np.where((drips.faces >= 0)[:, None], obj.face_normals[faces], drips.normals)
+        lift = drips.normals if flow is not obj else np.where(
+            (drips.faces >= 0)[:, None], obj.face_normals[faces], drips.normals)
         return grow_trajectories(obj, drips.positions, lift, drips.water, gravity,
                                  _rng(spec.seed, Stage.TRAJECTORIES), drip_limit=p["drips"]["drip_limit"],
                                  **p["trajectories"])
@@ -314,11 +317,22 @@ def _surface_and_render(spec, job_dir, run, cache, until, obj, flow, water, drip
     config = load_render_config(spec.render)
 
     def render() -> Any:
-        write_scenes(job_dir, obj, ice_mesh if len(ice.faces) else None, config, gravity,
-                     material_from_dict(dict(spec.material)))
-        return render_job(job_dir, config)
+        files = write_scenes(job_dir, obj, ice_mesh if len(ice.faces) else None, config, gravity,
+                             material_from_dict(dict(spec.material)), frame_points=_frame(obj, gravity))
+        return render_job(job_dir, config, files)
 
     result = run.timed("render", render)
     stats.update(render_variant=result.variant, renderer=result.renderer,
                  render_seconds=result.seconds, scene_seconds=result.scene_seconds)
     return stats
+
+
+def _frame(obj: trimesh.Trimesh, gravity: np.ndarray) -> np.ndarray:
+    """Points the camera frames: the object's box and room below it for the icicles.
+
+    Framing the object rather than its ice gives every job of a sweep the same camera,
+    so contact-sheet cells compare like with like.
+    """
+    corners = trimesh.bounds.corners(obj.bounds)
+    height = float(np.ptp(obj.vertices @ gravity))
+    return np.vstack([corners, corners + 0.35 * height * gravity])

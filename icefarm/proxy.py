@@ -1,0 +1,438 @@
+"""The approximate surface the water flows on when the real mesh cannot carry it (paper 5.1).
+
+The paper's water flows along mesh edges, so loose or intersecting pieces, holes and
+non-manifold edges break it, and superfluous detail makes it slow and noisy. For such
+meshes stages 1-2 run on a proxy built with pymeshlab:
+
+* one clean piece whose only flaw is a few small holes (a scan's base) gets them filled
+  (`meshing_close_holes`);
+* other broken meshes (soups, loose or intersecting parts, wide openings, non-manifold
+  edges), and every mesh under ``proxy.mode: always``, are alpha-wrapped
+  (`generate_alpha_wrap`: watertight, outward-oriented shells that bridge gaps narrower
+  than alpha; screened Poisson kept the soups' interior walls), then remeshed
+  isotropically (`meshing_isotropic_explicit_remeshing`) to an edge length suited to the
+  flow;
+* clean meshes that are only too detailed are decimated
+  (`meshing_decimation_quadric_edge_collapse`) to the face budget.
+
+Drip points found on the proxy are moved back onto the real mesh with `snap_to_surface`,
+so the icicles hang from the object itself.
+"""
+
+from __future__ import annotations
+
+import enum
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import trimesh
+
+from .errors import InputError
+from .mesh import MeshProblems, detect_problems
+
+MODES = ("auto", "always", "never")
+
+# Folds of otherwise clean meshes cross a few faces (cow.obj: 1.4 %, dragon: 0.02 %)
+# without hurting a flow along edges; parts passing through each other cross many more.
+SELF_INTERSECTING_FRACTION = 0.05
+# A mesh thinner than this fraction of its diagonal has no volume to wrap.
+FLAT_FRACTION = 1e-6
+# The wrap has about WRAP_FACE_FACTOR * area / alpha**2 faces (measured 1.3-2.4 on the
+# shared meshes); its time and memory grow with that count (about 1.2 kB and 0.15 ms a
+# face), so it is held under the face budget (finer would be remeshed away anyway) and
+# MAX_WRAP_FACES by raising alpha, up to MAX_ALPHA of the diagonal.
+WRAP_FACE_FACTOR = 2.0
+MAX_WRAP_FACES = 1_000_000
+MAX_ALPHA = 0.1
+# Holes are filled only when each boundary loop spans at most this fraction of the
+# diagonal (the bunny's base: 0.18); a wider opening (a bowl's rim) is wrapped instead.
+HOLE_FRACTION = 0.25
+# A point this close to a surface (fraction of the diagonal) lies on it.
+ON_SURFACE_FRACTION = 1e-9
+# Isotropic remeshing: passes, and the area of an equilateral triangle of unit edge.
+REMESH_ITERATIONS = 3
+UNIT_TRIANGLE_AREA = np.sqrt(3.0) / 4.0
+# Remeshing overshoots its area estimate by up to ~15 %: aim below the budget.
+BUDGET_MARGIN = 0.8
+
+
+class ProxyMethod(enum.Enum):
+    """How the proxy was made."""
+
+    WRAP = "alpha wrap + isotropic remesh"
+    FILL = "hole filling"
+    DECIMATE = "quadric decimation"
+
+
+@dataclass(frozen=True)
+class ProxyResult:
+    """The approximate surface stages 1-2 run on.
+
+    Attributes
+    ----------
+    mesh : trimesh.Trimesh
+        Watertight proxy, in meters, in the frame of the input mesh.
+    reason : str
+        Why it was built (the problems found), plus any adjustment made to fit the budget.
+    faces : int
+        Faces of the proxy.
+    components : int
+        Connected pieces of the proxy (genuinely separate objects stay separate).
+    seconds : float
+        Wall time of the build.
+    method : ProxyMethod
+        Wrap, hole filling or decimation (the last two are followed by decimation when
+        over the budget).
+    alpha : float
+        Alpha the wrap used, in meters (0 when not wrapped): the proxy bridges gaps about
+        this wide, so it lies up to about alpha from the object.
+    """
+
+    mesh: trimesh.Trimesh
+    reason: str
+    faces: int
+    components: int
+    seconds: float
+    method: ProxyMethod
+    alpha: float = 0.0
+
+
+def _problem_phrases(problems: MeshProblems) -> list[str]:
+    """What breaks the flow along edges, one phrase per problem found."""
+    phrases = []
+    if problems.components > 1:
+        phrases.append(f"{problems.components} loose components")
+    if problems.boundary_edges > 0:
+        phrases.append(f"{problems.boundary_edges} open boundary edges")
+    if problems.nonmanifold_edges > 0:
+        phrases.append(f"{problems.nonmanifold_edges} non-manifold edges")
+    if problems.self_intersections > SELF_INTERSECTING_FRACTION * problems.faces:
+        phrases.append(f"{problems.self_intersections} self-intersecting faces")
+    return phrases
+
+
+def proxy_reason(problems: MeshProblems, mode: str, face_budget: int) -> str | None:
+    """Why stages 1-2 need an approximate surface, or None when the mesh itself will do.
+
+    Parameters
+    ----------
+    problems : MeshProblems
+        From `icefarm.mesh.detect_problems` (self-intersections count only when measured,
+        and only above `SELF_INTERSECTING_FRACTION` of the faces).
+    mode : {"auto", "always", "never"}
+        ``proxy.mode``: ``auto`` builds one for problem meshes, ``always`` for every mesh,
+        ``never`` for none.
+    face_budget : int
+        ``proxy.face_budget``: more faces than this is a reason in itself.
+
+    Returns
+    -------
+    str or None
+        For example ``"6 loose components, 51 non-manifold edges"``.
+    """
+    if mode not in MODES:
+        raise InputError(f"proxy.mode must be one of {', '.join(MODES)}, got {mode!r}")
+    if mode == "never":
+        return None
+    phrases = _problem_phrases(problems)
+    if problems.faces > face_budget:
+        phrases.append(f"{problems.faces} faces over the budget of {face_budget}")
+    if phrases:
+        return ", ".join(phrases)
+    return "proxy.mode is always" if mode == "always" else None
+
+
+def _settings(proxy: Mapping[str, Any]) -> tuple[int, float, float, float]:
+    """``face_budget, alpha, offset, edge_length`` from the ``proxy`` group, checked."""
+    values = []
+    for name in ("face_budget", "alpha", "offset", "edge_length"):
+        if name not in proxy:
+            raise InputError(f"proxy.{name} is missing from the proxy parameters")
+        value = proxy[name]
+        if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) \
+                or not np.isfinite(value) or value <= 0:
+            raise InputError(f"proxy.{name} must be a positive number, got {value!r}")
+        values.append(value)
+    budget, alpha, offset, edge = values
+    if budget < 4:
+        raise InputError(f"proxy.face_budget must be at least 4 faces, got {budget!r}")
+    return int(budget), float(alpha), float(offset), float(edge)
+
+
+def _thickness(vertices: np.ndarray) -> float:
+    """Extent of ``vertices`` ``(n, 3)`` along their least principal axis, in their units."""
+    centred = vertices - vertices.mean(axis=0)
+    _, _, axes = np.linalg.svd(centred, full_matrices=False)
+    along = centred @ axes[-1]
+    return float(along.max() - along.min())
+
+
+def _to_trimesh(ms) -> trimesh.Trimesh:
+    current = ms.current_mesh()
+    return trimesh.Trimesh(np.asarray(current.vertex_matrix(), dtype=np.float64),
+                           np.asarray(current.face_matrix(), dtype=np.int64), process=False)
+
+
+def _meshset(mesh: trimesh.Trimesh):
+    import pymeshlab
+
+    ms = pymeshlab.MeshSet()
+    ms.add_mesh(pymeshlab.Mesh(np.asarray(mesh.vertices, dtype=np.float64),
+                               np.asarray(mesh.faces, dtype=np.int32)))
+    return ms
+
+
+def _component_labels(mesh: trimesh.Trimesh) -> np.ndarray:
+    """``(n_faces,) int``: connected piece (shared edges) of each face."""
+    return trimesh.graph.connected_component_labels(mesh.face_adjacency, node_count=len(mesh.faces))
+
+
+def drop_voids(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
+    """Drop closed pieces of negative signed volume: cavities sealed inside the wrap.
+
+    A wrap of crossing sheets encloses empty pockets; their inward-facing shells lie
+    inside the object, where no rain reaches, so they only add faces.
+    """
+    labels = _component_labels(mesh)
+    tri = mesh.triangles
+    signed = np.einsum("ij,ij->i", tri[:, 0], np.cross(tri[:, 1], tri[:, 2])) / 6.0
+    volume = np.bincount(labels, weights=signed)
+    keep = volume[labels] > 0
+    if keep.all():
+        return mesh
+    out = mesh.copy()
+    out.update_faces(keep)
+    out.remove_unreferenced_vertices()
+    return out
+
+
+def _run_filter(ms, name: str, **kwargs) -> None:
+    import pymeshlab
+
+    try:
+        getattr(ms, name)(**kwargs)
+    except pymeshlab.PyMeshLabException as exc:
+        raise InputError(f"pymeshlab {name} failed on this mesh ({exc}); "
+                         "set proxy.mode: never to run the water on the mesh as it is") from None
+
+
+def _remesh(mesh: trimesh.Trimesh, edge: float, tolerance: float) -> trimesh.Trimesh:
+    """Isotropic remesh to edges of ``edge`` m, staying within ``tolerance`` m of ``mesh``."""
+    import pymeshlab
+
+    ms = _meshset(mesh)
+    _run_filter(ms, "meshing_isotropic_explicit_remeshing", iterations=REMESH_ITERATIONS,
+                targetlen=pymeshlab.PureValue(edge), featuredeg=30.0, checksurfdist=True,
+                maxsurfdist=pymeshlab.PureValue(tolerance))
+    return _to_trimesh(ms)
+
+
+def _decimate(mesh: trimesh.Trimesh, faces: int) -> trimesh.Trimesh:
+    """Quadric edge collapse down to ``faces`` faces, keeping the topology."""
+    ms = _meshset(mesh)
+    _run_filter(ms, "meshing_decimation_quadric_edge_collapse", targetfacenum=int(faces),
+                preservetopology=True, preserveboundary=True, optimalplacement=True,
+                planarquadric=True, autoclean=True)
+    return _to_trimesh(ms)
+
+
+def _wrap(mesh: trimesh.Trimesh, alpha: float, offset: float) -> trimesh.Trimesh:
+    """Alpha wrap with ``alpha`` and ``offset`` in meters, sealed cavities removed."""
+    import pymeshlab
+
+    ms = _meshset(mesh)
+    # Welding vertices closer than a quarter of the offset drops slivers the wrap cannot
+    # resolve anyway: chair_model.obj loses 11 % of its faces and 14 % of the wrap's time
+    # (half the offset saves 23 % but lets the proxy stray 1.0 % of the diagonal).
+    _run_filter(ms, "meshing_merge_close_vertices", threshold=pymeshlab.PureValue(0.25 * offset))
+    _run_filter(ms, "meshing_remove_null_faces")
+    # PureValue: absolute lengths; PercentageValue would be percent of pymeshlab's own bbox.
+    _run_filter(ms, "generate_alpha_wrap", alpha=pymeshlab.PureValue(alpha),
+                offset=pymeshlab.PureValue(offset))
+    return drop_voids(_to_trimesh(ms))
+
+
+def _edge_for_budget(area: float, edge: float, budget: int) -> float:
+    """Edge length ``>= edge`` whose isotropic triangulation of ``area`` m^2 fits ``budget`` faces."""
+    return max(edge, float(np.sqrt(area / (UNIT_TRIANGLE_AREA * BUDGET_MARGIN * budget))))
+
+
+def _only_holes(problems: MeshProblems) -> bool:
+    """One manifold piece whose only flaw is open boundaries."""
+    return (problems.boundary_edges > 0 and problems.components == 1 and problems.nonmanifold_edges == 0
+            and problems.self_intersections <= SELF_INTERSECTING_FRACTION * problems.faces)
+
+
+def boundary_loops(mesh: trimesh.Trimesh) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices on open boundaries and the loop each belongs to.
+
+    Returns
+    -------
+    vertices : (b,) int
+        Vertices used by an edge of one face only.
+    loops : (b,) int
+        Loop label of each, ``0 .. n_loops - 1`` (loops touching at a vertex count as one).
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    edges, counts = np.unique(np.sort(mesh.edges, axis=1), axis=0, return_counts=True)
+    boundary = edges[counts == 1]
+    vertices = np.unique(boundary)
+    if len(vertices) == 0:
+        return vertices, vertices.copy()
+    local = np.searchsorted(vertices, boundary)
+    graph = coo_matrix((np.ones(len(local)), (local[:, 0], local[:, 1])), shape=(len(vertices),) * 2)
+    _, loops = connected_components(graph, directed=False)
+    return vertices, loops
+
+
+def _fill_small_holes(mesh: trimesh.Trimesh, diag: float) -> trimesh.Trimesh | None:
+    """``mesh`` with its holes filled, or None when a hole is too wide or filling leaves flaws."""
+    vertices, loops = boundary_loops(mesh)
+    order = np.argsort(loops, kind="stable")
+    starts = np.flatnonzero(np.r_[True, np.diff(loops[order]) > 0])
+    points = np.asarray(mesh.vertices)[vertices[order]]
+    spans = np.linalg.norm(np.maximum.reduceat(points, starts) - np.minimum.reduceat(points, starts), axis=1)
+    if spans.max() > HOLE_FRACTION * diag:
+        return None
+    ms = _meshset(mesh)
+    sizes = np.diff(np.r_[starts, len(order)])
+    _run_filter(ms, "meshing_close_holes", maxholesize=int(sizes.max()) + 1, newfaceselected=False,
+                selfintersection=False)
+    filled = _to_trimesh(ms)
+    return None if _problem_phrases(detect_problems(filled, self_intersections=True)) else filled
+
+
+def build_proxy(mesh: trimesh.Trimesh, proxy: Mapping[str, Any],
+                problems: MeshProblems | None = None) -> ProxyResult:
+    """Build the approximate surface stages 1-2 run on.
+
+    Parameters
+    ----------
+    mesh : trimesh.Trimesh
+        The prepared object, in meters.
+    proxy : mapping
+        ``params.resolve()["proxy"]``: ``face_budget`` (faces), ``alpha``, ``offset`` and
+        ``edge_length`` (fractions of the bounding-box diagonal). Whether to build one at
+        all is the caller's call (`proxy_reason`); ``mode: always`` wraps even a clean mesh.
+    problems : MeshProblems, optional
+        ``detect_problems(mesh)`` when the caller has it; measured here otherwise.
+
+    Returns
+    -------
+    ProxyResult
+        Watertight, at most ``face_budget`` faces, in the frame of ``mesh``.
+
+    Raises
+    ------
+    InputError
+        Bad parameters; a mesh with no volume (flat or a single triangle), which has
+        nothing to wrap; a surface so large for its size that the wrap would need an alpha
+        over `MAX_ALPHA` of the diagonal to stay within the face budget.
+    """
+    start = time.perf_counter()
+    budget, alpha, offset, edge = _settings(proxy)
+    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
+        raise InputError("the mesh has no faces to build an approximate surface from")
+    vertices = np.asarray(mesh.vertices, dtype=np.float64)
+    if not np.isfinite(vertices).all():
+        raise InputError("the mesh has NaN or infinite vertex coordinates")
+    used = vertices[np.unique(mesh.faces)]
+    diag = float(np.linalg.norm(np.ptp(used, axis=0)))
+    thickness = _thickness(used)
+    if diag <= 0 or thickness <= FLAT_FRACTION * diag:
+        raise InputError(
+            f"the mesh is flat (thickness {thickness:.3g} m over a {diag:.3g} m diagonal): it has "
+            "no volume to wrap an approximate surface around; set proxy.mode: never to let the "
+            "water run on the mesh as it is")
+    if problems is None:
+        problems = detect_problems(mesh, self_intersections=True)
+    notes, alpha_m, out = [], 0.0, None
+    force = proxy.get("mode", "auto") == "always"
+    if not force and _only_holes(problems):
+        out, method = _fill_small_holes(mesh, diag), ProxyMethod.FILL
+    if out is None and not force and not _problem_phrases(problems) and problems.faces > budget:
+        out, method = mesh, ProxyMethod.DECIMATE  # clean, only too detailed
+    if out is None:
+        area = float(mesh.area)
+        alpha_m = alpha * diag
+        needed = float(np.sqrt(WRAP_FACE_FACTOR * area / min(budget, MAX_WRAP_FACES)))
+        if needed > alpha_m:
+            if needed > MAX_ALPHA * diag:
+                raise InputError(
+                    f"the mesh's surface ({area:.3g} m^2) is {area / diag ** 2:.1f} times its bounding-box "
+                    f"diagonal squared: wrapping it in {min(budget, MAX_WRAP_FACES)} faces "
+                    f"(proxy.face_budget={budget}) would need an alpha "
+                    f"of {needed / diag:.3g} of the diagonal (at most {MAX_ALPHA}); raise proxy.face_budget "
+                    "or simplify the mesh")
+            notes.append(f"wrap alpha raised to {needed / diag:.3g} of the diagonal to fit the face budget")
+            alpha_m = needed
+        offset_m = min(offset * diag, alpha_m)
+        wrapped = _wrap(mesh, alpha_m, offset_m)
+        if len(wrapped.faces) == 0:
+            raise InputError("the alpha wrap of this mesh came out empty; set proxy.mode: never "
+                             "to let the water run on the mesh as it is")
+        out = _remesh(wrapped, _edge_for_budget(wrapped.area, edge * diag, budget), offset_m)
+        if not out.is_watertight:  # remeshing pinched a thin part: the wrap itself is sound
+            notes.append("remeshing broke the surface, the raw wrap is used")
+            out = wrapped
+        method = ProxyMethod.WRAP
+    if len(out.faces) > budget:
+        if method is not ProxyMethod.DECIMATE:
+            notes.append(f"{method.value} gave {len(out.faces)} faces, decimated to the budget")
+        out = _decimate(out, budget)
+    out = trimesh.Trimesh(out.vertices, out.faces, process=True)
+    if not out.is_watertight:
+        raise InputError(f"the approximate surface ({method.value}) is not watertight; "
+                         "set proxy.mode: never, or repair the mesh")
+    reason = proxy_reason(problems, "always", budget)
+    if notes:
+        reason = f"{reason}; {'; '.join(notes)}"
+    components = int(_component_labels(out).max()) + 1
+    return ProxyResult(mesh=out, reason=reason, faces=len(out.faces), components=components,
+                       seconds=time.perf_counter() - start, method=method, alpha=alpha_m)
+
+
+def snap_to_surface(points: np.ndarray, mesh: trimesh.Trimesh) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Move points to the closest point of ``mesh`` (drip points from the proxy to the object).
+
+    Parameters
+    ----------
+    points : (k, 3) float
+        Points near the surface, in meters.
+    mesh : trimesh.Trimesh
+        The real object, in meters; it need not be watertight or consistently oriented.
+
+    Returns
+    -------
+    closest : (k, 3) float
+        Closest points on ``mesh``.
+    normals : (k, 3) float
+        Unit normals of the faces there, turned towards the side each point came from (the
+        proxy lies outside the object, so this is outward even on soups with random
+        winding); a point on the surface (within `ON_SURFACE_FRACTION` of the diagonal)
+        keeps its face's own normal.
+    faces : (k,) int
+        Face holding each closest point.
+    """
+    points = np.asarray(points, dtype=np.float64)
+    if points.ndim != 2 or points.shape[1] != 3:
+        raise ValueError(f"points must be shaped (k, 3), got {points.shape}")
+    if not np.isfinite(points).all():
+        raise ValueError("points must be finite")
+    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
+        raise ValueError("snap_to_surface needs a mesh with faces")
+    if len(points) == 0:
+        return np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, dtype=np.int64)
+    closest, distance, faces = trimesh.proximity.closest_point(mesh, points)
+    faces = np.asarray(faces, dtype=np.int64)
+    normals = np.asarray(mesh.face_normals, dtype=np.float64)[faces]
+    facing = np.einsum("ij,ij->i", normals, points - closest)
+    # Below this distance the side is rounding noise: the point is on the surface.
+    on_surface = distance <= ON_SURFACE_FRACTION * float(np.linalg.norm(mesh.extents))
+    normals = np.where(((facing < 0) & ~on_surface)[:, None], -normals, normals)
+    return np.asarray(closest, dtype=np.float64), normals, faces

@@ -1,0 +1,172 @@
+"""Cameras framed on the object and its ice, with "up" taken from gravity.
+
+Directions are given as azimuth/elevation in a world frame built from gravity: ``up`` is
+minus gravity, ``front`` the first of +Z, -Y, +X that is not close to ``up`` (so Y-up
+scenes look along -Z and Z-up scenes along +Y, as their authors expect), and
+``right = up x front``. Azimuth 0 puts the camera in front, 90 on the right side.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import ConvexHull, QhullError
+
+
+@dataclass(frozen=True)
+class Camera:
+    """A perspective camera in meters.
+
+    Attributes
+    ----------
+    origin, target, up : (3,) float
+        Eye position, point looked at, up vector (world space, right-handed).
+    fov_x, fov_y : float
+        Horizontal and vertical field of view, degrees.
+    near, far : float
+        Clip distances, meters.
+    """
+
+    origin: np.ndarray
+    target: np.ndarray
+    up: np.ndarray
+    fov_x: float
+    fov_y: float
+    near: float
+    far: float
+
+    @property
+    def forward(self) -> np.ndarray:
+        d = self.target - self.origin
+        return d / np.linalg.norm(d)
+
+    def project(self, points: np.ndarray, width: int, height: int) -> np.ndarray:
+        """Pixel coordinates ``(n, 2)`` (x right, y down) of world ``points`` ``(n, 3)``."""
+        fwd = self.forward
+        right = np.cross(fwd, self.up)
+        right /= np.linalg.norm(right)
+        cam_up = np.cross(right, fwd)
+        q = np.asarray(points, dtype=np.float64) - self.origin
+        z = q @ fwd
+        u = (q @ right) / (z * np.tan(np.radians(self.fov_x) / 2))
+        v = (q @ cam_up) / (z * np.tan(np.radians(self.fov_y) / 2))
+        return np.column_stack([(u + 1) * width / 2, (1 - v) * height / 2])
+
+
+def world_frame(gravity) -> np.ndarray:
+    """Rows ``right, up, front`` ``(3, 3)``: an orthonormal right-handed frame with up = -gravity.
+
+    Raises
+    ------
+    ValueError
+        Gravity is zero or not finite.
+    """
+    g = np.asarray(gravity, dtype=np.float64).reshape(3)
+    norm = np.linalg.norm(g)
+    if not np.isfinite(norm) or norm == 0:
+        raise ValueError(f"gravity must be a non-zero finite vector, got {gravity!r}")
+    up = -g / norm
+    for ref in ((0.0, 0.0, 1.0), (0.0, -1.0, 0.0), (1.0, 0.0, 0.0)):
+        ref = np.asarray(ref)
+        if abs(ref @ up) < 0.9:
+            break
+    front = ref - (ref @ up) * up
+    front /= np.linalg.norm(front)
+    return np.stack([np.cross(up, front), up, front])
+
+
+def direction(frame: np.ndarray, azimuth: float, elevation: float) -> np.ndarray:
+    """Unit vector ``(3,)`` at ``azimuth``/``elevation`` degrees in ``frame`` (see `world_frame`)."""
+    az, el = np.radians(azimuth), np.radians(elevation)
+    right, up, front = frame
+    return np.cos(el) * (np.sin(az) * right + np.cos(az) * front) + np.sin(el) * up
+
+
+def framing_points(points: np.ndarray) -> np.ndarray:
+    """The points that matter for framing ``(m, 3)``: the convex hull's vertices."""
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    if len(points) < 64:
+        return points
+    try:
+        return points[ConvexHull(points).vertices]
+    except QhullError:  # flat or degenerate: every point counts
+        return points
+
+
+def fit(points: np.ndarray, view_dir: np.ndarray, up: np.ndarray, fov_x: float, fov_y: float,
+        margin: float = 0.9) -> tuple[np.ndarray, np.ndarray]:
+    """Tightest camera looking along ``-view_dir`` that shows all ``points`` ``(n, 3)``.
+
+    For a fixed direction the distance and the sideways shift of the target that fit every
+    point inside ``margin`` of the frame solve a small linear problem per image axis:
+    ``|x - s| <= k (a + d)`` for each point (``x`` sideways, ``a`` depth past the target).
+
+    Returns
+    -------
+    origin, target : (3,) float
+    """
+    fwd = -np.asarray(view_dir, dtype=np.float64)
+    right = np.cross(fwd, up)
+    right /= np.linalg.norm(right)
+    cam_up = np.cross(right, fwd)
+    centre = (points.min(axis=0) + points.max(axis=0)) / 2
+    q = points - centre
+    a = q @ fwd
+    shift, dist = [], 0.0
+    for axis, fov in ((right, fov_x), (cam_up, fov_y)):
+        k = np.tan(np.radians(fov) / 2) * margin
+        x = q @ axis
+        hi, lo = np.max(x - k * a), np.min(x + k * a)
+        dist = max(dist, (hi - lo) / (2 * k))
+        shift.append((hi + lo) / 2)
+    # Never inside the bounding sphere: the near plane must clear the geometry.
+    radius = np.linalg.norm(q, axis=1).max()
+    dist = max(dist, 1.05 * radius, 1e-6)
+    target = centre + shift[0] * right + shift[1] * cam_up
+    return target - fwd * dist, target
+
+
+def frame_view(points: np.ndarray, gravity, azimuth: float, elevation: float, aspect: float,
+               fov_y: float = 30.0, ground: float | None = None, clearance: float = 0.02,
+               margin: float = 0.9) -> Camera:
+    """A camera at ``azimuth``/``elevation`` framing ``points``, kept above the ground.
+
+    Parameters
+    ----------
+    points : (n, 3) float
+        Geometry to frame (object and ice vertices), meters.
+    gravity : (3,) float
+        Gravity direction; up is its opposite.
+    azimuth, elevation : float
+        Where the camera sits, degrees (see `direction`).
+    aspect : float
+        Width over height.
+    fov_y : float
+        Vertical field of view, degrees.
+    ground : float, optional
+        Height (along up) of the ground plane; the camera is raised until its eye is
+        ``clearance`` (a fraction of the scene size) above it.
+
+    Returns
+    -------
+    Camera
+    """
+    frame = world_frame(gravity)
+    up = frame[1]
+    pts = framing_points(points)
+    if len(pts) == 0:
+        raise ValueError("nothing to frame: no points")
+    fov_x = float(np.degrees(2 * np.arctan(np.tan(np.radians(fov_y) / 2) * aspect)))
+    size = float(np.linalg.norm(pts.max(axis=0) - pts.min(axis=0))) or 1.0
+    el = float(elevation)
+    while True:
+        origin, target = fit(pts, direction(frame, azimuth, el), up, fov_x, fov_y, margin)
+        if ground is None or origin @ up >= ground + clearance * size or el >= 89.0:
+            break
+        el = min(el + 1.0, 89.0)
+    dist = float(np.linalg.norm(target - origin))
+    depth = (pts - origin) @ ((target - origin) / dist)
+    near = max(float(depth.min()) * 0.5, 1e-4)
+    return Camera(origin=origin, target=target, up=up, fov_x=fov_x, fov_y=float(fov_y),
+                  near=near, far=max(1000.0 * dist, 100.0 * size))

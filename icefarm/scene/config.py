@@ -1,0 +1,424 @@
+"""Render configurations: ``render_configs/*.yaml`` read, validated and frozen.
+
+A render config says how a job is rendered (renderer, variant, resolution, samples,
+views) and how the ice and its surroundings look (ior, roughness, sky, sun, ground).
+Keys are checked like parameters: an unknown key is refused with the nearest valid one,
+a wrong value with the key, the value and what was expected.
+"""
+
+from __future__ import annotations
+
+import difflib
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+from typing import Any, Callable
+
+import yaml
+
+from ..errors import InputError
+
+RENDERERS = ("mitsuba", "povray", "both")
+VARIANTS = ("auto", "scalar_rgb", "llvm_ad_rgb", "cuda_ad_rgb")
+GROUNDS = ("checker", "plain", "none")
+CONFIG_DIR = Path(__file__).resolve().parents[2] / "render_configs"
+
+# Named views: (azimuth, elevation) in degrees around "up" (minus gravity). Azimuth 0
+# looks at the object's front, 90 at its right side; negative elevation looks up at it.
+NAMED_VIEWS: dict[str, tuple[float, float]] = {
+    "three_quarter": (35.0, -8.0),  # slightly below: icicles hang, the sky shows through them
+    "front": (0.0, 5.0),
+    "side": (90.0, 5.0),
+    "back": (200.0, 5.0),
+    "above": (35.0, 35.0),
+    "below": (35.0, -25.0),
+}
+
+
+@dataclass(frozen=True)
+class View:
+    """One camera direction: azimuth and elevation in degrees (the camera sits there)."""
+
+    name: str
+    azimuth: float
+    elevation: float
+
+
+@dataclass(frozen=True)
+class IceLook:
+    """The ice material: index of refraction, GGX roughness (0: smooth), transmittance tint."""
+
+    ior: float = 1.31
+    roughness: float = 0.0
+    tint: tuple[float, float, float] = (0.96, 0.985, 1.0)
+
+
+@dataclass(frozen=True)
+class Environment:
+    """Light and surroundings.
+
+    ``sky`` is ``"procedural"`` (a generated sky with horizon and bright patches) or the
+    path of an equirectangular EXR/HDR image. Strengths are linear scales; ``exposure``
+    (stops) scales every light. The sun direction is given in degrees like a view.
+    """
+
+    sky: str = "procedural"
+    sky_strength: float = 1.0
+    sun_strength: float = 3.0
+    sun_azimuth: float = 120.0
+    sun_elevation: float = 45.0
+    ground: str = "checker"
+    exposure: float = 0.0
+
+
+@dataclass(frozen=True)
+class RenderConfig:
+    """How one job is rendered; see ``render_configs/*.yaml``.
+
+    Attributes
+    ----------
+    renderer : {"mitsuba", "povray", "both"}
+    variant : {"auto", "scalar_rgb", "llvm_ad_rgb", "cuda_ad_rgb"}
+        Mitsuba variant; ``auto`` picks the fastest that works on this machine.
+    resolution : (width, height) pixels
+    spp : int
+        Samples per pixel (Mitsuba).
+    max_depth : int
+        Longest light path; ice needs several bounces.
+    views : tuple of View
+        The first is the main view (``render.png``); others give ``render_view<i>.png``.
+    fov : float
+        Vertical field of view, degrees.
+    ice : IceLook
+    environment : Environment
+    name : str
+        The config's name (file stem), for labels only.
+    """
+
+    renderer: str = "mitsuba"
+    variant: str = "auto"
+    resolution: tuple[int, int] = (320, 240)
+    spp: int = 32
+    max_depth: int = 12
+    views: tuple[View, ...] = (View("three_quarter", *NAMED_VIEWS["three_quarter"]),)
+    fov: float = 30.0
+    ice: IceLook = field(default_factory=IceLook)
+    environment: Environment = field(default_factory=Environment)
+    name: str = "custom"
+
+    @property
+    def width(self) -> int:
+        return self.resolution[0]
+
+    @property
+    def height(self) -> int:
+        return self.resolution[1]
+
+    @property
+    def uses_mitsuba(self) -> bool:
+        return self.renderer in ("mitsuba", "both")
+
+    @property
+    def uses_povray(self) -> bool:
+        return self.renderer in ("povray", "both")
+
+
+# ---------------------------------------------------------------------------- checks
+# Each check takes (key, value) and returns the coerced value or raises InputError.
+
+def _refuse(key: str, value: Any, expected: str) -> InputError:
+    return InputError(f"render config: {key} = {value!r} is not valid: expected {expected}")
+
+
+def _number(low=None, high=None, integer=False, low_open=False) -> Callable[[str, Any], Any]:
+    lo = "-inf" if low is None else f"{low:g}"
+    hi = "inf" if high is None else f"{high:g}"
+    expected = f"{'an integer' if integer else 'a number'} in {'(' if low_open else '['}{lo}, {hi}]"
+
+    def check(key, value):
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise _refuse(key, value, expected)
+        if integer and float(value) != int(value):
+            raise _refuse(key, value, expected)
+        value = int(value) if integer else float(value)
+        if not math.isfinite(value) or (low is not None and (value < low or (low_open and value == low))) \
+                or (high is not None and value > high):
+            raise _refuse(key, value, expected)
+        return value
+
+    return check
+
+
+def _choice(choices: Sequence[str]) -> Callable[[str, Any], str]:
+    def check(key, value):
+        if value not in choices:
+            hint = difflib.get_close_matches(str(value), choices, n=1, cutoff=0.5)
+            tip = f" (did you mean {hint[0]!r}?)" if hint else ""
+            raise _refuse(key, value, "one of " + " | ".join(choices) + tip)
+        return value
+
+    return check
+
+
+def _triple(low: float, high: float) -> Callable[[str, Any], tuple[float, float, float]]:
+    expected = f"3 numbers in [{low:g}, {high:g}]"
+
+    def check(key, value):
+        if isinstance(value, (str, bytes)) or not isinstance(value, Sequence) or len(value) != 3:
+            raise _refuse(key, value, expected)
+        out = []
+        for v in value:
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not low <= v <= high:
+                raise _refuse(key, value, expected)
+            out.append(float(v))
+        return tuple(out)
+
+    return check
+
+
+def _resolution(key, value):
+    expected = "[width, height], integers in [8, 16384]"
+    if isinstance(value, (str, bytes)) or not isinstance(value, Sequence) or len(value) != 2:
+        raise _refuse(key, value, expected)
+    if not all(isinstance(v, int) and not isinstance(v, bool) and 8 <= v <= 16384 for v in value):
+        raise _refuse(key, value, expected)
+    return (int(value[0]), int(value[1]))
+
+
+def parse_view(key: str, value: Any) -> View:
+    """A view from a name (``three_quarter``), ``[azimuth, elevation]`` or a mapping."""
+    expected = ("a view name (" + " | ".join(NAMED_VIEWS) + "), [azimuth, elevation] in degrees"
+                " with elevation in [-89, 89], or {azimuth: .., elevation: ..}")
+    if isinstance(value, View):
+        return value
+    if isinstance(value, str):
+        if value not in NAMED_VIEWS:
+            hint = difflib.get_close_matches(value, list(NAMED_VIEWS), n=1, cutoff=0.5)
+            raise _refuse(key, value, expected + (f"; did you mean {hint[0]!r}?" if hint else ""))
+        return View(value, *NAMED_VIEWS[value])
+    if isinstance(value, Mapping):
+        unknown = set(value) - {"azimuth", "elevation", "name"}
+        if unknown or not {"azimuth", "elevation"} <= set(value):
+            raise _refuse(key, value, expected)
+        az, el, name = value["azimuth"], value["elevation"], value.get("name")
+    elif isinstance(value, Sequence) and len(value) == 2:
+        (az, el), name = value, None
+    else:
+        raise _refuse(key, value, expected)
+    for v in (az, el):
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+            raise _refuse(key, value, expected)
+    if not -89.0 <= el <= 89.0:
+        raise _refuse(key, value, expected)
+    name = str(name) if name else f"az{az:g}_el{el:g}"
+    return View(name, float(az), float(el))
+
+
+def _views(key, value):
+    if isinstance(value, (str, Mapping)):
+        value = [value]
+    if not isinstance(value, Sequence) or not value or len(value) > 16:
+        raise _refuse(key, value, "a list of 1 to 16 views")
+    return tuple(parse_view(f"{key}[{i}]", v) for i, v in enumerate(value))
+
+
+def _sky(key, value):
+    if not isinstance(value, str) or not value:
+        raise _refuse(key, value, "'procedural' or the path of an equirectangular .exr/.hdr image")
+    if value == "procedural":
+        return value
+    path = Path(value).expanduser()
+    if path.suffix.lower() not in (".exr", ".hdr"):
+        raise _refuse(key, value, "'procedural' or the path of an equirectangular .exr/.hdr image")
+    if not path.is_file():
+        raise InputError(f"render config: environment.sky = {value!r}: no such file")
+    return str(path.resolve())
+
+
+_ICE: dict[str, Callable] = {
+    "ior": _number(1.0, 3.0),
+    "roughness": _number(0.0, 1.0),
+    "tint": _triple(0.0, 1.0),
+}
+_ENVIRONMENT: dict[str, Callable] = {
+    "sky": _sky,
+    "sky_strength": _number(0.0, 1000.0),
+    "sun_strength": _number(0.0, 1000.0),
+    "sun_azimuth": _number(-360.0, 360.0),
+    "sun_elevation": _number(-90.0, 90.0),
+    "ground": _choice(GROUNDS),
+    "exposure": _number(-20.0, 20.0),
+}
+_TOP: dict[str, Callable] = {
+    "renderer": _choice(RENDERERS),
+    "variant": _choice(VARIANTS),
+    "resolution": _resolution,
+    "spp": _number(1, 1 << 16, integer=True),
+    "max_depth": _number(1, 1000, integer=True),
+    "views": _views,
+    "fov": _number(1.0, 170.0),
+}
+_GROUPS = {"ice": _ICE, "environment": _ENVIRONMENT}
+ALL_KEYS = tuple(_TOP) + tuple(f"{g}.{k}" for g, checks in _GROUPS.items() for k in checks)
+
+
+def _unknown(key: str) -> InputError:
+    hint = difflib.get_close_matches(key, ALL_KEYS, n=1, cutoff=0.5)
+    if not hint:
+        hint = [k for k in ALL_KEYS if k.split(".")[-1] == key.split(".")[-1]][:1]
+    tip = f"; did you mean {hint[0]!r}?" if hint else "; valid keys: " + ", ".join(ALL_KEYS)
+    return InputError(f"render config: unknown key {key!r}{tip}")
+
+
+def _flatten(values: Mapping[str, Any]) -> dict[str, Any]:
+    """Nested ``{ice: {ior: ..}}`` and dotted ``{"ice.ior": ..}`` keys to dotted keys."""
+    flat: dict[str, Any] = {}
+    for key, value in values.items():
+        key = str(key)
+        if key in _GROUPS:
+            if not isinstance(value, Mapping):
+                raise _refuse(key, value, f"a mapping of {', '.join(_GROUPS[key])}")
+            for sub, v in value.items():
+                flat[f"{key}.{sub}"] = v
+        else:
+            flat[key] = value
+    return flat
+
+
+def render_config_from_dict(values: Mapping[str, Any] | None, base: RenderConfig | None = None,
+                            name: str | None = None, root: Path | None = None) -> RenderConfig:
+    """Validate ``values`` over ``base`` (the built-in defaults when None).
+
+    Parameters
+    ----------
+    values : mapping
+        Nested or dotted keys (``{"ice": {"roughness": 0.1}}`` or ``{"ice.roughness": 0.1}``).
+    base : RenderConfig, optional
+    name : str, optional
+        The name the result carries.
+    root : Path, optional
+        Folder that relative paths (``environment.sky``) are relative to.
+
+    Raises
+    ------
+    InputError
+        Unknown key (with the nearest valid one), or a value of the wrong type or range.
+    """
+    base = base or RenderConfig()
+    if values is None:
+        values = {}
+    if not isinstance(values, Mapping):
+        raise InputError(f"render config: expected a mapping of keys, got {type(values).__name__}")
+    top: dict[str, Any] = {}
+    groups: dict[str, dict[str, Any]] = {g: {} for g in _GROUPS}
+    for key, value in _flatten(values).items():
+        group, _, sub = key.partition(".")
+        if key in _TOP:
+            top[key] = _TOP[key](key, value)
+        elif group in _GROUPS and sub in _GROUPS[group]:
+            if key == "environment.sky" and root is not None and isinstance(value, str) \
+                    and value != "procedural" and not Path(value).expanduser().is_absolute():
+                value = str(root / value)
+            groups[group][sub] = _GROUPS[group][sub](key, value)
+        else:
+            raise _unknown(key)
+    return replace(base, **top, ice=replace(base.ice, **groups["ice"]),
+                   environment=replace(base.environment, **groups["environment"]),
+                   name=name or base.name)
+
+
+def config_names() -> list[str]:
+    """Names of the configs in ``render_configs/`` (``preview``, ``lookdev``, ``final``)."""
+    return sorted(p.stem for p in CONFIG_DIR.glob("*.yaml")) if CONFIG_DIR.is_dir() else []
+
+
+def load_render_config(name_or_path: str | Path,
+                       overrides: Mapping[str, Any] | None = None) -> RenderConfig:
+    """Read a render config by name (``"preview"``) or YAML path, with optional overrides.
+
+    Parameters
+    ----------
+    name_or_path : str or Path
+        A name from ``render_configs/`` or the path of a YAML file.
+    overrides : mapping, optional
+        Keys applied over the file, validated the same way (for sweeps over look keys).
+
+    Raises
+    ------
+    InputError
+        Missing file, unreadable YAML, unknown key or bad value.
+    """
+    path = Path(name_or_path).expanduser()
+    if not path.is_file():
+        named = CONFIG_DIR / f"{name_or_path}.yaml"
+        if str(name_or_path) in config_names():
+            path = named
+        else:
+            names = config_names()
+            hint = difflib.get_close_matches(str(name_or_path), names, n=1, cutoff=0.5)
+            tip = f"; did you mean {hint[0]!r}?" if hint else ""
+            raise InputError(f"render config {str(name_or_path)!r} is neither a file nor one of "
+                             f"{', '.join(names) or '(none found)'}{tip}")
+    try:
+        data = yaml.safe_load(path.read_text())
+    except (OSError, yaml.YAMLError) as exc:
+        raise InputError(f"cannot read render config {path}: {exc}") from None
+    try:
+        config = render_config_from_dict(data, name=path.stem, root=path.parent)
+        return render_config_from_dict(overrides, base=config, root=Path.cwd())
+    except InputError as exc:
+        raise InputError(f"{path}: {exc}") from None
+
+
+def render_config_to_dict(config: RenderConfig) -> dict[str, Any]:
+    """Plain YAML-ready dict of ``config`` (no name): round-trips through `render_config_from_dict`."""
+    out = asdict(config)
+    out.pop("name")
+    out["resolution"] = list(config.resolution)
+    out["views"] = [v.name if NAMED_VIEWS.get(v.name) == (v.azimuth, v.elevation)
+                    else {"name": v.name, "azimuth": v.azimuth, "elevation": v.elevation}
+                    for v in config.views]
+    out["ice"]["tint"] = list(config.ice.tint)
+    return out
+
+
+# --------------------------------------------------------------------- object material
+MATERIAL_TYPES = ("diffuse", "plastic", "metal")
+METALS = ("Al", "Ag", "Au", "Cu", "Cr")
+_MATERIAL: dict[str, Callable] = {
+    "type": _choice(MATERIAL_TYPES),
+    "color": _triple(0.0, 1.0),
+    "roughness": _number(0.0, 1.0),
+    "metal": _choice(METALS),
+}
+DEFAULT_MATERIAL = {"type": "diffuse", "color": (0.62, 0.6, 0.57), "roughness": 0.2, "metal": "Al"}
+
+
+def material_from_dict(values: Mapping[str, Any] | None) -> dict[str, Any]:
+    """Validate an object material: ``{type: diffuse|plastic|metal, color, roughness, metal}``.
+
+    ``color`` is linear RGB reflectance in [0, 1]; ``roughness`` (plastic, metal) is the GGX
+    alpha, 0 for a mirror-smooth coat; ``metal`` names a conductor (Al, Ag, Au, Cu, Cr).
+    Missing keys take `DEFAULT_MATERIAL`'s values.
+
+    Raises
+    ------
+    InputError
+        Unknown key (with the nearest one) or a bad value.
+    """
+    out = dict(DEFAULT_MATERIAL)
+    if values is None:
+        return out
+    if not isinstance(values, Mapping):
+        raise InputError(f"material: expected a mapping of {', '.join(_MATERIAL)}, got {values!r}")
+    for key, value in values.items():
+        if key not in _MATERIAL:
+            hint = difflib.get_close_matches(str(key), list(_MATERIAL), n=1, cutoff=0.5)
+            tip = f"; did you mean {hint[0]!r}?" if hint else f"; valid keys: {', '.join(_MATERIAL)}"
+            raise InputError(f"material: unknown key {key!r}{tip}")
+        try:
+            out[key] = _MATERIAL[key](f"material.{key}", value)
+        except InputError as exc:
+            raise InputError(str(exc).replace("render config: ", "")) from None
+    return out

@@ -1,0 +1,183 @@
+"""Mitsuba 3 scene description (``scene.xml``, version 3.0.0) of one job.
+
+The XML names its meshes and sky by paths relative to its own folder, so both
+``mitsuba scene.xml`` and ``mitsuba.load_file`` work from inside the job folder. Sample
+count, resolution and path depth are ``<default>`` parameters: ``mitsuba -D spp=4 ...``
+and ``load_file(..., spp=4)`` override them.
+"""
+
+from __future__ import annotations
+
+import xml.etree.ElementTree as ET
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from .camera import Camera
+from .config import RenderConfig
+
+WATER_ICE_IOR = 1.31  # Mitsuba's "water ice"
+
+
+@dataclass(frozen=True)
+class Ground:
+    """A square ground: centre ``(3,)``, half size (m), checker cell (m), frame rows (right, up, front)."""
+
+    centre: np.ndarray
+    half_size: float
+    cell: float
+    frame: np.ndarray
+
+
+def _vec(v: Sequence[float]) -> str:
+    return ", ".join(f"{float(x):.9g}" for x in v)
+
+
+def _add(parent: ET.Element, tag: str, **attrib) -> ET.Element:
+    return ET.SubElement(parent, tag, {k: str(v) for k, v in attrib.items()})
+
+
+def _matrix(m: np.ndarray) -> str:
+    return " ".join(f"{float(x):.9g}" for x in np.asarray(m).ravel())
+
+
+def frame_matrix(frame: np.ndarray, origin=(0.0, 0.0, 0.0), scale=(1.0, 1.0, 1.0)) -> np.ndarray:
+    """4x4 matrix taking local X, Y, Z to ``frame`` rows (right, up, front) scaled, then moved."""
+    m = np.eye(4)
+    m[:3, :3] = (np.asarray(frame) * np.asarray(scale)[:, None]).T
+    m[:3, 3] = origin
+    return m
+
+
+def _bsdf_object(parent: ET.Element, material: dict) -> None:
+    # Two-sided: input meshes are often open or inconsistently wound.
+    two = _add(parent, "bsdf", type="twosided")
+    kind, rough = material["type"], material["roughness"]
+    if kind == "diffuse":
+        b = _add(two, "bsdf", type="diffuse")
+        _add(b, "rgb", name="reflectance", value=_vec(material["color"]))
+    elif kind == "plastic":
+        b = _add(two, "bsdf", type="roughplastic" if rough > 0 else "plastic")
+        _add(b, "rgb", name="diffuse_reflectance", value=_vec(material["color"]))
+        if rough > 0:
+            _add(b, "float", name="alpha", value=rough)
+    else:
+        b = _add(two, "bsdf", type="roughconductor" if rough > 0 else "conductor")
+        _add(b, "string", name="material", value=material["metal"])
+        if rough > 0:
+            _add(b, "float", name="alpha", value=rough)
+
+
+def _bsdf_ice(parent: ET.Element, config: RenderConfig) -> None:
+    ice = config.ice
+    b = _add(parent, "bsdf", type="roughdielectric" if ice.roughness > 0 else "dielectric")
+    if abs(ice.ior - WATER_ICE_IOR) < 1e-9:
+        _add(b, "string", name="int_ior", value="water ice")
+    else:
+        _add(b, "float", name="int_ior", value=ice.ior)
+    _add(b, "string", name="ext_ior", value="air")
+    if ice.roughness > 0:
+        _add(b, "string", name="distribution", value="ggx")
+        _add(b, "float", name="alpha", value=ice.roughness)
+    # A faint tint stands in for the blue of thick ice without a volume integrator.
+    _add(b, "rgb", name="specular_transmittance", value=_vec(ice.tint))
+
+
+def scene_xml(config: RenderConfig, cameras: Sequence[Camera], frame: np.ndarray, *,
+              object_ply: str, ice_ply: str | None, ice_flip: bool, sky_file: str,
+              sun_dir: np.ndarray, ground: Ground | None, material: dict) -> str:
+    """The text of ``scene.xml``.
+
+    Parameters
+    ----------
+    config : RenderConfig
+    cameras : sequence of Camera
+        One sensor each, in order (sensor 0 is the main view).
+    frame : (3, 3) float
+        World frame rows (right, up, front) from `camera.world_frame`: the sky's up.
+    object_ply, ice_ply : str
+        File names relative to the job folder; ``ice_ply`` None leaves the ice out.
+    ice_flip : bool
+        The ice's faces wind inwards: flip its normals so refraction enters the ice.
+    sky_file : str
+        Equirectangular environment image, relative path.
+    sun_dir : (3,) float
+        Unit vector towards the sun.
+    ground : Ground or None
+    material : dict
+        Validated object material (`config.material_from_dict`).
+    """
+    env = config.environment
+    gain = 2.0 ** env.exposure
+    root = ET.Element("scene", version="3.0.0")
+    _add(root, "default", name="spp", value=config.spp)
+    _add(root, "default", name="resx", value=config.width)
+    _add(root, "default", name="resy", value=config.height)
+    _add(root, "default", name="max_depth", value=config.max_depth)
+
+    integrator = _add(root, "integrator", type="path")
+    _add(integrator, "integer", name="max_depth", value="$max_depth")
+
+    for cam in cameras:
+        sensor = _add(root, "sensor", type="perspective")
+        _add(sensor, "string", name="fov_axis", value="x")
+        _add(sensor, "float", name="fov", value=f"{cam.fov_x:.9g}")
+        _add(sensor, "float", name="near_clip", value=f"{cam.near:.9g}")
+        _add(sensor, "float", name="far_clip", value=f"{cam.far:.9g}")
+        t = _add(sensor, "transform", name="to_world")
+        _add(t, "lookat", origin=_vec(cam.origin), target=_vec(cam.target), up=_vec(cam.up))
+        sampler = _add(sensor, "sampler", type="independent")
+        _add(sampler, "integer", name="sample_count", value="$spp")
+        film = _add(sensor, "film", type="hdrfilm")
+        _add(film, "integer", name="width", value="$resx")
+        _add(film, "integer", name="height", value="$resy")
+        _add(film, "string", name="pixel_format", value="rgb")
+        _add(film, "rfilter", type="gaussian")
+
+    envmap = _add(root, "emitter", type="envmap")
+    _add(envmap, "string", name="filename", value=sky_file)
+    _add(envmap, "float", name="scale", value=f"{env.sky_strength * gain:.9g}")
+    t = _add(envmap, "transform", name="to_world")
+    _add(t, "matrix", value=_matrix(frame_matrix(frame)))
+
+    if env.sun_strength > 0:
+        sun = _add(root, "emitter", type="directional")
+        _add(sun, "vector", name="direction", value=_vec(-np.asarray(sun_dir)))
+        warm = np.array([1.0, 0.93, 0.84]) * env.sun_strength * gain
+        _add(sun, "rgb", name="irradiance", value=_vec(warm))
+
+    obj = _add(root, "shape", type="ply", id="object")
+    _add(obj, "string", name="filename", value=object_ply)
+    _bsdf_object(obj, material)
+
+    if ice_ply is not None:
+        ice = _add(root, "shape", type="ply", id="ice")
+        _add(ice, "string", name="filename", value=ice_ply)
+        if ice_flip:
+            _add(ice, "boolean", name="flip_normals", value="true")
+        _bsdf_ice(ice, config)
+
+    if ground is not None:
+        shape = _add(root, "shape", type="rectangle", id="ground")
+        # Rectangle: local XY plane, normal +Z. Local X -> front, Y -> right, Z -> up.
+        right, up, front = ground.frame
+        m = np.eye(4)
+        m[:3, 0], m[:3, 1], m[:3, 2] = front * ground.half_size, right * ground.half_size, up
+        m[:3, 3] = ground.centre
+        t = _add(shape, "transform", name="to_world")
+        _add(t, "matrix", value=_matrix(m))
+        two = _add(shape, "bsdf", type="twosided")
+        b = _add(two, "bsdf", type="diffuse")
+        if env.ground == "checker":
+            tex = _add(b, "texture", type="checkerboard", name="reflectance")
+            _add(tex, "rgb", name="color0", value="0.3, 0.3, 0.31")
+            _add(tex, "rgb", name="color1", value="0.42, 0.42, 0.43")
+            checks = 2 * ground.half_size / ground.cell / 2  # the texture has 2 cells per uv unit
+            tt = _add(tex, "transform", name="to_uv")
+            _add(tt, "scale", x=f"{checks:.9g}", y=f"{checks:.9g}")
+        else:
+            _add(b, "rgb", name="reflectance", value="0.36, 0.36, 0.37")
+
+    ET.indent(root, space="    ")
+    return '<?xml version="1.0" encoding="utf-8"?>\n' + ET.tostring(root, encoding="unicode") + "\n"

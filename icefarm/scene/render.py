@@ -1,0 +1,464 @@
+"""Write a job's scenes and render them: Mitsuba in-process, POV-Ray as a command.
+
+Variant choice is the delicate part. Dr.Jit starts its LLVM backend when it is imported,
+loading whatever libLLVM it finds; Debian's LLVM 15 and 16 then abort the whole process
+on the first render and 14 is refused. So `pick_variant` finds a libLLVM of version 17
+or newer itself and sets ``DRJIT_LIBLLVM_PATH`` *before* drjit is imported, and uses
+``llvm_ad_rgb`` only when the library Dr.Jit actually loaded is a good one.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import sys
+import time
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+from ..errors import InputError
+from . import camera as cam
+from . import geometry as geo
+from . import mitsuba as mx
+from . import povray as pov
+from .config import RenderConfig, material_from_dict
+from .sky import procedural_sky
+
+MIN_LLVM = 17
+LLVM_DIRS = ("/usr/lib/x86_64-linux-gnu", "/usr/lib/aarch64-linux-gnu", "/usr/lib64", "/usr/lib",
+             "/usr/local/lib", "/opt/homebrew/opt/llvm/lib", "/usr/local/opt/llvm/lib")
+_LLVM_NAME = re.compile(r"^libLLVM(?:-(?P<a>\d+)[\w.]*?)?\.(?:so|dylib)(?:\.(?P<b>\d+)[\d.]*)?$")
+CREASE_ANGLE = 30.0  # degrees: sharper edges of the object stay sharp in shading
+
+
+# ------------------------------------------------------------------------ variants
+def llvm_version(path: str | Path) -> int | None:
+    """Major LLVM version of a ``libLLVM`` file from its name (after symlinks), or None.
+
+    ``libLLVM-15.so.1`` -> 15, ``libLLVM.so.19.1`` -> 19, ``libLLVM-17.so`` -> 17; a bare
+    ``libLLVM.so`` counts only if it resolves to a versioned name or sits in ``llvm-N/lib``.
+    """
+    path = Path(path)
+    for candidate in (path, path.resolve() if path.exists() else path):
+        match = _LLVM_NAME.match(candidate.name)
+        if match and (match["a"] or match["b"]):
+            return int(match["a"] or match["b"])
+    for part in reversed(path.parts[:-1]):
+        m = re.fullmatch(r"llvm-(\d+)", part)
+        if m and _LLVM_NAME.match(path.name):
+            return int(m[1])
+    return None
+
+
+def find_libllvm(search_dirs: Iterable[str | Path] | None = None,
+                 minimum: int = MIN_LLVM) -> Path | None:
+    """The newest ``libLLVM`` of version >= ``minimum`` in ``search_dirs``, or None.
+
+    Parameters
+    ----------
+    search_dirs : iterable of paths, optional
+        Folders to look in; default `LLVM_DIRS`, ``/usr/lib/llvm-*/lib`` and
+        ``LD_LIBRARY_PATH``.
+    """
+    if search_dirs is None:
+        dirs = [Path(d) for d in os.environ.get("LD_LIBRARY_PATH", "").split(":") if d]
+        dirs += [Path(d) for d in LLVM_DIRS]
+        dirs += sorted(Path("/usr/lib").glob("llvm-*/lib"))
+    else:
+        dirs = [Path(d) for d in search_dirs]
+    best: tuple[int, Path] | None = None
+    for d in dirs:
+        if not d.is_dir():
+            continue
+        for f in sorted(d.glob("libLLVM*")):
+            version = llvm_version(f)
+            if version is not None and version >= minimum and f.is_file() \
+                    and (best is None or version > best[0]):
+                best = (version, f)
+    return None if best is None else best[1]
+
+
+def loaded_libllvm() -> list[Path]:
+    """libLLVM files mapped into this process (from ``/proc/self/maps``; empty elsewhere)."""
+    try:
+        text = Path("/proc/self/maps").read_text()
+    except OSError:
+        return []
+    return sorted({Path(line.split(None, 5)[5]) for line in text.splitlines()
+                   if "libLLVM" in line and len(line.split(None, 5)) == 6})
+
+
+def prepare_llvm(search_dirs: Iterable[str | Path] | None = None) -> Path | None:
+    """Point ``DRJIT_LIBLLVM_PATH`` at a good libLLVM before drjit is imported.
+
+    Keeps a user's ``DRJIT_LIBLLVM_PATH`` if it names a good one; otherwise sets the newest
+    good one found, or, when there is none, a path that does not exist, so that Dr.Jit
+    leaves its LLVM backend off instead of picking a bad library by itself. Does nothing
+    (returns what is set) once drjit is imported, since Dr.Jit reads it only then.
+
+    Returns
+    -------
+    Path or None
+        The good libLLVM now named, or None.
+    """
+    current = os.environ.get("DRJIT_LIBLLVM_PATH")
+    good_current = bool(current) and Path(current).is_file() and (llvm_version(current) or 0) >= MIN_LLVM
+    if "drjit" in sys.modules:
+        return Path(current) if good_current else None
+    if good_current and search_dirs is None:
+        return Path(current)
+    found = find_libllvm(search_dirs)
+    os.environ["DRJIT_LIBLLVM_PATH"] = str(found) if found else "/nonexistent/icefarm-no-good-libLLVM.so"
+    return found
+
+
+def choose_variant(requested: str, cuda: bool, llvm: bool) -> str:
+    """The variant for ``requested`` given which backends work; `InputError` if it cannot run.
+
+    ``auto`` takes cuda_ad_rgb, then llvm_ad_rgb, then scalar_rgb.
+    """
+    if requested == "auto":
+        return "cuda_ad_rgb" if cuda else "llvm_ad_rgb" if llvm else "scalar_rgb"
+    if requested == "cuda_ad_rgb" and not cuda:
+        raise InputError("variant cuda_ad_rgb asked for, but no working CUDA GPU was found: "
+                         "use variant: auto or llvm_ad_rgb")
+    if requested == "llvm_ad_rgb" and not llvm:
+        raise InputError(f"variant llvm_ad_rgb asked for, but no libLLVM {MIN_LLVM} or newer is "
+                         "loaded (install libllvm19, or set DRJIT_LIBLLVM_PATH to one before "
+                         "starting): use variant: auto or scalar_rgb")
+    if requested not in ("scalar_rgb", "llvm_ad_rgb", "cuda_ad_rgb"):
+        raise InputError(f"unknown variant {requested!r}: use auto, scalar_rgb, llvm_ad_rgb or cuda_ad_rgb")
+    return requested
+
+
+def pick_variant(requested: str = "auto", search_dirs: Iterable[str | Path] | None = None) -> str:
+    """Resolve ``requested`` to a Mitsuba variant that works in this process.
+
+    Sets up ``DRJIT_LIBLLVM_PATH`` first (see `prepare_llvm`), then imports drjit and asks
+    it which backends started. LLVM counts only if every libLLVM mapped into the process
+    is of version 17 or newer.
+
+    Raises
+    ------
+    InputError
+        An explicit variant whose backend does not work here.
+    """
+    prepare_llvm(search_dirs)  # also for scalar_rgb: importing drjit starts LLVM regardless
+    if requested == "scalar_rgb":
+        return requested
+    import drjit as dr
+
+    cuda = bool(dr.has_backend(dr.JitBackend.CUDA)) if requested in ("auto", "cuda_ad_rgb") else False
+    llvm = bool(dr.has_backend(dr.JitBackend.LLVM))
+    if llvm and Path("/proc/self/maps").exists():  # trust only what was really loaded
+        loaded = loaded_libllvm()
+        llvm = bool(loaded) and all((llvm_version(p) or 0) >= MIN_LLVM for p in loaded)
+    return choose_variant(requested, cuda, llvm)
+
+
+# ------------------------------------------------------------------------ scenes
+@dataclass(frozen=True)
+class SceneFiles:
+    """What `write_scenes` wrote into a job folder.
+
+    Attributes
+    ----------
+    xml, pov : Path
+        ``scene.xml`` (Mitsuba 3) and ``scene.pov`` (POV-Ray 3.7).
+    object_ply, ice_ply : Path
+        Meshes the XML names (``ice_ply`` None without ice).
+    sky : Path
+        Environment image.
+    cameras : tuple of Camera
+        One per view, the main view first.
+    seconds : float
+        Time taken to write everything.
+    """
+
+    xml: Path
+    pov: Path
+    object_ply: Path
+    ice_ply: Path | None
+    sky: Path
+    cameras: tuple[cam.Camera, ...]
+    seconds: float
+
+
+def _check_mesh(mesh: trimesh.Trimesh, what: str) -> None:
+    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
+        raise ValueError(f"{what} must be a trimesh.Trimesh with faces")
+    if not np.isfinite(mesh.vertices).all():
+        raise ValueError(f"{what} has non-finite vertices")
+
+
+def write_scenes(job_dir: str | Path, object_mesh: trimesh.Trimesh, ice_mesh: trimesh.Trimesh | None,
+                 config: RenderConfig, gravity: Sequence[float] = (0.0, -1.0, 0.0),
+                 object_material: dict | None = None,
+                 frame_points: np.ndarray | None = None) -> SceneFiles:
+    """Write ``object.ply``, ``scene.xml``, ``scene.pov`` (+ includes) and the sky into ``job_dir``.
+
+    ``ice.ply`` is the pipeline's: it is written from ``ice_mesh`` only when missing.
+
+    Parameters
+    ----------
+    job_dir : path
+        The job folder (created if missing).
+    object_mesh : trimesh.Trimesh
+        The object in meters.
+    ice_mesh : trimesh.Trimesh or None
+        The ice in meters (watertight); None renders the object alone.
+    config : RenderConfig
+    gravity : (3,) float
+        Gravity direction: "up" is its opposite.
+    object_material : dict, optional
+        ``{type, color, roughness, metal}`` (see `config.material_from_dict`); diffuse clay by default.
+    frame_points : (n, 3) float, optional
+        What the cameras frame and the ground lies under; default the object's and the
+        ice's vertices. Pass the same points to every job of a sweep for identical cameras.
+
+    Returns
+    -------
+    SceneFiles
+
+    Raises
+    ------
+    InputError
+        A bad material.
+    ValueError
+        Empty meshes or a zero gravity.
+    """
+    start = time.perf_counter()
+    job_dir = Path(job_dir)
+    job_dir.mkdir(parents=True, exist_ok=True)
+    _check_mesh(object_mesh, "object_mesh")
+    if ice_mesh is not None:
+        _check_mesh(ice_mesh, "ice_mesh")
+    material = material_from_dict(object_material)
+    frame = cam.world_frame(gravity)
+    right, up, front = frame
+
+    # Geometry: the object smooth with its creases kept; the ice as the pipeline wrote it.
+    obj_v, obj_n, obj_f = geo.crease_split(object_mesh, CREASE_ANGLE)
+    object_ply = job_dir / "object.ply"
+    geo.write_ply(object_ply, obj_v, obj_f, obj_n)
+    ice_ply, ice_flip = None, False
+    if ice_mesh is not None:
+        ice_ply = job_dir / "ice.ply"
+        if not ice_ply.is_file():
+            geo.write_ply(ice_ply, ice_mesh.vertices, ice_mesh.faces)
+        ice_cross = geo.face_cross(ice_mesh.vertices, ice_mesh.faces)
+        # Inward winding would make refraction run inside out.
+        ice_flip = geo.signed_volume(ice_mesh.vertices, ice_mesh.faces, ice_cross) < 0
+
+    # Sky: generated once per folder (named by what it depends on), or the configured image.
+    env = config.environment
+    if env.sky == "procedural":
+        sky = job_dir / f"sky_az{env.sun_azimuth:g}_el{env.sun_elevation:g}.exr"
+        if not sky.is_file():
+            write_exr(sky, procedural_sky(512, 256, env.sun_azimuth, env.sun_elevation), half=True)
+    else:
+        src = Path(env.sky)
+        sky = job_dir / f"sky_{src.stem}{src.suffix.lower()}"
+        if not sky.is_file() or sky.stat().st_size != src.stat().st_size:
+            shutil.copyfile(src, sky)
+
+    # Cameras framed on object + ice, the ground under both.
+    if frame_points is not None:
+        points = np.asarray(frame_points, dtype=np.float64).reshape(-1, 3)
+        if len(points) == 0 or not np.isfinite(points).all():
+            raise ValueError("frame_points must be finite (n, 3) points, n > 0")
+    elif ice_mesh is None:
+        points = np.asarray(object_mesh.vertices)
+    else:
+        points = np.vstack([object_mesh.vertices, ice_mesh.vertices])
+    points = cam.framing_points(points)  # the hull's vertices frame the same, much faster
+    heights = points @ up
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    size = float(np.linalg.norm(hi - lo))
+    centre = (lo + hi) / 2
+    ground = None
+    if env.ground != "none":
+        ground_centre = centre + (heights.min() - 1e-4 * size - centre @ up) * up
+        ground = mx.Ground(centre=ground_centre, half_size=15.0 * size, cell=size / 6, frame=frame)
+    ground_height = None if ground is None else float(ground.centre @ up)
+    cameras = tuple(
+        cam.frame_view(points, gravity, v.azimuth, v.elevation, config.width / config.height,
+                       fov_y=config.fov, ground=ground_height)
+        for v in config.views)
+    sun_dir = cam.direction(frame, env.sun_azimuth, env.sun_elevation)
+
+    xml = job_dir / "scene.xml"
+    xml.write_text(mx.scene_xml(config, cameras, frame, object_ply=object_ply.name,
+                                ice_ply=None if ice_ply is None else ice_ply.name, ice_flip=ice_flip,
+                                sky_file=sky.name, sun_dir=sun_dir, ground=ground, material=material))
+    (job_dir / "object.inc").write_bytes(pov.mesh2("Object_Mesh", obj_v, obj_n, obj_f))
+    if ice_mesh is not None:
+        normals = geo.smooth_normals(ice_mesh.vertices, ice_mesh.faces, ice_cross) * (-1.0 if ice_flip else 1.0)
+        (job_dir / "ice.inc").write_bytes(pov.mesh2("Ice_Mesh", ice_mesh.vertices, normals,
+                                                   ice_mesh.faces, inside=True))
+    pov_file = job_dir / "scene.pov"
+    pov_file.write_text(pov.scene_pov(config, cameras, frame, object_inc="object.inc",
+                                      ice_inc=None if ice_mesh is None else "ice.inc",
+                                      sky_file=sky.name, sun_dir=sun_dir, ground=ground,
+                                      material=material))
+    return SceneFiles(xml=xml, pov=pov_file, object_ply=object_ply, ice_ply=ice_ply, sky=sky,
+                      cameras=cameras, seconds=time.perf_counter() - start)
+
+
+# ------------------------------------------------------------------------ images
+def write_exr(path: str | Path, rgb: np.ndarray, half: bool = True) -> None:
+    """Write linear RGB ``(h, w, 3)`` to an EXR (half floats unless ``half`` is False)."""
+    import OpenImageIO as oiio
+
+    rgb = np.ascontiguousarray(rgb, dtype=np.float32)
+    spec = oiio.ImageSpec(rgb.shape[1], rgb.shape[0], rgb.shape[2], oiio.HALF if half else oiio.FLOAT)
+    spec.attribute("compression", "zip")
+    spec.attribute("oiio:ColorSpace", "lin_rec709")
+    out = oiio.ImageOutput.create(str(path))
+    if out is None or not out.open(str(path), spec):
+        raise OSError(f"cannot write {path}: {oiio.geterror()}")
+    ok = out.write_image(rgb)
+    out.close()
+    if not ok:
+        raise OSError(f"cannot write {path}: {out.geterror()}")
+
+
+def write_png(path: str | Path, rgb: np.ndarray) -> None:
+    """Write linear Rec.709 RGB ``(h, w, 3)`` as a display-referred sRGB 8-bit PNG."""
+    import OpenImageIO as oiio
+
+    buf = oiio.ImageBuf(np.ascontiguousarray(np.nan_to_num(rgb, nan=0.0, posinf=1.0), dtype=np.float32))
+    srgb = oiio.ImageBufAlgo.colorconvert(buf, "lin_rec709", "sRGB")
+    if srgb.has_error:
+        raise OSError(f"colour conversion failed: {srgb.geterror()}")
+    srgb.specmod().attribute("oiio:ColorSpace", "sRGB")
+    if not srgb.write(str(path), oiio.UINT8):
+        raise OSError(f"cannot write {path}: {srgb.geterror()}")
+
+
+def read_image(path: str | Path) -> np.ndarray:
+    """Pixels ``(h, w, channels)`` float32 of an image file (PNG values in [0, 1])."""
+    import OpenImageIO as oiio
+
+    buf = oiio.ImageBuf(str(path))
+    pixels = buf.get_pixels(oiio.FLOAT)
+    if buf.has_error or pixels is None:
+        raise OSError(f"cannot read {path}: {buf.geterror()}")
+    return np.asarray(pixels)
+
+
+def _png_to_exr(png: Path, exr: Path) -> None:
+    """Linearise an sRGB PNG (POV-Ray's output) into an EXR."""
+    import OpenImageIO as oiio
+
+    buf = oiio.ImageBufAlgo.colorconvert(oiio.ImageBuf(str(png)), "sRGB", "lin_rec709")
+    write_exr(exr, np.asarray(buf.get_pixels(oiio.FLOAT))[..., :3])
+
+
+# ------------------------------------------------------------------------ rendering
+@dataclass(frozen=True)
+class RenderResult:
+    """Timings and files of one job's render.
+
+    Attributes
+    ----------
+    renderer : str
+        ``mitsuba``, ``povray`` or ``both``.
+    variant : str
+        Mitsuba variant used (``""`` when Mitsuba did not run).
+    seconds : float
+        Mitsuba render time, all views, up to the NumPy conversion of the image.
+    scene_seconds : float
+        Writing the scenes (when `SceneFiles` were given) plus loading scene.xml.
+    povray_seconds : float
+        POV-Ray wall time, all views (0 when it did not run).
+    files : tuple of Path
+        Images written, the main ``render.exr`` and ``render.png`` first.
+    """
+
+    renderer: str
+    variant: str
+    seconds: float
+    scene_seconds: float
+    povray_seconds: float
+    files: tuple[Path, ...]
+
+
+def view_stem(index: int, prefix: str = "render") -> str:
+    """File stem of view ``index``: ``render`` for the main view, ``render_view<i>`` after."""
+    return prefix if index == 0 else f"{prefix}_view{index}"
+
+
+def render_mitsuba(job_dir: Path, config: RenderConfig, variant: str) -> tuple[float, float, list[Path]]:
+    """Load ``scene.xml`` with ``variant`` and render every view; (load s, render s, files)."""
+    import mitsuba as mi
+
+    if mi.variant() != variant:
+        mi.set_variant(variant)
+    start = time.perf_counter()
+    scene = mi.load_file(str(job_dir / "scene.xml"))
+    load_seconds = time.perf_counter() - start
+    render_seconds, files = 0.0, []
+    for i in range(len(scene.sensors())):
+        start = time.perf_counter()
+        image = np.array(mi.render(scene, sensor=i, spp=config.spp), dtype=np.float32)
+        render_seconds += time.perf_counter() - start
+        stem = view_stem(i)
+        write_exr(job_dir / f"{stem}.exr", image[..., :3])
+        write_png(job_dir / f"{stem}.png", image[..., :3])
+        files += [job_dir / f"{stem}.exr", job_dir / f"{stem}.png"]
+    del scene  # no scene outlives the job (Mitsuba's memory grows with loads)
+    return load_seconds, render_seconds, files
+
+
+def render_job(job_dir: str | Path, config: RenderConfig, scene: SceneFiles | None = None) -> RenderResult:
+    """Render the scenes `write_scenes` put in ``job_dir`` with the config's renderer(s).
+
+    Mitsuba writes ``render.exr`` (linear) and ``render.png`` (sRGB), plus
+    ``render_view<i>.*`` for further views; POV-Ray writes ``render_povray.png`` (and,
+    when it is the only renderer, ``render.png``/``render.exr`` from it).
+
+    Parameters
+    ----------
+    job_dir : path
+    config : RenderConfig
+    scene : SceneFiles, optional
+        Its write time is added to ``scene_seconds``.
+
+    Raises
+    ------
+    InputError
+        POV-Ray asked for but not installed, or a variant that cannot run here.
+    """
+    job_dir = Path(job_dir)
+    for name in ("scene.xml",) if config.uses_mitsuba else ():
+        if not (job_dir / name).is_file():
+            raise InputError(f"no {name} in {job_dir}: write the scenes first")
+    if config.uses_povray:
+        pov.require_povray()  # before spending time on Mitsuba
+    files: list[Path] = []
+    variant, load_seconds, seconds, pov_seconds = "", 0.0, 0.0, 0.0
+    if config.uses_mitsuba:
+        variant = pick_variant(config.variant)
+        load_seconds, seconds, files = render_mitsuba(job_dir, config, variant)
+    if config.uses_povray:
+        n_views = len(config.views)
+        for i in range(n_views):
+            out = f"{view_stem(i, 'render_povray')}.png"
+            pov_seconds += pov.render_povray(job_dir, config, view=i, output=out)
+            files.append(job_dir / out)
+            if not config.uses_mitsuba:
+                stem = view_stem(i)
+                shutil.copyfile(job_dir / out, job_dir / f"{stem}.png")
+                _png_to_exr(job_dir / out, job_dir / f"{stem}.exr")
+                files += [job_dir / f"{stem}.exr", job_dir / f"{stem}.png"]
+    if not config.uses_mitsuba:  # keep render.exr, render.png first
+        files.sort(key=lambda p: (not p.name.startswith("render."), p.name))
+    scene_seconds = load_seconds + (scene.seconds if scene is not None else 0.0)
+    return RenderResult(renderer=config.renderer, variant=variant, seconds=seconds,
+                        scene_seconds=scene_seconds, povray_seconds=pov_seconds, files=tuple(files))

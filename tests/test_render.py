@@ -1,0 +1,336 @@
+"""Scenes and renders: Mitsuba XML, POV-Ray, render configs, variant choice."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+
+from icefarm.errors import InputError
+from icefarm.scene import povray as pov
+from icefarm.scene.camera import frame_view, world_frame
+from icefarm.scene.config import (RenderConfig, View, config_names, load_render_config,
+                                  material_from_dict, parse_view, render_config_from_dict,
+                                  render_config_to_dict)
+from icefarm.scene.render import (choose_variant, find_libllvm, llvm_version, read_image,
+                                  render_job, write_scenes)
+
+ROOT = Path(__file__).resolve().parents[1]
+MITSUBA_CLI = Path(sys.executable).parent / "mitsuba"
+TINY = {"resolution": [48, 36], "spp": 4, "max_depth": 6}
+
+
+def box_with_icicles(gravity=(0.0, -1.0, 0.0)):
+    """A 30 cm box and five cones hanging from its underside along ``gravity``."""
+    g = np.asarray(gravity, dtype=float) / np.linalg.norm(gravity)
+    box = trimesh.creation.box(extents=(0.3, 0.1, 0.2))
+    box.apply_translation((0.0, 0.05, 0.0))
+    cones = []
+    for i, x in enumerate(np.linspace(-0.12, 0.12, 5)):
+        cone = trimesh.creation.cone(radius=0.012, height=0.06 + 0.03 * (i % 3), sections=24)
+        cone.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, (1, 0, 0)))  # tip -Y
+        cone.apply_translation((x, 0.0, 0.05 * (1 if i % 2 else -1)))
+        cones.append(cone)
+    ice = trimesh.util.concatenate(cones)
+    # Rotate the Y-up test scene so that -Y goes to gravity.
+    turn = trimesh.geometry.align_vectors((0.0, -1.0, 0.0), g)
+    for mesh in (box, ice):
+        mesh.apply_transform(turn)
+    return box, ice
+
+
+def tiny_config(**changes) -> RenderConfig:
+    return render_config_from_dict({**TINY, **changes}, base=load_render_config("preview"))
+
+
+def assert_not_blank(pixels: np.ndarray) -> None:
+    rgb = pixels[..., :3]
+    assert np.isfinite(rgb).all()
+    assert rgb.max() > 0.05, "image is black"
+    assert rgb.std() > 0.01, "image is flat"
+
+
+# ------------------------------------------------------------------ render configs
+def test_named_configs_load_and_differ():
+    assert {"preview", "lookdev", "final"} <= set(config_names())
+    preview, lookdev, final = (load_render_config(n) for n in ("preview", "lookdev", "final"))
+    assert preview.resolution == (320, 240) and preview.name == "preview"
+    assert final.resolution == (1920, 1080)
+    assert preview.spp < lookdev.spp < final.spp
+    assert preview.ice.ior == pytest.approx(1.31)
+    assert all(isinstance(v, View) for v in final.views) and len(final.views) > 1
+
+
+def test_config_round_trips_through_dict():
+    config = load_render_config("final", {"ice.roughness": 0.05, "views": [[10, -5], "front"]})
+    again = render_config_from_dict(render_config_to_dict(config), name=config.name)
+    assert again == config
+    assert config.ice.roughness == 0.05 and config.views[0] == View("az10_el-5", 10.0, -5.0)
+
+
+def test_unknown_key_names_nearest():
+    with pytest.raises(InputError, match="resolution"):
+        render_config_from_dict({"resolutoin": [10, 10]})
+    with pytest.raises(InputError, match="ice.roughness"):
+        render_config_from_dict({"ice": {"rougness": 0.1}})
+    with pytest.raises(InputError, match="environment.sun_strength"):
+        render_config_from_dict({"environment.sun_strenght": 2})
+
+
+@pytest.mark.parametrize("values, words", [
+    ({"spp": 0}, ["spp", "0", "integer"]),
+    ({"spp": 2.5}, ["spp", "2.5"]),
+    ({"resolution": "big"}, ["resolution", "'big'", "width, height"]),
+    ({"renderer": "blender"}, ["renderer", "mitsuba | povray | both"]),
+    ({"variant": "llvm_rgb"}, ["variant", "llvm_ad_rgb"]),
+    ({"views": ["frnt"]}, ["views[0]", "'front'"]),
+    ({"views": [[0, 95]]}, ["views[0]", "elevation"]),
+    ({"ice": {"roughness": 2}}, ["ice.roughness", "2", "[0, 1]"]),
+    ({"ice": {"tint": [1, 1]}}, ["ice.tint", "3 numbers"]),
+    ({"environment": {"ground": "grass"}}, ["environment.ground", "checker"]),
+    ({"environment": {"sky": "missing.exr"}}, ["environment.sky", "no such file"]),
+    ({"ice": 1.3}, ["ice", "mapping"]),
+])
+def test_bad_values_are_refused_with_key_value_and_expectation(values, words):
+    with pytest.raises(InputError) as info:
+        render_config_from_dict(values)
+    for word in words:
+        assert word in str(info.value)
+
+
+def test_yaml_file_and_overrides(tmp_path):
+    path = tmp_path / "mine.yaml"
+    path.write_text("renderer: both\nspp: 7\nice: {roughness: 0.2}\n")
+    config = load_render_config(path, {"spp": 9})
+    assert (config.name, config.renderer, config.spp, config.ice.roughness) == ("mine", "both", 9, 0.2)
+    path.write_text("spp: [\n")
+    with pytest.raises(InputError, match="cannot read"):
+        load_render_config(path)
+    with pytest.raises(InputError, match="preview"):
+        load_render_config("previw")
+
+
+def test_material_validation():
+    assert material_from_dict(None)["type"] == "diffuse"
+    assert material_from_dict({"type": "metal", "metal": "Cu"})["metal"] == "Cu"
+    with pytest.raises(InputError, match="color"):
+        material_from_dict({"colour": [1, 0, 0]})
+    with pytest.raises(InputError, match="material.roughness"):
+        material_from_dict({"roughness": -1})
+
+
+def test_parse_view_forms():
+    assert parse_view("v", "side") == View("side", 90.0, 5.0)
+    assert parse_view("v", {"azimuth": 1, "elevation": 2, "name": "x"}) == View("x", 1.0, 2.0)
+
+
+# ------------------------------------------------------------------ variants
+def test_llvm_version_from_names():
+    assert llvm_version("/usr/lib/x86_64-linux-gnu/libLLVM-15.so.1") == 15
+    assert llvm_version("/usr/lib/x86_64-linux-gnu/libLLVM.so.19.1") == 19
+    assert llvm_version("/usr/lib/x86_64-linux-gnu/libLLVM-14.0.6.so.1") == 14
+    assert llvm_version("/usr/lib/llvm-18/lib/libLLVM.so") == 18
+    assert llvm_version("/usr/lib/libLLVM.so") is None
+    assert llvm_version("/usr/lib/libLLVMSupport.a") is None
+
+
+def test_find_libllvm_refuses_old_versions(tmp_path):
+    for name in ("libLLVM-14.so.1", "libLLVM-15.so.1", "libLLVM-16.so.1", "libLLVM.so"):
+        (tmp_path / name).write_bytes(b"")
+    assert find_libllvm([tmp_path]) is None
+    (tmp_path / "libLLVM-17.so").write_bytes(b"")
+    (tmp_path / "libLLVM.so.19.1").write_bytes(b"")
+    assert find_libllvm([tmp_path]) == tmp_path / "libLLVM.so.19.1"
+    assert find_libllvm([tmp_path / "missing"]) is None
+
+
+def test_choose_variant_order_and_refusals():
+    assert choose_variant("auto", cuda=False, llvm=False) == "scalar_rgb"
+    assert choose_variant("auto", cuda=False, llvm=True) == "llvm_ad_rgb"
+    assert choose_variant("auto", cuda=True, llvm=True) == "cuda_ad_rgb"
+    assert choose_variant("scalar_rgb", cuda=True, llvm=True) == "scalar_rgb"
+    with pytest.raises(InputError, match="llvm_ad_rgb"):
+        choose_variant("llvm_ad_rgb", cuda=False, llvm=False)
+    with pytest.raises(InputError, match="CUDA"):
+        choose_variant("cuda_ad_rgb", cuda=False, llvm=True)
+
+
+@pytest.mark.parametrize("fake", [None, "libLLVM.so.19.1"])
+def test_pick_variant_falls_back_to_scalar_without_good_llvm(tmp_path, fake):
+    """A fresh process (Dr.Jit reads the path at import): no libLLVM, or a fake one, gives scalar."""
+    if fake:
+        (tmp_path / fake).write_bytes(b"not a library")
+    env = {k: v for k, v in os.environ.items() if k != "DRJIT_LIBLLVM_PATH"}
+    env.update(CUDA_VISIBLE_DEVICES="", DRJIT_LIBCUDA_PATH=str(tmp_path / "no-libcuda.so"),
+               PYTHONPATH=str(ROOT))
+    code = ("import os; from icefarm.scene.render import pick_variant; "
+            f"print(pick_variant('auto', search_dirs=[{str(tmp_path)!r}])); "
+            "print(os.environ['DRJIT_LIBLLVM_PATH'])")
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
+                         timeout=120)
+    assert out.returncode == 0, out.stderr
+    variant, path = out.stdout.split()
+    assert variant == "scalar_rgb"
+    assert (path == str(tmp_path / fake)) if fake else "nonexistent" in path
+
+
+# ------------------------------------------------------------------ cameras
+@pytest.mark.parametrize("gravity", [(0, -1, 0), (0, 0, -1), (1, 0, 0)])
+def test_camera_up_follows_gravity_and_frames_everything(gravity):
+    box, ice = box_with_icicles(gravity)
+    points = np.vstack([box.vertices, ice.vertices])
+    up = world_frame(gravity)[1]
+    assert np.allclose(up, -np.asarray(gravity, float))
+    ground = float((points @ up).min())
+    camera = frame_view(points, gravity, 35.0, -8.0, 4 / 3, ground=ground)
+    assert np.allclose(camera.up, up)
+    assert camera.origin @ up > ground
+    pixels = camera.project(points, 400, 300)
+    assert (pixels >= 0).all() and (pixels[:, 0] <= 400).all() and (pixels[:, 1] <= 300).all()
+    assert np.ptp(pixels[:, 0]) > 0.8 * 400 or np.ptp(pixels[:, 1]) > 0.8 * 300  # fills the frame
+    # Hanging icicles (along gravity) go down the picture.
+    tip, root = camera.project(np.array([[0, 0, 0], [0, 0, 0]]) + [up * -0.1, up * 0.0], 400, 300)
+    assert tip[1] > root[1]
+
+
+# ------------------------------------------------------------------ scene files
+def test_scene_files_follow_the_contract(tmp_path):
+    box, ice = box_with_icicles()
+    files = write_scenes(tmp_path, box, ice, tiny_config())
+    for name in ("scene.xml", "scene.pov", "object.ply", "ice.ply", "object.inc", "ice.inc"):
+        assert (tmp_path / name).is_file(), name
+    root = ET.parse(files.xml).getroot()
+    assert root.tag == "scene" and root.get("version") == "3.0.0"
+    names = [e.get("value") for e in root.iter("string") if e.get("name") == "filename"]
+    assert sorted(names) == ["ice.ply", "object.ply", files.sky.name]
+    assert all((tmp_path / n).is_file() and "/" not in n for n in names)  # relative, in the folder
+    assert files.sky.suffix == ".exr" and f'"{files.sky.name}"' in files.pov.read_text()
+    ice_bsdf = root.find("shape[@id='ice']/bsdf")
+    assert ice_bsdf.get("type") == "dielectric"
+    assert ice_bsdf.find("string[@name='int_ior']").get("value") == "water ice"
+    assert len(root.findall("sensor")) == 1 and files.cameras[0].fov_y == 30.0
+    assert trimesh.load(tmp_path / "object.ply").vertex_normals.shape[1] == 3
+    text = files.pov.read_text()
+    assert "#version 3.7" in text and "ior 1.31" in text and "fresnel" in text and "fade_distance" in text
+    assert "normal_vectors" in (tmp_path / "ice.inc").read_text()
+
+
+def test_custom_sky_image_is_copied_next_to_the_scene(tmp_path):
+    from icefarm.scene.render import write_exr
+
+    write_exr(tmp_path / "studio.exr", np.full((8, 16, 3), 0.5, np.float32))
+    (tmp_path / "look.yaml").write_text("environment: {sky: studio.exr}\n")  # relative to the YAML
+    config = render_config_from_dict(TINY, base=load_render_config(tmp_path / "look.yaml"))
+    box, ice = box_with_icicles()
+    files = write_scenes(tmp_path / "job", box, ice, config)
+    assert files.sky == tmp_path / "job" / "sky_studio.exr" and files.sky.is_file()
+    assert "sky_studio.exr" in files.xml.read_text()
+
+
+def test_rough_ice_other_ior_and_no_ice(tmp_path):
+    box, ice = box_with_icicles()
+    files = write_scenes(tmp_path / "a", box, ice, tiny_config(ice={"roughness": 0.1, "ior": 1.5}))
+    bsdf = ET.parse(files.xml).getroot().find("shape[@id='ice']/bsdf")
+    assert bsdf.get("type") == "roughdielectric"
+    assert bsdf.find("float[@name='int_ior']").get("value") == "1.5"
+    assert bsdf.find("float[@name='alpha']").get("value") == "0.1"
+    files = write_scenes(tmp_path / "b", box, None, tiny_config(), object_material={"type": "metal"})
+    root = ET.parse(files.xml).getroot()
+    assert root.find("shape[@id='ice']") is None and files.ice_ply is None
+    assert root.find("shape[@id='object']/bsdf/bsdf").get("type") == "roughconductor"
+
+
+def test_inward_ice_gets_flipped_normals(tmp_path):
+    box, ice = box_with_icicles()
+    ice.invert()
+    files = write_scenes(tmp_path, box, ice, tiny_config())
+    flag = ET.parse(files.xml).getroot().find("shape[@id='ice']/boolean[@name='flip_normals']")
+    assert flag is not None and flag.get("value") == "true"
+
+
+def test_mitsuba_command_line_renders_the_scene(tmp_path):
+    """scene.xml loads in a separate process with the wheel's `mitsuba` renderer."""
+    if not MITSUBA_CLI.is_file():
+        pytest.skip(f"no mitsuba command beside {sys.executable}")
+    box, ice = box_with_icicles()
+    write_scenes(tmp_path, box, ice, tiny_config(views=["three_quarter", "front"]))
+    env = {**os.environ, "DRJIT_LIBLLVM_PATH": str(find_libllvm() or tmp_path / "none.so")}
+    for sensor in ("0", "1"):
+        out = subprocess.run([str(MITSUBA_CLI), "-m", "scalar_rgb", "-s", sensor,
+                              "-D", "spp=4", "-D", "resx=40", "-D", "resy=30",
+                              "-o", f"cli{sensor}.exr", "scene.xml"],
+                             cwd=tmp_path, env=env, capture_output=True, text=True, timeout=120)
+        assert out.returncode == 0, out.stdout[-2000:] + out.stderr[-2000:]
+        pixels = read_image(tmp_path / f"cli{sensor}.exr")
+        assert pixels.shape[:2] == (30, 40)
+        assert_not_blank(pixels)
+
+
+def test_povray_renders_the_scene(tmp_path):
+    if shutil.which("povray") is None:
+        pytest.skip("povray is not installed (apt-get install povray)")
+    box, ice = box_with_icicles()
+    config = tiny_config(renderer="povray", resolution=[40, 30])
+    write_scenes(tmp_path, box, ice, config)
+    result = render_job(tmp_path, config)
+    assert result.variant == "" and result.povray_seconds > 0 and result.seconds == 0
+    assert [p.name for p in result.files[:2]] == ["render.exr", "render.png"]
+    pixels = read_image(tmp_path / "render_povray.png")
+    assert pixels.shape[:2] == (30, 40)
+    assert_not_blank(pixels)
+    assert_not_blank(read_image(tmp_path / "render.exr"))
+
+
+def test_povray_missing_is_a_clear_error(tmp_path, monkeypatch):
+    box, ice = box_with_icicles()
+    config = tiny_config(renderer="both")
+    write_scenes(tmp_path, box, ice, config)
+    monkeypatch.setattr(pov.shutil, "which", lambda name: None)
+    with pytest.raises(InputError, match="apt-get install povray"):
+        render_job(tmp_path, config)
+    assert not (tmp_path / "render.png").exists()  # refused before any rendering
+
+
+def test_render_job_writes_linear_exr_and_srgb_png(tmp_path):
+    box, ice = box_with_icicles()
+    config = tiny_config(views=["three_quarter", "below"])
+    files = write_scenes(tmp_path, box, ice, config)
+    result = render_job(tmp_path, config, files)
+    assert result.variant in ("scalar_rgb", "llvm_ad_rgb", "cuda_ad_rgb")
+    assert result.seconds > 0 and result.scene_seconds >= files.seconds
+    assert [p.name for p in result.files] == ["render.exr", "render.png",
+                                              "render_view1.exr", "render_view1.png"]
+    linear, display = read_image(tmp_path / "render.exr"), read_image(tmp_path / "render.png")
+    assert linear.shape == display.shape == (36, 48, 3)
+    assert_not_blank(display)
+    # The PNG is the sRGB encoding of the EXR: mid-tones are lifted, never darkened.
+    mid = (linear > 0.01) & (linear < 0.8)
+    assert (display[mid] >= linear[mid] - 0.02).all() and display[mid].mean() > linear[mid].mean()
+
+
+def test_ice_changes_the_picture_where_it_projects(tmp_path):
+    box, ice = box_with_icicles()
+    config = tiny_config(resolution=[80, 60], spp=8)
+    points = np.vstack([box.vertices, ice.vertices])  # same camera for both pictures
+    with_ice = write_scenes(tmp_path / "ice", box, ice, config, frame_points=points)
+    write_scenes(tmp_path / "bare", box, None, config, frame_points=points)
+    render_job(tmp_path / "ice", config)
+    render_job(tmp_path / "bare", config)
+    a = read_image(tmp_path / "ice" / "render.exr")
+    b = read_image(tmp_path / "bare" / "render.exr")
+    diff = np.abs(a - b).mean(axis=2)
+    # Pixels the icicles cover: project dense surface samples of the ice.
+    samples, _ = trimesh.sample.sample_surface(ice, 4000, seed=1)
+    xy = with_ice.cameras[0].project(samples, 80, 60).astype(int)
+    mask = np.zeros((60, 80), bool)
+    mask[np.clip(xy[:, 1], 0, 59), np.clip(xy[:, 0], 0, 79)] = True
+    assert mask.sum() > 20
+    assert diff[mask].mean() > 0.05
+    assert diff[mask].mean() > 3 * diff[~mask].mean()
