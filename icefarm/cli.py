@@ -96,7 +96,7 @@ def run(mesh, size_m, assignments, seed, out, until, render, no_render, exclude,
 def _print_plausibility(timings: dict) -> None:
     if "ice_faces" not in timings:
         return
-    ratios = timings.get("length_to_diameter") or []
+    ratios = [r for r in timings.get("length_to_diameter") or [] if r == r]  # NaN: too short to measure
     click.echo(f"  ice: {timings['ice_faces']} faces, {timings.get('icicles', 0)} icicles")
     click.echo(f"  tip radius {timings['tip_radius_mm']:.2f} mm (real: 2.44 mm); ripple wavelength "
                f"{timings['ripple_wavelength_cm']:.2f} cm (real: about 1 cm)")

@@ -140,7 +140,7 @@ PARAMS: tuple[Param, ...] = (
        "roll of growth and dispersal; each generation rolls by au*137.5/360 deg", low=0.0, high=360.0),
     _p("trajectories", "step_length", "F", "m", _F, 0.004,
        "length of one L-system F segment", low=0.0, low_open=True),
-    _p("trajectories", "length_scale", "kL", "m/m", _F, 0.6,
+    _p("trajectories", "length_scale", "kL", "m/m", _F, 2.0,
        "icicle length per meter of water coefficient: sets the number of generations",
        low=0.0, low_open=True),
     _p("trajectories", "max_branches", "-", "-", _I, 32,
@@ -166,7 +166,7 @@ PARAMS: tuple[Param, ...] = (
     _p("surface", "voxel_size", "-", "m", _F, 0.001,
        "edge of a marching-cubes voxel; must resolve the tip radius", low=0.0, low_open=True),
     # Glaze ice (paper 4.4.4)
-    _p("glaze", "min_radius", "minGI", "m", _F, 0.0005, "minimum thickness of the glaze ice", low=0.0),
+    _p("glaze", "min_radius", "minGI", "m", _F, 0.0008, "minimum thickness of the glaze ice", low=0.0),
     _p("glaze", "balls", "ngi", "-", _I, 20000,
        "metaballs spread over the wet surface (more: a finer, smoother coat)", low=0),
     _p("glaze", "scale", "s", "m/m", _F, 0.006, "glaze thickness per meter of dUp/dDown", low=0.0),

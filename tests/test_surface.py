@@ -1,0 +1,261 @@
+"""Stage 4 (paper 4.4): icicles, bases and glaze as one watertight mesh; tubes mode."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+
+from icefarm import params
+from icefarm.errors import InputError
+from icefarm.stages import surface as S
+from icefarm.stages.drips import DripResult
+from icefarm.stages.trajectories import TrajectoryResult
+from icefarm.stages.water import WaterResult
+
+MESHES = Path(__file__).parents[1].parent / "shared" / "meshes"
+G = np.array([0.0, -1.0, 0.0])
+TIP = 0.00244
+
+
+def _groups(**changes):
+    """Resolved surface and glaze groups with ``group.name`` changes."""
+    p = params.resolve({k.replace("__", "."): v for k, v in changes.items()})
+    return p["surface"], p["glaze"]
+
+
+def _sphere(radius=0.15):
+    return trimesh.creation.icosphere(subdivisions=4, radius=radius)
+
+
+def _water(mesh, wet):
+    """Water on ``mesh`` by hand: ``wet`` vertices, dUp/dDown from their heights."""
+    h = mesh.vertices @ -G
+    top, bottom = h[wet].max(), h[wet].min()
+    n = len(h)
+    return WaterResult(supply=wet, water=np.where(wet, 0.1, 0.0), top=np.zeros(n, int),
+                       d_up=np.where(wet, top - h, 0.0), bottom=np.zeros(n, int),
+                       d_down=np.where(wet, h - bottom, 0.0), hits=np.zeros((0, 3)))
+
+
+def _dry(mesh):
+    n = len(mesh.vertices)
+    z = np.zeros(n)
+    return WaterResult(np.zeros(n, bool), z, z.astype(int), z, z.astype(int), z, np.zeros((0, 3)))
+
+
+def _drips(mesh, points, water=0.1):
+    points = np.asarray(points, dtype=float).reshape(-1, 3)
+    if len(points) == 0:
+        return DripResult(np.zeros(0, int), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), np.zeros(0, int))
+    closest, _, face = trimesh.proximity.closest_point(mesh, points)
+    return DripResult(np.zeros(0, int), closest, mesh.face_normals[face],
+                      np.full(len(points), water), face)
+
+
+def _straight(starts, lengths, step=0.004):
+    """One straight trunk per start, hanging along gravity."""
+    pts, off = [], [0]
+    for s, length in zip(np.asarray(starts, float).reshape(-1, 3), lengths):
+        n = max(int(np.ceil(length / step)), 1)
+        pts.append(s + np.linspace(0.0, length, n + 1)[:, None] * G)
+        off.append(off[-1] + n + 1)
+    k = len(off) - 1
+    return TrajectoryResult(np.concatenate(pts), np.array(off), np.arange(k), np.full(k, -1))
+
+
+def _no_icicles():
+    return TrajectoryResult(np.zeros((0, 3)), np.zeros(1, int), np.zeros(0, int), np.zeros(0, int))
+
+
+def _ice(obj, water, drips, traj, surface, glaze, seed=0):
+    return S.build_ice(obj, obj, water, drips, traj, surface, glaze, G, np.random.default_rng(seed))
+
+
+def _mesh(ice):
+    return trimesh.Trimesh(ice.vertices, ice.faces, process=False)
+
+
+def _closed_and_clean(ice):
+    m = _mesh(ice)
+    assert len(ice.faces) > 0
+    assert ice.vertices.dtype == np.float64 and ice.faces.dtype == np.int64
+    assert m.is_watertight and m.is_winding_consistent
+    assert m.area_faces.min() > 0
+    assert m.volume > 0  # outward normals
+    return m
+
+
+def _radius_along(ice, top, length, fractions):
+    """Distance from axis points (hanging from ``top``) to the nearest ice vertex."""
+    axis = top + np.outer(np.asarray(fractions) * length, G)
+    d, _ = trimesh.proximity.ProximityQuery(_mesh(ice)).vertex(axis)
+    return d
+
+
+def test_profile_follows_equation_1():
+    x = np.array([0.0, 0.02, 0.05, 0.08])
+    r = S.profile_radius(x, 0.08, TIP, 0.012, 0.0, 628.3)
+    assert np.allclose(r, TIP + (0.08 - x) * 0.012)
+    rippled = S.profile_radius(x, 0.08, TIP, 0.012, 0.0002, 628.3)
+    free = x < 0.08 - S.TIP_CALM * TIP  # the ripple fades out at the tip
+    assert np.allclose(rippled[free], r[free] + 0.0002 * np.sin(x[free] * 628.3))
+    assert rippled[-1] == pytest.approx(TIP)
+
+
+def test_sphere_with_icicles_bases_and_glaze_is_one_watertight_mesh():
+    obj = _sphere()
+    wet = obj.vertices[:, 1] > 0.02
+    starts = [[0.0, -0.15, 0.0], [0.05, -0.14, 0.0], [-0.04, -0.14, 0.03]]
+    drips = _drips(obj, starts)
+    traj = _straight(drips.positions, [0.06, 0.04, 0.05])
+    surface, glaze = _groups(glaze__balls=3000)
+    ice = _ice(obj, _water(obj, wet), drips, traj, surface, glaze)
+    _closed_and_clean(ice)
+    assert ice.balls > 3000
+    assert len(ice.length_to_diameter) == 3
+    # The glaze covers the wet cap: ice vertices lie above the top of the sphere.
+    assert ice.vertices[:, 1].max() > 0.15
+    # Icicles hang below the sphere down to about their tips.
+    assert ice.vertices[:, 1].min() == pytest.approx(-0.15 - 0.06 - TIP, abs=0.002)
+
+
+def test_single_icicle_tip_radius_within_ten_percent_at_default_voxel():
+    obj = _sphere()
+    drips = _drips(obj, [[0.0, -0.15, 0.0]])
+    traj = _straight(drips.positions, [0.08])
+    surface, glaze = _groups()
+    ice = _ice(obj, _dry(obj), drips, traj, surface, glaze)
+    _closed_and_clean(ice)
+    assert ice.tip_radius_mm == pytest.approx(2.44, rel=0.10)
+    # A trunk of 8 cm: L / D = 80 / (2 (2.44 + 80 t)) with the default t.
+    t = surface["growth_ratio"]
+    assert ice.length_to_diameter[0] == pytest.approx(0.08 / (2 * (TIP + 0.08 * t)), rel=0.15)
+    assert ice.ripple_wavelength_cm == pytest.approx(1.0, rel=0.15)
+
+
+def test_without_ripples_the_radius_only_shrinks_towards_the_tip():
+    obj = _sphere()
+    drips = _drips(obj, [[0.0, -0.15, 0.0]])
+    top, length = drips.positions[0], 0.08
+    traj = _straight(drips.positions, [length])
+    fractions = np.linspace(0.25, 0.9, 40)
+    smooth = _ice(obj, _dry(obj), drips, traj, *_groups(surface__ripple_amplitude=0.0, surface__noise=0.0))
+    r = _radius_along(smooth, top, length, fractions)
+    assert np.all(np.diff(r) <= 0.05 * 0.001)  # within a twentieth of a voxel
+    assert np.isnan(smooth.ripple_wavelength_cm)
+    rippled = _ice(obj, _dry(obj), drips, traj, *_groups(surface__ripple_amplitude=0.0005, surface__noise=0.0))
+    r = _radius_along(rippled, top, length, fractions)
+    assert np.diff(r).max() > 0.0002
+
+
+def test_larger_growth_ratio_gives_a_wider_base():
+    obj = _sphere()
+    drips = _drips(obj, [[0.0, -0.15, 0.0]])
+    traj = _straight(drips.positions, [0.08])
+    ratios = [_ice(obj, _dry(obj), drips, traj, *_groups(surface__growth_ratio=t)).length_to_diameter[0]
+              for t in (0.005, 0.03)]
+    assert ratios[1] < 0.6 * ratios[0]
+
+
+def test_icicles_closer_than_their_radii_fuse_into_one_component():
+    obj = _sphere()
+    surface, glaze = _groups(surface__base_balls=0, surface__noise=0.0)
+    for gap, components in ((0.003, 1), (0.03, 2)):
+        drips = _drips(obj, [[-gap / 2, -0.15, 0.0], [gap / 2, -0.15, 0.0]])
+        traj = _straight(drips.positions, [0.05, 0.05])
+        ice = _ice(obj, _dry(obj), drips, traj, surface, glaze)
+        assert len(_mesh(ice).split(only_watertight=False)) == components
+
+
+def test_glaze_lifetime_moves_the_thickness_between_top_and_bottom():
+    obj = _sphere()
+    water = _water(obj, np.ones(len(obj.vertices), bool))  # wet all over: dUp, dDown span 0.3 m
+    drips = _drips(obj, np.zeros((0, 3)))
+    thick = {}
+    for lt in (0.0, 1.0):
+        surface, glaze = _groups(glaze__lifetime=lt, glaze__min_radius=0.0005, glaze__scale=0.015,
+                                 glaze__balls=8000, surface__voxel_size=0.002)
+        ice = _ice(obj, water, drips, _no_icicles(), surface, glaze)
+        _closed_and_clean(ice)
+        out = np.linalg.norm(ice.vertices, axis=1) - 0.15
+        y = ice.vertices[:, 1]
+        thick[lt] = np.median(out[(out > 0) & (y > 0.1)]), np.median(out[(out > 0) & (y < -0.1)])
+    # lt = 0: dDown rules, the ice is thick high up; lt = 1: dUp rules, thick low down.
+    assert thick[0.0][0] > 1.5 * thick[0.0][1]
+    assert thick[1.0][1] > 1.5 * thick[1.0][0]
+
+
+def test_glaze_thickness_is_the_equation_3_radius():
+    obj = _sphere()
+    water = _water(obj, np.ones(len(obj.vertices), bool))
+    surface, glaze = _groups(glaze__min_radius=0.002, glaze__scale=0.0, glaze__balls=8000,
+                             surface__voxel_size=0.0015)
+    ice = _ice(obj, water, _drips(obj, np.zeros((0, 3))), _no_icicles(), surface, glaze)
+    out = np.linalg.norm(ice.vertices, axis=1) - 0.15
+    assert np.median(out[out > 0]) == pytest.approx(0.002, rel=0.2)
+
+
+def test_tubes_mode_gives_one_closed_tube_per_branch():
+    obj = _sphere()
+    drips = _drips(obj, [[0.0, -0.15, 0.0], [0.05, -0.14, 0.0]])
+    pts = drips.positions[0] + np.linspace(0, 0.06, 16)[:, None] * G
+    bend = np.array([1.0, -1.0, 0.3]) / np.linalg.norm([1.0, -1.0, 0.3])
+    branch = pts[5] + np.linspace(0, 0.03, 8)[:, None] * bend
+    other = drips.positions[1] + np.linspace(0, 0.04, 11)[:, None] * G
+    traj = TrajectoryResult(np.concatenate([pts, branch, other]), np.array([0, 16, 24, 35]),
+                            np.array([0, 0, 1]), np.array([-1, 0, -1]))
+    ice = _ice(obj, _water(obj, obj.vertices[:, 1] > 0), drips, traj, *_groups(surface__mode="tubes"))
+    assert ice.balls == 0
+    parts = _mesh(ice).split(only_watertight=False)
+    assert len(parts) == traj.n_branches
+    for part in parts:
+        assert part.is_watertight and part.is_winding_consistent and part.volume > 0
+    assert ice.tip_radius_mm == pytest.approx(2.44, rel=0.1)
+
+
+def test_nothing_to_build_gives_an_empty_mesh():
+    obj = _sphere()
+    surface, glaze = _groups(glaze__balls=0)
+    ice = _ice(obj, _dry(obj), _drips(obj, np.zeros((0, 3))), _no_icicles(), surface, glaze)
+    assert ice.vertices.shape == (0, 3) and ice.faces.shape == (0, 3)
+    assert np.isnan(ice.tip_radius_mm) and len(ice.length_to_diameter) == 0
+
+
+def test_a_voxel_too_fine_for_the_ice_is_refused_with_advice():
+    obj = _sphere()
+    drips = _drips(obj, [[0.0, -0.15, 0.0]])
+    surface, glaze = _groups(surface__voxel_size=0.00002)
+    with pytest.raises(InputError, match="voxel_size"):
+        _ice(obj, _dry(obj), drips, _straight(drips.positions, [0.1]), surface, glaze)
+
+
+def test_inconsistent_inputs_are_refused():
+    obj = _sphere()
+    water = _dry(trimesh.creation.box())
+    with pytest.raises(ValueError, match="water"):
+        _ice(obj, water, _drips(obj, np.zeros((0, 3))), _no_icicles(), *_groups())
+
+
+@pytest.mark.parametrize("name", ["cow.obj", "teapot.obj"])
+def test_real_meshes_through_stages_1_to_4_are_watertight(name):
+    path = MESHES / name
+    if not path.is_file():
+        pytest.skip(f"{path} is absent")
+    from icefarm.mesh import prepare
+    from icefarm.stages.drips import find_drips
+    from icefarm.stages.trajectories import grow_trajectories
+    from icefarm.stages.water import compute_water
+
+    p = params.resolve({"drips.count": 8, "water.rays": 800, "glaze.balls": 4000, "surface.voxel_size": 0.0015})
+    mesh = prepare(path, 0.3).mesh
+    rng = np.random.default_rng(1)
+    water = compute_water(mesh, G, p["water"]["rays"], p["water"]["influence_radius"], rng)
+    drips = find_drips(mesh, water.water, G, p["drips"]["count"], p["drips"]["drip_limit"], rng)
+    traj = grow_trajectories(mesh, drips.positions, mesh.face_normals[drips.faces], drips.water, G, rng,
+                             drip_limit=p["drips"]["drip_limit"], **p["trajectories"])
+    ice = S.build_ice(mesh, mesh, water, drips, traj, p["surface"], p["glaze"], G, rng)
+    _closed_and_clean(ice)
+    assert np.isfinite(ice.tip_radius_mm)
