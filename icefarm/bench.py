@@ -3,9 +3,12 @@
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
+import trimesh
 
 from .mesh import prepare
 from .stages.drips import find_drips
@@ -17,15 +20,21 @@ from .stages.water import compute_water
 class StageRuns:
     faces: int
     icicles: int
-    ice_faces: int
+    ice_faces: int  # of the last run
     seconds: dict  # stage -> list of seconds, one per run
+    ice_faces_runs: tuple = ()  # ice faces of each run (surface timed only)
 
 
-def stage_timings(mesh_path: str, size_m: float, p: dict, repeat: int, surface: bool = False) -> StageRuns:
+def stage_timings(mesh_path: str | Path | trimesh.Trimesh, size_m: float, p: dict, repeat: int,
+                  surface: bool = False, on_run: Callable[[], None] | None = None,
+                  exclude: tuple = ()) -> StageRuns:
     """Time stages 1-3 (and 4) ``repeat`` times on a fresh copy of the mesh each run.
 
+    ``mesh_path`` is a mesh file or a mesh already in memory (see `icefarm.mesh.prepare`).
     Mesh loading is excluded; the ray-tracing BVH is built on a copy first, as a
-    long-lived worker would have it, so each run times the stages alone.
+    long-lived worker would have it, so each run times the stages alone. ``on_run`` is
+    called after each run (a progress bar's tick); ``exclude`` holds boxes ``((lo), (hi))``
+    in meters, in the prepared mesh's frame, where no icicle may hang (as a job's ``exclude``).
     """
     prepared = prepare(mesh_path, size_m, p["water"]["gravity"])
     g = np.asarray(p["water"]["gravity"], dtype=np.float64)
@@ -33,6 +42,7 @@ def stage_timings(mesh_path: str, size_m: float, p: dict, repeat: int, surface: 
     names = ["water", "drips", "trajectories"] + (["surface"] if surface else [])
     seconds: dict[str, list[float]] = {name: [] for name in names}
     icicles = ice_faces = 0
+    ice_faces_runs: list[int] = []
     for run in range(repeat):
         mesh = prepared.mesh.copy()
         mesh.ray.intersects_any(mesh.vertices[:1] + 1.0, np.array([g]))  # build the BVH
@@ -40,7 +50,8 @@ def stage_timings(mesh_path: str, size_m: float, p: dict, repeat: int, surface: 
         t0 = time.perf_counter()
         water = compute_water(mesh, g, p["water"]["rays"], p["water"]["influence_radius"], rng)
         t1 = time.perf_counter()
-        drips = find_drips(mesh, water.water, g, p["drips"]["count"], p["drips"]["drip_limit"], rng)
+        drips = find_drips(mesh, water.water, g, p["drips"]["count"], p["drips"]["drip_limit"], rng,
+                           exclude_boxes=exclude)
         t2 = time.perf_counter()
         traj = grow_trajectories(mesh, drips.positions, mesh.face_normals[drips.faces], drips.water, g, rng,
                                  drip_limit=p["drips"]["drip_limit"], **p["trajectories"])
@@ -55,4 +66,7 @@ def stage_timings(mesh_path: str, size_m: float, p: dict, repeat: int, surface: 
             ice = build_ice(mesh, mesh, water, drips, traj, p["surface"], p["glaze"], g, rng)
             seconds["surface"].append(time.perf_counter() - t4)
             ice_faces = len(ice.faces)
-    return StageRuns(len(prepared.mesh.faces), icicles, ice_faces, seconds)
+            ice_faces_runs.append(ice_faces)
+        if on_run is not None:
+            on_run()
+    return StageRuns(len(prepared.mesh.faces), icicles, ice_faces, seconds, tuple(ice_faces_runs))

@@ -153,6 +153,38 @@ def bench_stages(mesh, size_m, drips, repeat, assignments, surface):
         click.echo(f"  ice: {runs.ice_faces} faces, {rate:,.0f} faces/s")
 
 
+@bench.command(name="surface")
+@click.argument("mesh", type=click.Path(dir_okay=False))
+@click.option("--size-m", type=float, default=0.3, show_default=True, help="Object height in meters.")
+@click.option("--drips", type=int, default=200, show_default=True, help="Drip points (drips.count).")
+@click.option("--repeat", type=int, default=5, show_default=True, help="Runs; the median is printed.")
+@click.option("--set", "assignments", multiple=True, metavar="GROUP.PARAM=VALUE", help="Override a parameter.")
+@click.pass_context
+def bench_surface(ctx, mesh, size_m, drips, repeat, assignments):
+    """Median seconds of all four stages on MESH, with ice faces per second."""
+    ctx.invoke(bench_stages, mesh=mesh, size_m=size_m, drips=drips, repeat=repeat,
+               assignments=assignments, surface=True)
+
+
+@bench.command(name="proxy")
+@click.argument("mesh", type=click.Path(dir_okay=False))
+@click.option("--size-m", type=float, default=0.3, show_default=True, help="Object height in meters.")
+@click.option("--repeat", type=int, default=3, show_default=True, help="Runs; the median is printed.")
+@click.option("--set", "assignments", multiple=True, metavar="GROUP.PARAM=VALUE", help="Override a parameter.")
+def bench_proxy(mesh, size_m, repeat, assignments):
+    """Median seconds to build the approximate surface (paper 5.1) of MESH."""
+    from .mesh import prepare
+    from .proxy import build_proxy
+
+    p = params.resolve({"proxy.mode": "always", **_assignments(assignments)})
+    prepared = prepare(mesh, size_m, p["water"]["gravity"])
+    runs = [build_proxy(prepared.mesh, p["proxy"], prepared.problems) for _ in range(repeat)]
+    click.echo(f"{mesh}: {prepared.problems.faces} faces, {prepared.problems.components} components")
+    click.echo(f"  proxy: {runs[0].method.value}, {runs[0].faces} faces, {runs[0].components} component(s)")
+    click.echo(f"  seconds: median {statistics.median(r.seconds for r in runs):.3f}, "
+               f"min {min(r.seconds for r in runs):.3f} ({repeat} runs)")
+
+
 @main.command()
 @click.argument("run_dir", type=click.Path(file_okay=False, exists=True))
 @click.option("--cell-width", type=int, default=320, show_default=True, help="Width of one cell in pixels.")
@@ -168,3 +200,36 @@ def sheet(run_dir, cell_width, name):
     for r in results:
         click.echo(f"  {r.object_id}: {r.png} ({r.rows}x{r.cols}, {r.cells} cells, {r.failed} failed)")
     click.echo(f"gallery: {Path(run_dir) / 'sheets' / 'index.html'}")
+
+
+@main.command()
+@click.argument("run_dir", type=click.Path(file_okay=False, exists=True))
+def report(run_dir):
+    """Write report.md and report.csv for RUN_DIR: the paper's Table 2 columns per job and object.
+
+    Input polygons, icicles, ice polygons, seconds per stage and in total, render and proxy
+    seconds and the render variant; stages taken from the cache show as "cached".
+    """
+    from .report import build_report
+
+    for path in build_report(Path(run_dir)):
+        click.echo(str(path))
+
+
+@bench.command(name="table2")
+@click.option("--meshes", type=click.Path(file_okay=False, path_type=Path),
+              help="Folder of the test meshes (default: ../shared/meshes when it exists).")
+@click.option("-o", "--out", type=click.Path(file_okay=False, path_type=Path), default=Path("out/table2"),
+              show_default=True, help="Folder for table2.md and table2.csv.")
+@click.option("--repeat", type=int, default=3, show_default=True, help="Runs per row; medians are reported.")
+@click.option("--rows", help="Only these rows of Table 2, e.g. a,c,e (default: all seven).")
+def bench_table2(meshes, out, repeat, rows):
+    """Reproduce the paper's Table 2 (Figure 16 a-g) side by side with its numbers.
+
+    Each row runs on a real mesh decimated to the paper's polygon count, with the paper's
+    icicle count and a voxel size calibrated to the paper's ice polygon count.
+    """
+    from .table2 import run_table2
+
+    result = run_table2(meshes, out, repeat=repeat, rows=rows)
+    click.echo(result.text)

@@ -1,0 +1,432 @@
+"""Timing reports of a sweep: the paper's Table 2 columns per job and per object.
+
+`build_report` reads the artifacts of every job under a sweep folder (DESIGN.md "Artifacts":
+``jobs/<object id>/<job id>/`` with ``timings.json``, ``params.yaml`` and ``done.json`` or
+``error.json``) and writes ``report.md`` and ``report.csv`` beside them.
+
+Stage times are honest about the stage cache: a stage reused from the cache (the ``reused``
+list of ``timings.json``) took only the time to load a pickle, so it shows as ``cached``, never
+as a measured time; a job's Table 2 total then reads ``0.412 + cached``, and the per-object
+medians are taken over the jobs that computed the stage.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+import statistics
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from .errors import InputError
+
+#: The stages of the paper's Table 2, in its order; their sum is its "Total time".
+TABLE2_STAGES: tuple[str, ...] = ("water", "drips", "trajectories", "surface")
+CACHED = "cached"
+
+
+@dataclass(frozen=True)
+class JobTimes:
+    """One job folder as the report sees it.
+
+    Attributes
+    ----------
+    object_id, job_id : str
+    status : str
+        ``done``, ``failed`` or ``pending`` (neither done.json nor error.json).
+    seconds : dict
+        Stage name to seconds as timings.json (or error.json) recorded them.
+    reused : tuple of str
+        Stages taken from the stage cache.
+    stats : dict
+        The rest of timings.json (input_faces, icicles, ice_faces, render_variant, ...).
+    params : dict
+        Flat ``{"group.name": value}`` from params.yaml (empty when missing).
+    failed_stage, message : str or None
+        From error.json.
+    """
+
+    object_id: str
+    job_id: str
+    status: str
+    seconds: dict = field(default_factory=dict)
+    reused: tuple = ()
+    stats: dict = field(default_factory=dict)
+    params: dict = field(default_factory=dict)
+    failed_stage: str | None = None
+    message: str | None = None
+
+    def stage_seconds(self, stage: str) -> float | None:
+        """Seconds the stage computed for, None when it did not run or came from the cache."""
+        value = self.seconds.get(stage)
+        if stage in self.reused or not _is_number(value):
+            return None
+        return float(value)
+
+    def cached_stages(self) -> tuple[str, ...]:
+        return tuple(s for s in TABLE2_STAGES if s in self.reused and s in self.seconds)
+
+
+@dataclass(frozen=True)
+class ObjectSummary:
+    """Medians over one object's finished jobs.
+
+    ``seconds`` holds, per stage, the median over the jobs that computed it (cached runs
+    left out), or None when every job had it from the cache or none ran it; ``total`` is the
+    sum of the Table 2 stage medians: what one uncached run of the object costs.
+    """
+
+    object_id: str
+    done: int
+    failed: int
+    pending: int
+    input_faces: float | None
+    icicles: float | None
+    ice_faces: float | None
+    seconds: dict
+    total: float | None
+    cached_only: tuple
+    render_variants: tuple
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def _read_json(path: Path) -> dict:
+    try:
+        value = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return {}
+    return value if isinstance(value, dict) else {}
+
+
+def _flatten(values: Any, prefix: str = "") -> dict:
+    if not isinstance(values, Mapping):
+        return {}
+    out: dict[str, Any] = {}
+    for key, value in values.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, Mapping):
+            out.update(_flatten(value, name + "."))
+        else:
+            out[name] = value
+    return out
+
+
+def _is_job_dir(path: Path) -> bool:
+    return any((path / name).is_file() for name in ("done.json", "error.json", "timings.json", "params.yaml"))
+
+
+def find_job_dirs(run_dir: Path) -> list[Path]:
+    """Job folders under a sweep folder, in the order of its manifest when it lists them.
+
+    ``run_dir`` may be a sweep folder (``jobs/<object>/<job>/``), any folder above job folders,
+    or one job folder.
+    """
+    run_dir = Path(run_dir)
+    if (run_dir / "jobs").is_dir():  # a sweep folder: every job folder, started or not
+        found = sorted(p for p in (run_dir / "jobs").glob("*/*") if p.is_dir())
+    elif _is_job_dir(run_dir):
+        return [run_dir]
+    else:
+        found = sorted({p.parent for name in ("done.json", "error.json", "timings.json", "params.yaml")
+                        for p in run_dir.rglob(name)})
+    order = _manifest_order(run_dir)
+    if order:
+        rank = {d: i for i, d in enumerate(order)}
+        found.sort(key=lambda p: (rank.get(str(p.relative_to(run_dir)), len(rank)), str(p)))
+    return found
+
+
+def _manifest_order(run_dir: Path) -> list[str]:
+    try:
+        data = yaml.safe_load((run_dir / "manifest.resolved.yaml").read_text())
+    except (OSError, yaml.YAMLError):
+        return []
+    jobs = data.get("jobs") if isinstance(data, dict) else None
+    if not isinstance(jobs, list):
+        return []
+    return [str(j["dir"]) for j in jobs if isinstance(j, dict) and "dir" in j]
+
+
+def read_job(job_dir: Path) -> JobTimes:
+    """The report's view of one job folder (missing or damaged files read as empty)."""
+    job_dir = Path(job_dir)
+    object_id = job_dir.parent.name or "-"
+    try:
+        params = _flatten(yaml.safe_load((job_dir / "params.yaml").read_text()))
+    except (OSError, yaml.YAMLError):
+        params = {}
+    timings = _read_json(job_dir / "timings.json")
+    if (job_dir / "done.json").is_file():
+        if not timings:  # a done job always has timings.json; fall back to done.json's copy
+            timings = _read_json(job_dir / "done.json")
+        stats = {k: v for k, v in timings.items() if k not in ("seconds", "reused", "job")}
+        seconds = timings.get("seconds") if isinstance(timings.get("seconds"), dict) else {}
+        reused = tuple(str(s) for s in timings.get("reused") or ())
+        return JobTimes(object_id, job_dir.name, "done", dict(seconds), reused, stats, params)
+    error = _read_json(job_dir / "error.json")
+    if (job_dir / "error.json").is_file():
+        seconds = error.get("seconds") if isinstance(error.get("seconds"), dict) else {}
+        message = str(error.get("message") or "unreadable error.json")
+        return JobTimes(object_id, job_dir.name, "failed", dict(seconds), (), {}, params,
+                        str(error.get("stage") or "-"), message)
+    return JobTimes(object_id, job_dir.name, "pending", {}, (), {}, params)
+
+
+def summarize(jobs: Sequence[JobTimes]) -> list[ObjectSummary]:
+    """Per-object medians, objects in the order they first appear in ``jobs``."""
+    objects = list(dict.fromkeys(j.object_id for j in jobs))
+    out = []
+    for obj in objects:
+        mine = [j for j in jobs if j.object_id == obj]
+        done = [j for j in mine if j.status == "done"]
+        seconds: dict[str, float | None] = {}
+        for stage in ("prepare", "proxy", *TABLE2_STAGES, "render"):
+            samples = [s for j in done if (s := j.stage_seconds(stage)) is not None]
+            seconds[stage] = statistics.median(samples) if samples else None
+        ran = [s for s in TABLE2_STAGES if any(s in j.seconds for j in done)]
+        cached_only = tuple(s for s in ran if seconds[s] is None)
+        measured = [seconds[s] for s in ran if seconds[s] is not None]
+        out.append(ObjectSummary(
+            object_id=obj,
+            done=len(done),
+            failed=sum(j.status == "failed" for j in mine),
+            pending=sum(j.status == "pending" for j in mine),
+            input_faces=_median_stat(done, "input_faces"),
+            icicles=_median_stat(done, "icicles"),
+            ice_faces=_median_stat(done, "ice_faces"),
+            seconds=seconds,
+            total=sum(measured) if measured else None,
+            cached_only=cached_only,
+            render_variants=tuple(dict.fromkeys(str(j.stats["render_variant"]) for j in done
+                                                if j.stats.get("render_variant"))),
+        ))
+    return out
+
+
+def _median_stat(jobs: Sequence[JobTimes], key: str) -> float | None:
+    values = [float(j.stats[key]) for j in jobs if _is_number(j.stats.get(key))]
+    return statistics.median(values) if values else None
+
+
+def varied_params(jobs: Sequence[JobTimes]) -> list[str]:
+    """Parameter keys whose values differ between the jobs (the swept ones), sorted."""
+    keys = sorted({k for j in jobs for k in j.params})
+    return [k for k in keys
+            if len({json.dumps(j.params.get(k), sort_keys=True, default=str) for j in jobs if j.params}) > 1]
+
+
+# --------------------------------------------------------------------------- formatting
+
+def fmt_seconds(value: float | None) -> str:
+    """Seconds with three decimals below 10 s, one above; ``-`` for none."""
+    if value is None:
+        return "-"
+    return f"{value:.3f}" if value < 10 else f"{value:.1f}"
+
+
+def fmt_count(value: float | None) -> str:
+    if value is None:
+        return "-"
+    return f"{value:,.0f}" if float(value).is_integer() else f"{value:,.1f}"
+
+
+def _stage_cell(job: JobTimes, stage: str) -> str:
+    if stage in job.reused and stage in job.seconds:
+        return CACHED
+    return fmt_seconds(job.stage_seconds(stage))
+
+
+def _total_cell(job: JobTimes) -> str:
+    if not any(s in job.seconds for s in TABLE2_STAGES):
+        return "-"
+    computed = sum(job.stage_seconds(s) or 0.0 for s in TABLE2_STAGES)
+    return fmt_seconds(computed) + (f" + {CACHED}" if job.cached_stages() else "")
+
+
+def _value_text(value: Any) -> str:
+    if isinstance(value, float):
+        return f"{value:g}"
+    if isinstance(value, list):
+        return " ".join(_value_text(v) for v in value)
+    return str(value)
+
+
+def _md_escape(text: str) -> str:
+    return " ".join(str(text).split()).replace("|", "\\|")
+
+
+def _job_seconds(job: JobTimes) -> float:
+    """Everything the job spent: preparation, proxy, stages (cache loads included), render."""
+    return sum(float(v) for v in job.seconds.values() if _is_number(v))
+
+
+_MD_JOB_HEADER = ("object", "job", "varied", "input polys", "icicles", "ice polys", "water s", "drips s",
+                  "trajectories s", "surface s", "total s", "proxy s", "render s", "variant", "job s")
+_MD_SUMMARY_HEADER = ("object", "jobs", "failed", "input polys", "icicles", "ice polys", "water s",
+                      "drips s", "trajectories s", "surface s", "total s", "proxy s", "render s", "variant")
+
+CSV_COLUMNS = ("kind", "object", "job", "status", "varied", "input_faces", "flow_faces", "icicles", "branches",
+               "ice_faces", "prepare_s", "proxy_s", "water_s", "drips_s", "trajectories_s", "surface_s",
+               "total_s", "render_s", "job_s", "render_variant", "renderer", "cached", "jobs", "failed",
+               "failed_stage", "error")
+
+
+def _md_table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> list[str]:
+    right = {i for i, h in enumerate(header) if h.endswith(" s") or h in ("input polys", "icicles", "ice polys",
+                                                                           "jobs", "failed")}
+    lines = ["| " + " | ".join(header) + " |",
+             "|" + "|".join("---:" if i in right else "---" for i in range(len(header))) + "|"]
+    lines += ["| " + " | ".join(_md_escape(c) for c in row) + " |" for row in rows]
+    return lines
+
+
+def report_markdown(run_dir: Path, jobs: Sequence[JobTimes], summaries: Sequence[ObjectSummary]) -> str:
+    """The Markdown report: per-object medians, per-job rows, failures."""
+    varied = varied_params(jobs)
+    done = [j for j in jobs if j.status == "done"]
+    failed = [j for j in jobs if j.status == "failed"]
+    pending = [j for j in jobs if j.status == "pending"]
+    lines = [f"# Timing report: {Path(run_dir).name}", "",
+             f"{len(jobs)} jobs: {len(done)} done, {len(failed)} failed, {len(pending)} not finished. "
+             "Columns follow the paper's Table 2 (seconds per stage; total = water + drips + trajectories "
+             "+ surface). `cached`: the stage was reused from the stage cache, so its time is not a "
+             "measurement; a job's total then counts only the stages it computed (`+ cached`). "
+             "Summary medians are taken over the jobs that computed each stage; the summary total is "
+             "the sum of those medians, the cost of one uncached run. `job s` is everything the job "
+             "spent (mesh preparation, proxy, stages, render).", ""]
+    lines += ["## Per object (medians)", ""]
+    lines += _md_table(_MD_SUMMARY_HEADER, [_summary_cells(s) for s in summaries])
+    lines += ["", "## Per job", ""]
+    rows = []
+    for j in done:
+        rows.append([j.object_id, j.job_id, _varied_text(j, varied), fmt_count(_stat(j, "input_faces")),
+                     fmt_count(_stat(j, "icicles")), fmt_count(_stat(j, "ice_faces")),
+                     *(_stage_cell(j, s) for s in TABLE2_STAGES), _total_cell(j), _stage_cell(j, "proxy"),
+                     _stage_cell(j, "render"), str(j.stats.get("render_variant") or "-"),
+                     fmt_seconds(_job_seconds(j))])
+    lines += _md_table(_MD_JOB_HEADER, rows) if rows else ["No finished jobs."]
+    if failed:
+        lines += ["", "## Failed jobs", ""]
+        lines += _md_table(("object", "job", "varied", "stage", "message"),
+                           [[j.object_id, j.job_id, _varied_text(j, varied), j.failed_stage or "-",
+                             _first_line(j.message)] for j in failed])
+    if pending:
+        lines += ["", "## Not finished (no done.json, no error.json)", ""]
+        lines += _md_table(("object", "job"), [[j.object_id, j.job_id] for j in pending])
+    return "\n".join(lines) + "\n"
+
+
+def _first_line(message: str | None) -> str:
+    lines = [line for line in (message or "").strip().splitlines() if line.strip()]
+    return lines[0] if lines else "-"
+
+
+def _stat(job: JobTimes, key: str) -> float | None:
+    value = job.stats.get(key)
+    return float(value) if _is_number(value) else None
+
+
+def _varied_text(job: JobTimes, varied: Sequence[str]) -> str:
+    return ", ".join(f"{k}={_value_text(job.params[k])}" for k in varied if k in job.params) or "-"
+
+
+def _summary_cells(s: ObjectSummary) -> list[str]:
+    def stage(name: str) -> str:
+        if s.seconds.get(name) is None:
+            return CACHED if name in s.cached_only else "-"
+        return fmt_seconds(s.seconds[name])
+
+    total = "-" if s.total is None else fmt_seconds(s.total) + (f" + {CACHED}" if s.cached_only else "")
+    return [s.object_id, str(s.done), str(s.failed), fmt_count(s.input_faces), fmt_count(s.icicles),
+            fmt_count(s.ice_faces), *(stage(n) for n in TABLE2_STAGES), total, stage("proxy"), stage("render"),
+            ", ".join(s.render_variants) or "-"]
+
+
+def report_csv(jobs: Sequence[JobTimes], summaries: Sequence[ObjectSummary]) -> str:
+    """report.csv: one ``job`` row per job (failed and pending included), one ``object`` row per object.
+
+    Stage cells hold seconds, or ``cached`` for a stage reused from the cache; ``total_s`` of
+    a job counts the stages it computed, of an object the sum of its stage medians.
+    """
+    varied = varied_params(jobs)
+    buf = io.StringIO()
+    writer = csv.DictWriter(buf, CSV_COLUMNS, lineterminator="\n")
+    writer.writeheader()
+
+    def csv_seconds(value: float | None) -> str:
+        return "" if value is None else f"{value:.6g}"
+
+    def csv_count(value: float | None) -> str:
+        return "" if value is None else (str(int(value)) if float(value).is_integer() else f"{value:.1f}")
+
+    for s in summaries:
+        writer.writerow({
+            "kind": "object", "object": s.object_id, "status": "median",
+            "input_faces": csv_count(s.input_faces), "icicles": csv_count(s.icicles),
+            "ice_faces": csv_count(s.ice_faces),
+            **{f"{n}_s": (CACHED if n in s.cached_only else csv_seconds(s.seconds.get(n)))
+               for n in ("prepare", "proxy", *TABLE2_STAGES, "render")},
+            "total_s": csv_seconds(s.total), "render_variant": " ".join(s.render_variants),
+            "cached": " ".join(s.cached_only), "jobs": s.done, "failed": s.failed,
+        })
+    for j in jobs:
+        row: dict[str, Any] = {"kind": "job", "object": j.object_id, "job": j.job_id, "status": j.status,
+                               "varied": _varied_text(j, varied)}
+        for key in ("input_faces", "flow_faces", "icicles", "branches", "ice_faces"):
+            row[key] = csv_count(_stat(j, key))
+        for stage in ("prepare", "proxy", *TABLE2_STAGES, "render"):
+            row[f"{stage}_s"] = (CACHED if stage in j.reused and stage in j.seconds
+                                 else csv_seconds(j.stage_seconds(stage)))
+        if j.status == "done":
+            row["total_s"] = csv_seconds(sum(j.stage_seconds(s) or 0.0 for s in TABLE2_STAGES))
+            row["job_s"] = csv_seconds(_job_seconds(j))
+        row.update(render_variant=j.stats.get("render_variant") or "", renderer=j.stats.get("renderer") or "",
+                   cached=" ".join(s for s in j.reused), failed_stage=j.failed_stage or "",
+                   error=_first_line(j.message) if j.message else "")
+        writer.writerow(row)
+    return buf.getvalue()
+
+
+def build_report(run_dir: Path) -> tuple[Path, Path]:
+    """Write ``report.md`` and ``report.csv`` into ``run_dir`` from its job folders.
+
+    Parameters
+    ----------
+    run_dir : Path
+        A sweep folder (``<out>/<sweep name>/`` holding ``jobs/<object id>/<job id>/``), or
+        one job folder.
+
+    Returns
+    -------
+    (Path, Path)
+        The Markdown and CSV files written.
+
+    Raises
+    ------
+    InputError
+        ``run_dir`` is not a folder or holds no job folders.
+    """
+    from .artifacts import atomic_write
+
+    run_dir = Path(run_dir)
+    if not run_dir.is_dir():
+        raise InputError(f"report: {run_dir} is not a folder; give a sweep folder (<out>/<sweep name>)")
+    job_dirs = find_job_dirs(run_dir)
+    if not job_dirs:
+        raise InputError(f"report: no job folders under {run_dir} (expected jobs/<object>/<job id>/ "
+                         "with timings.json, done.json or error.json); give a sweep folder")
+    jobs = [read_job(d) for d in job_dirs]
+    summaries = summarize(jobs)
+    md_path, csv_path = run_dir / "report.md", run_dir / "report.csv"
+    atomic_write(md_path, report_markdown(run_dir, jobs, summaries))
+    atomic_write(csv_path, report_csv(jobs, summaries))
+    return md_path, csv_path

@@ -1,0 +1,574 @@
+"""Reproduce the paper's Table 2: the seven objects of its Figure 16, timed stage by stage.
+
+Each row runs on a real mesh decimated (pymeshlab quadric edge collapse) to the paper's
+polygon count, with the paper's number of icicles. The paper does not name its objects
+except that 16(c)-(f) are Stanford models; `ROW_OBJECTS` states the mapping used here:
+
+===  ==================  ===================================================================
+a    cow.obj             Keenan Crane's cow: a small, clean, closed figurine
+b    generator:fountain  the project's own fountain, after Kim et al.'s (the paper's 16 b)
+c    dragon.obj          Stanford dragon
+d    stanford-bunny.obj  Stanford bunny
+e    armadillo.obj       Stanford armadillo
+f    stanford-bunny.obj  Stanford bunny again, at the paper's higher polygon count
+g    generator:roof      the project's house with overhanging eaves: room for 400 icicles
+===  ==================  ===================================================================
+
+Sizes are chosen per row (`RowObject.size_m`); glaze ice, which covers every wet surface
+and so sets the polygon count, is off where the paper's count is low for its icicles
+(all rows but c and e). No icicle hangs from the bottom `GROUND_SLAB` of an object (it stands on the
+ground). The ice polygon count is then steered towards the paper's by the voxel size
+(marching-cubes faces grow as 1 / voxel**2): a coarse calibration run at the tip radius,
+then rescaled runs until the count is within `CALIBRATION_TOLERANCE`. Stage times are
+medians over repeated runs of the stage functions themselves (`icefarm.bench.stage_timings`:
+mesh loading and the BVH build excluded, as in a long-lived worker).
+"""
+
+from __future__ import annotations
+
+import csv
+import datetime
+import io
+import math
+import os
+import platform
+import statistics
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+from . import params as params_mod
+from .bench import stage_timings
+from .errors import InputError
+from .report import TABLE2_STAGES as STAGES
+
+STAGE_TITLES = {"water": "Water coefficients", "drips": "Drip points", "trajectories": "Trajectories",
+                "surface": "Surface modeling", "total": "Total time"}
+CALIBRATION_TOLERANCE = 1.15  # stop calibrating once ice faces are within this factor of the target
+CALIBRATION_RUNS = 5  # voxel sizes tried at most, the first one coarse
+CALIBRATION_SEEDS = 3  # runs (seeds) per voxel size tried, at most the repeat count
+MIN_VOXEL_M = 0.00012  # the finest voxel calibration may choose; the coarsest resolves the tip radius
+GROUND_SLAB = 0.02  # no icicle hangs from the bottom 2 % of an object's height: it stands on the ground
+MIN_SCALED_POLYGONS = 1000  # a reduced run keeps meshes fine enough for the water to find its way
+TARGET_SPEEDUP = 20.0
+TARGET_ICE_FACTOR = 1.5
+
+
+class MeshUnavailable(LookupError):
+    """A row's mesh is not available here; the row is skipped with this message."""
+
+
+@dataclass(frozen=True)
+class PaperRow:
+    """One column of the paper's Table 2 (Figure 16 a-g); seconds per stage and in total."""
+
+    key: str
+    polygons: int
+    icicles: int
+    ice_polygons: int
+    seconds: dict
+
+
+PAPER_TABLE2: tuple[PaperRow, ...] = tuple(
+    PaperRow(key, polys, icicles, ice, dict(zip((*STAGES, "total"), secs)))
+    for key, polys, icicles, ice, secs in (
+        ("a", 1617, 12, 10400, (0.1, 0.1, 0.1, 11, 11.3)),
+        ("b", 2240, 300, 179428, (0.1, 0.5, 0.2, 55, 55.8)),
+        ("c", 15536, 10, 749296, (0.5, 0.2, 0.1, 60, 60.8)),
+        ("d", 3851, 20, 102594, (0.3, 0.1, 0.2, 20, 20.6)),
+        ("e", 30780, 200, 390616, (5, 0.5, 0.5, 116, 122)),
+        ("f", 11102, 200, 244188, (0.4, 0.5, 0.5, 19.5, 20.9)),
+        ("g", 6660, 400, 131000, (0.3, 0.5, 1, 36, 37.8)),
+    )
+)
+
+
+@dataclass(frozen=True)
+class RowObject:
+    """What stands in for one of the paper's objects.
+
+    ``source`` is a file name in the meshes folder or ``generator:NAME``; ``size_m`` the
+    object's height in meters; ``settings`` parameter values (``("group.name", value)``)
+    that differ from the defaults besides ``drips.count`` and the calibrated voxel size.
+    """
+
+    source: str
+    label: str
+    size_m: float
+    settings: tuple = ()
+
+    def settings_text(self) -> str:
+        return ", ".join(f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}" for k, v in self.settings) or "defaults"
+
+    @property
+    def generated(self) -> bool:
+        return self.source.startswith("generator:")
+
+
+_NO_GLAZE = (("glaze.balls", 0),)
+
+# Glaze ice covers whole wet surfaces, so it sets the polygon count: rows whose paper count
+# is low for their icicles (a few hundred to a few thousand polygons per icicle) are
+# modelled without glaze; c (10 icicles, 749,296 polygons) cannot be without it. Sizes
+# keep the calibrated voxel at or below the tip radius with the default icicle lengths
+# (small objects, shorter icicles: lengths follow the water, which climbs with the size).
+ROW_OBJECTS: dict[str, RowObject] = {
+    "a": RowObject("cow.obj", "cow", 0.15, _NO_GLAZE),
+    "b": RowObject("generator:fountain", "fountain (generated)", 0.6, _NO_GLAZE),
+    "c": RowObject("dragon.obj", "Stanford dragon", 0.3),
+    "d": RowObject("stanford-bunny.obj", "Stanford bunny", 0.3, _NO_GLAZE),
+    "e": RowObject("armadillo.obj", "Stanford armadillo", 0.3),
+    "f": RowObject("stanford-bunny.obj", "Stanford bunny", 0.2, _NO_GLAZE),
+    "g": RowObject("generator:roof", "house with eaves (generated)", 0.17, _NO_GLAZE),
+}
+
+
+@dataclass(frozen=True)
+class Table2Row:
+    """Our measurement of one row, beside the paper's.
+
+    Attributes
+    ----------
+    paper : PaperRow
+    object : RowObject
+    input_faces, icicles, ice_faces : int
+        Ours: faces of the prepared mesh, drip points found, faces of the ice mesh (median
+        over the runs).
+    target_ice_faces : int
+        The paper's ice polygons times the run's ``scale``.
+    voxel_size : float
+        The calibrated ``surface.voxel_size``, in meters.
+    seconds : dict
+        Stage (and ``total``) to the list of measured seconds, one per repeat.
+    """
+
+    paper: PaperRow
+    object: RowObject
+    input_faces: int
+    icicles: int
+    ice_faces: int
+    target_ice_faces: int
+    voxel_size: float
+    seconds: dict
+
+    def median(self, stage: str) -> float:
+        return statistics.median(self.seconds[stage])
+
+    def speedup(self, stage: str) -> float:
+        ours = self.median(stage)
+        return self.paper.seconds[stage] / ours if ours > 0 else math.inf
+
+    @property
+    def ice_ratio(self) -> float:
+        """Our ice faces over the target (1 = the paper's count)."""
+        return self.ice_faces / self.target_ice_faces if self.target_ice_faces else math.nan
+
+    @property
+    def meets_target(self) -> bool:
+        return (self.speedup("total") >= TARGET_SPEEDUP
+                and 1 / TARGET_ICE_FACTOR <= self.ice_ratio <= TARGET_ICE_FACTOR)
+
+
+@dataclass(frozen=True)
+class Table2Result:
+    """What `run_table2` measured and wrote: rows run, rows skipped (key, reason), files."""
+
+    rows: tuple
+    skipped: tuple
+    markdown_path: Path
+    csv_path: Path
+    text: str
+    machine: dict = field(default_factory=dict)
+
+
+# --------------------------------------------------------------------------- inputs
+
+def default_meshes_dir() -> Path | None:
+    """``../shared/meshes`` seen from the working directory or from the repository root."""
+    for root in (Path.cwd(), Path(__file__).resolve().parents[1]):
+        candidate = root.parent / "shared" / "meshes"
+        if candidate.is_dir():
+            return candidate
+    return None
+
+
+def parse_rows(rows: Sequence[str] | str | None) -> list[str]:
+    """Row keys in the paper's order; ``None`` means all seven.
+
+    Raises
+    ------
+    InputError
+        A key that is not one of a-g.
+    """
+    valid = [r.key for r in PAPER_TABLE2]
+    if rows is None:
+        return valid
+    if isinstance(rows, str):
+        rows = rows.split(",")
+    keys = [str(r).strip().lower().strip("()") for r in rows if str(r).strip()]
+    bad = [k for k in keys if k not in valid]
+    if bad or not keys:
+        raise InputError(f"table2 rows {','.join(bad) or '(none)'}: choose among {','.join(valid)} "
+                         "(Figure 16 a-g), e.g. --rows a,b")
+    return [k for k in valid if k in keys]
+
+
+def decimate(mesh: trimesh.Trimesh, faces: int) -> trimesh.Trimesh:
+    """Quadric edge-collapse decimation to ``faces`` triangles, topology and normals kept.
+
+    A mesh with no more than ``faces`` faces comes back unchanged.
+    """
+    if faces < 4:
+        raise ValueError(f"decimate: target of {faces} faces is too small")
+    if len(mesh.faces) <= faces:
+        return mesh
+    import pymeshlab
+
+    ms = pymeshlab.MeshSet()
+    ms.add_mesh(pymeshlab.Mesh(np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.faces, dtype=np.int32)))
+    ms.meshing_decimation_quadric_edge_collapse(targetfacenum=int(faces), preservenormal=True,
+                                                preservetopology=True)
+    out = ms.current_mesh()
+    return trimesh.Trimesh(out.vertex_matrix(), out.face_matrix(), process=False)
+
+
+def generated_mesh(name: str, faces: int) -> trimesh.Trimesh:
+    """The generator's mesh at the lowest detail that reaches ``faces`` faces (or its most)."""
+    from .generators import DEFAULT_DETAIL, MAX_DETAIL, generate
+
+    reference = len(generate(name).faces)
+    detail = int(np.clip(math.ceil(DEFAULT_DETAIL * math.sqrt(faces / reference)), 1, MAX_DETAIL))
+    mesh = generate(name, detail)
+    while len(mesh.faces) < faces and detail < MAX_DETAIL:  # face counts grow about as detail**2
+        detail += 1
+        mesh = generate(name, detail)
+    while detail > 1:
+        smaller = generate(name, detail - 1)
+        if len(smaller.faces) < faces:
+            break
+        detail, mesh = detail - 1, smaller
+    return mesh
+
+
+def row_mesh(key: str, meshes_dir: Path | None, faces: int) -> trimesh.Trimesh:
+    """The input mesh of row ``key`` with ``faces`` faces.
+
+    Raises
+    ------
+    MeshUnavailable
+        The row needs a mesh of the shared folder and it is not there.
+    """
+    obj = ROW_OBJECTS[key]
+    if obj.generated:
+        mesh = generated_mesh(obj.source.split(":", 1)[1], faces)
+    else:
+        if meshes_dir is None:
+            raise MeshUnavailable(f"needs {obj.source} from the shared meshes folder; none found "
+                                    "(give --meshes DIR)")
+        path = Path(meshes_dir) / obj.source
+        if not path.is_file():
+            raise MeshUnavailable(f"needs {path}, which is missing")
+        from .mesh import load_mesh
+
+        mesh = load_mesh(path)
+    return decimate(mesh, faces)
+
+
+# --------------------------------------------------------------------------- measuring
+
+def ground_box(size_m: float, slab: float = GROUND_SLAB) -> tuple:
+    """An exclusion box over the bottom ``slab`` of a prepared, Y-up object ``size_m`` tall.
+
+    `icefarm.mesh.prepare` centres the object on the origin, so its base is at
+    ``y = -size_m / 2``; the box reaches far beyond the object sideways and below.
+    """
+    far = 1e3 * size_m
+    return ((-far, -far, -far), (far, -0.5 * size_m + slab * size_m, far))
+
+
+def _row_params(obj: RowObject, icicles: int, voxel_size: float) -> dict:
+    return params_mod.resolve(dict(obj.settings), {"drips.count": icicles, "surface.voxel_size": voxel_size})
+
+
+def calibrate_voxel(measure: Callable[[float], int], target: int, bounds: tuple[float, float],
+                    runs: int = CALIBRATION_RUNS,
+                    tolerance: float = CALIBRATION_TOLERANCE) -> tuple[float, int]:
+    """The voxel size whose ice mesh has about ``target`` faces.
+
+    Parameters
+    ----------
+    measure : callable
+        Voxel size (m) to the number of ice faces it gives; an `InputError` (a grid too
+        fine for the surface stage) makes the voxel coarser.
+    target : int
+        Wanted number of faces.
+    bounds : (float, float)
+        Smallest and largest voxel size allowed, in meters. The first run uses the largest:
+        a coarse run is cheap, and the next ones step down from it.
+    runs : int
+        Measurements at most.
+    tolerance : float
+        Stop once the count is within this factor of ``target``.
+
+    Returns
+    -------
+    (float, int)
+        The voxel size whose count came nearest the target (in log ratio), and that count.
+    """
+    if target <= 0 or runs < 1 or not bounds[0] < bounds[1]:
+        raise ValueError("calibrate_voxel: target and runs must be positive and bounds increasing")
+    voxel = float(bounds[1])
+    best: tuple[float, float, int] | None = None
+    tried: set[float] = set()
+    for _ in range(runs):
+        tried.add(voxel)
+        try:
+            faces = measure(voxel)
+        except InputError:  # the surface stage refuses a grid this fine
+            voxel = float(np.clip(voxel * 1.5, *bounds))
+            if voxel in tried:
+                break
+            continue
+        miss = abs(math.log(max(faces, 1) / target))
+        if best is None or miss < best[0]:
+            best = (miss, voxel, faces)
+        if miss <= math.log(tolerance):
+            break
+        # Faces grow as 1 / voxel**2; bounded steps for empty or near-empty meshes.
+        step = math.sqrt(max(faces, 1) / target) if faces > 0 else 0.5
+        voxel = float(np.clip(voxel * float(np.clip(step, 0.25, 4.0)), *bounds))
+        if voxel in tried:  # pinned at a bound
+            break
+    if best is None:
+        raise InputError(f"table2: no voxel size within {bounds[0]:g}-{bounds[1]:g} m gave an ice mesh")
+    return best[1], best[2]
+
+
+def measure_row(key: str, meshes_dir: Path | None, repeat: int, scale: float = 1.0,
+                on_run: Callable[[], None] | None = None) -> Table2Row:
+    """Build row ``key``'s mesh, calibrate its voxel size, time its stages ``repeat`` times.
+
+    Raises
+    ------
+    MeshUnavailable
+        The row's mesh is not available.
+    """
+    paper = next(r for r in PAPER_TABLE2 if r.key == key)
+    obj = ROW_OBJECTS[key]
+    faces = min(paper.polygons, max(MIN_SCALED_POLYGONS, round(paper.polygons * scale)))
+    icicles = max(1, round(paper.icicles * scale))
+    target = max(200, round(paper.ice_polygons * scale))
+    mesh = row_mesh(key, meshes_dir, faces)
+
+    exclude = (ground_box(obj.size_m),)
+
+    def ice_faces(voxel: float) -> int:
+        # The median over a few seeds: with few icicles one run's count varies by half.
+        runs = stage_timings(mesh, obj.size_m, _row_params(obj, icicles, voxel), min(repeat, CALIBRATION_SEEDS),
+                             surface=True, exclude=exclude)
+        return round(statistics.median(runs.ice_faces_runs))
+
+    coarsest = params_mod.defaults()["surface"]["tip_radius"]
+    voxel, _ = calibrate_voxel(ice_faces, target, (MIN_VOXEL_M, coarsest))
+    runs = stage_timings(mesh, obj.size_m, _row_params(obj, icicles, voxel), repeat, surface=True,
+                         on_run=on_run, exclude=exclude)
+    seconds = {stage: list(runs.seconds[stage]) for stage in STAGES}
+    seconds["total"] = [sum(parts) for parts in zip(*(seconds[s] for s in STAGES))]
+    ice = round(statistics.median(runs.ice_faces_runs))
+    return Table2Row(paper, obj, runs.faces, runs.icicles, ice, target, voxel, seconds)
+
+
+def machine_info() -> dict:
+    """CPU model, cores, load averages and versions, to read the timings against."""
+    cpu = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    try:
+        load = tuple(round(x, 2) for x in os.getloadavg())
+    except OSError:
+        load = ()
+    return {"cpu": cpu, "cores": os.cpu_count(), "load_average": load, "python": platform.python_version(),
+            "numpy": np.__version__, "date": datetime.datetime.now().isoformat(timespec="seconds")}
+
+
+# --------------------------------------------------------------------------- the table
+
+def _fmt_s(x: float) -> str:
+    if x >= 10:
+        return f"{x:.1f}"
+    return f"{x:.3f}" if x >= 0.001 else f"{x:.1e}"
+
+
+def _fmt_x(x: float) -> str:
+    if not math.isfinite(x):
+        return "inf"
+    return f"{x:,.0f}x" if x >= 10 else f"{x:.1f}x"
+
+
+def table2_markdown(rows: Sequence[Table2Row], skipped: Sequence[tuple[str, str]], repeat: int, scale: float,
+                    machine: dict, machine_after: dict) -> str:
+    """Table 2 in the paper's orientation (one column per Figure 16 object), ours beside it."""
+    lines = ["# Table 2 reproduced", "",
+             f"Median of {repeat} run{'s' * (repeat != 1)} per stage (mesh loading and the ray-tracing BVH "
+             "build excluded), on " f"{machine.get('cpu')} ({machine.get('cores')} cores), "
+             f"{machine.get('date')}; load average {machine.get('load_average')} before, "
+             f"{machine_after.get('load_average')} after (1, 5, 15 min): a load above the core count means "
+             "other work shared the machine and these times are upper bounds. The paper: Intel Xeon "
+             "3.4 GHz dual-core."
+             + (f" Reduced size: polygon, icicle and ice-polygon counts scaled by {scale:g}." if scale != 1 else ""),
+             ""]
+    if rows:
+        head = ["Figure 16", *(f"({r.paper.key})" for r in rows)]
+        body: list[list[str]] = [
+            ["Object (ours)", *(r.object.label for r in rows)],
+            ["Size (m)", *(f"{r.object.size_m:g}" for r in rows)],
+            ["Settings", *(r.object.settings_text() for r in rows)],
+            ["Input polygons: paper", *(f"{r.paper.polygons:,}" for r in rows)],
+            ["Input polygons: ours", *(f"{r.input_faces:,}" for r in rows)],
+            ["Number of icicles: paper", *(f"{r.paper.icicles:,}" for r in rows)],
+            ["Number of icicles: ours", *(f"{r.icicles:,}" for r in rows)],
+            ["Icicles polygons: paper", *(f"{r.paper.ice_polygons:,}" for r in rows)],
+            ["Icicles polygons: ours", *(f"{r.ice_faces:,} ({r.ice_ratio:.2f} of target)" for r in rows)],
+            ["Voxel size (mm)", *(f"{r.voxel_size * 1000:.3f}" for r in rows)],
+        ]
+        for stage in (*STAGES, "total"):
+            title = STAGE_TITLES[stage]
+            body += [[f"{title} (s): paper", *(f"{r.paper.seconds[stage]:g}" for r in rows)],
+                     [f"{title} (s): ours", *(_fmt_s(r.median(stage)) for r in rows)],
+                     [f"{title}: speed-up", *(_fmt_x(r.speedup(stage)) for r in rows)]]
+        body.append([f"Total >= {TARGET_SPEEDUP:g}x faster, ice within {TARGET_ICE_FACTOR:g}x",
+                     *("yes" if r.meets_target else "no" for r in rows)])
+        lines += ["| " + " | ".join(head) + " |", "|---|" + "---:|" * len(rows)]
+        lines += ["| " + " | ".join(row) + " |" for row in body]
+        paper_total = sum(r.paper.seconds["total"] for r in rows)
+        ours_total = sum(r.median("total") for r in rows)
+        lines += ["", f"All rows run: paper {paper_total:g} s, ours {_fmt_s(ours_total)} s "
+                      f"({_fmt_x(paper_total / ours_total if ours_total else math.inf)} faster)."]
+    else:
+        lines.append("No row ran.")
+    if skipped:
+        lines += ["", "Skipped rows:", ""] + [f"- ({key}): {reason}" for key, reason in skipped]
+    lines += ["", "Objects: the paper names none but says 16(c)-(f) are Stanford models; (a) cow, "
+                  "(b) the project's generated fountain (after Kim et al.'s, as in the paper), (c) dragon, "
+                  "(d) bunny, (e) armadillo, (f) bunny at more polygons, (g) the project's generated house "
+                  "with eaves. Each mesh is decimated (quadric edge collapse) to the paper's polygon count; "
+                  f"no icicle hangs from the bottom {GROUND_SLAB:.0%} of an object's height (it stands on the "
+                  "ground: an exclusion box, as a manifest's `exclude`); "
+                  "the voxel size is calibrated per row (at most the tip radius, so the tips stay resolved) "
+                  "so the ice polygon count comes near the paper's; `Settings` lists the parameters set "
+                  "apart from the defaults, the icicle count and the voxel size."]
+    return "\n".join(lines) + "\n"
+
+
+CSV_COLUMNS = ("row", "object", "source", "size_m", "settings", "status", "reason", "paper_polygons", "polygons",
+               "paper_icicles", "icicles", "paper_ice_polygons", "target_ice_polygons", "ice_polygons",
+               "ice_ratio", "voxel_size_m", "repeat",
+               *(f"{prefix}{s}_s" for s in (*STAGES, "total") for prefix in ("paper_", "")),
+               *(f"{s}_min_s" for s in (*STAGES, "total")),
+               *(f"{s}_speedup" for s in (*STAGES, "total")), "meets_target")
+
+
+def table2_csv(rows: Sequence[Table2Row], skipped: Sequence[tuple[str, str]], repeat: int) -> str:
+    """One line per Figure 16 row: paper and ours side by side; skipped rows with their reason."""
+    buf = io.StringIO()
+    writer = csv.DictWriter(buf, CSV_COLUMNS, lineterminator="\n")
+    writer.writeheader()
+    done = {r.paper.key: r for r in rows}
+    reasons = dict(skipped)
+    for paper in PAPER_TABLE2:
+        if paper.key not in done and paper.key not in reasons:
+            continue
+        obj = ROW_OBJECTS[paper.key]
+        line: dict = {"row": paper.key, "object": obj.label, "source": obj.source, "size_m": obj.size_m,
+                      "settings": obj.settings_text(),
+                      "paper_polygons": paper.polygons, "paper_icicles": paper.icicles,
+                      "paper_ice_polygons": paper.ice_polygons,
+                      **{f"paper_{s}_s": paper.seconds[s] for s in (*STAGES, "total")}}
+        r = done.get(paper.key)
+        if r is None:
+            line.update(status="skipped", reason=reasons[paper.key])
+        else:
+            line.update(status="done", polygons=r.input_faces, icicles=r.icicles, target_ice_polygons=r.target_ice_faces,
+                        ice_polygons=r.ice_faces, ice_ratio=f"{r.ice_ratio:.3f}", voxel_size_m=f"{r.voxel_size:.6g}",
+                        repeat=repeat, meets_target=r.meets_target,
+                        **{f"{s}_s": f"{r.median(s):.6g}" for s in (*STAGES, "total")},
+                        **{f"{s}_min_s": f"{min(r.seconds[s]):.6g}" for s in (*STAGES, "total")},
+                        **{f"{s}_speedup": f"{r.speedup(s):.4g}" for s in (*STAGES, "total")})
+        writer.writerow(line)
+    return buf.getvalue()
+
+
+def run_table2(meshes_dir: Path | None, out_dir: Path, repeat: int = 3, rows: Sequence[str] | None = None,
+               scale: float = 1.0, progress: bool = True) -> Table2Result:
+    """Measure the paper's Table 2 rows and write ``table2.md`` and ``table2.csv`` into ``out_dir``.
+
+    Parameters
+    ----------
+    meshes_dir : Path or None
+        Folder of the shared test meshes; None looks for ``../shared/meshes``. Rows whose
+        mesh is not found are skipped with the reason; the generated rows (b, g) always run.
+    out_dir : Path
+        Where the tables go (created).
+    repeat : int
+        Timed runs per row (after the calibration runs); medians are reported.
+    rows : sequence of str, optional
+        Row keys among a-g (or one comma-separated string); None runs all seven.
+    scale : float
+        In ]0, 1]: shrinks polygon, icicle and ice-polygon counts (a quick smoke run).
+    progress : bool
+        Show a tqdm bar over rows x repeats when stderr is a terminal.
+
+    Raises
+    ------
+    InputError
+        Bad rows, repeat or scale, or a ``meshes_dir`` that is not a folder.
+    """
+    keys = parse_rows(rows)
+    if isinstance(repeat, bool) or not isinstance(repeat, int) or repeat < 1:
+        raise InputError(f"table2: repeat must be a whole number >= 1, got {repeat!r}")
+    if not (isinstance(scale, (int, float)) and 0 < scale <= 1):
+        raise InputError(f"table2: scale must be in ]0, 1], got {scale!r}")
+    if meshes_dir is None:
+        meshes_dir = default_meshes_dir()
+    elif not Path(meshes_dir).is_dir():
+        raise InputError(f"table2: --meshes {meshes_dir} is not a folder; give the folder holding "
+                         f"{', '.join(sorted({o.source for o in ROW_OBJECTS.values() if not o.generated}))}")
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+
+    import sys
+
+    from tqdm import tqdm
+
+    bar = tqdm(total=len(keys) * repeat, unit="run", desc="table2", dynamic_ncols=True,
+               disable=not (progress and sys.stderr.isatty()))
+    machine = machine_info()
+    measured: list[Table2Row] = []
+    skipped: list[tuple[str, str]] = []
+    try:
+        for key in keys:
+            bar.set_postfix_str(f"({key}) {ROW_OBJECTS[key].label}")
+            try:
+                measured.append(measure_row(key, meshes_dir, repeat, scale, on_run=lambda: bar.update(1)))
+            except MeshUnavailable as exc:
+                skipped.append((key, str(exc)))
+                bar.update(repeat)
+    finally:
+        bar.close()
+    machine_after = machine_info()
+    text = table2_markdown(measured, skipped, repeat, scale, machine, machine_after)
+    from .artifacts import atomic_write
+
+    md_path, csv_path = out_dir / "table2.md", out_dir / "table2.csv"
+    atomic_write(md_path, text)
+    atomic_write(csv_path, table2_csv(measured, skipped, repeat))
+    return Table2Result(tuple(measured), tuple(skipped), md_path, csv_path, text,
+                        {"before": machine, "after": machine_after})
