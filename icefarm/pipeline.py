@@ -24,6 +24,7 @@ import trimesh
 
 from . import artifacts
 from .errors import InputError
+from .geometry import ray_caster
 from .mesh import PreparedMesh, prepare
 from .stages.drips import DripResult, find_drips
 from .stages.trajectories import TrajectoryResult, grow_trajectories
@@ -232,6 +233,13 @@ def _run_stages(spec: JobSpec, job_dir: Path, run: _Run, cache: _Cache, until: S
             stats.update(proxy_reason=reason, proxy_faces=proxy.faces, proxy_components=proxy.components,
                          proxy_build_seconds=proxy.seconds)
     stats["flow_faces"] = len(flow.faces)
+    casters: dict[int, Callable] = {}
+
+    def caster(mesh: trimesh.Trimesh) -> Callable:
+        """One ray-tracing BVH per mesh, shared by the stages that cast rays on it."""
+        if id(mesh) not in casters:
+            casters[id(mesh)] = ray_caster(mesh)
+        return casters[id(mesh)]
 
     water_key = _digest(mesh_key, proxy_key, p["water"], spec.seed,
                         _file_digest(overrides["water"]) if "water" in overrides else None)
@@ -239,7 +247,7 @@ def _run_stages(spec: JobSpec, job_dir: Path, run: _Run, cache: _Cache, until: S
     def water_stage() -> WaterResult:
         source = _load_source(spec, prepared)
         result = compute_water(flow, gravity, p["water"]["rays"], p["water"]["influence_radius"],
-                               _rng(spec.seed, Stage.WATER), source)
+                               _rng(spec.seed, Stage.WATER), source, caster(flow))
         if "water" in overrides:  # painted water replaces the coefficients, keeps the walks
             supply, water = artifacts.read_water_ply(Path(overrides["water"]), len(flow.vertices))
             result = WaterResult(supply, water, result.top, result.d_up, result.bottom, result.d_down, result.hits)
@@ -257,7 +265,7 @@ def _run_stages(spec: JobSpec, job_dir: Path, run: _Run, cache: _Cache, until: S
         if "drips" in overrides:
             return artifacts.drips_from_json(Path(overrides["drips"]))
         found = find_drips(flow, water.water, gravity, p["drips"]["count"], p["drips"]["drip_limit"],
-                           _rng(spec.seed, Stage.DRIPS), exclude_boxes=spec.exclude)
+                           _rng(spec.seed, Stage.DRIPS), exclude_boxes=spec.exclude, caster=caster(flow))
         if flow is obj:
             return found
         from .proxy import snap_to_surface
@@ -285,7 +293,7 @@ def _run_stages(spec: JobSpec, job_dir: Path, run: _Run, cache: _Cache, until: S
             (drips.faces >= 0)[:, None], obj.face_normals[faces], drips.normals)
         return grow_trajectories(obj, drips.positions, lift, drips.water, gravity,
                                  _rng(spec.seed, Stage.TRAJECTORIES), drip_limit=p["drips"]["drip_limit"],
-                                 **p["trajectories"])
+                                 caster=caster(obj), **p["trajectories"])
 
     traj = run.timed("trajectories", lambda: cache.get("trajectories", traj_key, trajectory_stage))
     artifacts.write_json(job_dir / "trajectories.json", artifacts.trajectories_to_json(traj))

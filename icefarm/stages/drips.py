@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 import trimesh
 
-from ..geometry import sample_faces, unit
+from ..geometry import inside, ray_caster, sample_faces, unit
 
 
 @dataclass(frozen=True)
@@ -100,7 +100,7 @@ def _transition_points(mesh: trimesh.Trimesh, water: np.ndarray, ok: np.ndarray,
 
 def find_drips(mesh: trimesh.Trimesh, water: np.ndarray, gravity, count: int, drip_limit: float,
                rng: np.random.Generator, exclude_boxes=(),
-               exclude_vertices: np.ndarray | None = None) -> DripResult:
+               exclude_vertices: np.ndarray | None = None, caster=None) -> DripResult:
     """Stage 2: the drip region and ``count`` random drip points on it.
 
     Points are spread area-weighted over the region's faces. Where no face qualifies
@@ -122,6 +122,8 @@ def find_drips(mesh: trimesh.Trimesh, water: np.ndarray, gravity, count: int, dr
         No icicles on faces touching a vertex inside a box.
     exclude_vertices : (n,) bool, optional
         No icicles on faces touching these vertices (a painted mask).
+    caster : callable, optional
+        A `icefarm.geometry.ray_caster` of ``mesh`` to reuse.
     """
     water = np.asarray(water, dtype=np.float64)
     if water.shape != (len(mesh.vertices),):
@@ -136,7 +138,7 @@ def find_drips(mesh: trimesh.Trimesh, water: np.ndarray, gravity, count: int, dr
     if len(face) and mesh.is_watertight:
         # Faces buried inside another part (a horn through a head) cannot drip.
         lifted = points + 1e-4 * float(np.linalg.norm(mesh.extents)) * mesh.face_normals[face]
-        free = ~mesh.contains(lifted)
+        free = ~inside(caster or ray_caster(mesh), lifted)
         face, bary = face[free], bary[free]
     face, bary = face[:count], bary[:count]
     corners = mesh.faces[face]

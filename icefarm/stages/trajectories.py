@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 import trimesh
 
-from ..geometry import perpendicular_basis, unit
+from ..geometry import perpendicular_basis, ray_caster, unit
 
 
 @dataclass(frozen=True)
@@ -73,7 +73,7 @@ def _rotate(a: np.ndarray, b: np.ndarray, degrees) -> tuple[np.ndarray, np.ndarr
 class _Grower:
     """Runs the turtles of one trajectory stage against one mesh (collisions, slides)."""
 
-    def __init__(self, mesh, gravity, step, drip_limit):
+    def __init__(self, mesh, gravity, step, drip_limit, caster=None):
         self.mesh, self.g, self.step = mesh, unit(gravity), step
         self.cos_dl = np.cos(np.radians(drip_limit))
         self.eps = 1e-4 * float(np.linalg.norm(mesh.extents))
@@ -81,6 +81,7 @@ class _Grower:
         # curved parts (sagitta of a step on a 2 mm radius); the ice covers the gap.
         self.lift = max(self.eps, 0.25 * step)
         self.points: list[list[np.ndarray]] = []
+        self.caster = caster or ray_caster(mesh)
 
     def turn(self, t: _Turtles, rows: np.ndarray, degrees) -> None:
         """``+(degrees)``: yaw around U, turning H towards L."""
@@ -109,13 +110,7 @@ class _Grower:
 
     def cast(self, origin: np.ndarray, direction: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Distance ``(k,)`` to the first hit along each ray (inf if none) and its face (-1)."""
-        reach = np.full(len(origin), np.inf)
-        face = np.full(len(origin), -1)
-        if len(origin):
-            hit_at, ray, tri = self.mesh.ray.intersects_location(origin, direction, multiple_hits=False)
-            reach[ray] = np.linalg.norm(hit_at - origin[ray], axis=1)
-            face[ray] = tri
-        return reach, face
+        return self.caster(origin, direction)
 
     def facing(self, face: np.ndarray, towards: np.ndarray) -> np.ndarray:
         """Unit normals ``(k, 3)`` of ``face``, turned to the side ``towards`` points from."""
@@ -146,29 +141,24 @@ class _Grower:
             if not sliding.any():
                 return
             k = np.flatnonzero(sliding)
-            step = unit(along[k])
-            reach, wall = self.cast(pos[k], step)
-            bump = reach < self.step + self.eps
-            target = pos[k] + self.step * step
-            target[bump] = pos[k][bump] + (reach[bump, None] - self.eps) * step[bump]
+            target = pos[k] + self.step * unit(along[k])
             back, below = self.cast(target, -normal[k])
-            onto = np.where(bump, wall, below)
-            fell_off = ~bump & (back > self.step + self.lift)
-            surface = target - np.where(bump | fell_off, 0.0, back)[:, None] * normal[k]
+            fell_off = back > self.step + self.lift
             on = ~fell_off
             new_normal = normal[k].copy()
             if on.any():
-                new_normal[on] = self.facing(onto[on], -normal[k][on])
+                new_normal[on] = self.facing(below[on], -normal[k][on])
+            surface = target - np.where(fell_off, 0.0, back)[:, None] * normal[k]
             moved = np.where(on[:, None], surface + self.lift * new_normal, target)
-            # The chord to the new point must not cut through another part of the object.
+            # The chord to the new point must not cut through the object: where it would,
+            # the slide stops short of that wall and follows it next.
             chord = moved - pos[k]
             span = np.linalg.norm(chord, axis=1)
             reach, wall = self.cast(pos[k], unit(chord))
-            cut = reach < span
+            cut = reach < span + self.eps
             if cut.any():
                 moved[cut] = pos[k][cut] + np.maximum(reach[cut] - self.lift, 0.0)[:, None] * unit(chord[cut])
                 new_normal[cut] = self.facing(wall[cut], chord[cut])
-                on |= cut
                 fell_off &= ~cut
             stalled = np.linalg.norm(moved - pos[k], axis=1) < 1e-9
             t.alive[rows[k[stalled]]] = False
@@ -210,7 +200,7 @@ def grow_trajectories(mesh: trimesh.Trimesh, positions: np.ndarray, normals: np.
                       water: np.ndarray, gravity, rng: np.random.Generator, *,
                       curve_angle: float, division_probability: float, roll_angle: float,
                       step_length: float, length_scale: float, max_branches: int,
-                      drip_limit: float) -> TrajectoryResult:
+                      drip_limit: float, caster=None) -> TrajectoryResult:
     """Stage 3: grow one icicle per drip point with the paper's L-system.
 
     ``w: FX;  p1': X -(1-d)-> +(c)FFF/(a)X;  p1'': X -(d)-> [(c)+(30)F-(30)FX]A;
@@ -243,6 +233,8 @@ def grow_trajectories(mesh: trimesh.Trimesh, positions: np.ndarray, normals: np.
         Branches per icicle at most (d = 1 would otherwise double them every generation).
     drip_limit : float
         dl, degrees: where a collision slide may drip again.
+    caster : callable, optional
+        A `icefarm.geometry.ray_caster` of ``mesh`` to reuse (stage 1 may have built one).
     """
     positions = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
     normals = np.asarray(normals, dtype=np.float64).reshape(-1, 3)
@@ -254,7 +246,7 @@ def grow_trajectories(mesh: trimesh.Trimesh, positions: np.ndarray, normals: np.
     if step_length <= 0 or length_scale <= 0 or max_branches < 1:
         raise ValueError("step_length and length_scale must be positive, max_branches >= 1")
     n = len(positions)
-    grower = _Grower(mesh, gravity, step_length, drip_limit)
+    grower = _Grower(mesh, gravity, step_length, drip_limit, caster)
     g = grower.g
     generations = np.maximum(0, np.round((length_scale * water - step_length) / (3 * step_length))).astype(int)
     u, v = perpendicular_basis(g)

@@ -8,7 +8,7 @@ import numpy as np
 import trimesh
 from scipy.spatial import cKDTree
 
-from ..geometry import chain_sums, perpendicular_basis, sample_faces, unit
+from ..geometry import chain_sums, perpendicular_basis, ray_caster, sample_faces, unit
 
 
 @dataclass(frozen=True)
@@ -61,13 +61,15 @@ def rain_source(mesh: trimesh.Trimesh, gravity: np.ndarray, margin: float = 0.05
 
 
 def water_supply(mesh: trimesh.Trimesh, gravity: np.ndarray, rays: int, influence_radius: float,
-                 rng: np.random.Generator,
-                 source: trimesh.Trimesh | None = None) -> tuple[np.ndarray, np.ndarray]:
+                 rng: np.random.Generator, source: trimesh.Trimesh | None = None,
+                 caster=None) -> tuple[np.ndarray, np.ndarray]:
     """Vertices reached by rain: the water supply of paper 4.1.
 
     ``rays`` rain rays leave random points of ``source`` along gravity. Every vertex that
     lies within ``influence_radius`` of a first hit, faces against gravity and sees the sky
     straight up (nothing of the object above it) joins the supply.
+
+    ``caster`` is a `icefarm.geometry.ray_caster` of ``mesh`` to reuse, if one exists.
 
     Returns
     -------
@@ -78,8 +80,11 @@ def water_supply(mesh: trimesh.Trimesh, gravity: np.ndarray, rays: int, influenc
     g = unit(gravity)
     source = rain_source(mesh, g) if source is None else source
     origins, _, _ = sample_faces(source, np.arange(len(source.faces)), rays, rng)
+    cast = caster or ray_caster(mesh)
     directions = np.broadcast_to(g, origins.shape)
-    hits, _, _ = mesh.ray.intersects_location(origins, directions, multiple_hits=False)
+    distance, _ = cast(origins, directions)
+    landed = np.isfinite(distance)
+    hits = origins[landed] + distance[landed, None] * g
     supply = np.zeros(len(mesh.vertices), dtype=bool)
     if len(hits) == 0:
         return supply, hits.reshape(-1, 3)
@@ -88,7 +93,7 @@ def water_supply(mesh: trimesh.Trimesh, gravity: np.ndarray, rays: int, influenc
     # A vertex near a hit on an overhang above it is still in the overhang's shadow.
     eps = 1e-5 * float(np.linalg.norm(mesh.extents))
     lifted = mesh.vertices[candidates] - eps * g + eps * mesh.vertex_normals[candidates]
-    shadowed = mesh.ray.intersects_any(lifted, np.broadcast_to(-g, lifted.shape))
+    shadowed = np.isfinite(cast(lifted, np.broadcast_to(-g, lifted.shape))[0])
     supply[candidates[~shadowed]] = True
     return supply, hits
 
@@ -146,7 +151,8 @@ def water_coefficients(mesh: trimesh.Trimesh, supply: np.ndarray, gravity: np.nd
 
 
 def compute_water(mesh: trimesh.Trimesh, gravity, rays: int, influence_radius: float,
-                  rng: np.random.Generator, source: trimesh.Trimesh | None = None) -> WaterResult:
+                  rng: np.random.Generator, source: trimesh.Trimesh | None = None,
+                  caster=None) -> WaterResult:
     """Stage 1: the water supply and the water coefficients of every vertex.
 
     Parameters
@@ -162,13 +168,15 @@ def compute_water(mesh: trimesh.Trimesh, gravity, rays: int, influence_radius: f
     rng : numpy.random.Generator
     source : trimesh.Trimesh, optional
         Source surface ss; by default a rectangle above the object (`rain_source`).
+    caster : callable, optional
+        A `icefarm.geometry.ray_caster` of ``mesh``, shared with later stages.
     """
     if rays < 1 or not influence_radius > 0:
         raise ValueError(f"need rays >= 1 and influence_radius > 0, got {rays}, {influence_radius}")
     g = unit(gravity)
     if not np.any(g):
         raise ValueError("gravity must not be the zero vector")
-    supply, hits = water_supply(mesh, g, rays, influence_radius, rng, source)
+    supply, hits = water_supply(mesh, g, rays, influence_radius, rng, source, caster)
     water, top, d_up, bottom, d_down = water_coefficients(mesh, supply, g)
     return WaterResult(supply=supply, water=water, top=top, d_up=d_up,
                        bottom=bottom, d_down=d_down, hits=hits)
