@@ -233,3 +233,32 @@ def bench_table2(meshes, out, repeat, rows):
 
     result = run_table2(meshes, out, repeat=repeat, rows=rows)
     click.echo(result.text)
+
+
+def _after_sweep(summary) -> None:
+    """Contact sheets and the timing report for a finished sweep (failed jobs included)."""
+    from .report import build_report
+    from .sheets import build_sheets
+
+    if not any(r.job_dir and Path(r.job_dir).is_dir() for r in summary.jobs):
+        return
+    md, _ = build_report(summary.sweep_dir)
+    click.echo(f"report: {md}")
+    if any(Path(r.job_dir, "render.exr").is_file() for r in summary.jobs if r.job_dir):
+        build_sheets(summary.sweep_dir)
+        click.echo(f"sheets: {summary.sweep_dir / 'sheets' / 'index.html'}")
+
+
+def _register_farm() -> None:
+    from .farm.commands import bench_farm, make_sweep_command, validate
+
+    main.add_command(validate)
+    main.add_command(make_sweep_command(after=_after_sweep))
+    bench.add_command(bench_farm, name="farm")
+
+
+_register_farm()
+
+
+if __name__ == "__main__":  # spawned farm workers re-import this module: run nothing then
+    main()

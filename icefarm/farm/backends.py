@@ -1,0 +1,434 @@
+"""Run jobs in worker processes: a local spawn pool, or a Dask cluster.
+
+Both backends take the same `Task` list and report each job's `JobOutcome` through a
+callback as it finishes. A job's failure is the pipeline's business (it writes error.json and
+returns "failed"); what the backends handle is a worker dying under a job (killed, out of
+memory, a crash in native code):
+
+- local: a dead worker breaks the whole ``ProcessPoolExecutor`` and fails every job then in
+  flight, without saying whose worker died. The jobs that had not started are queued again;
+  the ones that had started (their marker file says so) are each retried once, alone in a
+  fresh one-process pool, so that a second death is that job's own: it is then marked failed.
+  A new pool runs the rest.
+- dask: the scheduler reschedules a dead worker's task; after ``allowed-failures`` deaths it
+  gives up with ``KilledWorker`` and the job is marked failed. A LocalCluster started here
+  allows one retry; an external scheduler follows its own setting
+  (``DASK_DISTRIBUTED__SCHEDULER__ALLOWED_FAILURES=1`` for the same policy).
+
+This module imports nothing heavy at the top: a spawned worker imports it before its
+initializer runs, and the thread settings must come first.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import os
+import shutil
+import sys
+import time
+import traceback
+import uuid
+from collections import deque
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+THREADS_ENV = "ICEFARM_THREADS"
+# Test hook: "OBJECT_ID=SECONDS" makes that object's jobs sleep after they started (so a test
+# can kill the worker mid-job).
+PAUSE_ENV = "ICEFARM_FARM_TEST_PAUSE"
+# Measured: drjit.set_thread_count(1) makes a Mitsuba 3.9 render wait forever (no CPU used);
+# a worker whose share is one core keeps Dr.Jit's default pool instead.
+MIN_DRJIT_THREADS = 2
+_BLAS_ENV = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+@dataclass(frozen=True)
+class Task:
+    """One job as a worker receives it.
+
+    Attributes
+    ----------
+    spec : icefarm.pipeline.JobSpec
+    job_id, object_id : str
+    job_dir : str
+        Folder the job writes; emptied before each attempt.
+    cache_dir : str or None
+        Stage cache shared by the sweep.
+    until : str or None
+        Last stage to run (a `Stage` value).
+    running_dir : str
+        Where the worker leaves ``<job id>.pid`` (one line per attempt) while it runs.
+    threads : int or None
+        Dr.Jit / BLAS threads for the worker (its share of the cores).
+    job_fn : callable or None
+        Replaces ``pipeline.run_job`` (tests).
+    """
+
+    spec: Any
+    job_id: str
+    object_id: str
+    job_dir: str
+    cache_dir: str | None
+    until: str | None
+    running_dir: str
+    threads: int | None = None
+    job_fn: Callable | None = None
+
+
+# --------------------------------------------------------------------------- in the worker
+
+def configure_threads(threads: int | None) -> None:
+    """Give this process ``threads`` threads: ``ICEFARM_THREADS`` for the render code, and
+    Dr.Jit's pool directly once it is loaded."""
+    if not threads:
+        return
+    os.environ[THREADS_ENV] = str(threads)
+    if "drjit" in sys.modules and threads >= MIN_DRJIT_THREADS:
+        sys.modules["drjit"].set_thread_count(threads)
+
+
+def _marker(task: Task) -> Path:
+    return Path(task.running_dir) / f"{task.job_id}.pid"
+
+
+def attempts_started(task: Task) -> int:
+    """How many times a worker started ``task`` in this sweep run without finishing it yet."""
+    try:
+        return len(_marker(task).read_text().split())
+    except OSError:
+        return 0
+
+
+def failed_outcome(message: str, stage: str | None = None, trace: str = ""):
+    """A `JobOutcome` for a job that the farm, not the pipeline, saw fail."""
+    from ..pipeline import JobOutcome
+
+    return JobOutcome(status="failed", seconds={}, reused=(), failed_stage=stage,
+                      error=message + ("\n" + trace if trace else ""))
+
+
+def write_error(job_dir: str | Path, message: str, stage: str | None = None, trace: str = "") -> None:
+    """error.json as the pipeline writes it, for failures outside the pipeline."""
+    path = Path(job_dir)
+    path.mkdir(parents=True, exist_ok=True)
+    tmp = path / ".error.json.tmp"
+    tmp.write_text(json.dumps({"stage": stage, "message": message, "traceback": trace}, indent=2))
+    os.replace(tmp, path / "error.json")
+
+
+def execute(task: Task) -> tuple[Any, int]:
+    """Run one job in this worker process.
+
+    Returns
+    -------
+    outcome : JobOutcome
+    attempt : int
+        1 for the first start of the job, 2 after a worker died under it, ...
+    """
+    configure_threads(task.threads)
+    marker = _marker(task)
+    marker.parent.mkdir(parents=True, exist_ok=True)
+    with marker.open("a") as fh:  # one line per attempt: a leftover line means a dead worker
+        fh.write(f"{os.getpid()}\n")
+    attempt = attempts_started(task)
+    _test_pause(task)
+    job_dir = Path(task.job_dir)
+    if job_dir.exists():  # leftovers of an attempt that did not finish
+        shutil.rmtree(job_dir)
+    job_dir.mkdir(parents=True)
+    try:
+        from .. import pipeline
+
+        if task.spec.render is not None and task.threads and task.threads >= MIN_DRJIT_THREADS:
+            # Dr.Jit picks its libLLVM when imported: the render module's choice comes first.
+            from ..scene.render import prepare_llvm
+
+            prepare_llvm()
+            import drjit
+
+            drjit.set_thread_count(task.threads)
+        run = task.job_fn or pipeline.run_job
+        until = pipeline.Stage(task.until) if task.until else None
+        cache = Path(task.cache_dir) if task.cache_dir else None
+        outcome = run(task.spec, job_dir, cache_dir=cache, until=until)
+    except Exception as exc:  # run_job reports job failures itself; this is a farm-level bug
+        trace = traceback.format_exc()
+        write_error(job_dir, f"{type(exc).__name__}: {exc}", None, trace)
+        outcome = failed_outcome(f"{type(exc).__name__}: {exc}", None, trace)
+    marker.unlink(missing_ok=True)
+    return outcome, attempt
+
+
+def _test_pause(task: Task) -> None:
+    spec = os.environ.get(PAUSE_ENV, "")
+    target, _, seconds = spec.partition("=")
+    if target and target == task.object_id:
+        time.sleep(float(seconds or 0))
+
+
+# --------------------------------------------------------------------------- scheduling
+
+class _Gate:
+    """Hands out tasks in order, holding back each task until the one it waits for is done."""
+
+    def __init__(self, tasks: Sequence[Task], waits: Mapping[str, str]):
+        self.queue = deque(tasks)
+        self.waits = dict(waits)
+        self.finished: set[str] = set()
+
+    def __bool__(self) -> bool:
+        return bool(self.queue)
+
+    def next(self) -> Task | None:
+        for i, task in enumerate(self.queue):
+            leader = self.waits.get(task.job_id)
+            if leader is None or leader in self.finished:
+                del self.queue[i]
+                return task
+        return None
+
+    def requeue(self, task: Task) -> None:
+        self.queue.appendleft(task)
+
+    def finish(self, task: Task) -> None:
+        self.finished.add(task.job_id)
+
+
+def cores() -> int:
+    """CPU cores this process may use."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:
+        return os.cpu_count() or 1
+
+
+def threads_per_worker(workers: int) -> int:
+    return max(1, cores() // max(1, workers))
+
+
+@contextlib.contextmanager
+def _child_environment(threads: int) -> Iterator[None]:
+    """Environment that spawned workers inherit: their thread share (restored afterwards)."""
+    wanted = {THREADS_ENV: str(threads)}
+    wanted.update({k: str(threads) for k in _BLAS_ENV if k not in os.environ})
+    saved = {k: os.environ.get(k) for k in wanted}
+    os.environ.update(wanted)
+    try:
+        yield
+    finally:
+        for key, value in saved.items():
+            if value is None:
+                os.environ.pop(key, None)
+            else:
+                os.environ[key] = value
+
+
+OnOutcome = Callable[[Task, Any, int], None]
+
+
+def run_local(tasks: Sequence[Task], *, workers: int, on_outcome: OnOutcome,
+              waits: Mapping[str, str] | None = None, max_tasks_per_child: int = 8) -> None:
+    """Run ``tasks`` in a pool of ``workers`` spawned processes.
+
+    Parameters
+    ----------
+    tasks : sequence of Task
+        In the order to start them.
+    workers : int
+    on_outcome : callable
+        ``on_outcome(task, outcome, attempts)``, called in this process as each job ends.
+    waits : mapping, optional
+        ``{job id: job id}``: a task starts only after that other task ended.
+    max_tasks_per_child : int
+        A worker is replaced by a fresh process after this many jobs.
+    """
+    import multiprocessing
+
+    ctx = multiprocessing.get_context("spawn")
+    threads = threads_per_worker(workers)
+    tasks = [replace(t, threads=threads) for t in tasks]
+    gate = _Gate(tasks, waits or {})
+
+    def new_pool(n: int) -> ProcessPoolExecutor:
+        return ProcessPoolExecutor(max_workers=n, mp_context=ctx, max_tasks_per_child=max_tasks_per_child)
+
+    with _child_environment(threads):
+        pool = new_pool(workers)
+        inflight: dict[Any, Task] = {}
+        try:
+            while gate or inflight:
+                broken = False
+                while len(inflight) < workers and not broken:
+                    task = gate.next()
+                    if task is None:
+                        break
+                    try:
+                        inflight[pool.submit(execute, task)] = task
+                    except BrokenProcessPool:
+                        gate.requeue(task)
+                        broken = True
+                if not inflight and not broken:
+                    raise RuntimeError("farm: tasks wait for each other in a cycle")  # a planning bug
+                if inflight and not broken:
+                    done, _ = wait(inflight, return_when=FIRST_COMPLETED)
+                    for fut in done:
+                        if _deliver(fut, inflight[fut], on_outcome, gate):
+                            del inflight[fut]
+                        else:
+                            broken = True
+                if broken:
+                    # Every job in flight fails with the pool; report those that finished first.
+                    wait(list(inflight))
+                    lost = [t for f, t in inflight.items() if not _deliver(f, t, on_outcome, gate)]
+                    inflight.clear()
+                    pool.shutdown(wait=True, cancel_futures=True)
+                    for task in reversed([t for t in lost if attempts_started(t) == 0]):
+                        gate.requeue(task)  # never started: not a suspect
+                    started = [t for t in lost if attempts_started(t) > 0]
+                    for task, outcome, attempt in _isolated(started, workers, ctx):
+                        gate.finish(task)
+                        on_outcome(task, outcome, attempt)
+                    pool = new_pool(workers)
+        except BaseException:
+            _kill_workers(pool)
+            raise
+        finally:
+            pool.shutdown(wait=True, cancel_futures=True)
+
+
+def _deliver(fut, task: Task, on_outcome: OnOutcome, gate: _Gate) -> bool:
+    """Report a finished future; False when it failed because the pool broke."""
+    try:
+        outcome, attempt = fut.result()
+    except BrokenProcessPool:
+        return False
+    except Exception as exc:  # e.g. the task could not be pickled
+        message = f"{type(exc).__name__}: {exc}"
+        write_error(task.job_dir, message, None, traceback.format_exc())
+        outcome, attempt = failed_outcome(message), 1
+    gate.finish(task)
+    on_outcome(task, outcome, attempt)
+    return True
+
+
+def _isolated(tasks: Sequence[Task], workers: int, ctx) -> Iterator[tuple[Task, Any, int]]:
+    """Retry each task alone in its own one-process pool (up to ``workers`` at once), so that
+    a pool that breaks again names its job; yields ``(task, outcome, attempts)``."""
+    queue = deque(tasks)
+    active: dict[Any, tuple[Task, ProcessPoolExecutor]] = {}
+    try:
+        while queue or active:
+            while queue and len(active) < workers:
+                task = queue.popleft()
+                pool = ProcessPoolExecutor(max_workers=1, mp_context=ctx)
+                active[pool.submit(execute, task)] = (task, pool)
+            done, _ = wait(active, return_when=FIRST_COMPLETED)
+            for fut in done:
+                task, pool = active.pop(fut)
+                attempt = attempts_started(task)
+                try:
+                    outcome, attempt = fut.result()
+                except BrokenProcessPool:
+                    message = (f"the worker process running this job died {attempts_started(task)} times "
+                               f"(killed, out of memory, or a crash in native code); it was retried once")
+                    write_error(task.job_dir, message)
+                    outcome = failed_outcome(message)
+                except Exception as exc:
+                    message = f"{type(exc).__name__}: {exc}"
+                    write_error(task.job_dir, message, None, traceback.format_exc())
+                    outcome = failed_outcome(message)
+                pool.shutdown(wait=True)
+                _marker(task).unlink(missing_ok=True)
+                yield task, outcome, attempt
+    finally:
+        for _, pool in active.values():
+            _kill_workers(pool)
+            pool.shutdown(wait=False, cancel_futures=True)
+
+
+def _kill_workers(pool: ProcessPoolExecutor) -> None:
+    """Stop a pool's processes now (on Ctrl-C or an error), not after their jobs."""
+    for proc in list(getattr(pool, "_processes", {}).values()):  # no public API for this
+        with contextlib.suppress(Exception):
+            proc.kill()
+
+
+# --------------------------------------------------------------------------- dask
+
+def run_dask(tasks: Sequence[Task], *, workers: int, on_outcome: OnOutcome,
+             scheduler: str | None = None, waits: Mapping[str, str] | None = None,
+             connect_timeout: float = 30.0) -> None:
+    """Run ``tasks`` on a Dask cluster: the scheduler at ``scheduler``, or a LocalCluster of
+    ``workers`` single-threaded worker processes started (and stopped) here.
+
+    The workers must import icefarm and see the sweep folder at the same path (one machine, or
+    a shared file system). Parameters as `run_local`.
+    """
+    import dask
+    from distributed import Client, LocalCluster, as_completed
+    from distributed.scheduler import KilledWorker
+
+    from ..errors import InputError
+
+    cluster = None
+    threads = threads_per_worker(workers) if scheduler is None else None
+    try:
+        if scheduler is None:
+            with dask.config.set({"distributed.scheduler.allowed-failures": 1}):
+                cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                                       dashboard_address=None, silence_logs=logging.ERROR)
+            client = Client(cluster)
+        else:
+            try:
+                client = Client(scheduler, timeout=connect_timeout)
+            except (OSError, TimeoutError) as exc:
+                raise InputError(f"cannot reach the Dask scheduler at {scheduler}: {exc}") from None
+    except BaseException:
+        if cluster is not None:
+            cluster.close()
+        raise
+    run = uuid.uuid4().hex[:8]
+    gate = _Gate([replace(t, threads=threads) for t in tasks], waits or {})
+    futures: dict[str, Task] = {}
+    stream = as_completed()
+
+    def submit_ready() -> None:
+        while (task := gate.next()) is not None:
+            fut = client.submit(execute, task, key=f"icefarm-{task.job_id}-{run}", pure=False)
+            futures[fut.key] = task
+            stream.add(fut)
+
+    try:
+        submit_ready()
+        for fut in stream:
+            task = futures.pop(fut.key)
+            try:
+                outcome, attempt = fut.result()
+            except KilledWorker:
+                attempt = max(1, attempts_started(task))
+                message = (f"the worker running this job died {attempt} times (killed, out of memory, or a "
+                           f"crash in native code); the scheduler gave up on it (allowed-failures)")
+                write_error(task.job_dir, message)
+                outcome = failed_outcome(message)
+            except Exception as exc:
+                attempt = max(1, attempts_started(task))
+                message = f"{type(exc).__name__}: {exc}"
+                write_error(task.job_dir, message, None, traceback.format_exc())
+                outcome = failed_outcome(message)
+            fut.release()
+            _marker(task).unlink(missing_ok=True)
+            gate.finish(task)
+            on_outcome(task, outcome, attempt)
+            submit_ready()
+        if gate:
+            raise RuntimeError("farm: tasks wait for each other in a cycle")  # a planning bug
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()

@@ -1,0 +1,341 @@
+"""The farm's commands: ``icefarm validate``, ``icefarm sweep`` and ``icefarm bench farm``.
+
+Each click command is a thin shell over a plain function (`validate_manifest`, `run_sweep`,
+`bench_farm_run`) so that other code can chain them (sheets and reports after a sweep).
+"""
+
+from __future__ import annotations
+
+import sys
+import tempfile
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import click
+
+from ..errors import InputError
+from .manifest import Manifest, load_manifest
+from .sweep import JobRecord, Status, SweepSummary, apply_sets, expand, run_sweep
+
+
+class BadInput(click.ClickException):
+    """An `InputError` on the command line: exit status 2, as the icefarm group gives it."""
+
+    exit_code = 2
+
+
+# --------------------------------------------------------------------------- progress
+
+class LineProgress:
+    """One plain line per finished job (logs, CI, anything that is not a terminal)."""
+
+    def __init__(self, echo: Callable[[str], None]):
+        self.echo = echo
+        self.total = self.count = self.failed = 0
+        self.started = time.perf_counter()
+
+    def start(self, total: int, already_done: int) -> None:
+        self.total, self.count = total, already_done
+        if already_done:
+            self.echo(f"{already_done} of {total} jobs already done (--resume): skipped")
+
+    def update(self, record: JobRecord) -> None:
+        self.count += 1
+        self.failed += record.status is Status.FAILED
+        values = " ".join(f"{k.split('.')[-1]}={_short(v)}" for k, v in record.values)
+        detail = f"{record.seconds:.1f} s" if record.status is Status.DONE else f"FAILED: {_last_line(record.error)}"
+        reused = f", reused {'+'.join(record.reused)}" if record.reused else ""
+        retried = f", attempt {record.attempts}" if record.attempts > 1 else ""
+        self.echo(f"[{self.count}/{self.total}] {record.object_id}/{record.job_id} {values} "
+                  f"{detail}{reused}{retried}".replace("  ", " "))
+
+    def close(self) -> None:
+        pass
+
+
+class TqdmProgress:
+    """A live bar on a terminal: jobs done, failed, and the time left."""
+
+    def __init__(self):
+        self.bar = None
+        self.failed = 0
+
+    def start(self, total: int, already_done: int) -> None:
+        from tqdm import tqdm
+
+        self.bar = tqdm(total=total, initial=already_done, unit="job", dynamic_ncols=True,
+                        desc="sweep", file=sys.stderr)
+        self.bar.set_postfix(failed=0)
+
+    def update(self, record: JobRecord) -> None:
+        self.failed += record.status is Status.FAILED
+        self.bar.set_postfix(failed=self.failed, last=record.object_id)
+        self.bar.update(1)
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+
+
+def default_progress():
+    """A tqdm bar when stderr is a terminal, plain lines otherwise."""
+    if sys.stderr.isatty():
+        return TqdmProgress()
+    return LineProgress(lambda line: click.echo(line, err=True))
+
+
+def _short(value) -> str:
+    return f"{value:g}" if isinstance(value, float) else str(value)
+
+
+def _last_line(text: str | None) -> str:
+    lines = (text or "").strip().splitlines()
+    return lines[0] if lines else "unknown error"
+
+
+# --------------------------------------------------------------------------- validate
+
+def validate_manifest(path: str | Path, sets: Sequence[str] = ()) -> tuple[Manifest, str]:
+    """Validate ``path`` (and ``--set`` assignments); return the manifest and a short description.
+
+    Raises
+    ------
+    InputError
+        Every problem found, each naming the file, the key path and what was expected.
+    """
+    manifest = apply_sets(load_manifest(path), sets)
+    points = len(expand(manifest.sweep, manifest.seed))
+    n = len(manifest.objects)
+    method = manifest.sweep.method.value if manifest.sweep else "none"
+    text = (f"{manifest.path}: valid. sweep {manifest.name!r}: {n} object{'s' * (n != 1)} x {points} "
+            f"point{'s' * (points != 1)} ({method}) = {n * points} jobs, render: {manifest.render or 'none'}")
+    return manifest, text
+
+
+@click.command("validate")
+@click.argument("manifest", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--set", "sets", multiple=True, metavar="GROUP.PARAM=V[,V...]",
+              help="Check these overrides too (as `icefarm sweep --set` would apply them).")
+def validate(manifest: Path, sets: tuple[str, ...]) -> None:
+    """Check MANIFEST without running anything.
+
+    Reports every problem at once, each with the file, the key path and what was expected
+    (unknown keys come with the nearest valid one; parameter values are checked against
+    their domains, see `icefarm params`; mesh and override files must exist).
+    Prints the number of jobs the sweep would run. Exit status 2 when the manifest is invalid.
+    """
+    try:
+        _, text = validate_manifest(manifest, sets)
+    except InputError as exc:
+        raise BadInput(str(exc)) from None
+    click.echo(text)
+
+
+# --------------------------------------------------------------------------- sweep
+
+def format_summary(summary: SweepSummary) -> str:
+    """The end-of-sweep report: counts, reuse, failures with their reasons, where things are."""
+    ran = len(summary.jobs) - summary.resumed
+    lines = [f"sweep {summary.name}: {summary.done} done, {summary.failed} failed"
+             + (f", {summary.pending} not run" if summary.pending else "")
+             + f" of {len(summary.jobs)} jobs"
+             + (f" ({summary.resumed} already done)" if summary.resumed else "")
+             + f"; {ran} run on {summary.workers} {summary.backend} worker{'s' * (summary.workers != 1)}"
+             + f" in {summary.wall_seconds:.1f} s"]
+    lines.append(f"stage results reused from the cache: {summary.reused}"
+                 + (f"; jobs retried after a worker died: {summary.retried}" if summary.retried else ""))
+    if summary.duplicates:
+        lines.append(f"{summary.duplicates} sweep point(s) repeated an earlier job and were dropped")
+    for r in summary.jobs:
+        if r.status is Status.FAILED:
+            stage = f" in stage {r.failed_stage}" if r.failed_stage else ""
+            lines.append(f"  FAILED {r.object_id}/{r.job_id}{stage}: {_last_line(r.error)}")
+    lines.append(f"results: {summary.sweep_dir}  (jobs.csv, jobs/<object>/<job>/)")
+    return "\n".join(lines)
+
+
+def format_plan(summary: SweepSummary) -> str:
+    """A dry run's job list."""
+    lines = [f"dry run: sweep {summary.name} -> {summary.sweep_dir}: {len(summary.jobs)} jobs"
+             + (f", {summary.resumed} already done" if summary.resumed else "")]
+    for r in summary.jobs:
+        values = " ".join(f"{k}={_short(v)}" for k, v in r.values)
+        state = "done" if r.status is Status.DONE else "to run"
+        lines.append(f"  {r.object_id}/{r.job_id}  {values}  [{state}]")
+    return "\n".join(lines)
+
+
+def make_sweep_command(after: Callable[[SweepSummary], None] | None = None) -> click.Command:
+    """The ``sweep`` command; ``after(summary)`` runs when the sweep ends (sheets, report)."""
+
+    @click.command("sweep")
+    @click.argument("manifest", type=click.Path(dir_okay=False, path_type=Path))
+    @click.option("-o", "--out", type=click.Path(file_okay=False, path_type=Path), default=Path("out"),
+                  show_default=True, help="Results go to OUT/<sweep name>/.")
+    @click.option("--workers", "-j", type=click.IntRange(min=1), default=lambda: _cores(), show_default="all cores",
+                  help="Worker processes; each gets its share of the cores for Dr.Jit/Mitsuba.")
+    @click.option("--backend", type=click.Choice(["local", "dask"]), default="local", show_default=True,
+                  help="local: a process pool on this machine. dask: a Dask cluster "
+                       "(--scheduler ADDRESS, or a LocalCluster of --workers processes).")
+    @click.option("--scheduler", metavar="ADDRESS",
+                  help="Dask scheduler to use, e.g. tcp://10.0.0.5:8786 (needs --backend dask). "
+                       "Workers must import icefarm and see OUT at the same path.")
+    @click.option("--set", "sets", multiple=True, metavar="GROUP.PARAM=V[,V...]",
+                  help="Override a parameter for every job (one value) or sweep it (a comma list, "
+                       "crossed with the manifest's sweep). Repeatable.")
+    @click.option("--resume", is_flag=True,
+                  help="Continue an existing sweep folder: skip done jobs, redo the others.")
+    @click.option("--overwrite", is_flag=True, help="Delete an existing sweep folder and start over.")
+    @click.option("--dry-run", is_flag=True, help="List the jobs and stop; nothing is written or run.")
+    @click.option("--no-render", is_flag=True, help="Run the stages only, no scene render.")
+    @click.option("--until", type=click.Choice(["water", "drips", "trajectories", "surface", "render"]),
+                  help="Stop every job after this stage.")
+    @click.option("--tasks-per-worker", type=click.IntRange(min=1), default=8, show_default=True,
+                  help="Replace a local worker process after this many jobs (bounds memory growth).")
+    @click.option("--no-cache", is_flag=True,
+                  help="Do not share stage results between jobs (every job computes every stage).")
+    def sweep(manifest: Path, out: Path, workers: int, backend: str, scheduler: str | None,
+              sets: tuple[str, ...], resume: bool, overwrite: bool, dry_run: bool, no_render: bool,
+              until: str | None, tasks_per_worker: int, no_cache: bool) -> None:
+        """Run every job of MANIFEST's sweep: one job per (object, sweep point).
+
+        Results go to OUT/<name>/: manifest.resolved.yaml, jobs/<object>/<job id>/ (one
+        folder per job, done.json written last), jobs.csv and a stage cache shared by the
+        jobs, so that a sweep over surface parameters computes water, drips and trajectories
+        once per object. A failing job does not stop the others; a job whose worker dies is
+        retried once. An existing OUT/<name> needs --resume or --overwrite. Exit status 1 when
+        any job failed, 2 for an invalid manifest or option.
+        """
+        try:
+            summary = run_sweep(manifest, out, workers=workers, backend=backend, scheduler=scheduler,
+                                sets=sets, resume=resume, overwrite=overwrite, dry_run=dry_run,
+                                render=not no_render, until=until, max_tasks_per_child=tasks_per_worker,
+                                use_cache=not no_cache,
+                                progress=None if dry_run else default_progress())
+        except InputError as exc:
+            raise BadInput(str(exc)) from None
+        if dry_run:
+            click.echo(format_plan(summary))
+            return
+        click.echo(format_summary(summary))
+        if after is not None:
+            after(summary)
+        if not summary.ok:
+            sys.exit(1)
+
+    return sweep
+
+
+sweep = make_sweep_command()
+
+
+# --------------------------------------------------------------------------- bench farm
+
+BENCH_MESH = "generator:fountain"
+
+
+def bench_manifest(jobs: int = 16) -> dict:
+    """A stages-only sweep of ``jobs`` independent jobs on a generated fountain.
+
+    The swept parameter is the rain (water stage), so no two jobs share a stage: the
+    benchmark measures how the farm spreads work, not what the cache saves (it runs without
+    one). A coarse voxel keeps each job to a few seconds, most of it in the metaball surface.
+    """
+    return {"name": "bench_farm", "seed": 1, "render": None,
+            "defaults": {"drips.count": 8, "surface.voxel_size": 0.002},
+            "objects": [{"id": "fountain", "mesh": BENCH_MESH, "size_m": 0.4}],
+            "sweep": {"method": "grid",
+                      "parameters": {"water.rays": {"values": [2000 + 50 * i for i in range(jobs)]}}}}
+
+
+@dataclass(frozen=True)
+class BenchRun:
+    """One timed sweep of `bench_farm_run`: wall and CPU seconds (this process and its
+    workers), and the machine's 1-minute load average when it started (others' work too)."""
+
+    workers: int
+    jobs: int
+    wall: float
+    cpu: float
+    load: float
+
+
+def bench_farm_run(jobs: int = 16, workers: Sequence[int] = (1, 2), until: str | None = None,
+                   out: Path | None = None, repeat: int = 1,
+                   echo: Callable[[str], None] = lambda s: None) -> list[BenchRun]:
+    """Time the same ``jobs``-job sweep (`bench_manifest`) with each worker count in ``workers``,
+    the counts taking turns ``repeat`` times (so that a busy spell of the machine hits all).
+
+    Raises
+    ------
+    RuntimeError
+        A job failed (the timing would mean nothing).
+    """
+    import os
+    import resource
+
+    import yaml
+
+    def cpu() -> float:
+        own, kids = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+        return own.ru_utime + own.ru_stime + kids.ru_utime + kids.ru_stime
+
+    runs = []
+    with tempfile.TemporaryDirectory(prefix="icefarm-bench-") as tmp:
+        root = Path(out) if out is not None else Path(tmp)
+        root.mkdir(parents=True, exist_ok=True)
+        path = root / "bench_farm.yaml"
+        path.write_text(yaml.safe_dump(bench_manifest(jobs), sort_keys=False))
+        for n in [n for _ in range(repeat) for n in workers]:
+            load, start, cpu0 = os.getloadavg()[0], time.perf_counter(), cpu()
+            # Workers are never recycled here: every run pays the same start-up once per worker.
+            summary = run_sweep(path, root / f"workers{n}", workers=n, overwrite=True, render=False,
+                                until=until, max_tasks_per_child=max(jobs, 1), use_cache=False)
+            run = BenchRun(n, jobs, time.perf_counter() - start, cpu() - cpu0, load)
+            if not summary.ok:
+                raise RuntimeError(format_summary(summary))
+            runs.append(run)
+            echo(f"{n} worker{'s' * (n != 1)}: {jobs} jobs in {run.wall:.1f} s wall, {run.cpu:.1f} s CPU "
+                 f"({run.cpu / run.wall:.2f} cores busy; load average {run.load:.1f} at start)")
+    return runs
+
+
+@click.command("farm")
+@click.option("--jobs", type=click.IntRange(min=1), default=16, show_default=True,
+              help="Jobs in the benchmark sweep.")
+@click.option("--workers", "worker_counts", type=click.IntRange(min=1), multiple=True,
+              help="Worker counts to compare (repeatable; default 1 and 2).")
+@click.option("--until", type=click.Choice(["water", "drips", "trajectories", "surface"]),
+              help="Last stage of each job (default: all stages, no render).")
+@click.option("--repeat", type=click.IntRange(min=1), default=1, show_default=True,
+              help="Run each worker count this many times, in turns; the fastest run of each counts.")
+@click.option("-o", "--out", type=click.Path(file_okay=False, path_type=Path),
+              help="Keep the benchmark sweeps here (default: a temporary folder).")
+def bench_farm(jobs: int, worker_counts: tuple[int, ...], until: str | None, repeat: int,
+               out: Path | None) -> None:
+    """Farm throughput: the same stages-only sweep on 1 worker, then on 2 (or --workers ...).
+
+    The jobs sweep the rain over a generated fountain, so none reuses another's stages and
+    the speed-up is the farm's own (process start-up, scheduling, the spread of the work).
+    Prints wall and CPU time for each worker count and the speed-up over the first; CPU
+    seconds over wall seconds shows how many cores the farm really had.
+    """
+    counts = worker_counts or (1, 2)
+    runs = bench_farm_run(jobs, counts, until, out, repeat, echo=click.echo)
+    best = {n: min((r for r in runs if r.workers == n), key=lambda r: r.wall) for n in counts}
+    base = best[counts[0]]
+    for n in counts[1:]:
+        click.echo(f"speed-up {n} vs {base.workers} worker{'s' * (base.workers != 1)}: "
+                   f"{base.wall / best[n].wall:.2f}x on {jobs} jobs ({_cores()} cores; fastest runs: "
+                   f"{base.wall:.1f} s, {best[n].wall:.1f} s)")
+    if max(r.load for r in best.values()) > 1.0:
+        click.echo("note: the machine was busy with other work (load average above 1): the workers "
+                   "shared the cores with it, and the speed-up is lower than on an idle machine")
+
+
+def _cores() -> int:
+    from .backends import cores
+
+    return cores()

@@ -1,0 +1,137 @@
+"""Sweeps on a real Dask cluster: a `dask scheduler` and two `dask worker` processes on
+127.0.0.1 (random ports), started from the venv's `dask` command and torn down afterwards."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+import trimesh
+import yaml
+
+from icefarm.farm.backends import PAUSE_ENV
+from icefarm.farm.manifest import load_manifest
+from icefarm.farm.sweep import Status, plan_jobs, run_sweep
+
+pytest.importorskip("distributed")
+
+ROOT = Path(__file__).resolve().parents[1]
+DASK = Path(sys.executable).parent / "dask"
+FAST = {"water": {"rays": 300}, "drips": {"count": 4}, "proxy": {"mode": "never"}}
+
+
+def _wait_for(predicate, timeout: float, what: str):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        value = predicate()
+        if value:
+            return value
+        time.sleep(0.1)
+    raise TimeoutError(f"timed out after {timeout} s waiting for {what}")
+
+
+@pytest.fixture(scope="module")
+def cluster(tmp_path_factory):
+    """Address of a scheduler with two single-threaded workers; everything stopped afterwards."""
+    if not DASK.exists():
+        pytest.skip(f"no dask command at {DASK}")
+    folder = tmp_path_factory.mktemp("dask")
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")])),
+               DASK_DISTRIBUTED__SCHEDULER__ALLOWED_FAILURES="1", **{PAUSE_ENV: "victim=2"})
+    procs = []
+
+    def start(*args, log):
+        proc = subprocess.Popen([str(DASK), *args], env=env, cwd=folder, start_new_session=True,
+                                stdout=(folder / log).open("w"), stderr=subprocess.STDOUT)
+        procs.append(proc)
+        return proc
+
+    try:
+        info = folder / "scheduler.json"
+        # Its HTTP server (health checks) gets a random port too, not 8787.
+        start("scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard",
+              "--dashboard-address", "127.0.0.1:0", "--scheduler-file", str(info), log="scheduler.log")
+        address = _wait_for(lambda: info.is_file() and json.loads(info.read_text() or "{}").get("address"),
+                            60, "the scheduler")
+        for i in range(2):
+            start("worker", address, "--nthreads", "1", "--host", "127.0.0.1", "--no-dashboard",
+                  "--name", f"w{i}", "--death-timeout", "60", log=f"worker{i}.log")
+        from distributed import Client
+
+        with Client(address, timeout=30) as client:
+            client.wait_for_workers(2, timeout=60)
+        yield address
+    finally:
+        for proc in reversed(procs):  # whole process groups: the nannies' workers too
+            try:
+                os.killpg(proc.pid, signal.SIGTERM)
+            except ProcessLookupError:
+                pass
+        for proc in procs:
+            try:
+                proc.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                os.killpg(proc.pid, signal.SIGKILL)
+                proc.wait(timeout=10)
+
+
+def _manifest(tmp_path: Path, objects: list, parameters: dict) -> Path:
+    trimesh.creation.icosphere(subdivisions=2).export(tmp_path / "ball.ply")
+    data = {"name": "d", "seed": 2, "render": None, "defaults": FAST, "objects": objects,
+            "sweep": {"method": "grid", "parameters": parameters}}
+    path = tmp_path / "d.yaml"
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    return path
+
+
+def test_sweep_on_a_dask_cluster(tmp_path, cluster):
+    path = _manifest(tmp_path, [{"id": "ball", "mesh": "ball.ply", "size_m": 0.3},
+                                {"id": "big", "mesh": "ball.ply", "size_m": 0.6}],
+                     {"trajectories.curve_angle": {"values": [1, 4]}, "surface.noise": {"values": [0.0, 0.001]}})
+    summary = run_sweep(path, tmp_path / "out", backend="dask", scheduler=cluster, until="trajectories")
+    assert summary.ok and summary.done == 8 and summary.backend == "dask"
+    for r in summary.jobs:
+        assert (r.job_dir / "done.json").is_file() and r.attempts == 1
+    # Each object's later jobs waited for its first one: water and drips always come from the cache.
+    leaders = {r.object_id: r for r in reversed(summary.jobs)}
+    assert all({"water", "drips"} <= set(r.reused) for r in summary.jobs if leaders[r.object_id] is not r)
+    resumed = run_sweep(path, tmp_path / "out", backend="dask", scheduler=cluster, until="trajectories",
+                        resume=True)
+    assert resumed.resumed == 8 and resumed.ok
+
+
+def test_dask_reschedules_the_job_of_a_killed_worker(tmp_path, cluster):
+    path = _manifest(tmp_path, [{"id": "victim", "mesh": "ball.ply", "size_m": 0.3},
+                                {"id": "ball", "mesh": "ball.ply", "size_m": 0.4}],
+                     {"drips.count": {"values": [2, 3]}})
+    victim = plan_jobs(load_manifest(path), render=False)[0][0].job_id
+    marker = tmp_path / "out" / "d" / ".farm" / "running" / f"{victim}.pid"
+    killed = []
+
+    def kill_once():
+        pid = _wait_for(lambda: marker.is_file() and marker.read_text().split(), 60, "the victim job")[0]
+        time.sleep(0.3)
+        os.kill(int(pid), signal.SIGKILL)
+        killed.append(pid)
+
+    killer = threading.Thread(target=kill_once)
+    killer.start()
+    summary = run_sweep(path, tmp_path / "out", backend="dask", scheduler=cluster, until="drips")
+    killer.join()
+    assert killed
+    records = {r.job_id: r for r in summary.jobs}
+    assert records[victim].status is Status.DONE and records[victim].attempts == 2
+    assert summary.done == 4 and summary.ok
+
+
+def test_dask_without_a_scheduler_starts_a_local_cluster(tmp_path):
+    path = _manifest(tmp_path, [{"id": "ball", "mesh": "ball.ply", "size_m": 0.3}],
+                     {"drips.count": {"values": [2, 3]}})
+    summary = run_sweep(path, tmp_path / "out", backend="dask", workers=2, until="drips")
+    assert summary.ok and summary.done == 2 and summary.workers == 2
+    assert summary.jobs[1].reused == ("water",)

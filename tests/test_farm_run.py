@@ -1,0 +1,178 @@
+"""Sweeps through the real pipeline on a local process pool: layout, reuse, resume, failures,
+a worker killed mid-job. Stage-only jobs (until trajectories) on a tiny icosphere."""
+
+import csv
+import os
+import signal
+import threading
+import time
+from pathlib import Path
+
+import pytest
+import trimesh
+import yaml
+from click.testing import CliRunner
+
+from icefarm.errors import InputError
+from icefarm.farm.backends import PAUSE_ENV
+from icefarm.farm.commands import sweep as sweep_command
+from icefarm.farm.commands import validate as validate_command
+from icefarm.farm.manifest import load_manifest
+from icefarm.farm.sweep import Status, plan_jobs, run_sweep
+
+FAST = {"water": {"rays": 300}, "drips": {"count": 4}, "proxy": {"mode": "never"}}
+
+
+def write_manifest(tmp_path: Path, objects: list, sweep: dict | None = None, name: str = "t") -> Path:
+    data = {"name": name, "seed": 1, "render": None, "defaults": FAST, "objects": objects}
+    if sweep:
+        data["sweep"] = sweep
+    path = tmp_path / f"{name}.yaml"
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    return path
+
+
+@pytest.fixture
+def ball(tmp_path: Path) -> str:
+    trimesh.creation.icosphere(subdivisions=2, radius=1.0).export(tmp_path / "ball.ply")
+    return "ball.ply"
+
+
+def grid(**values) -> dict:
+    return {"method": "grid", "parameters": {k.replace("__", "."): {"values": v} for k, v in values.items()}}
+
+
+def test_sweep_layout_and_stage_reuse(tmp_path, ball):
+    path = write_manifest(tmp_path, [{"id": "ball", "mesh": ball, "size_m": 0.3}],
+                          grid(trajectories__curve_angle=[1, 5], surface__ripple_amplitude=[0.0, 0.001]))
+    out = tmp_path / "out"
+    summary = run_sweep(path, out, workers=2, until="trajectories")
+    assert summary.ok and summary.done == 4 and summary.failed == 0
+    root = out / "t"
+    resolved = yaml.safe_load((root / "manifest.resolved.yaml").read_text())
+    assert len(resolved["jobs"]) == 4 and resolved["objects"][0]["params"]["drips"]["count"] == 4
+    rows = list(csv.DictReader((root / "jobs.csv").open()))
+    assert [r["status"] for r in rows] == ["done"] * 4
+    assert set(rows[0]) >= {"job_id", "object", "trajectories.curve_angle", "surface.ripple_amplitude", "seconds"}
+    for r in summary.jobs:
+        assert r.job_dir == root / "jobs" / "ball" / r.job_id
+        assert (r.job_dir / "done.json").is_file() and (r.job_dir / "trajectories.json").is_file()
+    # The first job computes stages 1-3; the others wait for it and reuse what they share:
+    # the same curve angle shares all three stages, the other one shares water and drips.
+    first, *others = summary.jobs
+    assert first.reused == ()
+    assert all({"water", "drips"} <= set(r.reused) for r in others)
+    assert summary.reused >= 3 + 2 + 2
+    assert (root / "cache").is_dir() and not (root / ".farm").exists()
+
+
+def test_existing_folder_is_refused_and_resume_redoes_exactly_the_unfinished_job(tmp_path, ball):
+    path = write_manifest(tmp_path, [{"id": "ball", "mesh": ball, "size_m": 0.3}],
+                          grid(drips__count=[2, 3, 4]))
+    out = tmp_path / "out"
+    first = run_sweep(path, out, workers=1, until="drips")
+    assert first.done == 3
+    with pytest.raises(InputError, match="already exists: add --resume"):
+        run_sweep(path, out, until="drips")
+    redo = first.jobs[1].job_dir
+    (redo / "done.json").unlink()
+    (redo / "leftover.tmp").write_text("half-written")
+    stamps = {r.job_id: (r.job_dir / "done.json").stat().st_mtime_ns for r in first.jobs if r.job_dir != redo}
+    again = run_sweep(path, out, workers=1, until="drips", resume=True)
+    assert again.ok and again.resumed == 2
+    assert [r.job_id for r in again.jobs if not r.resumed] == [first.jobs[1].job_id]
+    assert (redo / "done.json").is_file() and not (redo / "leftover.tmp").exists()
+    assert {j: (out / "t" / "jobs" / "ball" / j / "done.json").stat().st_mtime_ns for j in stamps} == stamps
+    nothing = run_sweep(path, out, until="drips", resume=True)
+    assert nothing.resumed == 3 and nothing.ok
+    plan = run_sweep(path, out, until="drips", overwrite=True, dry_run=True)
+    assert plan.dry_run and plan.resumed == 3  # a dry run deletes nothing
+
+
+def test_overwrite_refuses_a_folder_that_is_not_a_sweep(tmp_path, ball):
+    path = write_manifest(tmp_path, [{"id": "ball", "mesh": ball, "size_m": 0.3}])
+    (tmp_path / "out" / "t").mkdir(parents=True)
+    (tmp_path / "out" / "t" / "precious.txt").write_text("keep me")
+    with pytest.raises(InputError, match="does not look like an icefarm sweep folder"):
+        run_sweep(path, tmp_path / "out", overwrite=True, until="water")
+    assert (tmp_path / "out" / "t" / "precious.txt").exists()
+
+
+def test_a_failing_job_does_not_stop_the_others(tmp_path, ball):
+    (tmp_path / "broken.obj").write_text("v 0 0 0\nf 1 2 3\nthis is not a mesh\n")
+    path = write_manifest(tmp_path, [{"id": "bad", "mesh": "broken.obj", "size_m": 0.3},
+                                     {"id": "ball", "mesh": ball, "size_m": 0.3}],
+                          grid(drips__count=[2, 3]))
+    assert CliRunner().invoke(validate_command, [str(path)]).exit_code == 0  # it exists: valid
+    result = CliRunner().invoke(sweep_command, [str(path), "-o", str(tmp_path / "out"), "--workers", "2",
+                                                "--until", "drips"])
+    assert result.exit_code == 1, result.output
+    assert "2 done, 2 failed of 4 jobs" in result.output and "FAILED bad/" in result.output
+    rows = list(csv.DictReader((tmp_path / "out" / "t" / "jobs.csv").open()))
+    assert {(r["object"], r["status"]) for r in rows} == {("bad", "failed"), ("ball", "done")}
+    for row in rows:
+        if row["object"] == "bad":
+            folder = tmp_path / "out" / "t" / "jobs" / "bad" / row["job_id"]
+            assert (folder / "error.json").is_file() and not (folder / "done.json").exists()
+            assert row["error"]
+
+
+def test_cli_dry_run_and_bad_set(tmp_path, ball):
+    path = write_manifest(tmp_path, [{"id": "ball", "mesh": ball, "size_m": 0.3}])
+    result = CliRunner().invoke(sweep_command, [str(path), "-o", str(tmp_path / "out"), "--dry-run",
+                                                "--set", "drips.count=2,3,5"])
+    assert result.exit_code == 0 and "3 jobs" in result.output and "drips.count=5" in result.output
+    assert not (tmp_path / "out").exists()
+    bad = CliRunner().invoke(sweep_command, [str(path), "--set", "drips.cuont=2"])
+    assert bad.exit_code == 2 and "did you mean drips.count" in bad.output
+
+
+def _kill_when_started(running: Path, job_ids: set[str], kills: int, killed: list, timeout: float = 60) -> None:
+    """Kill (SIGKILL) the worker of each new attempt of ``job_ids``, ``kills`` times in all."""
+    deadline = time.monotonic() + timeout
+    seen: set[str] = set()
+    while len(killed) < kills and time.monotonic() < deadline:
+        for marker in running.glob("*.pid") if running.is_dir() else ():
+            try:
+                pids = marker.read_text().split()
+            except FileNotFoundError:  # the job ended meanwhile
+                continue
+            if marker.stem in job_ids and pids and pids[-1] not in seen:
+                seen.add(pids[-1])
+                time.sleep(0.3)  # well inside the job (it pauses for PAUSE_ENV seconds)
+                os.kill(int(pids[-1]), signal.SIGKILL)
+                killed.append(marker.stem)
+        time.sleep(0.02)
+
+
+@pytest.mark.parametrize("kills", [1, 2])
+def test_a_killed_worker_is_noticed_its_job_retried_once(tmp_path, ball, monkeypatch, kills):
+    path = write_manifest(tmp_path, [{"id": "ball", "mesh": ball, "size_m": 0.3},
+                                     {"id": "victim", "mesh": ball, "size_m": 0.5}],
+                          grid(drips__count=[2, 3]))
+    victim = next(j.job_id for j in plan_jobs(load_manifest(path), render=False)[0] if j.object_id == "victim")
+    monkeypatch.setenv(PAUSE_ENV, "victim=1.5")
+    killed: list = []
+    killer = threading.Thread(target=_kill_when_started,
+                              args=(tmp_path / "out" / "t" / ".farm" / "running", {victim}, kills, killed))
+    killer.start()
+    summary = run_sweep(path, tmp_path / "out", workers=2, until="drips")
+    killer.join()
+    assert killed == [victim] * kills
+    records = {r.job_id: r for r in summary.jobs}
+    assert records[victim].attempts == 2
+    assert records[victim].status is (Status.DONE if kills == 1 else Status.FAILED)
+    others = [r for r in summary.jobs if r.job_id != victim]
+    assert all(r.status is Status.DONE for r in others) and len(others) == 3
+    if kills == 2:
+        assert "died 2 times" in records[victim].error
+        assert (records[victim].job_dir / "error.json").is_file()
+
+
+def test_every_command_explains_itself():
+    from icefarm.farm.commands import bench_farm
+
+    for command, words in ((validate_command, "without running"), (sweep_command, "--resume"),
+                           (bench_farm, "speed-up")):
+        result = CliRunner().invoke(command, ["--help"])
+        assert result.exit_code == 0 and words in result.output
