@@ -130,6 +130,9 @@ PARAMS: tuple[Param, ...] = (
     _p("drips", "drip_limit", "dl", "deg", _F, 75.0,
        "water drips where every vertex normal of a face lies within this angle of gravity",
        low=1.0, high=90.0, low_open=True, high_open=True),
+    _p("drips", "ground_clearance", "-", "height", _F, 0.02,
+       "no icicles this close to the object's lowest point (a fraction of its height): it rests "
+       "on the ground there; 0 for hanging objects", low=0.0, high=1.0, high_open=True),
     # Stage 3: trajectories (paper 4.3)
     _p("trajectories", "curve_angle", "c", "deg", _F, 2.0,
        "turn applied at each L-system generation; 0 gives straight icicles",
@@ -173,6 +176,9 @@ PARAMS: tuple[Param, ...] = (
     _p("glaze", "lifetime", "lt", "-", _F, 0.5,
        "water drop lifetime: 0 thick high up (freezes where it lands), 1 thick low down (runs first)",
        low=0.0, high=1.0),
+    _p("glaze", "voxel_size", "-", "m", _F, 0.003,
+       "edge of a marching-cubes voxel for the glaze shell; coarser than surface.voxel_size keeps "
+       "the mesh light", low=0.0, low_open=True),
     # Approximate surface for problem meshes (paper 5.1)
     _p("proxy", "mode", "-", "-", Kind.CHOICE, "auto",
        "build an approximate surface for the water: auto (for problem meshes), always or never",

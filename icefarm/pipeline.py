@@ -264,8 +264,12 @@ def _run_stages(spec: JobSpec, job_dir: Path, run: _Run, cache: _Cache, until: S
     def drips_stage() -> DripResult:
         if "drips" in overrides:
             return artifacts.drips_from_json(Path(overrides["drips"]))
+        heights = flow.vertices @ -gravity
+        grounded = heights < heights.min() + p["drips"]["ground_clearance"] * np.ptp(heights)
         found = find_drips(flow, water.water, gravity, p["drips"]["count"], p["drips"]["drip_limit"],
-                           _rng(spec.seed, Stage.DRIPS), exclude_boxes=spec.exclude, caster=caster(flow))
+                           _rng(spec.seed, Stage.DRIPS), exclude_boxes=spec.exclude,
+                           exclude_vertices=grounded if p["drips"]["ground_clearance"] > 0 else None,
+                           caster=caster(flow))
         if flow is obj:
             return found
         from .proxy import snap_to_surface
@@ -326,7 +330,8 @@ def _surface_and_render(spec, job_dir, run, cache, until, obj, flow, water, drip
 
     def render() -> Any:
         files = write_scenes(job_dir, obj, ice_mesh if len(ice.faces) else None, config, gravity,
-                             material_from_dict(dict(spec.material)), frame_points=_frame(obj, gravity))
+                             material_from_dict(dict(spec.material)),
+                             frame_points=_frame(obj, ice_mesh))
         return render_job(job_dir, config, files)
 
     result = run.timed("render", render)
@@ -335,12 +340,9 @@ def _surface_and_render(spec, job_dir, run, cache, until, obj, flow, water, drip
     return stats
 
 
-def _frame(obj: trimesh.Trimesh, gravity: np.ndarray) -> np.ndarray:
-    """Points the camera frames: the object's box and room below it for the icicles.
-
-    Framing the object rather than its ice gives every job of a sweep the same camera,
-    so contact-sheet cells compare like with like.
-    """
-    corners = trimesh.bounds.corners(obj.bounds)
-    height = float(np.ptp(obj.vertices @ gravity))
-    return np.vstack([corners, corners + 0.35 * height * gravity])
+def _frame(obj: trimesh.Trimesh, ice: trimesh.Trimesh) -> np.ndarray:
+    """Points the camera frames and the ground lies under: the boxes of object and ice."""
+    corners = [trimesh.bounds.corners(obj.bounds)]
+    if len(ice.faces):
+        corners.append(trimesh.bounds.corners(ice.bounds))
+    return np.vstack(corners)
