@@ -198,6 +198,87 @@ def test_glaze_thickness_is_the_equation_3_radius():
     assert np.median(out[out > 0]) == pytest.approx(0.002, rel=0.2)
 
 
+def test_glaze_on_its_coarser_lattice_cuts_the_faces_and_keeps_mesh_and_tips(monkeypatch):
+    obj = _sphere()
+    water = _water(obj, obj.vertices[:, 1] < -0.1)  # a wet cap where the icicles hang
+    starts = [[0.0, -0.15, 0.0], [0.03, -0.147, 0.0], [-0.02, -0.148, 0.02]]
+    drips = _drips(obj, starts)
+    traj = _straight(drips.positions, [0.06, 0.04, 0.05])
+    one_field = _ice(obj, water, drips, traj, *_groups(glaze__balls=3000, glaze__voxel_size=0.001))
+    # The union runs only near the icicles: the boolean of the whole meshes is not needed.
+    monkeypatch.setattr(S, "union_meshes", lambda parts: pytest.fail("fell back to the whole-mesh union"))
+    surface, glaze = _groups(glaze__balls=3000)
+    assert glaze["voxel_size"] > surface["voxel_size"]
+    fused = _ice(obj, water, drips, traj, surface, glaze)
+    m = _closed_and_clean(fused)
+    assert len(fused.faces) < 0.4 * len(one_field.faces)
+    assert fused.balls == one_field.balls
+    assert fused.tip_radius_mm == pytest.approx(2.44, rel=0.10)
+    assert np.allclose(fused.length_to_diameter, one_field.length_to_diameter, rtol=0.1)
+    # Icicles, glaze and the bases under them are one solid: each icicle hangs from the coat.
+    assert len(m.split(only_watertight=False)) <= 3
+    assert fused.vertices[:, 1].min() == pytest.approx(one_field.vertices[:, 1].min(), abs=0.0005)
+    # The coat still lies outside the object, around Equation 3's thickness.
+    out = np.linalg.norm(fused.vertices, axis=1) - 0.15
+    far = (np.hypot(fused.vertices[:, 0], fused.vertices[:, 2]) > 0.06) & (out > 0)
+    assert 0.0005 < np.median(out[far]) < 0.002
+
+
+def test_fusing_two_lattices_is_the_union_of_the_solids():
+    # One Gaussian ball weighing LEVEL * e is a sphere of radius = its width.
+    def ball(centre, radius, voxel):
+        b = S.Balls(np.array([centre], float), np.array([radius]), np.array([S.LEVEL * np.e]))
+        return S.sample_field(b, voxel)
+
+    r, d = 0.01, 0.012
+    verts, faces = S.fuse_fields(ball([0.0, 0.0, 0.0], r, 0.0004), ball([d, 0.0, 0.0], r, 0.001))
+    m = trimesh.Trimesh(verts, faces, process=False)
+    assert m.is_watertight and m.is_winding_consistent and m.area_faces.min() > 0
+    lens = np.pi * (4 * r + d) * (2 * r - d) ** 2 / 12
+    assert m.volume == pytest.approx(2 * 4 / 3 * np.pi * r**3 - lens, rel=0.03)
+    assert len(m.split(only_watertight=False)) == 1
+    # Apart, the two spheres stay two; one deep inside the other vanishes.
+    m = trimesh.Trimesh(*S.fuse_fields(ball([0, 0, 0], r, 0.0004), ball([0.05, 0, 0], r, 0.001)), process=False)
+    assert m.is_watertight and len(m.split(only_watertight=False)) == 2
+    assert m.volume == pytest.approx(2 * 4 / 3 * np.pi * r**3, rel=0.03)
+    m = trimesh.Trimesh(*S.fuse_fields(ball([0, 0, 0], 0.003, 0.0004), ball([0, 0, 0], 0.03, 0.001)), process=False)
+    assert m.is_watertight and len(m.split(only_watertight=False)) == 1
+    assert m.volume == pytest.approx(4 / 3 * np.pi * 0.03**3, rel=0.03)
+    # The whole-mesh union (the fallback) agrees.
+    a, b = trimesh.creation.icosphere(4, r), trimesh.creation.icosphere(4, r)
+    b.apply_translation([d, 0, 0])
+    m = trimesh.Trimesh(*S.union_meshes([(a.vertices, a.faces), (b.vertices, b.faces)]), process=False)
+    assert m.is_watertight and m.is_winding_consistent
+    assert m.volume == pytest.approx(2 * 4 / 3 * np.pi * r**3 - lens, rel=0.03)
+    # An empty side gives the other.
+    v, f = S.fuse_fields(None, ball([0, 0, 0], r, 0.001))
+    assert trimesh.Trimesh(v, f).is_watertight
+    assert S.fuse_fields(None, None)[1].shape == (0, 3)
+
+
+def test_coarse_glaze_apart_from_icicles_or_alone_stays_closed():
+    obj = _sphere()
+    top = obj.vertices[:, 1] > 0.1  # glaze on the top, icicles at the bottom: nothing to unite
+    drips = _drips(obj, [[0.0, -0.15, 0.0]])
+    traj = _straight(drips.positions, [0.04])
+    surface, glaze = _groups(glaze__balls=2000)
+    ice = _ice(obj, _water(obj, top), drips, traj, surface, glaze)
+    m = _closed_and_clean(ice)
+    assert len(m.split(only_watertight=False)) >= 2
+    assert ice.tip_radius_mm == pytest.approx(2.44, rel=0.10)
+    coat = _ice(obj, _water(obj, top), _drips(obj, np.zeros((0, 3))), _no_icicles(), surface, glaze)
+    _closed_and_clean(coat)
+    assert np.isnan(coat.tip_radius_mm)
+
+
+def test_a_glaze_voxel_too_fine_is_refused_by_name():
+    obj = _sphere()
+    water = _water(obj, np.ones(len(obj.vertices), bool))
+    surface, glaze = _groups(surface__voxel_size=0.00001, glaze__voxel_size=0.00002)
+    with pytest.raises(InputError, match="glaze.voxel_size"):
+        _ice(obj, water, _drips(obj, np.zeros((0, 3))), _no_icicles(), surface, glaze)
+
+
 def test_tubes_mode_gives_one_closed_tube_per_branch():
     obj = _sphere()
     drips = _drips(obj, [[0.0, -0.15, 0.0], [0.05, -0.14, 0.0]])

@@ -2,9 +2,14 @@
 
 Every icicle branch becomes a chain of metaballs whose radii follow the profile of
 Equation 1; metaballs around each drip point form the base (Equation 2) and metaballs
-over the wet surface form the glaze (Equation 3). All balls add into ONE field, so
-branches fuse with their trunk and touching icicles fuse with each other, and the
-iso-surface of that field is polygonised by marching cubes into one mesh in meters.
+over the wet surface form the glaze (Equation 3). The icicle and base balls add into ONE
+field, so branches fuse with their trunk and touching icicles fuse with each other, and
+the iso-surface of that field is polygonised by marching cubes into one mesh in meters.
+The glaze covers the whole wet surface, so at the voxel the tip radius needs it would
+dominate the mesh: its balls get a field of their own on the coarser ``glaze.voxel_size``
+lattice, and the two closed surfaces are joined by a boolean union (manifold3d), run only
+where they come close (`fuse_fields`). With ``glaze.voxel_size <= surface.voxel_size``
+the glaze joins the one field instead, and fuses smoothly with the bases.
 
 The metaballs are Gaussian (Blinn's blobby model): the one kernel that is both radial
 and separable. Separability turns the field of a block of ``B^3`` samples into a matrix
@@ -31,11 +36,13 @@ closed tube with the same profile instead: instant, no fusion, no base, no glaze
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass
 
 import numpy as np
 import trimesh
+from scipy import ndimage
 from scipy.spatial import cKDTree
 from skimage.measure import marching_cubes
 
@@ -54,6 +61,9 @@ LEVEL = math.sqrt(math.pi) / SPACING * math.exp(-1.0 / KAPPA**2)
 # (sqrt of the area per ball): about pi * 2^2 = 12 balls overlap at each point of a sheet.
 SHEET_KAPPA = 1.0
 SHEET_OVERLAP = 2.0
+# With the glaze on its own coarser lattice, its sheet is at least this many glaze voxels
+# thick (the extra thickness goes inside the object), so marching cubes tears it less.
+COAT_SHEET = 2.0
 # Each ball is cut off where its field falls below this fraction of LEVEL.
 CUTOFF = 1e-3
 # Samples (and cells) per block edge.
@@ -72,6 +82,8 @@ _SEGMENT = 64
 # cache: 4x faster than 4M here) and in one batch of halo blocks for marching cubes.
 _FIELD_BATCH = 500_000
 _MARCH_BATCH = 4_000_000
+# Fusion of two lattices (`fuse_fields`): most tiles in the dense grid of a region.
+_MAX_TILES = 2**22
 # Refuse voxel sizes whose field (float32 over the blocks the balls reach) needs more,
 # or that pair balls with more blocks than this (about 100 bytes each on the way).
 _MAX_FIELD_BYTES = 2 * 2**30
@@ -95,13 +107,16 @@ class IceResult:
     length_to_diameter : (i,) float64
         Per icicle trunk (in branch order): trunk length over the base diameter measured on
         the mesh (a line fitted to the trunk's radius along its length, taken at x = 0).
-        Real icicles: 8 to 32.
+        Real icicles: 8 to 32. NaN where a trunk cannot be measured: too short for four
+        radius samples between 30 % and 90 % of its length (under 5 mm), or a fitted base
+        radius that is not positive. Entries stay aligned with the trunks, so consumers
+        drop the NaN themselves (the CLI's summary does).
     ripple_wavelength_cm : float
         Dominant period of the trunks' radius along their length, measured on the mesh,
         in centimeters (real icicles: about 1 cm); nan when ``ripple_amplitude`` is 0 or
         no trunk is long enough to show two ripples.
     balls : int
-        Metaballs in the field (0 in tubes mode).
+        Metaballs in the fields: icicles, bases and glaze (0 in tubes mode).
     """
 
     vertices: np.ndarray
@@ -397,7 +412,7 @@ def _sample_in_triangles(tris: np.ndarray, rng: np.random.Generator) -> np.ndarr
 
 
 def glaze_balls(flow_mesh: trimesh.Trimesh, water: WaterResult, glaze: dict,
-                rng: np.random.Generator) -> Balls:
+                rng: np.random.Generator, min_sheet: float = 0.0) -> Balls:
     """``ngi`` balls spread at random over the wet surface (paper 4.4.4, Equation 3).
 
     Wet vertices are those of the water supply or with water > 0; wet faces have at least
@@ -407,6 +422,27 @@ def glaze_balls(flow_mesh: trimesh.Trimesh, water: WaterResult, glaze: dict,
     ``rgi = minGI + s [dUp lt + dDown (1 - lt)]`` thick, dUp and dDown interpolated:
     lt = 0 puts the thickness high up (water freezes where it lands), lt = 1 low down
     (it runs down before freezing), 0.5 evens it out.
+
+    The sheet lies ``rgi`` on each side of the surface. Where ``2 rgi < min_sheet``, the ball
+    sinks along the inward normal and grows so that the sheet is ``min_sheet`` thick while
+    its outer face stays ``rgi`` above the surface: the extra ice hides inside the object,
+    and a sheet thinner than a voxel or two would tear into holes under marching cubes.
+
+    Parameters
+    ----------
+    flow_mesh : trimesh.Trimesh
+        In meters, outward normals.
+    water : WaterResult
+        Per vertex of ``flow_mesh``.
+    glaze : dict
+        The resolved ``glaze`` group.
+    rng : numpy.random.Generator
+    min_sheet : float
+        Least total thickness of the sheet, in meters (0: the sheet is ``2 rgi`` thick).
+
+    Returns
+    -------
+    Balls
     """
     ngi = glaze["balls"]
     if ngi == 0:
@@ -426,6 +462,13 @@ def glaze_balls(flow_mesh: trimesh.Trimesh, water: WaterResult, glaze: dict,
     d_down = (np.asarray(water.d_down, dtype=np.float64)[fv] * bary).sum(axis=1)
     lt = glaze["lifetime"]
     radius = glaze["min_radius"] + glaze["scale"] * (d_up * lt + d_down * (1 - lt))
+    sink = np.maximum(0.5 * min_sheet - radius, 0.0)
+    if sink.any():
+        normal = (flow_mesh.vertex_normals[fv] * bary[:, :, None]).sum(axis=1)
+        norm = np.linalg.norm(normal, axis=1, keepdims=True)
+        normal = np.where(norm > 1e-12, normal / np.maximum(norm, 1e-300), flow_mesh.face_normals[wet_faces[pick]])
+        pts = pts - sink[:, None] * normal
+        radius = radius + sink
     return sheet_balls(pts, radius, areas.sum() / ngi)
 
 
@@ -472,7 +515,32 @@ def _random_barycentric(n: int, rng: np.random.Generator) -> np.ndarray:
 # --------------------------------------------------------------------------- field + polygonisation
 
 
-def polygonize(balls: Balls, voxel: float, level: float = LEVEL, block: int = BLOCK):
+@dataclass(frozen=True)
+class Field:
+    """Summed metaball field sampled on the blocks of a lattice that the balls reach.
+
+    Lattice sample ``i`` (3 ints) lies at ``origin + i * voxel`` (meters); block ``b`` holds
+    the samples ``b * B .. b * B + B - 1``; samples of absent blocks are zero.
+
+    Attributes
+    ----------
+    origin : (3,) float64
+    voxel : float
+    level : float
+    blocks : (k, 3) int64
+        In `_block_keys` order.
+    values : (k, B, B, B) float32
+    """
+
+    origin: np.ndarray
+    voxel: float
+    level: float
+    blocks: np.ndarray
+    values: np.ndarray
+
+
+def polygonize(balls: Balls, voxel: float, level: float = LEVEL, block: int = BLOCK,
+               name: str = "surface.voxel_size"):
     """The iso-surface ``field == level`` of summed Gaussian metaballs, welded and watertight.
 
     The lattice is cut into blocks of ``block^3`` samples; the field is evaluated only in
@@ -491,6 +559,8 @@ def polygonize(balls: Balls, voxel: float, level: float = LEVEL, block: int = BL
         Iso level.
     block : int
         Samples per block edge.
+    name : str
+        The parameter that set ``voxel``, named in the error messages.
 
     Returns
     -------
@@ -505,11 +575,33 @@ def polygonize(balls: Balls, voxel: float, level: float = LEVEL, block: int = BL
         When the voxel is so fine that the field would need more than ``_MAX_FIELD_BYTES``
         or ``_MAX_PAIRS`` (ball, block) pairs.
     """
-    empty = np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64)
+    field = sample_field(balls, voxel, level, block, name)
+    if field is None:
+        return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64)
+    lattice, faces = _march(field.values, field.blocks, level)
+    return field.origin + lattice * voxel, faces
+
+
+def sample_field(balls: Balls, voxel: float, level: float = LEVEL, block: int = BLOCK,
+                 name: str = "surface.voxel_size") -> Field | None:
+    """The field of ``balls`` on the blocks of the ``voxel`` lattice that they reach.
+
+    See `polygonize`, which marches it; `fuse_fields` unites two of them.
+
+    Returns
+    -------
+    Field or None
+        None when no ball is left after the cut-off.
+
+    Raises
+    ------
+    InputError
+        A voxel too fine for the extent of the balls (``name`` is the parameter to raise).
+    """
     keep = balls.weights > CUTOFF * level
     c, s, w = balls.centers[keep], balls.widths[keep], balls.weights[keep]
     if len(w) == 0:
-        return empty
+        return None
     ext = s * np.sqrt(np.log(w / (CUTOFF * level)))
     origin = (np.floor(((c - ext[:, None]) / voxel).min(axis=0)) - 1) * voxel
     q = (c - origin) / voxel  # lattice coordinates, >= 1 inside every ball's reach
@@ -520,27 +612,48 @@ def polygonize(balls: Balls, voxel: float, level: float = LEVEL, block: int = BL
     npairs = int(((hi // block - lo // block + 1)).prod(axis=1).sum())
     if npairs > _MAX_PAIRS:
         raise InputError(
-            f"surface.voxel_size = {voxel:g} m is too fine for this much ice ({npairs} ball-block "
-            f"pairs to evaluate, at most {_MAX_PAIRS}); raise surface.voxel_size")
+            f"{name} = {voxel:g} m is too fine for this much ice ({npairs} ball-block "
+            f"pairs to evaluate, at most {_MAX_PAIRS}); raise {name}")
     ball, bc, starts, counts = _ball_block_pairs(q, el, lo, hi, block)
     nbytes = len(starts) * block**3 * 4
     if nbytes > _MAX_FIELD_BYTES:
         raise InputError(
-            f"surface.voxel_size = {voxel:g} m is too fine for this much ice: its field needs "
-            f"{nbytes / 2**30:.1f} GiB (at most {_MAX_FIELD_BYTES / 2**30:.0f}); raise surface.voxel_size")
+            f"{name} = {voxel:g} m is too fine for this much ice: its field needs "
+            f"{nbytes / 2**30:.1f} GiB (at most {_MAX_FIELD_BYTES / 2**30:.0f}); raise {name}")
     g = _axis_gaussians(q, sl, w, ball, bc, block)
     own = _block_fields(g, starts, counts, block)
     del g
+    return Field(origin, voxel, level, bc[starts], own)
+
+
+def _march(values: np.ndarray, blocks: np.ndarray, level: float):
+    """Marching cubes over block fields (blocks absent from ``blocks`` count as zero).
+
+    Parameters
+    ----------
+    values : (k, B, B, B) float32
+    blocks : (k, 3) int
+        Block coordinates, in `_block_keys` order.
+    level : float
+
+    Returns
+    -------
+    lattice : (n, 3) float64
+        Vertices in lattice coordinates.
+    faces : (m, 3) int64
+        Welded across block seams, without degenerate faces.
+    """
+    block = values.shape[1]
     verts, faces, nverts = [], [], 0
-    for fields, where in _halo_blocks(own, bc[starts], level):
-        v, f = _march_packed(_march_domain(fields, level), where, level**_POWER, block)
-        verts.append(v)
-        faces.append(f + nverts)
-        nverts += len(v)
+    if len(values):
+        for fields, where in _halo_blocks(values, blocks, level):
+            v, f = _march_packed(_march_domain(fields, level), where, level**_POWER, block)
+            verts.append(v)
+            faces.append(f + nverts)
+            nverts += len(v)
     if not verts:
-        return empty
-    lattice, faces = _weld_lattice(np.concatenate(verts), np.concatenate(faces), block)
-    return origin + lattice * voxel, faces
+        return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64)
+    return _weld_lattice(np.concatenate(verts), np.concatenate(faces), block)
 
 
 def _ball_block_pairs(q, el, lo, hi, block):
@@ -761,6 +874,20 @@ def _march_packed(fields: np.ndarray, blocks: np.ndarray, level: float, block: i
     v = v.astype(np.float64)
     cell = np.minimum(np.floor(v / n1).astype(np.int64), np.array([px, py, pz]) - 1)
     local = v - cell * n1
+    # Vertices on lattice edges again, in float64 from the edge's two samples and rounded
+    # from block-local coordinates: an edge then gets the same bits whatever batch or
+    # packing marched it (`fuse_fields` welds on them).
+    base = np.floor(v)
+    frac = v - base
+    edge = np.flatnonzero((frac > 0).sum(axis=1) == 1)
+    axis = np.argmax(frac[edge], axis=1)
+    i0 = base[edge].astype(np.int64)
+    i1 = i0.copy()
+    i1[np.arange(len(edge)), axis] += 1
+    g0 = vol[i0[:, 0], i0[:, 1], i0[:, 2]].astype(np.float64)
+    g1 = vol[i1[:, 0], i1[:, 1], i1[:, 2]].astype(np.float64)
+    t = np.clip((level - g0) / np.where(g1 != g0, g1 - g0, 1.0), 0.0, 1.0)
+    local[edge, axis] = (i0 - cell[edge] * n1)[np.arange(len(edge)), axis] + t
     which = (cell[:, 0] * py + cell[:, 1]) * pz + cell[:, 2]
     return blocks[which] * block + local, f.astype(np.int64)
 
@@ -792,6 +919,329 @@ def _weld_lattice(lattice: np.ndarray, faces: np.ndarray, block: int):
     used[faces] = True
     remap = np.cumsum(used) - 1
     return lattice[used], remap[faces]
+
+
+def ice_mesh(ice: Balls, coat: Balls, voxel: float, coat_voxel: float):
+    """The icicles with their bases, and the glaze, as one watertight mesh.
+
+    With ``coat_voxel <= voxel`` (or no glaze) all balls add into one field polygonised at
+    ``voxel``: the glaze fuses smoothly with the bases. Otherwise the icicles and bases
+    are polygonised at ``voxel`` (which the tip radius needs), the glaze alone at the
+    coarser ``coat_voxel`` (it covers the whole wet surface, so its face count rules the
+    mesh: about ``(coat_voxel / voxel)^2`` times fewer faces), and the two closed surfaces
+    are joined by a boolean union (`fuse_fields`).
+
+    Parameters
+    ----------
+    ice, coat : Balls
+        Icicle chains and bases; glaze.
+    voxel, coat_voxel : float
+        ``surface.voxel_size`` and ``glaze.voxel_size``, in meters.
+
+    Returns
+    -------
+    vertices : (n, 3) float64
+        In meters.
+    faces : (m, 3) int64
+        Outward-wound, watertight.
+    """
+    if len(coat) == 0 or coat_voxel <= voxel:
+        return polygonize(concat_balls(ice, coat), voxel)
+    coat_field = sample_field(coat, coat_voxel, name="glaze.voxel_size")
+    return fuse_fields(sample_field(ice, voxel), coat_field)
+
+
+def fuse_fields(a: Field | None, b: Field | None):
+    """Boolean union of the iso-surfaces of two sampled fields, each on its own lattice.
+
+    Both are marched whole. The union only cuts them where they come close, so only there
+    does it run (manifold3d): each field is marched again with its samples zeroed outside
+    the tiles near the other surface (`_margin`), which closes it with caps out of the
+    other's reach; the caps are cut off the union and the rest welds, bit for bit, to the
+    faces of the whole meshes outside those tiles, less those wholly inside the other solid
+    (nearest-sample test). Should a check fail (a face there half inside, a seam that does
+    not close), the whole meshes go through the boolean instead (`union_meshes`).
+
+    Parameters
+    ----------
+    a, b : Field or None
+        From `sample_field`; None is an empty field.
+
+    Returns
+    -------
+    vertices : (n, 3) float64
+        In meters.
+    faces : (m, 3) int64
+        Outward-wound, watertight.
+    """
+    parts = []
+    for f in (a, b):
+        if f is not None:
+            lattice, faces = _march(f.values, f.blocks, f.level)
+            if len(faces):
+                parts.append((f, f.origin + lattice * f.voxel, lattice, faces))
+    if len(parts) < 2:
+        return (parts[0][1], parts[0][3]) if parts else (np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64))
+    fused = _local_union(*parts)
+    if fused is None:
+        fused = union_meshes([(p[1], p[3]) for p in parts])
+    return fused
+
+
+def _margin(field: Field, other: Field) -> float:
+    """How far the cells of ``field`` left out of the union must lie from ``other``'s
+    vertices.
+
+    A point of the other surface lies within one of its voxels of a vertex of it (a
+    marching-cubes triangle fits in a cell), and a cell spans one cell diagonal, so a cell
+    with a sample this far from the other's vertices stays more than half of the other's
+    cell diagonal off the other surface: out of its reach, and on the side of it that the
+    nearest sample of the other field says (`_inside`).
+    """
+    return 1.05 * (math.sqrt(3) * field.voxel + (1 + 0.5 * math.sqrt(3)) * other.voxel)
+
+
+def _local_union(a, b):
+    """`fuse_fields` near where the surfaces meet; None when a check fails.
+
+    ``a``, ``b``: (field, vertices in meters, vertices in lattice coordinates, faces).
+    """
+    sides = []
+    for (field, verts, lattice, faces), (other, other_verts, *_) in ((a, b), (b, a)):
+        tiles = _near_tiles(field, other_verts, _margin(field, other))
+        if tiles is None:
+            return None
+        inner = _inner_faces(lattice, faces, *tiles)
+        values, blocks = _restrict(field, *tiles)
+        r_lattice, r_faces = _march(values, blocks, field.level)
+        r_inner = _inner_faces(r_lattice, r_faces, *tiles)
+        sides.append((field, verts, faces, inner, field.origin + r_lattice * field.voxel, r_faces, r_inner))
+    # The whole mesh's faces in cells that reach out of the region lie off the other
+    # surface: each lies wholly inside the other solid (the union covers it: dropped) or
+    # wholly outside (kept as it is).
+    outside = []
+    for (_, verts, faces, inner, *_), other in zip(sides, (sides[1][0], sides[0][0])):
+        out = np.flatnonzero(~inner)
+        used = _used(faces[out], len(verts))
+        covered = np.zeros(len(verts), dtype=bool)
+        covered[used] = _inside(other, verts[used])
+        count = covered[faces[out]].sum(axis=1)
+        if ((count > 0) & (count < 3)).any():
+            return None
+        outside.append(out[count == 0])
+    u_verts, u_faces, source, origin = _manifold_union([(s[4], s[5]) for s in sides])
+    keep = np.zeros(len(u_faces), dtype=bool)
+    for i, side in enumerate(sides):
+        mine = source == i
+        keep[mine] = side[6][origin[mine]]
+    nu = len(u_verts)
+    u_edge = np.flatnonzero(_used(u_faces[keep], nu) & _used(u_faces[~keep], nu))  # where caps were cut off
+    u_faces = u_faces[keep]
+
+    # One vertex list: side a, side b, the union; the seams weld on exact positions.
+    (_, va, fa, ia, *_), (_, vb, fb, ib, *_) = sides
+    na, nb = len(va), len(vb)
+    seam = [np.flatnonzero(_used(f[i], len(v)) & _used(f[~i], len(v))) + off
+            for v, f, i, off in ((va, fa, ia, 0), (vb, fb, ib, na))]
+    cand = np.concatenate(seam + [u_edge + na + nb])
+    verts = np.concatenate([va, vb, u_verts])
+    _, first, inverse = np.unique(np.ascontiguousarray(verts[cand]).view(np.dtype((np.void, 24))).reshape(-1),
+                                  return_index=True, return_inverse=True)
+    index = np.arange(len(verts))
+    index[cand] = cand[first][inverse.reshape(-1)]
+    faces = index[np.concatenate([fa[outside[0]], fb[outside[1]] + na, u_faces + na + nb])]
+    if ((faces[:, 0] == faces[:, 1]) | (faces[:, 1] == faces[:, 2]) | (faces[:, 0] == faces[:, 2])).any():
+        return None
+    # Away from the seams each part is closed already (the marched meshes and the union).
+    touched = np.zeros(len(verts), dtype=bool)
+    touched[index[cand]] = True
+    if not _closed_around(faces, touched):
+        return None
+    used = _used(faces, len(verts))
+    return verts[used], (np.cumsum(used) - 1)[faces]
+
+
+def _used(faces: np.ndarray, n: int) -> np.ndarray:
+    """(n,) bool: the vertices that ``faces`` use."""
+    used = np.zeros(n, dtype=bool)
+    used[faces] = True
+    return used
+
+
+def _near_tiles(field: Field, points: np.ndarray, margin: float):
+    """Tiles (cubes of ``tile^3`` samples) of ``field``'s lattice within ``margin`` of any
+    of ``points`` (k, 3) (meters), as a dense boolean grid; None if it would be too big.
+
+    Returns
+    -------
+    region : (tx, ty, tz) bool
+        Every tile with a point within ``margin`` is in it (some a little farther are too).
+    lo : (3,) int
+        Tile coordinates of ``region[0, 0, 0]``.
+    tile : int
+        Samples per tile edge.
+    """
+    block = field.values.shape[1]
+    # Tiles about half the margin: finer ones make bigger grids, coarser ones wider regions.
+    finest = min(margin / (2 * field.voxel), block)
+    for tile in (t for t in range(1, block + 1) if block % t == 0 and 2 * t > finest):
+        per = block // tile
+        k = int(math.ceil(margin / (tile * field.voxel)))
+        lo = (field.blocks.min(axis=0) - 1) * per - k  # from the (empty) lower neighbours' tiles
+        shape = (field.blocks.max(axis=0) + 2) * per + k - lo
+        if int(np.prod(shape)) <= _MAX_TILES:
+            break
+    else:
+        return None
+    t = np.floor((points - field.origin) / (field.voxel * tile)).astype(np.int64) - lo
+    t = t[((t >= 0) & (t < shape)).all(axis=1)]
+    occupied = np.zeros(tuple(shape), dtype=np.uint8)
+    occupied[t[:, 0], t[:, 1], t[:, 2]] = 1
+    # A tile j tiles away from a point's tile is at least (j - 1) tile edges away from it.
+    return ndimage.maximum_filter(occupied, size=2 * k + 1, mode="constant") > 0, lo, tile
+
+
+def _inner_faces(lattice: np.ndarray, faces: np.ndarray, region, lo, tile) -> np.ndarray:
+    """Faces whose marching-cubes cell has all 8 samples in ``region``: marching the
+    restricted field gives them bit for bit.
+
+    A face's cell is the floor of its vertices' least coordinates, the same for all faces
+    of a cell, so a cell's faces (and the vertex some cells add inside) never split between
+    the two sides of the seam. A cell across tiles asks for the 2 x 2 x 2 tiles from its own.
+    """
+    corner = np.floor(lattice).astype(np.int32)
+    cell = np.minimum(np.minimum(corner[faces[:, 0]], corner[faces[:, 1]]), corner[faces[:, 2]])
+    t = cell // tile - lo.astype(np.int32)
+    across = (cell % tile == tile - 1).any(axis=1)
+    box = region.copy()
+    for axis in range(3):
+        head = [slice(None)] * 3
+        tail = [slice(None)] * 3
+        head[axis], tail[axis] = slice(0, -1), slice(1, None)
+        box[tuple(head)] &= box[tuple(tail)]
+        tail[axis] = -1
+        box[tuple(tail)] = False
+    ok = ((t >= 0) & (t < np.array(region.shape))).all(axis=1)
+    inner = np.zeros(len(faces), dtype=bool)
+    t, across = t[ok], across[ok]
+    inner[ok] = np.where(across, box[t[:, 0], t[:, 1], t[:, 2]], region[t[:, 0], t[:, 1], t[:, 2]])
+    return inner
+
+
+def _restrict(field: Field, region, lo, tile):
+    """``field``'s blocks that reach ``region``, with their samples outside it zeroed.
+
+    Returns
+    -------
+    values : (k, B, B, B) float32
+    blocks : (k, 3) int64
+    """
+    block = field.values.shape[1]
+    per = block // tile
+    first = field.blocks * per - lo
+    o = np.arange(per)
+    mask = region[first[:, 0, None, None, None] + o[:, None, None],
+                  first[:, 1, None, None, None] + o[None, :, None],
+                  first[:, 2, None, None, None] + o[None, None, :]]
+    keep = mask.reshape(len(mask), -1).any(axis=1)
+    mask = mask[keep]
+    for axis in (1, 2, 3):
+        mask = np.repeat(mask, tile, axis=axis)
+    return field.values[keep] * mask, field.blocks[keep]
+
+
+def _inside(field: Field, points: np.ndarray) -> np.ndarray:
+    """Whether the field's nearest sample to each point (n, 3) (meters) is above its level."""
+    block = field.values.shape[1]
+    s = np.rint((points - field.origin) / field.voxel).astype(np.int64)
+    bc = s // block
+    ok = ((bc >= 0) & (bc < 2**20)).all(axis=1)
+    keys = _block_keys(field.blocks)
+    key = _block_keys(np.where(ok[:, None], bc, 0))
+    i = np.minimum(np.searchsorted(keys, key), len(keys) - 1)
+    ok &= keys[i] == key
+    r = s - bc * block
+    return ok & (field.values[i, r[:, 0], r[:, 1], r[:, 2]] > field.level)
+
+
+def _closed_around(faces: np.ndarray, touched: np.ndarray) -> bool:
+    """Whether every edge with an end in ``touched`` (per vertex) joins exactly two faces
+    that cross it in opposite directions."""
+    f = faces[touched[faces].any(axis=1)]
+    e = np.stack([f, np.roll(f, -1, axis=1)], axis=-1).reshape(-1, 2)
+    e = e[touched[e].any(axis=1)]
+    n = len(touched)
+    key = np.sort(e[:, 0] * n + e[:, 1])
+    back = np.sort(e[:, 1] * n + e[:, 0])
+    return bool((np.diff(key) != 0).all() and np.array_equal(key, back))
+
+
+def union_meshes(parts):
+    """Boolean union of closed meshes (manifold3d), as one watertight mesh.
+
+    Parameters
+    ----------
+    parts : sequence of ((n, 3) float, (m, 3) int)
+        Closed, outward-wound meshes in meters; empty ones are skipped.
+
+    Returns
+    -------
+    vertices : (n, 3) float64
+    faces : (m, 3) int64
+        Outward-wound, watertight.
+
+    Raises
+    ------
+    ValueError
+        A part that is not a closed, oriented 2-manifold.
+    """
+    vertices, faces, _, _ = _manifold_union(parts)
+    return vertices, faces
+
+
+def _manifold_union(parts):
+    """`union_meshes`, with each face's source: the index of its part and of its face there.
+
+    Returns
+    -------
+    vertices : (n, 3) float64
+    faces : (m, 3) int64
+    source, origin : (m,) int64
+    """
+    import manifold3d
+
+    solids, index, ids = [], [], []
+    first_id = manifold3d.Manifold.reserve_ids(len(parts))
+    for i, (v, f) in enumerate(parts):
+        if len(f) == 0:
+            continue
+        # One face id per triangle: manifold3d then neither merges nor re-triangulates
+        # coplanar neighbours, so untouched triangles come out as they went in.
+        solid = manifold3d.Manifold(manifold3d.Mesh64(
+            vert_properties=np.ascontiguousarray(v, dtype=np.float64),
+            tri_verts=np.ascontiguousarray(f, dtype=np.uint64),
+            run_index=np.array([0, 3 * len(f)], dtype=np.uint64),
+            run_original_id=np.array([first_id + i], dtype=np.uint32),
+            face_id=np.arange(len(f), dtype=np.uint64)))
+        if solid.status() != manifold3d.Error.NoError:
+            raise ValueError(f"mesh {i} of the union is not a closed oriented manifold: {solid.status()}")
+        solids.append(solid)
+        index.append(i)
+        ids.append(first_id + i)
+    if not solids:
+        return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64)
+    ids = np.array(ids)
+    union = solids[0] if len(solids) == 1 else manifold3d.Manifold.batch_boolean(solids, manifold3d.OpType.Add)
+    if union.status() != manifold3d.Error.NoError:
+        raise ValueError(f"the union of {len(solids)} meshes failed: {union.status()}")
+    out = union.to_mesh64()
+    vertices = np.array(out.vert_properties, dtype=np.float64).reshape(-1, max(out.vert_properties.shape[1], 3))[:, :3]
+    faces = np.array(out.tri_verts, dtype=np.int64).reshape(-1, 3)
+    runs = np.array(out.run_index, dtype=np.int64) // 3
+    run_source = np.array(index)[np.searchsorted(ids, np.array(out.run_original_id, dtype=np.int64))]
+    source = np.repeat(run_source, np.diff(runs))
+    origin = np.array(out.face_id, dtype=np.int64)
+    return vertices, faces, source, origin
 
 
 # --------------------------------------------------------------------------- tubes
@@ -970,7 +1420,8 @@ def measure_icicles(vertices: np.ndarray, faces: np.ndarray, traj: TrajectoryRes
     length_to_diameter : (i,) float
         Per trunk, its length over twice the base radius of a line fitted to its radius
         (distance from the axis to the nearest vertex) between 30 % and 90 % of its length,
-        taken at x = 0; nan for trunks shorter than 4 samples.
+        taken at x = 0; nan for a trunk with fewer than 4 samples there (shorter than
+        ``4 sample_step / 0.6``) or whose fitted base radius is not positive.
     ripple_wavelength_cm : float
         Peak of the trunks' radius spectra (quadratic trend removed, Hann window, each trunk
         normalised), in centimeters; nan when the ripple amplitude is 0 or no trunk spans
@@ -1063,9 +1514,10 @@ def build_ice(object_mesh: trimesh.Trimesh, flow_mesh: trimesh.Trimesh, water: W
               gravity: np.ndarray, rng: np.random.Generator) -> IceResult:
     """Stage 4: icicles, their bases and glaze ice as one mesh (paper 4.4).
 
-    ``surface["mode"] == "metaballs"``: one watertight mesh of the summed field of the
-    icicle chains, the bases and the glaze (`polygonize`). ``"tubes"``: each branch as its
-    own closed tube (`tube_mesh`), without bases or glaze: an instant preview.
+    ``surface["mode"] == "metaballs"``: one watertight mesh of the icicle chains, the
+    bases and the glaze (`ice_mesh`: the glaze on its own coarser lattice, joined by a
+    boolean union, or all in one field). ``"tubes"``: each branch as its own closed tube
+    (`tube_mesh`), without bases or glaze: an instant preview.
 
     Parameters
     ----------
@@ -1095,7 +1547,8 @@ def build_ice(object_mesh: trimesh.Trimesh, flow_mesh: trimesh.Trimesh, water: W
     ValueError
         Inputs of inconsistent shapes.
     InputError
-        A voxel size too fine for the extent of the ice.
+        A voxel size (``surface.voxel_size`` or ``glaze.voxel_size``) too fine for the
+        extent of the ice.
     """
     g = np.asarray(gravity, dtype=np.float64).reshape(-1)
     if g.shape != (3,) or not np.isfinite(g).all() or not g.any():
@@ -1116,12 +1569,11 @@ def build_ice(object_mesh: trimesh.Trimesh, flow_mesh: trimesh.Trimesh, water: W
         verts, faces = tube_mesh(trajectories, surface, g)
         n_balls = 0
     else:
-        balls = concat_balls(
-            icicle_balls(trajectories, surface, rng),
-            base_balls(object_mesh, drips, surface, rng),
-            glaze_balls(flow_mesh, water, glaze, rng),
-        )
-        verts, faces = polygonize(balls, surface["voxel_size"])
-        n_balls = len(balls)
+        voxel, coat_voxel = surface["voxel_size"], glaze["voxel_size"]
+        ice = concat_balls(icicle_balls(trajectories, surface, rng), base_balls(object_mesh, drips, surface, rng))
+        coarse = coat_voxel > voxel
+        coat = glaze_balls(flow_mesh, water, glaze, rng, min_sheet=COAT_SHEET * coat_voxel if coarse else 0.0)
+        verts, faces = ice_mesh(ice, coat, voxel, coat_voxel)
+        n_balls = len(ice) + len(coat)
     tip_mm, ratios, wavelength = measure_icicles(verts, faces, trajectories, surface)
     return IceResult(verts, faces, tip_mm, ratios, wavelength, n_balls)
