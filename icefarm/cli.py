@@ -96,10 +96,11 @@ def run(mesh, size_m, assignments, seed, out, until, render, no_render, exclude,
 def _print_plausibility(timings: dict) -> None:
     if "ice_faces" not in timings:
         return
-    ratios = [r for r in timings.get("length_to_diameter") or [] if r == r]  # NaN: too short to measure
+    ratios = [r for r in timings.get("length_to_diameter") or [] if r is not None]  # None: too short
     click.echo(f"  ice: {timings['ice_faces']} faces, {timings.get('icicles', 0)} icicles")
-    click.echo(f"  tip radius {timings['tip_radius_mm']:.2f} mm (real: 2.44 mm); ripple wavelength "
-               f"{timings['ripple_wavelength_cm']:.2f} cm (real: about 1 cm)")
+    tip, ripple = timings.get("tip_radius_mm"), timings.get("ripple_wavelength_cm")
+    click.echo(f"  tip radius {'-' if tip is None else f'{tip:.2f}'} mm (real: 2.44 mm); ripple wavelength "
+               f"{'-' if ripple is None else f'{ripple:.2f}'} cm (real: about 1 cm)")
     if ratios:
         click.echo(f"  length / base diameter: median {statistics.median(ratios):.1f}, "
                    f"range {min(ratios):.1f}-{max(ratios):.1f} (real icicles: 8-32)")

@@ -317,9 +317,9 @@ def _surface_and_render(spec, job_dir, run, cache, until, obj, flow, water, drip
     ice_mesh = trimesh.Trimesh(ice.vertices, ice.faces, process=False)
     artifacts.write_mesh(job_dir / "ice.ply", ice_mesh)
     stats = {
-        "ice_faces": len(ice.faces), "metaballs": ice.balls, "tip_radius_mm": ice.tip_radius_mm,
-        "length_to_diameter": [round(float(x), 3) for x in ice.length_to_diameter],
-        "ripple_wavelength_cm": ice.ripple_wavelength_cm,
+        "ice_faces": len(ice.faces), "metaballs": ice.balls, "tip_radius_mm": _finite(ice.tip_radius_mm),
+        "length_to_diameter": [round(float(x), 3) if np.isfinite(x) else None for x in ice.length_to_diameter],
+        "ripple_wavelength_cm": _finite(ice.ripple_wavelength_cm),
     }
     if spec.render is None or _stops(until, Stage.SURFACE):
         return stats
@@ -346,3 +346,8 @@ def _frame(obj: trimesh.Trimesh, ice: trimesh.Trimesh) -> np.ndarray:
     if len(ice.faces):
         corners.append(trimesh.bounds.corners(ice.bounds))
     return np.vstack(corners)
+
+
+def _finite(value: float) -> float | None:
+    """JSON has no NaN: an unmeasured value is null."""
+    return float(value) if np.isfinite(value) else None

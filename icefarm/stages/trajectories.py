@@ -124,7 +124,7 @@ class _Grower:
 
         All sliding turtles move together: each step goes down the tangent plane, then a ray
         back along the normal puts the point on the surface again. A point whose surface falls
-        away beneath it drips from there; one stuck on an upward-facing floor ends.
+        away beneath it drips from there; one that stops descending (a floor, a pocket) ends.
         """
         normal = self.facing(face, t.heading[rows])
         pos = hits + self.lift * normal
@@ -160,7 +160,8 @@ class _Grower:
                 moved[cut] = pos[k][cut] + np.maximum(reach[cut] - self.lift, 0.0)[:, None] * unit(chord[cut])
                 new_normal[cut] = self.facing(wall[cut], chord[cut])
                 fell_off &= ~cut
-            stalled = np.linalg.norm(moved - pos[k], axis=1) < 1e-9
+            # Water only runs downhill: a step that does not descend means it pools here.
+            stalled = (moved - pos[k]) @ self.g < 0.05 * self.step
             t.alive[rows[k[stalled]]] = False
             sliding[k[stalled]] = False
             pos[k] = moved
