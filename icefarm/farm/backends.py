@@ -22,7 +22,6 @@ initializer runs, and the thread settings must come first.
 from __future__ import annotations
 
 import contextlib
-import json
 import logging
 import os
 import shutil
@@ -115,11 +114,9 @@ def failed_outcome(message: str, stage: str | None = None, trace: str = ""):
 
 def write_error(job_dir: str | Path, message: str, stage: str | None = None, trace: str = "") -> None:
     """error.json as the pipeline writes it, for failures outside the pipeline."""
-    path = Path(job_dir)
-    path.mkdir(parents=True, exist_ok=True)
-    tmp = path / ".error.json.tmp"
-    tmp.write_text(json.dumps({"stage": stage, "message": message, "traceback": trace}, indent=2))
-    os.replace(tmp, path / "error.json")
+    from ..artifacts import write_json
+
+    write_json(Path(job_dir) / "error.json", {"stage": stage, "message": message, "traceback": trace})
 
 
 def execute(task: Task) -> tuple[Any, int]:

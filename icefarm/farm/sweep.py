@@ -23,7 +23,6 @@ import io
 import itertools
 import json
 import math
-import os
 import shutil
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -35,6 +34,7 @@ import numpy as np
 import yaml
 
 from .. import params as P
+from ..artifacts import atomic_write
 from ..errors import InputError
 from .manifest import (Axis, Distribution, Manifest, Sweep, SweepMethod, load_manifest,
                        manifest_to_dict)
@@ -373,12 +373,6 @@ def is_done(path: Path) -> bool:
     return (path / "done.json").is_file()
 
 
-def _atomic_write(path: Path, text: str) -> None:
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
-
-
 def _format(value: Any) -> str:
     if isinstance(value, (list, tuple)):
         return " ".join(_format(v) for v in value)
@@ -535,9 +529,9 @@ def run_sweep(manifest: Manifest | str | Path, out: str | Path = "out", *, worke
     cache_dir = sweep_dir / "cache" if use_cache else None
     if cache_dir is not None:
         cache_dir.mkdir(exist_ok=True)
-    _atomic_write(sweep_dir / "manifest.resolved.yaml", _resolved_yaml(manifest, jobs, sweep_dir, until))
+    atomic_write(sweep_dir / "manifest.resolved.yaml", _resolved_yaml(manifest, jobs, sweep_dir, until))
     csv_path = sweep_dir / "jobs.csv"
-    _atomic_write(csv_path, jobs_csv_text(list(records.values()), swept))
+    atomic_write(csv_path, jobs_csv_text(list(records.values()), swept))
 
     todo = [j for j in jobs if records[j.job_id].status != Status.DONE]
     tasks = [backends.Task(spec=j.spec, job_id=j.job_id, object_id=j.object_id,
@@ -556,7 +550,7 @@ def run_sweep(manifest: Manifest | str | Path, out: str | Path = "out", *, worke
             seconds=float(sum(outcome.seconds.values())), reused=tuple(outcome.reused),
             attempts=attempts, failed_stage=outcome.failed_stage, error=outcome.error)
         if time.monotonic() - last_write[0] > CSV_INTERVAL_S:  # rewriting it per job is quadratic
-            _atomic_write(csv_path, jobs_csv_text(list(records.values()), swept))
+            atomic_write(csv_path, jobs_csv_text(list(records.values()), swept))
             last_write[0] = time.monotonic()
         if progress is not None:
             progress.update(records[task.job_id])
@@ -573,6 +567,6 @@ def run_sweep(manifest: Manifest | str | Path, out: str | Path = "out", *, worke
     finally:
         if progress is not None:
             progress.close()
-        _atomic_write(csv_path, jobs_csv_text(list(records.values()), swept))
+        atomic_write(csv_path, jobs_csv_text(list(records.values()), swept))
     shutil.rmtree(sweep_dir / ".farm", ignore_errors=True)
     return summary()

@@ -36,7 +36,6 @@ closed tube with the same profile instead: instant, no fusion, no base, no glaze
 
 from __future__ import annotations
 
-import itertools
 import math
 from dataclasses import dataclass
 
