@@ -9,6 +9,7 @@ last and atomically, ``error.json`` names the failed stage.
 from __future__ import annotations
 
 import enum
+import functools
 import hashlib
 import json
 import pickle
@@ -83,6 +84,16 @@ def _digest(*parts: Any) -> str:
 
 
 def _file_digest(path: str | Path) -> str:
+    try:
+        stat = Path(path).stat()
+    except OSError:
+        return f"missing:{path}"
+    return _content_digest(str(Path(path).resolve()), stat.st_mtime_ns, stat.st_size)
+
+
+@functools.lru_cache(maxsize=256)
+def _content_digest(path: str, mtime_ns: int, size: int) -> str:
+    """sha256 of a file, read once per (path, mtime, size): a sweep hashes each mesh once."""
     try:
         return hashlib.sha256(Path(path).read_bytes()).hexdigest()
     except OSError:
