@@ -1,0 +1,57 @@
+"""One job through the pipeline: ground clearance, the stage cache, failures that lose nothing."""
+
+import json
+
+import numpy as np
+
+from icefarm import params
+from icefarm.pipeline import JobSpec, Stage, run_job
+
+
+def sphere_job(tmp_path, sphere, **values):
+    path = tmp_path / "sphere.ply"
+    sphere.export(path)
+    p = params.resolve({"water.rays": 2000, "drips.count": 40, "drips.drip_limit": 80, **values})
+    return JobSpec("sphere", str(path), 0.3, p, seed=3)
+
+
+def drip_heights(job_dir):
+    drips = json.loads((job_dir / "drips.json").read_text())["drip_points"]
+    return np.array([d["position"][1] for d in drips])
+
+
+def test_ground_clearance_keeps_icicles_off_the_resting_bottom(tmp_path, sphere):
+    low = run_job(sphere_job(tmp_path, sphere, **{"drips.ground_clearance": 0.0}), tmp_path / "a",
+                  until=Stage.DRIPS)
+    high = run_job(sphere_job(tmp_path, sphere, **{"drips.ground_clearance": 0.2}), tmp_path / "b",
+                   until=Stage.DRIPS)
+    assert low.status == high.status == "done"
+    bottom = -0.15
+    assert drip_heights(tmp_path / "a").min() < bottom + 0.2 * 0.3
+    heights = drip_heights(tmp_path / "b")
+    assert len(heights) == 40 and heights.min() >= bottom + 0.2 * 0.3 - 1e-9
+
+
+def test_cache_reuses_upstream_stages_when_only_trajectories_change(tmp_path, sphere):
+    cache = tmp_path / "cache"
+    first = run_job(sphere_job(tmp_path, sphere), tmp_path / "a", cache, until=Stage.TRAJECTORIES)
+    second = run_job(sphere_job(tmp_path, sphere, **{"trajectories.curve_angle": 20}), tmp_path / "b", cache,
+                     until=Stage.TRAJECTORIES)
+    assert first.reused == ()
+    assert set(second.reused) == {"water", "drips"}
+    a = json.loads((tmp_path / "a" / "trajectories.json").read_text())
+    b = json.loads((tmp_path / "b" / "trajectories.json").read_text())
+    assert a != b
+    assert (tmp_path / "a" / "drips.json").read_text() == (tmp_path / "b" / "drips.json").read_text()
+
+
+def test_a_failed_job_writes_error_json_and_no_done_json(tmp_path, sphere):
+    spec = sphere_job(tmp_path, sphere)
+    job_dir = tmp_path / "job"
+    assert run_job(spec, job_dir, until=Stage.DRIPS).status == "done"
+    (tmp_path / "sphere.ply").write_bytes(b"not a mesh")
+    outcome = run_job(spec, job_dir, until=Stage.DRIPS)
+    assert outcome.status == "failed" and outcome.failed_stage == "prepare"
+    assert not (job_dir / "done.json").exists(), "a stale done.json must not survive a failed rerun"
+    error = json.loads((job_dir / "error.json").read_text())
+    assert error["stage"] == "prepare" and "sphere.ply" in error["message"] and error["traceback"]
