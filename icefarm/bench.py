@@ -71,3 +71,86 @@ def stage_timings(mesh_path: str | Path | trimesh.Trimesh, size_m: float, p: dic
         if on_run is not None:
             on_run()
     return StageRuns(len(prepared.mesh.faces), icicles, ice_faces, seconds, tuple(ice_faces_runs))
+
+
+@dataclass(frozen=True)
+class RenderRuns:
+    """Per-run seconds of a job's render step (`render_timings`).
+
+    Attributes
+    ----------
+    ice_faces : int
+    variant : str
+        Mitsuba variant that rendered.
+    step : tuple of float
+        Wall time of the job's whole render step: writing both scenes, loading, rendering,
+        writing the images.
+    render : tuple of float
+        Mitsuba rendering alone, measured again on the written scene with nothing else
+        running (the job's own render time can include the POV-Ray writer's share of the CPU).
+    write, load, wait : tuple of float
+        The job's own split of its overhead: writing before the render, loading scene.xml,
+        waiting for the POV-Ray files after it.
+    """
+
+    ice_faces: int
+    variant: str
+    step: tuple
+    render: tuple
+    write: tuple
+    load: tuple
+    wait: tuple
+
+    @property
+    def overhead(self) -> tuple:
+        """Per run: what the render step spends beyond rendering (``step - render``)."""
+        return tuple(s - r for s, r in zip(self.step, self.render))
+
+
+def render_timings(mesh: str, size_m: float, p: dict, render_config: str, repeat: int,
+                   seed: int = 0, on_run: Callable[[], None] | None = None) -> RenderRuns:
+    """Time the render step of a real job ``repeat`` times, as a sweep worker runs it.
+
+    A first job fills a stage cache and Dr.Jit's kernel cache (a worker's first job pays
+    for both once); each timed job then runs in a fresh folder with stages 1-4 from the
+    cache, so only scene writing, loading and rendering differ between runs. Each job's
+    scene is then rendered once more on its own, for the render time without overhead.
+
+    Parameters
+    ----------
+    mesh : str
+        Mesh path or ``generator:NAME``.
+    render_config : str
+        Render config name or YAML path.
+    """
+    import json
+    import shutil
+    import tempfile
+
+    from .pipeline import GENERATOR_PREFIX, JobSpec, run_job
+    from .scene.config import load_render_config
+    from .scene.render import render_job
+
+    if not mesh.startswith(GENERATOR_PREFIX):
+        mesh = str(Path(mesh).resolve())
+    spec = JobSpec(object_id=Path(mesh).stem, mesh=mesh, size_m=size_m, params=p, seed=seed,
+                   render=render_config)
+    config = load_render_config(render_config)
+    runs: list[dict] = []
+    with tempfile.TemporaryDirectory(prefix="icefarm-bench-") as tmp:
+        for run in range(repeat + 1):
+            job_dir = Path(tmp) / f"job{run}"
+            outcome = run_job(spec, job_dir, Path(tmp) / "cache")
+            if outcome.status != "done":
+                raise RuntimeError(f"benchmark job failed in stage {outcome.failed_stage}: {outcome.error}")
+            stats = json.loads((job_dir / "timings.json").read_text())
+            if run > 0:
+                alone = render_job(job_dir, config)
+                runs.append({**stats, "step": outcome.seconds["render"], "alone": alone.seconds})
+            shutil.rmtree(job_dir)
+            if on_run is not None:
+                on_run()
+    column = lambda key: tuple(float(r[key]) for r in runs)  # noqa: E731
+    return RenderRuns(ice_faces=int(runs[-1].get("ice_faces", 0)), variant=str(runs[-1]["render_variant"]),
+                      step=column("step"), render=column("alone"), write=column("scene_write_seconds"),
+                      load=column("scene_load_seconds"), wait=column("scene_wait_seconds"))

@@ -186,6 +186,42 @@ def bench_proxy(mesh, size_m, repeat, assignments):
                f"min {min(r.seconds for r in runs):.3f} ({repeat} runs)")
 
 
+@bench.command(name="render")
+@click.argument("mesh", type=click.Path(dir_okay=False))
+@click.option("--size-m", type=float, default=0.3, show_default=True, help="Object height in meters.")
+@click.option("--drips", type=int, default=40, show_default=True, help="Drip points (drips.count).")
+@click.option("--render", "render", default="lookdev", show_default=True, metavar="CONFIG",
+              help="Render config: a name in render_configs/ or a YAML path.")
+@click.option("--repeat", type=int, default=3, show_default=True, help="Timed runs; medians are printed.")
+@click.option("--set", "assignments", multiple=True, metavar="GROUP.PARAM=VALUE", help="Override a parameter.")
+def bench_render(mesh, size_m, drips, render, repeat, assignments):
+    """Scene overhead against render time of one job on MESH (a file or generator:NAME).
+
+    Runs the job once to fill the stage and kernel caches, then REPEAT more times with
+    stages 1-4 cached: the scene overhead (writing scene.xml/scene.pov, loading the scene,
+    waiting for the POV-Ray files) is compared with Mitsuba's render time.
+    """
+    from tqdm import tqdm
+
+    from .bench import render_timings
+    from .pipeline import GENERATOR_PREFIX
+
+    if not mesh.startswith(GENERATOR_PREFIX) and not Path(mesh).is_file():
+        raise InputError(f"mesh file not found: {mesh}")
+    p = params.resolve({"drips.count": drips, **_assignments(assignments)})
+    with tqdm(total=repeat + 1, desc="render jobs", unit="job", leave=False) as bar:
+        runs = render_timings(mesh, size_m, p, render, repeat, on_run=bar.update)
+    med = statistics.median
+    click.echo(f"{mesh}: {runs.ice_faces} ice faces, {render}, {runs.variant}, {repeat} runs (median, min)")
+    for name, values in (("render step", runs.step), ("render alone", runs.render),
+                         ("overhead", runs.overhead), ("  write", runs.write), ("  load", runs.load),
+                         ("  wait", runs.wait)):
+        click.echo(f"  {name:<13} {med(values):8.3f} s  {min(values):8.3f} s")
+    ratio = [o / r for o, r in zip(runs.overhead, runs.render)]
+    click.echo(f"  overhead / render: median {100 * med(ratio):.1f}% (target under 10%; the overhead is the "
+               "step less the render alone: scenes, loading, images)")
+
+
 @main.command()
 @click.argument("run_dir", type=click.Path(file_okay=False, exists=True))
 @click.option("--cell-width", type=int, default=320, show_default=True, help="Width of one cell in pixels.")

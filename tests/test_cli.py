@@ -88,3 +88,13 @@ def test_bad_input_is_one_clean_line(tmp_path, sphere, case):
                 "domain": "drips.drip_limit", "typo": "did you mean trajectories.curve_angle",
                 "size": "size"}[case]
     assert expected in lines[0]
+
+
+def test_bench_render_compares_overhead_with_render_time(sphere_file, tmp_path):
+    config = tmp_path / "tiny.yaml"
+    config.write_text("resolution: [40, 30]\nspp: 2\nmax_depth: 4\n")
+    result = run("bench", "render", sphere_file, "--render", config, "--repeat", 1,
+                 "--set", "drips.count=6", "--set", "water.rays=2000", "--set", "glaze.balls=0")
+    assert result.exit_code == 0, result.output
+    for word in ("render step", "render alone", "overhead", "load", "overhead / render"):
+        assert word in result.output, word

@@ -334,3 +334,40 @@ def test_ice_changes_the_picture_where_it_projects(tmp_path):
     assert mask.sum() > 20
     assert diff[mask].mean() > 0.05
     assert diff[mask].mean() > 3 * diff[~mask].mean()
+
+
+def test_povray_files_written_in_the_background_are_whole_when_the_render_returns(tmp_path):
+    from concurrent.futures import ThreadPoolExecutor
+
+    box, ice = box_with_icicles()
+    config = tiny_config()
+    sync = write_scenes(tmp_path / "sync", box, ice, config)
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        files = write_scenes(tmp_path / "bg", box, ice, config, executor=pool)
+        assert files.povray_pending is not None and sync.povray_pending is None
+        result = render_job(tmp_path / "bg", config, files)
+    assert files.povray_pending.done()
+    for name in ("scene.pov", "object.inc", "ice.inc", "scene.xml"):
+        assert (tmp_path / "bg" / name).read_bytes() == (tmp_path / "sync" / name).read_bytes(), name
+    assert result.scene_seconds == pytest.approx(result.write_seconds + result.load_seconds + result.wait_seconds)
+    assert result.write_seconds == files.seconds and result.load_seconds > 0
+
+
+def test_a_failed_render_still_waits_for_the_povray_files(tmp_path, monkeypatch):
+    from concurrent.futures import ThreadPoolExecutor
+
+    import icefarm.scene.render as render_module
+
+    box, ice = box_with_icicles()
+    config = tiny_config()
+
+    def broken(*args):
+        raise RuntimeError("renderer crashed")
+
+    monkeypatch.setattr(render_module, "render_mitsuba", broken)
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        files = write_scenes(tmp_path, box, ice, config, executor=pool)
+        with pytest.raises(RuntimeError, match="renderer crashed"):
+            render_job(tmp_path, config, files)
+        assert files.povray_pending.done()  # nothing left writing into the job folder
+    assert "Ice_Mesh" in (tmp_path / "scene.pov").read_text()

@@ -9,12 +9,15 @@ or newer itself and sets ``DRJIT_LIBLLVM_PATH`` *before* drjit is imported, and 
 
 from __future__ import annotations
 
+import functools
 import os
 import re
 import shutil
 import sys
+import tempfile
 import time
 from collections.abc import Iterable, Sequence
+from concurrent.futures import Executor, Future
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -177,7 +180,9 @@ class SceneFiles:
     cameras : tuple of Camera
         One per view, the main view first.
     seconds : float
-        Time taken to write everything.
+        Time taken to write everything written before `write_scenes` returned.
+    povray_pending : Future or None
+        The POV-Ray files still being written in the background (see `finish_scenes`).
     """
 
     xml: Path
@@ -187,6 +192,7 @@ class SceneFiles:
     sky: Path
     cameras: tuple[cam.Camera, ...]
     seconds: float
+    povray_pending: Future | None = None
 
 
 def _check_mesh(mesh: trimesh.Trimesh, what: str) -> None:
@@ -196,10 +202,20 @@ def _check_mesh(mesh: trimesh.Trimesh, what: str) -> None:
         raise ValueError(f"{what} has non-finite vertices")
 
 
+@functools.lru_cache(maxsize=8)
+def _procedural_sky_exr(azimuth: float, elevation: float) -> bytes:
+    """The EXR file of a procedural sky, made once per process: every job of a sweep shares it."""
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "sky.exr"
+        write_exr(path, procedural_sky(512, 256, azimuth, elevation), half=True)
+        return path.read_bytes()
+
+
 def write_scenes(job_dir: str | Path, object_mesh: trimesh.Trimesh, ice_mesh: trimesh.Trimesh | None,
                  config: RenderConfig, gravity: Sequence[float] = (0.0, -1.0, 0.0),
                  object_material: dict | None = None,
-                 frame_points: np.ndarray | None = None) -> SceneFiles:
+                 frame_points: np.ndarray | None = None,
+                 executor: Executor | None = None) -> SceneFiles:
     """Write ``object.ply``, ``scene.xml``, ``scene.pov`` (+ includes) and the sky into ``job_dir``.
 
     ``ice.ply`` is the pipeline's: it is written from ``ice_mesh`` only when missing.
@@ -220,6 +236,11 @@ def write_scenes(job_dir: str | Path, object_mesh: trimesh.Trimesh, ice_mesh: tr
     frame_points : (n, 3) float, optional
         What the cameras frame and the ground lies under; default the object's and the
         ice's vertices. Pass the same points to every job of a sweep for identical cameras.
+    executor : concurrent.futures.Executor, optional
+        Writes the POV-Ray files (``scene.pov``, ``object.inc``, ``ice.inc``: megabytes of
+        text for million-face ice) in the background, so that they cost no time while
+        Mitsuba loads and renders; `finish_scenes` (called by `render_job`) waits for them.
+        Default: written before returning.
 
     Returns
     -------
@@ -242,25 +263,12 @@ def write_scenes(job_dir: str | Path, object_mesh: trimesh.Trimesh, ice_mesh: tr
     frame = cam.world_frame(gravity)
     right, up, front = frame
 
-    # Geometry: the object smooth with its creases kept; the ice as the pipeline wrote it.
-    obj_v, obj_n, obj_f = geo.crease_split(object_mesh, CREASE_ANGLE)
-    object_ply = job_dir / "object.ply"
-    geo.write_ply(object_ply, obj_v, obj_f, obj_n)
-    ice_ply, ice_flip = None, False
-    if ice_mesh is not None:
-        ice_ply = job_dir / "ice.ply"
-        if not ice_ply.is_file():
-            geo.write_ply(ice_ply, ice_mesh.vertices, ice_mesh.faces)
-        ice_cross = geo.face_cross(ice_mesh.vertices, ice_mesh.faces)
-        # Inward winding would make refraction run inside out.
-        ice_flip = geo.signed_volume(ice_mesh.vertices, ice_mesh.faces, ice_cross) < 0
-
-    # Sky: generated once per folder (named by what it depends on), or the configured image.
+    # Sky: the configured image, or the procedural one; named by what it depends on.
     env = config.environment
     if env.sky == "procedural":
         sky = job_dir / f"sky_az{env.sun_azimuth:g}_el{env.sun_elevation:g}.exr"
         if not sky.is_file():
-            write_exr(sky, procedural_sky(512, 256, env.sun_azimuth, env.sun_elevation), half=True)
+            sky.write_bytes(_procedural_sky_exr(env.sun_azimuth, env.sun_elevation))
     else:
         src = Path(env.sky)
         sky = job_dir / f"sky_{src.stem}{src.suffix.lower()}"
@@ -292,22 +300,59 @@ def write_scenes(job_dir: str | Path, object_mesh: trimesh.Trimesh, ice_mesh: tr
         for v in config.views)
     sun_dir = cam.direction(frame, env.sun_azimuth, env.sun_elevation)
 
+    # Geometry: the object smooth with its creases kept; the ice as the pipeline wrote it.
+    obj_v, obj_n, obj_f = geo.crease_split(object_mesh, CREASE_ANGLE)
+    ice_cross, ice_flip = None, False
+    if ice_mesh is not None:
+        ice_cross = geo.face_cross(ice_mesh.vertices, ice_mesh.faces)
+        # Inward winding would make refraction run inside out.
+        ice_flip = geo.signed_volume(ice_mesh.vertices, ice_mesh.faces, ice_cross) < 0
+    pov_file = job_dir / "scene.pov"
+    write_pov = functools.partial(
+        _write_povray, job_dir, pov_file, (obj_v, obj_n, obj_f), ice_mesh, ice_cross, ice_flip,
+        pov.scene_pov(config, cameras, frame, object_inc="object.inc",
+                      ice_inc=None if ice_mesh is None else "ice.inc", sky_file=sky.name,
+                      sun_dir=sun_dir, ground=ground, material=material))
+    pending = executor.submit(write_pov) if executor is not None else write_pov()
+
+    object_ply = job_dir / "object.ply"
+    geo.write_ply(object_ply, obj_v, obj_f, obj_n)
+    ice_ply = None
+    if ice_mesh is not None:
+        ice_ply = job_dir / "ice.ply"
+        if not ice_ply.is_file():
+            geo.write_ply(ice_ply, ice_mesh.vertices, ice_mesh.faces)
     xml = job_dir / "scene.xml"
     xml.write_text(mx.scene_xml(config, cameras, frame, object_ply=object_ply.name,
                                 ice_ply=None if ice_ply is None else ice_ply.name, ice_flip=ice_flip,
                                 sky_file=sky.name, sun_dir=sun_dir, ground=ground, material=material))
+    return SceneFiles(xml=xml, pov=pov_file, object_ply=object_ply, ice_ply=ice_ply, sky=sky,
+                      cameras=cameras, seconds=time.perf_counter() - start, povray_pending=pending)
+
+
+def _write_povray(job_dir: Path, pov_file: Path, object_geometry: tuple[np.ndarray, ...],
+                  ice_mesh: trimesh.Trimesh | None, ice_cross: np.ndarray | None, ice_flip: bool,
+                  text: str) -> None:
+    """``object.inc``, ``ice.inc`` and then ``scene.pov``: its presence means the includes are whole."""
+    obj_v, obj_n, obj_f = object_geometry
     (job_dir / "object.inc").write_bytes(pov.mesh2("Object_Mesh", obj_v, obj_n, obj_f))
     if ice_mesh is not None:
         normals = geo.smooth_normals(ice_mesh.vertices, ice_mesh.faces, ice_cross) * (-1.0 if ice_flip else 1.0)
         (job_dir / "ice.inc").write_bytes(pov.mesh2("Ice_Mesh", ice_mesh.vertices, normals,
                                                    ice_mesh.faces, inside=True))
-    pov_file = job_dir / "scene.pov"
-    pov_file.write_text(pov.scene_pov(config, cameras, frame, object_inc="object.inc",
-                                      ice_inc=None if ice_mesh is None else "ice.inc",
-                                      sky_file=sky.name, sun_dir=sun_dir, ground=ground,
-                                      material=material))
-    return SceneFiles(xml=xml, pov=pov_file, object_ply=object_ply, ice_ply=ice_ply, sky=sky,
-                      cameras=cameras, seconds=time.perf_counter() - start)
+    pov_file.write_text(text)
+
+
+def finish_scenes(scene: SceneFiles | None) -> float:
+    """Wait for the POV-Ray files `write_scenes` left to an executor; seconds waited.
+
+    Re-raises what went wrong while writing them.
+    """
+    if scene is None or scene.povray_pending is None:
+        return 0.0
+    start = time.perf_counter()
+    scene.povray_pending.result()
+    return time.perf_counter() - start
 
 
 # ------------------------------------------------------------------------ images
@@ -373,8 +418,12 @@ class RenderResult:
         Mitsuba variant used (``""`` when Mitsuba did not run).
     seconds : float
         Mitsuba render time, all views, up to the NumPy conversion of the image.
-    scene_seconds : float
-        Writing the scenes (when `SceneFiles` were given) plus loading scene.xml.
+    write_seconds : float
+        Writing the scenes before the render (when `SceneFiles` were given).
+    load_seconds : float
+        Loading scene.xml (meshes, BVH).
+    wait_seconds : float
+        Waiting after the render for POV-Ray files written in the background.
     povray_seconds : float
         POV-Ray wall time, all views (0 when it did not run).
     files : tuple of Path
@@ -384,9 +433,16 @@ class RenderResult:
     renderer: str
     variant: str
     seconds: float
-    scene_seconds: float
+    write_seconds: float
+    load_seconds: float
+    wait_seconds: float
     povray_seconds: float
     files: tuple[Path, ...]
+
+    @property
+    def scene_seconds(self) -> float:
+        """What the job spends on its scenes beyond rendering: writing, loading, waiting."""
+        return self.write_seconds + self.load_seconds + self.wait_seconds
 
 
 def view_stem(index: int, prefix: str = "render") -> str:
@@ -428,7 +484,8 @@ def render_job(job_dir: str | Path, config: RenderConfig, scene: SceneFiles | No
     job_dir : path
     config : RenderConfig
     scene : SceneFiles, optional
-        Its write time is added to ``scene_seconds``.
+        What `write_scenes` returned: its write time is added to ``scene_seconds``, and
+        POV-Ray files it left to an executor are waited for (the wait counts too).
 
     Raises
     ------
@@ -436,16 +493,18 @@ def render_job(job_dir: str | Path, config: RenderConfig, scene: SceneFiles | No
         POV-Ray asked for but not installed, or a variant that cannot run here.
     """
     job_dir = Path(job_dir)
-    for name in ("scene.xml",) if config.uses_mitsuba else ():
-        if not (job_dir / name).is_file():
-            raise InputError(f"no {name} in {job_dir}: write the scenes first")
-    if config.uses_povray:
-        pov.require_povray()  # before spending time on Mitsuba
-    files: list[Path] = []
-    variant, load_seconds, seconds, pov_seconds = "", 0.0, 0.0, 0.0
-    if config.uses_mitsuba:
-        variant = pick_variant(config.variant)
-        load_seconds, seconds, files = render_mitsuba(job_dir, config, variant)
+    try:
+        if config.uses_mitsuba and not (job_dir / "scene.xml").is_file():
+            raise InputError(f"no scene.xml in {job_dir}: write the scenes first")
+        if config.uses_povray:
+            pov.require_povray()  # before spending time on Mitsuba
+        files: list[Path] = []
+        variant, load_seconds, seconds, pov_seconds = "", 0.0, 0.0, 0.0
+        if config.uses_mitsuba:
+            variant = pick_variant(config.variant)
+            load_seconds, seconds, files = render_mitsuba(job_dir, config, variant)
+    finally:  # the job is not over while its scene.pov is still being written
+        waited = finish_scenes(scene)
     if config.uses_povray:
         n_views = len(config.views)
         for i in range(n_views):
@@ -459,6 +518,7 @@ def render_job(job_dir: str | Path, config: RenderConfig, scene: SceneFiles | No
                 files += [job_dir / f"{stem}.exr", job_dir / f"{stem}.png"]
     if not config.uses_mitsuba:  # keep render.exr, render.png first
         files.sort(key=lambda p: (not p.name.startswith("render."), p.name))
-    scene_seconds = load_seconds + (scene.seconds if scene is not None else 0.0)
     return RenderResult(renderer=config.renderer, variant=variant, seconds=seconds,
-                        scene_seconds=scene_seconds, povray_seconds=pov_seconds, files=tuple(files))
+                        write_seconds=scene.seconds if scene is not None else 0.0,
+                        load_seconds=load_seconds, wait_seconds=waited,
+                        povray_seconds=pov_seconds, files=tuple(files))
