@@ -16,7 +16,6 @@ import pickle
 import time
 import traceback
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -341,14 +340,13 @@ def _surface_and_render(spec, job_dir, run, cache, until, obj, flow, water, drip
     config = load_render_config(spec.render)
 
     def render() -> Any:
-        with ThreadPoolExecutor(max_workers=1) as pov_writer:  # POV-Ray text while Mitsuba renders
-            files = write_scenes(job_dir, obj, ice_mesh if len(ice.faces) else None, config, gravity,
-                                 material_from_dict(dict(spec.material)),
-                                 frame_points=_frame(obj, ice_mesh), executor=pov_writer)
-            return render_job(job_dir, config, files)
+        files = write_scenes(job_dir, obj, ice_mesh if len(ice.faces) else None, config, gravity,
+                             material_from_dict(dict(spec.material)),
+                             frame_points=_frame(obj, ice_mesh), defer_povray=True)
+        return render_job(job_dir, config, files)  # writes the POV-Ray files while Mitsuba renders
 
     result = run.timed("render", render)
-    stats.update(render_variant=result.variant, renderer=result.renderer,
+    stats.update(render_variant=result.variant, render_integrator=result.integrator, renderer=result.renderer,
                  render_seconds=result.seconds, scene_seconds=result.scene_seconds,
                  scene_write_seconds=result.write_seconds, scene_load_seconds=result.load_seconds,
                  scene_wait_seconds=result.wait_seconds)

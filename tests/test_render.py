@@ -304,6 +304,7 @@ def test_render_job_writes_linear_exr_and_srgb_png(tmp_path):
     files = write_scenes(tmp_path, box, ice, config)
     result = render_job(tmp_path, config, files)
     assert result.variant in ("scalar_rgb", "llvm_ad_rgb", "cuda_ad_rgb")
+    assert result.integrator == ("path" if result.variant == "scalar_rgb" else "icepath")
     assert result.seconds > 0 and result.scene_seconds >= files.seconds
     assert [p.name for p in result.files] == ["render.exr", "render.png",
                                               "render_view1.exr", "render_view1.png"]
@@ -322,7 +323,7 @@ def test_ice_changes_the_picture_where_it_projects(tmp_path):
     with_ice = write_scenes(tmp_path / "ice", box, ice, config, frame_points=points)
     write_scenes(tmp_path / "bare", box, None, config, frame_points=points)
     render_job(tmp_path / "ice", config)
-    render_job(tmp_path / "bare", config)
+    assert render_job(tmp_path / "bare", config).integrator == "path"  # nothing for icepath to do
     a = read_image(tmp_path / "ice" / "render.exr")
     b = read_image(tmp_path / "bare" / "render.exr")
     diff = np.abs(a - b).mean(axis=2)
@@ -336,38 +337,32 @@ def test_ice_changes_the_picture_where_it_projects(tmp_path):
     assert diff[mask].mean() > 3 * diff[~mask].mean()
 
 
-def test_povray_files_written_in_the_background_are_whole_when_the_render_returns(tmp_path):
-    from concurrent.futures import ThreadPoolExecutor
-
+def test_deferred_povray_files_are_whole_when_the_render_returns(tmp_path):
     box, ice = box_with_icicles()
     config = tiny_config()
     sync = write_scenes(tmp_path / "sync", box, ice, config)
-    with ThreadPoolExecutor(max_workers=1) as pool:
-        files = write_scenes(tmp_path / "bg", box, ice, config, executor=pool)
-        assert files.povray_pending is not None and sync.povray_pending is None
-        result = render_job(tmp_path / "bg", config, files)
-    assert files.povray_pending.done()
+    files = write_scenes(tmp_path / "bg", box, ice, config, defer_povray=True)
+    assert sync.povray_writer is None and files.povray_writer is not None
+    assert not (tmp_path / "bg" / "scene.pov").exists() and (tmp_path / "bg" / "scene.xml").is_file()
+    result = render_job(tmp_path / "bg", config, files)
     for name in ("scene.pov", "object.inc", "ice.inc", "scene.xml"):
         assert (tmp_path / "bg" / name).read_bytes() == (tmp_path / "sync" / name).read_bytes(), name
     assert result.scene_seconds == pytest.approx(result.write_seconds + result.load_seconds + result.wait_seconds)
     assert result.write_seconds == files.seconds and result.load_seconds > 0
 
 
-def test_a_failed_render_still_waits_for_the_povray_files(tmp_path, monkeypatch):
-    from concurrent.futures import ThreadPoolExecutor
-
+def test_a_failed_render_still_leaves_whole_povray_files(tmp_path, monkeypatch):
     import icefarm.scene.render as render_module
 
     box, ice = box_with_icicles()
     config = tiny_config()
 
-    def broken(*args):
+    def broken(*args, **kwargs):
         raise RuntimeError("renderer crashed")
 
     monkeypatch.setattr(render_module, "render_mitsuba", broken)
-    with ThreadPoolExecutor(max_workers=1) as pool:
-        files = write_scenes(tmp_path, box, ice, config, executor=pool)
-        with pytest.raises(RuntimeError, match="renderer crashed"):
-            render_job(tmp_path, config, files)
-        assert files.povray_pending.done()  # nothing left writing into the job folder
-    assert "Ice_Mesh" in (tmp_path / "scene.pov").read_text()
+    files = write_scenes(tmp_path, box, ice, config, defer_povray=True)
+    with pytest.raises(RuntimeError, match="renderer crashed"):
+        render_job(tmp_path, config, files)
+    assert "Ice_Mesh" in (tmp_path / "scene.pov").read_text()  # written and finished before the error left
+    assert (tmp_path / "ice.inc").read_bytes().endswith(b"}\n")

@@ -111,6 +111,9 @@ def scene_xml(config: RenderConfig, cameras: Sequence[Camera], frame: np.ndarray
     env = config.environment
     gain = 2.0 ** env.exposure
     root = ET.Element("scene", version="3.0.0")
+    root.append(ET.Comment(" icefarm renders scenes with ice with its own `icepath` integrator, a path "
+                           "tracer that lets sunlight through the ice to what the glaze covers; the "
+                           "`path` below (for the mitsuba command) leaves glazed surfaces darker "))
     _add(root, "default", name="spp", value=config.spp)
     _add(root, "default", name="resx", value=config.width)
     _add(root, "default", name="resy", value=config.height)

@@ -16,8 +16,8 @@ import shutil
 import sys
 import tempfile
 import time
-from collections.abc import Iterable, Sequence
-from concurrent.futures import Executor, Future
+from collections.abc import Callable, Iterable, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -181,8 +181,9 @@ class SceneFiles:
         One per view, the main view first.
     seconds : float
         Time taken to write everything written before `write_scenes` returned.
-    povray_pending : Future or None
-        The POV-Ray files still being written in the background (see `finish_scenes`).
+    povray_writer : callable or None
+        Writes the POV-Ray files, when `write_scenes` was told to defer them: `render_job`
+        runs it in a thread once Mitsuba has loaded its scene. None once they are written.
     """
 
     xml: Path
@@ -192,7 +193,7 @@ class SceneFiles:
     sky: Path
     cameras: tuple[cam.Camera, ...]
     seconds: float
-    povray_pending: Future | None = None
+    povray_writer: Callable[[], None] | None = None
 
 
 def _check_mesh(mesh: trimesh.Trimesh, what: str) -> None:
@@ -215,7 +216,7 @@ def write_scenes(job_dir: str | Path, object_mesh: trimesh.Trimesh, ice_mesh: tr
                  config: RenderConfig, gravity: Sequence[float] = (0.0, -1.0, 0.0),
                  object_material: dict | None = None,
                  frame_points: np.ndarray | None = None,
-                 executor: Executor | None = None) -> SceneFiles:
+                 defer_povray: bool = False) -> SceneFiles:
     """Write ``object.ply``, ``scene.xml``, ``scene.pov`` (+ includes) and the sky into ``job_dir``.
 
     ``ice.ply`` is the pipeline's: it is written from ``ice_mesh`` only when missing.
@@ -236,11 +237,10 @@ def write_scenes(job_dir: str | Path, object_mesh: trimesh.Trimesh, ice_mesh: tr
     frame_points : (n, 3) float, optional
         What the cameras frame and the ground lies under; default the object's and the
         ice's vertices. Pass the same points to every job of a sweep for identical cameras.
-    executor : concurrent.futures.Executor, optional
-        Writes the POV-Ray files (``scene.pov``, ``object.inc``, ``ice.inc``: megabytes of
-        text for million-face ice) in the background, so that they cost no time while
-        Mitsuba loads and renders; `finish_scenes` (called by `render_job`) waits for them.
-        Default: written before returning.
+    defer_povray : bool
+        Leave the POV-Ray files (``scene.pov``, ``object.inc``, ``ice.inc``: tens of
+        megabytes of text for million-face ice) to ``SceneFiles.povray_writer``, which
+        `render_job` runs alongside Mitsuba's render. Default: written before returning.
 
     Returns
     -------
@@ -313,7 +313,8 @@ def write_scenes(job_dir: str | Path, object_mesh: trimesh.Trimesh, ice_mesh: tr
         pov.scene_pov(config, cameras, frame, object_inc="object.inc",
                       ice_inc=None if ice_mesh is None else "ice.inc", sky_file=sky.name,
                       sun_dir=sun_dir, ground=ground, material=material))
-    pending = executor.submit(write_pov) if executor is not None else write_pov()
+    if not defer_povray:
+        write_pov()
 
     object_ply = job_dir / "object.ply"
     geo.write_ply(object_ply, obj_v, obj_f, obj_n)
@@ -327,7 +328,8 @@ def write_scenes(job_dir: str | Path, object_mesh: trimesh.Trimesh, ice_mesh: tr
                                 ice_ply=None if ice_ply is None else ice_ply.name, ice_flip=ice_flip,
                                 sky_file=sky.name, sun_dir=sun_dir, ground=ground, material=material))
     return SceneFiles(xml=xml, pov=pov_file, object_ply=object_ply, ice_ply=ice_ply, sky=sky,
-                      cameras=cameras, seconds=time.perf_counter() - start, povray_pending=pending)
+                      cameras=cameras, seconds=time.perf_counter() - start,
+                      povray_writer=write_pov if defer_povray else None)
 
 
 def _write_povray(job_dir: Path, pov_file: Path, object_geometry: tuple[np.ndarray, ...],
@@ -341,18 +343,6 @@ def _write_povray(job_dir: Path, pov_file: Path, object_geometry: tuple[np.ndarr
         (job_dir / "ice.inc").write_bytes(pov.mesh2("Ice_Mesh", ice_mesh.vertices, normals,
                                                    ice_mesh.faces, inside=True))
     pov_file.write_text(text)
-
-
-def finish_scenes(scene: SceneFiles | None) -> float:
-    """Wait for the POV-Ray files `write_scenes` left to an executor; seconds waited.
-
-    Re-raises what went wrong while writing them.
-    """
-    if scene is None or scene.povray_pending is None:
-        return 0.0
-    start = time.perf_counter()
-    scene.povray_pending.result()
-    return time.perf_counter() - start
 
 
 # ------------------------------------------------------------------------ images
@@ -416,6 +406,8 @@ class RenderResult:
         ``mitsuba``, ``povray`` or ``both``.
     variant : str
         Mitsuba variant used (``""`` when Mitsuba did not run).
+    integrator : str
+        Mitsuba integrator: ``icepath`` (scenes with ice on JIT variants) or ``path``.
     seconds : float
         Mitsuba render time, all views, up to the NumPy conversion of the image.
     write_seconds : float
@@ -432,6 +424,7 @@ class RenderResult:
 
     renderer: str
     variant: str
+    integrator: str
     seconds: float
     write_seconds: float
     load_seconds: float
@@ -450,26 +443,45 @@ def view_stem(index: int, prefix: str = "render") -> str:
     return prefix if index == 0 else f"{prefix}_view{index}"
 
 
-def render_mitsuba(job_dir: Path, config: RenderConfig, variant: str) -> tuple[float, float, list[Path]]:
-    """Load ``scene.xml`` with ``variant`` and render every view; (load s, render s, files)."""
+def render_mitsuba(job_dir: Path, config: RenderConfig, variant: str,
+                   on_loaded: Callable[[], None] | None = None) -> tuple[float, float, list[Path], str]:
+    """Load ``scene.xml`` with ``variant`` and render every view; ``on_loaded()`` runs in between.
+
+    Scenes with ice render with the ice-aware path tracer (`integrator.ice_integrator`:
+    sunlight reaches what the glaze covers) on JIT variants, with the XML's ``path``
+    otherwise.
+
+    Returns
+    -------
+    load_seconds, render_seconds : float
+    files : list of Path
+    integrator : str
+        ``icepath`` or ``path``.
+    """
     import mitsuba as mi
+
+    from .integrator import ice_integrator
 
     if mi.variant() != variant:
         mi.set_variant(variant)
     start = time.perf_counter()
     scene = mi.load_file(str(job_dir / "scene.xml"))
     load_seconds = time.perf_counter() - start
+    if on_loaded is not None:
+        on_loaded()
+    has_ice = any(shape.id() == "ice" for shape in scene.shapes())
+    integrator = ice_integrator(variant, config.max_depth, config.ice.ior, config.ice.tint) if has_ice else None
     render_seconds, files = 0.0, []
     for i in range(len(scene.sensors())):
         start = time.perf_counter()
-        image = np.array(mi.render(scene, sensor=i, spp=config.spp), dtype=np.float32)
+        image = np.array(mi.render(scene, sensor=i, spp=config.spp, integrator=integrator), dtype=np.float32)
         render_seconds += time.perf_counter() - start
         stem = view_stem(i)
         write_exr(job_dir / f"{stem}.exr", image[..., :3])
         write_png(job_dir / f"{stem}.png", image[..., :3])
         files += [job_dir / f"{stem}.exr", job_dir / f"{stem}.png"]
     del scene  # no scene outlives the job (Mitsuba's memory grows with loads)
-    return load_seconds, render_seconds, files
+    return load_seconds, render_seconds, files, "path" if integrator is None else "icepath"
 
 
 def render_job(job_dir: str | Path, config: RenderConfig, scene: SceneFiles | None = None) -> RenderResult:
@@ -484,8 +496,9 @@ def render_job(job_dir: str | Path, config: RenderConfig, scene: SceneFiles | No
     job_dir : path
     config : RenderConfig
     scene : SceneFiles, optional
-        What `write_scenes` returned: its write time is added to ``scene_seconds``, and
-        POV-Ray files it left to an executor are waited for (the wait counts too).
+        What `write_scenes` returned: its write time counts in ``scene_seconds``. POV-Ray
+        files it deferred are written in a thread while Mitsuba renders (after its load,
+        which is parallel already); waiting for them after the render counts too.
 
     Raises
     ------
@@ -493,18 +506,30 @@ def render_job(job_dir: str | Path, config: RenderConfig, scene: SceneFiles | No
         POV-Ray asked for but not installed, or a variant that cannot run here.
     """
     job_dir = Path(job_dir)
-    try:
-        if config.uses_mitsuba and not (job_dir / "scene.xml").is_file():
-            raise InputError(f"no scene.xml in {job_dir}: write the scenes first")
-        if config.uses_povray:
-            pov.require_povray()  # before spending time on Mitsuba
-        files: list[Path] = []
-        variant, load_seconds, seconds, pov_seconds = "", 0.0, 0.0, 0.0
-        if config.uses_mitsuba:
-            variant = pick_variant(config.variant)
-            load_seconds, seconds, files = render_mitsuba(job_dir, config, variant)
-    finally:  # the job is not over while its scene.pov is still being written
-        waited = finish_scenes(scene)
+    writer = scene.povray_writer if scene is not None else None
+    pending: list[Future] = []
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        def start_povray() -> None:
+            if writer is not None and not pending:
+                pending.append(pool.submit(writer))
+
+        try:
+            if config.uses_mitsuba and not (job_dir / "scene.xml").is_file():
+                raise InputError(f"no scene.xml in {job_dir}: write the scenes first")
+            if config.uses_povray:
+                pov.require_povray()  # before spending time on Mitsuba
+            files: list[Path] = []
+            variant, integrator, load_seconds, seconds, pov_seconds = "", "", 0.0, 0.0, 0.0
+            if config.uses_mitsuba:
+                variant = pick_variant(config.variant)
+                load_seconds, seconds, files, integrator = render_mitsuba(
+                    job_dir, config, variant, on_loaded=start_povray if writer else None)
+        finally:  # the job is not over while its scene.pov is missing or being written
+            start = time.perf_counter()
+            start_povray()
+            if pending:
+                pending[0].result()
+            waited = time.perf_counter() - start
     if config.uses_povray:
         n_views = len(config.views)
         for i in range(n_views):
@@ -518,7 +543,7 @@ def render_job(job_dir: str | Path, config: RenderConfig, scene: SceneFiles | No
                 files += [job_dir / f"{stem}.exr", job_dir / f"{stem}.png"]
     if not config.uses_mitsuba:  # keep render.exr, render.png first
         files.sort(key=lambda p: (not p.name.startswith("render."), p.name))
-    return RenderResult(renderer=config.renderer, variant=variant, seconds=seconds,
+    return RenderResult(renderer=config.renderer, variant=variant, integrator=integrator, seconds=seconds,
                         write_seconds=scene.seconds if scene is not None else 0.0,
                         load_seconds=load_seconds, wait_seconds=waited,
                         povray_seconds=pov_seconds, files=tuple(files))

@@ -1,0 +1,295 @@
+"""An ice-aware path tracer for Mitsuba 3: caustics off, transmissive shadows through ice.
+
+Glaze is a thin dielectric shell over the object, and the object's top lies inside it.
+Mitsuba's ``path`` integrator cannot light anything through a dielectric from a delta
+light (a shadow ray is blocked by any surface, and a sun cannot be hit by a refracted
+ray), so glazed surfaces and icicle shadows get no sunlight and render dark and noisy.
+Production renderers fix this with "transmissive shadows": ice is a full dielectric
+only for paths that have seen nothing but specular events since the camera (so the
+camera still sees refraction and reflection); after the first non-delta bounce every
+ice surface is a straight pass-through weighted by its Fresnel transmittance, for the
+path itself and for next-event shadow rays alike. This drops caustics, which is what the
+eye expects from clear ice anyway.
+
+The integrator is a Python `mitsuba.SamplingIntegrator`, so it only makes sense on JIT
+variants (``llvm_ad_rgb``, ``cuda_ad_rgb``), where Mitsuba traces `sample` once into a
+kernel; on scalar variants it would run in Python per sample, and `ice_integrator`
+returns None there. Mitsuba's classes depend on the active variant, so the class is
+built per variant by `integrator_class`.
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Sequence
+
+from .config import IceLook
+
+PLUGIN_NAME = "icepath"
+MAX_CROSSINGS = 16  # pass-throughs per path segment (and per shadow ray) before absorbing
+RR_DEPTH = 5  # Mitsuba's path default: Russian roulette from this depth on
+_JIT_PREFIXES = ("llvm_", "cuda_")
+
+
+def _mis_weight(pdf_a, pdf_b):
+    """Power heuristic, 0 where it is not finite (as in Mitsuba's ``ad/integrators/common.py``)."""
+    import drjit as dr
+
+    a2, b2 = dr.square(pdf_a), dr.square(pdf_b)
+    w = a2 / (a2 + b2)
+    return dr.select(dr.isfinite(w), w, 0.0)
+
+
+class _IcePathMethods:
+    """Methods of the variant's ``IcePathIntegrator`` (see `integrator_class`).
+
+    Mitsuba's base classes exist only once a variant is set, and nanobind classes take a
+    single base, so the methods live here and `integrator_class` copies them into a
+    subclass of that variant's ``mitsuba.SamplingIntegrator``.
+
+    Properties: ``max_depth`` (int, -1 unbounded; default 12), ``rr_depth`` (5),
+    ``ior`` (1.31), ``tint`` (rgb, (0.96, 0.985, 1.0)), ``max_crossings`` (16) and the
+    base class's ``hide_emitters``.
+    """
+
+    def __init__(self, props):
+        import mitsuba as mi
+
+        mi.SamplingIntegrator.__init__(self, props)
+        max_depth = int(props.get("max_depth", 12))
+        if max_depth < -1 or max_depth == 0:
+            raise ValueError(f"max_depth must be -1 (unbounded) or >= 1, got {max_depth}")
+        self.max_depth = 2**32 - 1 if max_depth == -1 else max_depth  # compared as UInt32
+        self.rr_depth = int(props.get("rr_depth", RR_DEPTH))
+        self.ior = float(props.get("ior", IceLook.ior))
+        self.tint = tuple(float(t) for t in props.get("tint", IceLook.tint))
+        self.max_crossings = int(props.get("max_crossings", MAX_CROSSINGS))
+        if not self.ior >= 1.0:
+            raise ValueError(f"ior must be >= 1, got {self.ior}")
+        if len(self.tint) != 3 or not all(0.0 <= t <= 1.0 for t in self.tint):
+            raise ValueError(f"tint must be three numbers in [0, 1], got {self.tint}")
+        if self.rr_depth < 1 or self.max_crossings < 0:
+            raise ValueError("rr_depth must be >= 1 and max_crossings >= 0")
+
+    def to_string(self):
+        return (f"IcePathIntegrator[max_depth={self.max_depth}, rr_depth={self.rr_depth}, "
+                f"ior={self.ior:g}, tint={self.tint}, max_crossings={self.max_crossings}]")
+
+    def _crossing(self, d, n):
+        """Transmittance of one straight ice crossing: ``(1 - F(|cos|, ior)) * tint``.
+
+        Fresnel is taken as if entering from air on both faces of a shell: a straight
+        ray leaves at the angle it entered, and this keeps total internal reflection,
+        which a pass-through cannot model, out of it.
+        """
+        import drjit as dr
+        import mitsuba as mi
+
+        cos = dr.abs(dr.dot(d, n))
+        f = mi.fresnel(cos, mi.Float(self.ior))[0]
+        return mi.Spectrum(self.tint) * (1.0 - f)
+
+    def _is_ice(self, si):
+        """Lanes whose surface transmits: the ice (dielectric, roughdielectric)."""
+        import mitsuba as mi
+
+        return si.is_valid() & mi.has_flag(si.bsdf().flags(), mi.BSDFFlags.Transmission)
+
+    def _shadow(self, scene, si, target, active):
+        """Transmittance from ``si`` to point ``target``: through ice, 0 past anything else.
+
+        Parameters
+        ----------
+        scene : mi.Scene
+        si : mi.SurfaceInteraction3f
+            Where the shadow ray starts.
+        target : mi.Point3f
+            The emitter sample's position (``ds.p``; a far point for sun and sky).
+        active : mi.Bool
+
+        Returns
+        -------
+        mi.Spectrum
+            Product of the crossings' transmittances; 0 where blocked.
+        """
+        import drjit as dr
+        import mitsuba as mi
+
+        ray = si.spawn_ray_to(target)
+        trans = mi.Spectrum(1.0)
+        crossings = mi.UInt32(0)
+        active = mi.Bool(active)
+        while dr.hint(active, label="icepath shadow"):
+            # Position and geometric normal suffice: no texture lookups on shadow rays.
+            hit = scene.ray_intersect(ray, mi.RayFlags.Minimal, False, active)
+            ice = active & self._is_ice(hit)
+            blocked = active & hit.is_valid() & ~ice
+            crossings[ice] += 1
+            trans[ice] *= self._crossing(ray.d, hit.n)
+            blocked |= ice & (crossings > self.max_crossings)
+            trans[blocked] = 0.0
+            active = ice & ~blocked
+            ray = hit.spawn_ray_to(target)
+        return trans
+
+    def sample(self, scene, sampler, ray_, medium=None, active_=True):
+        """Radiance along camera rays ``ray_``: (spectrum, valid mask, no AOVs)."""
+        import drjit as dr
+        import mitsuba as mi
+
+        bsdf_ctx = mi.BSDFContext()
+        ray = mi.Ray3f(ray_)
+        active = mi.Bool(active_)
+        L = mi.Spectrum(0.0)
+        beta = mi.Spectrum(1.0)  # path throughput
+        depth = mi.UInt32(0)  # real (scattering) vertices so far
+        crossings = mi.UInt32(0)  # pass-throughs since the last real vertex
+        specular = mi.Bool(True)  # only delta events since the camera: ice is a dielectric
+        valid_ray = mi.Bool(not self.hide_emitters and scene.environment() is not None)
+        # The last real vertex: NEE ran there, so MIS of an emitter hit refers to it.
+        prev_si = dr.zeros(mi.SurfaceInteraction3f)
+        prev_pdf = mi.Float(1.0)
+        prev_delta = mi.Bool(True)
+
+        while dr.hint(active, label="icepath"):
+            si = scene.ray_intersect(ray, active)
+            through = active & ~specular & self._is_ice(si)
+            real = active & ~through
+            valid_ray |= real & (depth == 0) & si.is_valid()
+            bsdf = si.bsdf(ray)
+
+            # ---- pass-through: same direction, Fresnel transmittance, not a bounce
+            crossings[through] += 1
+            beta[through] *= self._crossing(ray.d, si.n)
+            through_next = through & (crossings <= self.max_crossings)
+
+            # ---- real vertex: emission reached by BSDF sampling, MIS against NEE at prev_si
+            ds = mi.DirectionSample3f(scene, si=si, ref=prev_si)
+            em_pdf = scene.pdf_emitter_direction(prev_si, ds, real & ~prev_delta)
+            emit = real
+            if dr.hint(self.hide_emitters, mode="scalar"):
+                emit &= ~((depth == 0) & ~si.is_valid())
+            Le = beta * _mis_weight(prev_pdf, em_pdf) * ds.emitter.eval(si, emit)
+            L += dr.select(emit, Le, 0.0)
+
+            real_next = real & si.is_valid() & (depth + 1 < self.max_depth)
+
+            # ---- next-event estimation with shadow rays that pass through ice
+            active_em = real_next & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
+            ds, em_weight = scene.sample_emitter_direction(si, sampler.next_2d(), False, active_em)
+            active_em &= ds.pdf != 0.0
+            trans = self._shadow(scene, si, ds.p, active_em)
+            bsdf_val, bsdf_pdf = bsdf.eval_pdf(bsdf_ctx, si, si.to_local(ds.d), active_em)
+            mis_em = dr.select(ds.delta, 1.0, _mis_weight(ds.pdf, bsdf_pdf))
+            L += dr.select(active_em, beta * mis_em * bsdf_val * em_weight * trans, 0.0)
+
+            # ---- BSDF sampling
+            bs, bsdf_weight = bsdf.sample(bsdf_ctx, si, sampler.next_1d(), sampler.next_2d(),
+                                          real_next)
+            delta = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
+            # Dielectrics scale radiance by 1/eta^2 on entering (solid angle compression)
+            # and back on leaving; a path that ends inside ice (a glazed surface, whose
+            # light then passes straight out) never leaves, which would darken everything
+            # under glaze by 1/1.31^2. Ice here does not concentrate light: undo it.
+            beta[real] *= bsdf_weight * dr.square(bs.eta)
+            prev_si = dr.select(real, si, prev_si)
+            prev_pdf[real] = bs.pdf
+            prev_delta[real] = delta
+            specular &= ~real | delta  # the first non-delta bounce turns ice into pass-through
+            crossings[real] = 0
+
+            # ---- Russian roulette, as in Mitsuba's path (whose eta^2 factor here only
+            # cancels the radiance scaling undone above)
+            beta_max = dr.max(beta)
+            real_next &= beta_max != 0.0
+            rr_prob = dr.minimum(beta_max, 0.95)
+            rr_active = real_next & (depth >= self.rr_depth)
+            beta[rr_active] *= dr.rcp(rr_prob)
+            real_next &= ~rr_active | (sampler.next_1d() < rr_prob)
+            depth[real & si.is_valid()] += 1
+
+            ray = dr.select(through, si.spawn_ray(ray.d), si.spawn_ray(si.to_world(bs.wo)))
+            active = (through_next & (beta_max != 0.0)) | real_next
+
+        return L, valid_ray, []
+
+
+@functools.cache
+def integrator_class(variant: str) -> type:
+    """The ``IcePathIntegrator`` class of JIT ``variant`` (made active if it is not).
+
+    The class is a ``mitsuba.SamplingIntegrator`` built once per variant, and registered
+    as the ``icepath`` plugin, so ``{"type": "icepath", ...}`` dicts and
+    ``<integrator type="icepath">`` XML load it too.
+
+    Parameters
+    ----------
+    variant : str
+        ``llvm_ad_rgb``, ``cuda_ad_rgb`` (any ``llvm_*``/``cuda_*`` RGB variant).
+
+    Raises
+    ------
+    ValueError
+        A scalar (non-JIT) or non-RGB (mono, spectral) variant.
+    """
+    if not variant.startswith(_JIT_PREFIXES) or not variant.endswith("_rgb"):
+        raise ValueError(f"the ice integrator needs a JIT RGB variant (llvm_ad_rgb, cuda_ad_rgb), "
+                         f"got {variant!r}")
+    import drjit as dr
+    import mitsuba as mi
+
+    if mi.variant() != variant:
+        mi.set_variant(variant)
+    methods = {k: v for k, v in vars(_IcePathMethods).items()
+               if k in ("__init__", "__doc__") or not k.startswith("__")}
+    # @dr.syntax rewrites their while loops into Dr.Jit symbolic loops; it is applied
+    # here because drjit must not be imported before `render.pick_variant` ran.
+    methods["_shadow"] = dr.syntax(_IcePathMethods._shadow)
+    methods["sample"] = dr.syntax(_IcePathMethods.sample)
+    cls = type("IcePathIntegrator", (mi.SamplingIntegrator,), methods)
+    mi.register_integrator(PLUGIN_NAME, lambda props: cls(props))
+    return cls
+
+
+def ice_integrator(variant: str, max_depth: int = 12, ior: float = IceLook.ior,
+                   tint: Sequence[float] = IceLook.tint, max_crossings: int = MAX_CROSSINGS):
+    """The ice-aware path tracer for ``variant``, or None on scalar variants.
+
+    Render with ``mi.render(scene, sensor=i, spp=spp, integrator=it)``; on None keep the
+    scene's own ``path`` integrator.
+
+    Parameters
+    ----------
+    variant : str
+        The Mitsuba variant in use (made active if it is not).
+    max_depth : int
+        Longest path in scattering vertices, as ``path``'s ``max_depth`` (-1: unbounded);
+        ice pass-throughs do not count.
+    ior : float
+        Index of refraction of all ice for the pass-through Fresnel term.
+    tint : (3,) float
+        RGB transmittance per ice crossing, in [0, 1] (the XML's ``specular_transmittance``).
+    max_crossings : int
+        Pass-throughs per path segment and per shadow ray before the light is absorbed.
+
+    Returns
+    -------
+    mitsuba.SamplingIntegrator or None
+
+    Raises
+    ------
+    ValueError
+        Out-of-range parameters, or a JIT variant that is not RGB.
+    """
+    if not variant.startswith(_JIT_PREFIXES):
+        return None
+    import mitsuba as mi
+
+    cls = integrator_class(variant)
+    props = mi.Properties()
+    props["max_depth"] = int(max_depth)
+    props["rr_depth"] = RR_DEPTH
+    props["ior"] = float(ior)
+    props["tint"] = mi.ScalarColor3f(*(float(t) for t in tint))
+    props["max_crossings"] = int(max_crossings)
+    return cls(props)

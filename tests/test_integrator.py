@@ -1,0 +1,167 @@
+"""The ice-aware path tracer: agrees with ``path`` without ice, lets light through ice."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from icefarm.scene.config import IceLook
+from icefarm.scene.render import pick_variant
+
+TINT = IceLook.tint
+IOR = IceLook.ior
+F0 = ((IOR - 1) / (IOR + 1)) ** 2  # Fresnel reflectance at normal incidence
+SUN_DIR = [-0.5, -1.0, -0.3]  # travel direction of the sun's light (down, sideways)
+SHADOW_PIXELS = (slice(22, 26), slice(10, 22))  # inside the cube's shadow in test_ice_shadow_is_light
+
+
+@pytest.fixture(scope="module")
+def mi():
+    variant = pick_variant("auto")
+    if variant == "scalar_rgb":
+        pytest.skip("no JIT variant here: the ice integrator needs llvm_ad_rgb or cuda_ad_rgb")
+    import mitsuba
+
+    mitsuba.set_variant(variant)
+    return mitsuba
+
+
+@pytest.fixture(scope="module")
+def integrators(mi):
+    from icefarm.scene.integrator import ice_integrator
+
+    return {"path": mi.load_dict({"type": "path", "max_depth": 8}),
+            "ice": ice_integrator(mi.variant(), max_depth=8)}
+
+
+def sky(mi):
+    """A small gradient sky, brighter at the zenith: the envmap is importance sampled."""
+    h, w = 16, 32
+    elevation = np.linspace(1.0, -1.0, h)[:, None, None] * np.ones((1, w, 1))
+    rgb = (0.15 + 0.35 * np.clip(elevation, 0, None)) * np.array([0.8, 0.9, 1.1])
+    return {"type": "envmap", "bitmap": mi.Bitmap(rgb.astype(np.float32))}
+
+
+def base_scene(mi, width=48, height=36, origin=(0.0, 1.6, 4.0), target=(0.0, 0.4, 0.0), fov=32,
+               env=None, sun=3.0, sun_dir=SUN_DIR):
+    """Camera, sky, sun and a diffuse ground plane at y = 0."""
+    return {
+        "type": "scene",
+        "sensor": {"type": "perspective", "fov": fov,
+                   "to_world": mi.ScalarTransform4f().look_at(origin=list(origin), target=list(target),
+                                                              up=[0, 1, 0]),
+                   "film": {"type": "hdrfilm", "width": width, "height": height,
+                            "pixel_format": "rgb", "rfilter": {"type": "box"}},
+                   "sampler": {"type": "independent"}},
+        "env": sky(mi) if env is None else env,
+        "sun": {"type": "directional", "direction": list(sun_dir),
+                "irradiance": {"type": "rgb", "value": [sun] * 3}},
+        "ground": {"type": "rectangle",
+                   "to_world": mi.ScalarTransform4f().rotate([1, 0, 0], -90).scale(6),
+                   "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.4] * 3}}},
+    }
+
+
+def ice(**extra):
+    return {"type": "dielectric", "int_ior": IOR, "ext_ior": 1.0,
+            "specular_transmittance": {"type": "rgb", "value": list(TINT)}, **extra}
+
+
+def ball(radius=0.5, bsdf=None):
+    return {"type": "sphere", "center": [0, 0.5, 0], "radius": radius,
+            "bsdf": bsdf or {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.6] * 3}}}
+
+
+def render(mi, scene: dict, integrator, spp: int, seed: int = 0) -> np.ndarray:
+    return np.array(mi.render(mi.load_dict(scene), integrator=integrator, spp=spp, seed=seed))[..., :3]
+
+
+def test_matches_path_without_ice(mi, integrators):
+    scene = base_scene(mi)
+    scene["ball"] = ball()
+    a = render(mi, scene, integrators["path"], 128)
+    b = render(mi, scene, integrators["ice"], 128, seed=1)
+    assert np.isfinite(b).all()
+    assert b.mean() == pytest.approx(a.mean(), rel=0.02)
+    # Regions: the lit ball, and ground in and out of its shadow.
+    for rows, cols in ((slice(8, 20), slice(18, 30)), (slice(26, 36), slice(0, 16)),
+                       (slice(26, 36), slice(30, 48))):
+        assert b[rows, cols].mean() == pytest.approx(a[rows, cols].mean(), rel=0.05)
+
+
+def test_object_under_an_ice_shell_is_lit(mi, integrators):
+    # Sun and a faint sky, so that what reaches the ball is mostly sunlight through the shell.
+    env = {"type": "constant", "radiance": {"type": "rgb", "value": [0.02] * 3}}
+    bare = base_scene(mi, env=env)
+    bare["ball"] = ball()
+    shelled = dict(bare, shell=ball(radius=0.53, bsdf=ice()))
+    centre = (slice(10, 22), slice(19, 29))  # the ball's lit front, seen through the shell
+    lit = render(mi, bare, integrators["path"], 64)[centre].mean()
+    stock = render(mi, shelled, integrators["path"], 64)[centre].mean()
+    ours = render(mi, shelled, integrators["ice"], 64)[centre].mean()
+    # Two crossings (sun in, view out) at moderate angles lose a little over 2 F0 and the tint.
+    floor = lit * ((1 - 3 * F0) * min(TINT)) ** 2 * 0.85
+    assert stock < 0.6 * lit  # the stock path tracer cannot light it through the dielectric
+    assert floor < ours < lit * 1.01
+
+
+def test_ice_shadow_is_light(mi, integrators):
+    # Looking down at a floating dielectric cube; a low sun from +x casts its shadow
+    # well beside it, on ground the camera sees directly.
+    scene = base_scene(mi, width=48, height=48, origin=(0, 6, 0.01), target=(0, 0, 0), fov=40,
+                       sun_dir=(-1.5, -1.0, 0.0))
+    scene["cube"] = {"type": "cube", "bsdf": ice(),
+                     "to_world": mi.ScalarTransform4f().translate([0.6, 0.9, 0]).scale(0.3)}
+    empty = dict(scene)
+    del empty["cube"]
+    shadow = SHADOW_PIXELS
+    for name in ("path", "ice"):
+        with_cube = render(mi, scene, integrators[name], 64)[shadow].mean()
+        without = render(mi, empty, integrators[name], 64)[shadow].mean()
+        ratio = with_cube / without
+        if name == "path":
+            assert ratio < 0.5
+        else:
+            # The sun crosses two faces (Fresnel and tint each): light, never brighter.
+            assert ((1 - 3 * F0) * min(TINT)) ** 2 * 0.8 < ratio < 0.99
+
+
+def test_camera_still_sees_refraction(mi, integrators):
+    scene = base_scene(mi, width=48, height=36, origin=(0, 0.5, 4), target=(0, 0.5, 0),
+                       env={"type": "constant", "radiance": {"type": "rgb", "value": [1.0] * 3}},
+                       sun=0.0)
+    scene["backdrop"] = {
+        "type": "rectangle", "to_world": mi.ScalarTransform4f().translate([0, 0.5, -1.5]).scale(3),
+        "bsdf": {"type": "diffuse", "reflectance": {
+            "type": "checkerboard", "color0": {"type": "rgb", "value": [0.05] * 3},
+            "color1": {"type": "rgb", "value": [0.9] * 3},
+            "to_uv": mi.ScalarTransform4f().scale([9, 9, 1])}}}
+    empty = dict(scene)
+    scene["sphere"] = ball(radius=0.45, bsdf=ice())
+    centre = (slice(11, 25), slice(17, 31))  # the sphere
+    seen = render(mi, scene, integrators["ice"], 32)[centre]
+    behind = render(mi, empty, integrators["ice"], 32)[centre]
+    stock = render(mi, scene, integrators["path"], 32)[centre]
+    # The sphere bends the checker: far from empty space, close to what path sees.
+    assert np.abs(seen - behind).mean() > 0.25 * behind.mean()
+    assert np.abs(seen - stock).mean() < 0.5 * np.abs(seen - behind).mean()
+
+
+def test_scalar_variant_gives_none():
+    from icefarm.scene.integrator import ice_integrator, integrator_class
+
+    assert ice_integrator("scalar_rgb", max_depth=8) is None
+    with pytest.raises(ValueError, match="JIT RGB variant"):
+        integrator_class("scalar_rgb")
+
+
+def test_plugin_and_parameters(mi):
+    from icefarm.scene.integrator import PLUGIN_NAME, ice_integrator
+
+    it = mi.load_dict({"type": PLUGIN_NAME, "max_depth": 5, "ior": 1.5, "tint": [0.9, 0.9, 1.0]})
+    assert it.max_depth == 5 and it.ior == 1.5 and it.tint == pytest.approx((0.9, 0.9, 1.0))
+    assert ice_integrator(mi.variant(), max_depth=-1).max_depth > 10**9
+    with pytest.raises(ValueError, match="ior"):
+        ice_integrator(mi.variant(), ior=0.5)
+    with pytest.raises(ValueError, match="tint"):
+        ice_integrator(mi.variant(), tint=(1.2, 1.0, 1.0))
