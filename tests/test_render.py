@@ -366,3 +366,27 @@ def test_a_failed_render_still_leaves_whole_povray_files(tmp_path, monkeypatch):
         render_job(tmp_path, config, files)
     assert "Ice_Mesh" in (tmp_path / "scene.pov").read_text()  # written and finished before the error left
     assert (tmp_path / "ice.inc").read_bytes().endswith(b"}\n")
+
+
+def test_mesh2_text_holds_the_mesh_in_povray_handedness(tmp_path):
+    rng = np.random.default_rng(3)
+    vertices = rng.normal(size=(50, 3)) * [0.2, 3.0, 0.01]
+    vertices[0] = [0.0, -4e-7, 12.5]  # rounds to zero (no "-0"), and a wide number
+    normals = rng.normal(size=(50, 3))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    faces = rng.integers(0, 50, size=(70, 3))
+    pov.write_mesh2(tmp_path / "m.inc", "M", vertices, normals, faces, inside=True)
+    text = (tmp_path / "m.inc").read_text()
+    assert text.startswith("#declare M = mesh2 {") and "inside_vector" in text and "-0.000000" not in text
+
+    def block(name):
+        body = text.split(name + " {")[1].split("}")[0]
+        count, rows = body.split(",", 1)
+        values = np.array([[float(x) for x in r.strip(" <>\n").split(",")]
+                           for r in rows.replace("\n", "").split(">,")])
+        assert int(count) == len(values)
+        return values
+
+    np.testing.assert_allclose(block("vertex_vectors"), vertices * [1, 1, -1], atol=5e-7)
+    np.testing.assert_allclose(block("normal_vectors"), normals * [1, 1, -1], atol=5e-5)
+    np.testing.assert_array_equal(block("face_indices"), faces)

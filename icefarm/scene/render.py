@@ -337,11 +337,10 @@ def _write_povray(job_dir: Path, pov_file: Path, object_geometry: tuple[np.ndarr
                   text: str) -> None:
     """``object.inc``, ``ice.inc`` and then ``scene.pov``: its presence means the includes are whole."""
     obj_v, obj_n, obj_f = object_geometry
-    (job_dir / "object.inc").write_bytes(pov.mesh2("Object_Mesh", obj_v, obj_n, obj_f))
+    pov.write_mesh2(job_dir / "object.inc", "Object_Mesh", obj_v, obj_n, obj_f)
     if ice_mesh is not None:
         normals = geo.smooth_normals(ice_mesh.vertices, ice_mesh.faces, ice_cross) * (-1.0 if ice_flip else 1.0)
-        (job_dir / "ice.inc").write_bytes(pov.mesh2("Ice_Mesh", ice_mesh.vertices, normals,
-                                                   ice_mesh.faces, inside=True))
+        pov.write_mesh2(job_dir / "ice.inc", "Ice_Mesh", ice_mesh.vertices, normals, ice_mesh.faces, inside=True)
     pov_file.write_text(text)
 
 
