@@ -81,7 +81,8 @@ def run(mesh, size_m, assignments, seed, out, until, render, no_render, exclude,
         mesh = str(Path(mesh).resolve())
     spec = JobSpec(object_id=Path(mesh).stem, mesh=mesh, size_m=size_m, params=resolved, seed=seed,
                    render=None if no_render else render, exclude=tuple(_box(b) for b in exclude))
-    outcome = run_job(spec, Path(out), Path(cache) if cache else None, Stage(until) if until else None)
+    outcome = run_job(spec, Path(out), Path(cache) if cache else None, Stage(until) if until else None,
+                      progress=sys.stderr.isatty())
     if outcome.status != "done":
         click.echo(f"error: job failed in stage {outcome.failed_stage}: {outcome.error} "
                    f"(details in {Path(out) / 'error.json'})", err=True)

@@ -175,10 +175,12 @@ def _load_source(spec: JobSpec, prepared: PreparedMesh) -> trimesh.Trimesh | Non
 
 @dataclass
 class _Run:
-    """The bookkeeping of one job in progress: which stage, how long each took."""
+    """The bookkeeping of one job in progress: which stage, how long each took, whether
+    long work shows progress bars (a job run on its own, not inside a sweep's workers)."""
 
     stage: str = "prepare"
     seconds: dict = field(default_factory=dict)
+    progress: bool = False
 
     def timed(self, stage: str, work: Callable[[], Any]) -> Any:
         self.stage = stage
@@ -189,17 +191,18 @@ class _Run:
 
 
 def run_job(spec: JobSpec, job_dir: Path, cache_dir: Path | None = None,
-            until: Stage | None = None) -> JobOutcome:
+            until: Stage | None = None, progress: bool = False) -> JobOutcome:
     """Run one job into ``job_dir``; never raises for a failure of the job itself.
 
     A failure writes ``error.json`` (stage, message, traceback) and returns status
-    ``failed``; success writes ``done.json`` last. ``until`` stops after that stage.
+    ``failed``; success writes ``done.json`` last. ``until`` stops after that stage;
+    ``progress`` shows progress bars on long work (a render in several passes).
     """
     job_dir = Path(job_dir)
     job_dir.mkdir(parents=True, exist_ok=True)
     for stale in ("done.json", "error.json"):
         (job_dir / stale).unlink(missing_ok=True)
-    run, cache = _Run(), _Cache(Path(cache_dir) if cache_dir else None)
+    run, cache = _Run(progress=progress), _Cache(Path(cache_dir) if cache_dir else None)
     try:
         summary = _run_stages(spec, job_dir, run, cache, until)
     except Exception as exc:
@@ -343,7 +346,7 @@ def _surface_and_render(spec, job_dir, run, cache, until, obj, flow, water, drip
         files = write_scenes(job_dir, obj, ice_mesh if len(ice.faces) else None, config, gravity,
                              material_from_dict(dict(spec.material)),
                              frame_points=_frame(obj, ice_mesh), defer_povray=True)
-        return render_job(job_dir, config, files)  # writes the POV-Ray files while Mitsuba renders
+        return render_job(job_dir, config, files, progress=run.progress)  # POV-Ray files written meanwhile
 
     result = run.timed("render", render)
     stats.update(render_variant=result.variant, render_integrator=result.integrator, renderer=result.renderer,

@@ -390,3 +390,35 @@ def test_mesh2_text_holds_the_mesh_in_povray_handedness(tmp_path):
     np.testing.assert_allclose(block("vertex_vectors"), vertices * [1, 1, -1], atol=5e-7)
     np.testing.assert_allclose(block("normal_vectors"), normals * [1, 1, -1], atol=5e-5)
     np.testing.assert_array_equal(block("face_indices"), faces)
+
+
+@pytest.mark.parametrize("pixels, spp, budget, expected", [
+    (480 * 360, 96, 1 << 25, [96]),        # lookdev: one pass
+    (100, 10, 250, [3, 3, 2, 2]),          # uneven split, all samples kept
+    (10, 3, 1, [1, 1, 1]),                 # never a pass without samples
+])
+def test_sample_passes_split_spp_without_losing_any(pixels, spp, budget, expected):
+    from icefarm.scene.render import sample_passes
+
+    assert sample_passes(pixels, spp, budget) == expected
+    assert sum(sample_passes(1920 * 1080, 512)) == 512 and len(sample_passes(1920 * 1080, 512)) > 1
+    with pytest.raises(ValueError):
+        sample_passes(0, 4)
+
+
+def test_render_in_passes_matches_one_pass(tmp_path, monkeypatch):
+    """Passes with their own seeds average to the same picture as one pass (up to noise)."""
+    import icefarm.scene.render as render_module
+
+    box, ice = box_with_icicles()
+    config = tiny_config(spp=32)
+    write_scenes(tmp_path / "one", box, ice, config)
+    write_scenes(tmp_path / "many", box, ice, config)
+    render_job(tmp_path / "one", config)
+    monkeypatch.setattr(render_module, "PASS_SAMPLES", 48 * 36 * 8)  # four passes of 8 spp
+    render_job(tmp_path / "many", config, progress=True)
+    a = read_image(tmp_path / "one" / "render.exr")
+    b = read_image(tmp_path / "many" / "render.exr")
+    assert_not_blank(b)
+    assert abs(a.mean() - b.mean()) < 0.03 * a.mean()
+    assert not np.array_equal(a, b)  # the passes really sampled anew

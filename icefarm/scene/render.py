@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 import trimesh
+from tqdm import tqdm
 
 from ..errors import InputError
 from . import camera as cam
@@ -37,6 +38,7 @@ LLVM_DIRS = ("/usr/lib/x86_64-linux-gnu", "/usr/lib/aarch64-linux-gnu", "/usr/li
              "/usr/local/lib", "/opt/homebrew/opt/llvm/lib", "/usr/local/opt/llvm/lib")
 _LLVM_NAME = re.compile(r"^libLLVM(?:-(?P<a>\d+)[\w.]*?)?\.(?:so|dylib)(?:\.(?P<b>\d+)[\d.]*)?$")
 CREASE_ANGLE = 30.0  # degrees: sharper edges of the object stay sharp in shading
+PASS_SAMPLES = 1 << 25  # camera samples per Mitsuba render call: bounded memory, visible progress
 
 
 # ------------------------------------------------------------------------ variants
@@ -442,13 +444,28 @@ def view_stem(index: int, prefix: str = "render") -> str:
     return prefix if index == 0 else f"{prefix}_view{index}"
 
 
+def sample_passes(pixels: int, spp: int, budget: int = PASS_SAMPLES) -> list[int]:
+    """Split ``spp`` samples per pixel into passes of at most about ``budget`` samples each.
+
+    Returns the samples per pixel of each pass (they sum to ``spp``): one pass for
+    preview and lookdev frames, several for final frames.
+    """
+    if pixels < 1 or spp < 1 or budget < 1:
+        raise ValueError(f"pixels, spp and budget must be >= 1, got {pixels}, {spp}, {budget}")
+    count = min(spp, -(-pixels * spp // budget))
+    base, extra = divmod(spp, count)
+    return [base + (k < extra) for k in range(count)]
+
+
 def render_mitsuba(job_dir: Path, config: RenderConfig, variant: str,
-                   on_loaded: Callable[[], None] | None = None) -> tuple[float, float, list[Path], str]:
+                   on_loaded: Callable[[], None] | None = None,
+                   progress: bool = False) -> tuple[float, float, list[Path], str]:
     """Load ``scene.xml`` with ``variant`` and render every view; ``on_loaded()`` runs in between.
 
     Scenes with ice render with the ice-aware path tracer (`integrator.ice_integrator`:
     sunlight reaches what the glaze covers) on JIT variants, with the XML's ``path``
-    otherwise.
+    otherwise. Large frames render in passes (`sample_passes`, each with its own seed,
+    averaged), with a progress bar over them when ``progress`` is set.
 
     Returns
     -------
@@ -470,20 +487,30 @@ def render_mitsuba(job_dir: Path, config: RenderConfig, variant: str,
         on_loaded()
     has_ice = any(shape.id() == "ice" for shape in scene.shapes())
     integrator = ice_integrator(variant, config.max_depth, config.ice.ior, config.ice.tint) if has_ice else None
+    passes = sample_passes(config.width * config.height, config.spp, PASS_SAMPLES)
+    n_views = len(scene.sensors())
+    bar = tqdm(total=n_views * config.spp, unit="spp", desc="render", dynamic_ncols=True,
+               disable=not progress or len(passes) == 1 and n_views == 1)
     render_seconds, files = 0.0, []
-    for i in range(len(scene.sensors())):
+    for i in range(n_views):
         start = time.perf_counter()
-        image = np.array(mi.render(scene, sensor=i, spp=config.spp, integrator=integrator), dtype=np.float32)
+        image = np.zeros((config.height, config.width, 3))
+        for seed, spp in enumerate(passes):
+            rendered = mi.render(scene, sensor=i, spp=spp, seed=seed, integrator=integrator)
+            image += np.asarray(rendered, dtype=np.float64)[..., :3] * (spp / config.spp)
+            bar.update(spp)
         render_seconds += time.perf_counter() - start
         stem = view_stem(i)
         write_exr(job_dir / f"{stem}.exr", image[..., :3])
         write_png(job_dir / f"{stem}.png", image[..., :3])
         files += [job_dir / f"{stem}.exr", job_dir / f"{stem}.png"]
+    bar.close()
     del scene  # no scene outlives the job (Mitsuba's memory grows with loads)
     return load_seconds, render_seconds, files, "path" if integrator is None else "icepath"
 
 
-def render_job(job_dir: str | Path, config: RenderConfig, scene: SceneFiles | None = None) -> RenderResult:
+def render_job(job_dir: str | Path, config: RenderConfig, scene: SceneFiles | None = None,
+               progress: bool = False) -> RenderResult:
     """Render the scenes `write_scenes` put in ``job_dir`` with the config's renderer(s).
 
     Mitsuba writes ``render.exr`` (linear) and ``render.png`` (sRGB), plus
@@ -498,6 +525,8 @@ def render_job(job_dir: str | Path, config: RenderConfig, scene: SceneFiles | No
         What `write_scenes` returned: its write time counts in ``scene_seconds``. POV-Ray
         files it deferred are written in a thread while Mitsuba renders (after its load,
         which is parallel already); waiting for them after the render counts too.
+    progress : bool
+        A progress bar over the samples of long renders (several passes or views).
 
     Raises
     ------
@@ -522,7 +551,7 @@ def render_job(job_dir: str | Path, config: RenderConfig, scene: SceneFiles | No
             if config.uses_mitsuba:
                 variant = pick_variant(config.variant)
                 load_seconds, seconds, files, integrator = render_mitsuba(
-                    job_dir, config, variant, on_loaded=start_povray if writer else None)
+                    job_dir, config, variant, on_loaded=start_povray if writer else None, progress=progress)
         finally:  # the job is not over while its scene.pov is missing or being written
             start = time.perf_counter()
             start_povray()
