@@ -422,3 +422,17 @@ def test_render_in_passes_matches_one_pass(tmp_path, monkeypatch):
     assert_not_blank(b)
     assert abs(a.mean() - b.mean()) < 0.03 * a.mean()
     assert not np.array_equal(a, b)  # the passes really sampled anew
+
+
+def test_winding_is_read_from_the_outermost_vertex():
+    from icefarm.scene.geometry import signed_volume, winds_inward
+
+    _, ice = box_with_icicles()  # five separate cones
+    blob = trimesh.creation.icosphere(subdivisions=3)
+    blob.vertices *= [1.0, 0.4, 2.5]
+    for mesh in (ice, blob, trimesh.creation.box()):  # a box: flat faces around its corner
+        assert signed_volume(mesh.vertices, mesh.faces) > 0
+        assert not winds_inward(mesh.vertices, mesh.faces)
+        inverted = mesh.copy()
+        inverted.invert()
+        assert winds_inward(inverted.vertices, inverted.faces)

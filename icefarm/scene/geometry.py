@@ -23,20 +23,41 @@ def face_cross(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
                             a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]])
 
 
-def signed_volume(vertices: np.ndarray, faces: np.ndarray, cross: np.ndarray | None = None) -> float:
+def signed_volume(vertices: np.ndarray, faces: np.ndarray) -> float:
     """Signed volume (m^3) of a closed mesh: negative when its faces wind inwards.
 
     Parameters
     ----------
     vertices : (n, 3) float
     faces : (m, 3) int
-    cross : (m, 3) float, optional
-        `face_cross` of the same mesh, when already known.
     """
-    if cross is None:
-        cross = face_cross(vertices, faces)
+    cross = face_cross(vertices, faces)
     v0 = np.asarray(vertices, dtype=np.float64)[np.asarray(faces)[:, 0]]
     return float(np.einsum("ij,ij->", v0, cross) / 6.0)  # v0 . (v1 x v2) = v0 . (e1 x e2)
+
+
+def winds_inward(vertices: np.ndarray, faces: np.ndarray) -> bool:
+    """Whether a closed, consistently wound mesh has its faces wound inwards.
+
+    Looks only at the faces around the vertex furthest along X, whose summed normal must
+    point along +X when the winding is outward: a few faces instead of every face of a
+    million-face mesh. Falls back to the sign of the `signed_volume` when that sum is
+    degenerate.
+
+    Parameters
+    ----------
+    vertices : (n, 3) float
+    faces : (m, 3) int
+    """
+    vertices = np.asarray(vertices, dtype=np.float64)
+    faces = np.asarray(faces)
+    extreme = int(np.argmax(vertices[:, 0]))
+    ring = faces[(faces == extreme).any(axis=1)]
+    normal_x = face_cross(vertices, ring)[:, 0].sum() if len(ring) else 0.0
+    scale = np.ptp(vertices, axis=0).max() ** 2
+    if abs(normal_x) > 1e-12 * scale:
+        return bool(normal_x < 0)
+    return signed_volume(vertices, faces) < 0
 
 
 def _sum_rows(index: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
@@ -49,14 +70,10 @@ def _normalise(v: np.ndarray) -> np.ndarray:
     return np.divide(v, length, out=np.zeros_like(v), where=length > 0)
 
 
-def smooth_normals(vertices: np.ndarray, faces: np.ndarray, cross: np.ndarray | None = None) -> np.ndarray:
-    """Area-weighted unit vertex normals ``(n, 3)``; zero for unused vertices.
-
-    ``cross`` is `face_cross` of the same mesh, when already known.
-    """
+def smooth_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Area-weighted unit vertex normals ``(n, 3)``; zero for unused vertices."""
     faces = np.asarray(faces)
-    if cross is None:
-        cross = face_cross(vertices, faces)
+    cross = face_cross(vertices, faces)
     return _normalise(_sum_rows(faces.ravel(), np.repeat(cross, 3, axis=0), len(vertices)))
 
 

@@ -304,14 +304,11 @@ def write_scenes(job_dir: str | Path, object_mesh: trimesh.Trimesh, ice_mesh: tr
 
     # Geometry: the object smooth with its creases kept; the ice as the pipeline wrote it.
     obj_v, obj_n, obj_f = geo.crease_split(object_mesh, CREASE_ANGLE)
-    ice_cross, ice_flip = None, False
-    if ice_mesh is not None:
-        ice_cross = geo.face_cross(ice_mesh.vertices, ice_mesh.faces)
-        # Inward winding would make refraction run inside out.
-        ice_flip = geo.signed_volume(ice_mesh.vertices, ice_mesh.faces, ice_cross) < 0
+    # Inward winding would make refraction run inside out.
+    ice_flip = ice_mesh is not None and geo.winds_inward(ice_mesh.vertices, ice_mesh.faces)
     pov_file = job_dir / "scene.pov"
     write_pov = functools.partial(
-        _write_povray, job_dir, pov_file, (obj_v, obj_n, obj_f), ice_mesh, ice_cross, ice_flip,
+        _write_povray, job_dir, pov_file, (obj_v, obj_n, obj_f), ice_mesh, ice_flip,
         pov.scene_pov(config, cameras, frame, object_inc="object.inc",
                       ice_inc=None if ice_mesh is None else "ice.inc", sky_file=sky.name,
                       sun_dir=sun_dir, ground=ground, material=material))
@@ -335,13 +332,13 @@ def write_scenes(job_dir: str | Path, object_mesh: trimesh.Trimesh, ice_mesh: tr
 
 
 def _write_povray(job_dir: Path, pov_file: Path, object_geometry: tuple[np.ndarray, ...],
-                  ice_mesh: trimesh.Trimesh | None, ice_cross: np.ndarray | None, ice_flip: bool,
+                  ice_mesh: trimesh.Trimesh | None, ice_flip: bool,
                   text: str) -> None:
     """``object.inc``, ``ice.inc`` and then ``scene.pov``: its presence means the includes are whole."""
     obj_v, obj_n, obj_f = object_geometry
     pov.write_mesh2(job_dir / "object.inc", "Object_Mesh", obj_v, obj_n, obj_f)
     if ice_mesh is not None:
-        normals = geo.smooth_normals(ice_mesh.vertices, ice_mesh.faces, ice_cross) * (-1.0 if ice_flip else 1.0)
+        normals = geo.smooth_normals(ice_mesh.vertices, ice_mesh.faces) * (-1.0 if ice_flip else 1.0)
         pov.write_mesh2(job_dir / "ice.inc", "Ice_Mesh", ice_mesh.vertices, normals, ice_mesh.faces, inside=True)
     pov_file.write_text(text)
 
