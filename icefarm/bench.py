@@ -86,25 +86,28 @@ class RenderRuns:
         Wall time of the job's whole render step: writing both scenes, loading, rendering,
         writing the images.
     render : tuple of float
-        Mitsuba rendering alone, measured again on the written scene with nothing else
-        running (the job's own render time can include the POV-Ray writer's share of the CPU).
+        Mitsuba's render time inside the job (the POV-Ray files are written meanwhile).
+    alone : tuple of float
+        Mitsuba's render time when the job's scene is rendered again with nothing else
+        running: the reference the overhead is measured against.
     write, load, wait : tuple of float
-        The job's own split of its overhead: writing before the render, loading scene.xml,
-        waiting for the POV-Ray files after it.
+        The job's scene overhead: writing before the render, loading scene.xml, waiting
+        for the POV-Ray files after the render.
     """
 
     ice_faces: int
     variant: str
     step: tuple
     render: tuple
+    alone: tuple
     write: tuple
     load: tuple
     wait: tuple
 
     @property
-    def overhead(self) -> tuple:
-        """Per run: what the render step spends beyond rendering (``step - render``)."""
-        return tuple(s - r for s, r in zip(self.step, self.render))
+    def scene(self) -> tuple:
+        """Per run: writing, loading and waiting for the scenes."""
+        return tuple(w + lo + wa for w, lo, wa in zip(self.write, self.load, self.wait))
 
 
 def render_timings(mesh: str, size_m: float, p: dict, render_config: str, repeat: int,
@@ -152,5 +155,6 @@ def render_timings(mesh: str, size_m: float, p: dict, render_config: str, repeat
                 on_run()
     column = lambda key: tuple(float(r[key]) for r in runs)  # noqa: E731
     return RenderRuns(ice_faces=int(runs[-1].get("ice_faces", 0)), variant=str(runs[-1]["render_variant"]),
-                      step=column("step"), render=column("alone"), write=column("scene_write_seconds"),
+                      step=column("step"), render=column("render_seconds"), alone=column("alone"),
+                      write=column("scene_write_seconds"),
                       load=column("scene_load_seconds"), wait=column("scene_wait_seconds"))
