@@ -270,13 +270,14 @@ def _job_seconds(job: JobTimes) -> float:
 
 
 _MD_JOB_HEADER = ("object", "job", "varied", "input polys", "icicles", "ice polys", "water s", "drips s",
-                  "trajectories s", "surface s", "total s", "proxy s", "render s", "variant", "job s")
+                  "trajectories s", "surface s", "total s", "proxy s", "render s", "scene s", "variant", "job s")
 _MD_SUMMARY_HEADER = ("object", "jobs", "failed", "input polys", "icicles", "ice polys", "water s",
                       "drips s", "trajectories s", "surface s", "total s", "proxy s", "render s", "variant")
 
 CSV_COLUMNS = ("kind", "object", "job", "status", "varied", "input_faces", "flow_faces", "icicles", "branches",
                "ice_faces", "prepare_s", "proxy_s", "water_s", "drips_s", "trajectories_s", "surface_s",
-               "total_s", "render_s", "job_s", "render_variant", "renderer", "cached", "jobs", "failed",
+               "total_s", "render_s", "mitsuba_s", "scene_s", "job_s", "render_variant", "render_integrator",
+               "renderer", "cached", "jobs", "failed",
                "failed_stage", "error")
 
 
@@ -301,8 +302,10 @@ def report_markdown(run_dir: Path, jobs: Sequence[JobTimes], summaries: Sequence
              "+ surface). `cached`: the stage was reused from the stage cache, so its time is not a "
              "measurement; a job's total then counts only the stages it computed (`+ cached`). "
              "Summary medians are taken over the jobs that computed each stage; the summary total is "
-             "the sum of those medians, the cost of one uncached run. `job s` is everything the job "
-             "spent (mesh preparation, proxy, stages, render).", ""]
+             "the sum of those medians, the cost of one uncached run. `render s` is the whole render "
+             "step, `scene s` its scene overhead (writing the scenes, loading scene.xml, waiting for the "
+             "POV-Ray files). `job s` is everything the job spent (mesh preparation, proxy, stages, "
+             "render).", ""]
     lines += ["## Per object (medians)", ""]
     lines += _md_table(_MD_SUMMARY_HEADER, [_summary_cells(s) for s in summaries])
     lines += ["", "## Per job", ""]
@@ -311,7 +314,8 @@ def report_markdown(run_dir: Path, jobs: Sequence[JobTimes], summaries: Sequence
         rows.append([j.object_id, j.job_id, _varied_text(j, varied), fmt_count(_stat(j, "input_faces")),
                      fmt_count(_stat(j, "icicles")), fmt_count(_stat(j, "ice_faces")),
                      *(_stage_cell(j, s) for s in TABLE2_STAGES), _total_cell(j), _stage_cell(j, "proxy"),
-                     _stage_cell(j, "render"), str(j.stats.get("render_variant") or "-"),
+                     _stage_cell(j, "render"), fmt_seconds(_number(j.stats.get("scene_seconds"))),
+                     str(j.stats.get("render_variant") or "-"),
                      fmt_seconds(_job_seconds(j))])
     lines += _md_table(_MD_JOB_HEADER, rows) if rows else ["No finished jobs."]
     if failed:
@@ -323,6 +327,10 @@ def report_markdown(run_dir: Path, jobs: Sequence[JobTimes], summaries: Sequence
         lines += ["", "## Not finished (no done.json, no error.json)", ""]
         lines += _md_table(("object", "job"), [[j.object_id, j.job_id] for j in pending])
     return "\n".join(lines) + "\n"
+
+
+def _number(value: Any) -> float | None:
+    return float(value) if _is_number(value) else None
 
 
 def _first_line(message: str | None) -> str:
@@ -389,7 +397,10 @@ def report_csv(jobs: Sequence[JobTimes], summaries: Sequence[ObjectSummary]) -> 
         if j.status == "done":
             row["total_s"] = csv_seconds(sum(j.stage_seconds(s) or 0.0 for s in TABLE2_STAGES))
             row["job_s"] = csv_seconds(_job_seconds(j))
-        row.update(render_variant=j.stats.get("render_variant") or "", renderer=j.stats.get("renderer") or "",
+        row.update(mitsuba_s=csv_seconds(_number(j.stats.get("render_seconds"))),
+                   scene_s=csv_seconds(_number(j.stats.get("scene_seconds"))),
+                   render_variant=j.stats.get("render_variant") or "",
+                   render_integrator=j.stats.get("render_integrator") or "", renderer=j.stats.get("renderer") or "",
                    cached=" ".join(s for s in j.reused), failed_stage=j.failed_stage or "",
                    error=_first_line(j.message) if j.message else "")
         writer.writerow(row)

@@ -39,7 +39,9 @@ def sweep(tmp_path):
     sweep = tmp_path / "out" / "demo"
     stats = {"input_faces": 1000, "flow_faces": 1000, "icicles": 12, "branches": 15, "render_variant": "llvm_ad_rgb",
              "renderer": "mitsuba"}
-    _job(sweep, "cube", "c1", seconds=_seconds(0.2, 0.1, 0.3, 2.0, render=1.5), stats={**stats, "ice_faces": 5000})
+    _job(sweep, "cube", "c1", seconds=_seconds(0.2, 0.1, 0.3, 2.0, render=1.5),
+         stats={**stats, "ice_faces": 5000, "render_seconds": 1.2, "scene_seconds": 0.1,
+                "render_integrator": "icepath"})
     _job(sweep, "cube", "c2", seconds=_seconds(0.001, 0.002, 0.3, 4.0, render=2.5), reused=["water", "drips"],
          stats={**stats, "ice_faces": 7000}, voxel=0.0006)
     stats2 = {**stats, "input_faces": 3000, "icicles": 40, "proxy_faces": 900, "proxy_reason": "4 components"}
@@ -69,6 +71,9 @@ def test_report_rows_totals_medians_and_cache_marks(sweep):
     # A fully computed job: Table 2 total is the four stages, not prepare or render.
     assert float(jobs["c1"]["total_s"]) == pytest.approx(2.6)
     assert float(jobs["c1"]["render_s"]) == 1.5 and jobs["c1"]["render_variant"] == "llvm_ad_rgb"
+    # The render step split: Mitsuba's render and the scene overhead, as the job measured them.
+    assert float(jobs["c1"]["mitsuba_s"]) == 1.2 and float(jobs["c1"]["scene_s"]) == 0.1
+    assert jobs["c1"]["render_integrator"] == "icepath" and jobs["c2"]["scene_s"] == ""
     # Cached stages are marked, never reported as measured times; the total counts computed stages.
     assert jobs["c2"]["water_s"] == "cached" and jobs["c2"]["drips_s"] == "cached"
     assert float(jobs["c2"]["total_s"]) == pytest.approx(4.3)
