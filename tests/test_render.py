@@ -436,3 +436,21 @@ def test_winding_is_read_from_the_outermost_vertex():
         inverted = mesh.copy()
         inverted.invert()
         assert winds_inward(inverted.vertices, inverted.faces)
+
+
+def test_rough_ice_renders_finite_and_differs_from_clear_ice(tmp_path):
+    box, ice = box_with_icicles()
+    points = np.vstack([box.vertices, ice.vertices])
+    images = {}
+    for name, roughness in (("clear", 0.0), ("frosted", 0.3)):
+        config = tiny_config(resolution=[64, 48], spp=16, ice={"roughness": roughness})
+        files = write_scenes(tmp_path / name, box, ice, config, frame_points=points)
+        render_job(tmp_path / name, config)
+        images[name] = read_image(tmp_path / name / "render.exr")
+        assert_not_blank(images[name])
+    samples, _ = trimesh.sample.sample_surface(ice, 4000, seed=1)
+    xy = files.cameras[0].project(samples, 64, 48).astype(int)
+    on_ice = np.zeros((48, 64), bool)
+    on_ice[np.clip(xy[:, 1], 0, 47), np.clip(xy[:, 0], 0, 63)] = True
+    diff = np.abs(images["clear"] - images["frosted"]).mean(axis=2)
+    assert diff[on_ice].mean() > 2 * diff[~on_ice].mean()  # the ice changed, not just the noise
