@@ -136,7 +136,7 @@ def bench():
 @click.argument("mesh", type=click.Path(dir_okay=False))
 @click.option("--size-m", type=float, default=0.3, show_default=True, help="Object height in meters.")
 @click.option("--drips", type=int, default=200, show_default=True, help="Drip points (drips.count).")
-@click.option("--repeat", type=int, default=7, show_default=True, help="Runs; the median is printed.")
+@click.option("--repeat", type=click.IntRange(min=1), default=7, show_default=True, help="Runs; the median is printed.")
 @click.option("--set", "assignments", multiple=True, metavar="GROUP.PARAM=VALUE", help="Override a parameter.")
 @click.option("--surface", is_flag=True, help="Also time stage 4 (the ice surface).")
 def bench_stages(mesh, size_m, drips, repeat, assignments, surface):
@@ -159,7 +159,7 @@ def bench_stages(mesh, size_m, drips, repeat, assignments, surface):
 @click.argument("mesh", type=click.Path(dir_okay=False))
 @click.option("--size-m", type=float, default=0.3, show_default=True, help="Object height in meters.")
 @click.option("--drips", type=int, default=200, show_default=True, help="Drip points (drips.count).")
-@click.option("--repeat", type=int, default=5, show_default=True, help="Runs; the median is printed.")
+@click.option("--repeat", type=click.IntRange(min=1), default=5, show_default=True, help="Runs; the median is printed.")
 @click.option("--set", "assignments", multiple=True, metavar="GROUP.PARAM=VALUE", help="Override a parameter.")
 @click.pass_context
 def bench_surface(ctx, mesh, size_m, drips, repeat, assignments):
@@ -171,7 +171,7 @@ def bench_surface(ctx, mesh, size_m, drips, repeat, assignments):
 @bench.command(name="proxy")
 @click.argument("mesh", type=click.Path(dir_okay=False))
 @click.option("--size-m", type=float, default=0.3, show_default=True, help="Object height in meters.")
-@click.option("--repeat", type=int, default=3, show_default=True, help="Runs; the median is printed.")
+@click.option("--repeat", type=click.IntRange(min=1), default=3, show_default=True, help="Runs; the median is printed.")
 @click.option("--set", "assignments", multiple=True, metavar="GROUP.PARAM=VALUE", help="Override a parameter.")
 def bench_proxy(mesh, size_m, repeat, assignments):
     """Median seconds to build the approximate surface (paper 5.1) of MESH."""
@@ -193,7 +193,7 @@ def bench_proxy(mesh, size_m, repeat, assignments):
 @click.option("--drips", type=int, default=40, show_default=True, help="Drip points (drips.count).")
 @click.option("--render", "render", default="lookdev", show_default=True, metavar="CONFIG",
               help="Render config: a name in render_configs/ or a YAML path.")
-@click.option("--repeat", type=int, default=3, show_default=True, help="Timed runs; medians are printed.")
+@click.option("--repeat", type=click.IntRange(min=1), default=3, show_default=True, help="Timed runs; medians are printed.")
 @click.option("--set", "assignments", multiple=True, metavar="GROUP.PARAM=VALUE", help="Override a parameter.")
 def bench_render(mesh, size_m, drips, render, repeat, assignments):
     """Scene overhead against render time of one job on MESH (a file or generator:NAME).
@@ -261,7 +261,7 @@ def report(run_dir):
               help="Folder of the test meshes (default: ../shared/meshes when it exists).")
 @click.option("-o", "--out", type=click.Path(file_okay=False, path_type=Path), default=Path("out/table2"),
               show_default=True, help="Folder for table2.md and table2.csv.")
-@click.option("--repeat", type=int, default=3, show_default=True, help="Runs per row; medians are reported.")
+@click.option("--repeat", type=click.IntRange(min=1), default=3, show_default=True, help="Runs per row; medians are reported.")
 @click.option("--rows", help="Only these rows of Table 2, e.g. a,c,e (default: all seven).")
 def bench_table2(meshes, out, repeat, rows):
     """Reproduce the paper's Table 2 (Figure 16 a-g) side by side with its numbers.
