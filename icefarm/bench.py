@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import json
+import shutil
+import tempfile
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -126,10 +129,6 @@ def render_timings(mesh: str, size_m: float, p: dict, render_config: str, repeat
     render_config : str
         Render config name or YAML path.
     """
-    import json
-    import shutil
-    import tempfile
-
     from .pipeline import GENERATOR_PREFIX, JobSpec, run_job
     from .scene.config import load_render_config
     from .scene.render import render_job
