@@ -94,6 +94,29 @@ def run(mesh, size_m, assignments, seed, out, until, render, no_render, exclude,
     click.echo(f"done: {out}")
 
 
+@main.command(name="render")
+@click.argument("job_dir", type=click.Path(file_okay=False, exists=True))
+@click.option("--render", "render", default="final", show_default=True, metavar="CONFIG",
+              help="Render config: a name in render_configs/ (preview, lookdev, final) or a YAML path.")
+@click.option("-o", "--out", type=click.Path(file_okay=False),
+              help="Folder for the new scenes and images (default: JOB_DIR/renders/<config name>).")
+def render_command(job_dir, render, out):
+    """Render a finished job again with another render config, without recomputing it.
+
+    For the contact-sheet cell worth a final frame: the job's object and ice get new
+    scene.xml/scene.pov and renders in their own folder; the job folder is left as it is.
+    """
+    from .pipeline import render_again
+
+    out = Path(out) if out else Path(job_dir) / "renders" / Path(render).stem
+    result = render_again(Path(job_dir), render, out, progress=sys.stderr.isatty())
+    click.echo(f"  render        {result.seconds:8.3f} s ({result.variant}, {result.integrator})")
+    click.echo(f"  scene         {result.scene_seconds:8.3f} s")
+    if result.povray_seconds:
+        click.echo(f"  povray        {result.povray_seconds:8.3f} s")
+    click.echo(f"done: {out / result.files[0].name if result.files else out}")
+
+
 def _print_plausibility(timings: dict) -> None:
     if "ice_faces" not in timings:
         return

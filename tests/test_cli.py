@@ -98,3 +98,41 @@ def test_bench_render_compares_overhead_with_render_time(sphere_file, tmp_path):
     assert result.exit_code == 0, result.output
     for word in ("render step", "render alone", "write", "load", "wait", "scene / render alone", "whole step"):
         assert word in result.output, word
+
+
+def test_render_again_makes_new_frames_and_leaves_the_job_as_it_was(sphere_file, tmp_path):
+    small = tmp_path / "small.yaml"
+    small.write_text("resolution: [40, 30]\nspp: 2\nmax_depth: 4\n")
+    wide = tmp_path / "wide.yaml"
+    wide.write_text("resolution: [64, 32]\nspp: 4\nmax_depth: 6\nviews: [three_quarter, front]\n")
+    job = tmp_path / "job"
+    result = run("run", sphere_file, "--size-m", 0.3, "-o", job, "--render", small,
+                 "--set", "drips.count=6", "--set", "water.rays=2000", "--set", "glaze.balls=0")
+    assert result.exit_code == 0, result.output
+    before = {p.name: p.read_bytes() for p in job.iterdir() if p.is_file()}
+    assert json.loads((job / "done.json").read_text())["object_material"]["type"] == "diffuse"
+
+    result = run("render", job, "--render", wide)
+    assert result.exit_code == 0, result.output
+    out = job / "renders" / "wide"
+    for name in ("scene.xml", "scene.pov", "ice.ply", "object.ply", "render.exr", "render.png", "render_view1.png"):
+        assert (out / name).is_file(), name
+    from icefarm.scene.render import read_image
+
+    assert read_image(out / "render.png").shape[:2] == (32, 64)
+    assert {p.name: p.read_bytes() for p in job.iterdir() if p.is_file()} == before
+    refused = run("render", job, "-o", job)
+    assert refused.exit_code == 2 and "folder of its own" in refused.output
+    # The same object and ice: the new ice.ply holds the job's mesh.
+    a, b = trimesh.load(job / "ice.ply"), trimesh.load(out / "ice.ply")
+    assert len(a.faces) == len(b.faces) and np.allclose(a.bounds, b.bounds, atol=1e-6)
+
+
+def test_render_again_refuses_what_is_not_a_rendered_job(sphere_file, tmp_path):
+    result = run("render", tmp_path)
+    assert result.exit_code == 2 and "not a finished job" in result.output
+    job = tmp_path / "job"
+    assert run("run", sphere_file, "--size-m", 0.3, "-o", job, "--no-render",
+               "--set", "drips.count=4", "--set", "water.rays=2000", "--set", "glaze.balls=0").exit_code == 0
+    result = run("render", job)
+    assert result.exit_code == 2 and "no object.ply" in result.output
