@@ -316,6 +316,22 @@ def test_render_job_writes_linear_exr_and_srgb_png(tmp_path):
     assert (display[mid] >= linear[mid] - 0.02).all() and display[mid].mean() > linear[mid].mean()
 
 
+@pytest.mark.skipif(not hasattr(os, "sched_setaffinity"), reason="needs CPU affinity (Linux)")
+def test_a_process_pinned_to_one_core_renders(tmp_path):
+    """Mitsuba reads EXRs (the sky) with Dr.Jit's pool, which waited forever at one thread."""
+    box, ice = box_with_icicles()
+    write_scenes(tmp_path, box, ice, tiny_config())
+    code = ("import os, sys; os.sched_setaffinity(0, {min(os.sched_getaffinity(0))}); "
+            "from icefarm.scene.config import load_render_config, render_config_from_dict; "
+            "from icefarm.scene.render import render_job; "
+            f"config = render_config_from_dict({TINY!r}, base=load_render_config('preview')); "
+            "print(render_job(sys.argv[1], config).variant)")
+    out = subprocess.run([sys.executable, "-c", code, str(tmp_path)], capture_output=True, text=True,
+                         timeout=180, env={**os.environ, "PYTHONPATH": str(ROOT)})
+    assert out.returncode == 0, out.stderr
+    assert_not_blank(read_image(tmp_path / "render.png"))
+
+
 def test_ice_changes_the_picture_where_it_projects(tmp_path):
     box, ice = box_with_icicles()
     config = tiny_config(resolution=[80, 60], spp=8)

@@ -25,7 +25,6 @@ import contextlib
 import logging
 import os
 import shutil
-import sys
 import time
 import traceback
 import uuid
@@ -37,13 +36,9 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
-THREADS_ENV = "ICEFARM_THREADS"
 # Test hook: "OBJECT_ID=SECONDS" makes that object's jobs sleep after they started (so a test
 # can kill the worker mid-job).
 PAUSE_ENV = "ICEFARM_FARM_TEST_PAUSE"
-# Measured: drjit.set_thread_count(1) makes a Mitsuba 3.9 render wait forever (no CPU used);
-# a worker whose share is one core keeps Dr.Jit's default pool instead.
-MIN_DRJIT_THREADS = 2
 _BLAS_ENV = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 
 
@@ -82,16 +77,6 @@ class Task:
 
 # --------------------------------------------------------------------------- in the worker
 
-def configure_threads(threads: int | None) -> None:
-    """Give this process ``threads`` threads: ``ICEFARM_THREADS`` for the render code, and
-    Dr.Jit's pool directly once it is loaded."""
-    if not threads:
-        return
-    os.environ[THREADS_ENV] = str(threads)
-    if "drjit" in sys.modules and threads >= MIN_DRJIT_THREADS:
-        sys.modules["drjit"].set_thread_count(threads)
-
-
 def _marker(task: Task) -> Path:
     return Path(task.running_dir) / f"{task.job_id}.pid"
 
@@ -128,7 +113,6 @@ def execute(task: Task) -> tuple[Any, int]:
     attempt : int
         1 for the first start of the job, 2 after a worker died under it, ...
     """
-    configure_threads(task.threads)
     marker = _marker(task)
     marker.parent.mkdir(parents=True, exist_ok=True)
     with marker.open("a") as fh:  # one line per attempt: a leftover line means a dead worker
@@ -142,14 +126,10 @@ def execute(task: Task) -> tuple[Any, int]:
     try:
         from .. import pipeline
 
-        if task.spec.render is not None and task.threads and task.threads >= MIN_DRJIT_THREADS:
-            # Dr.Jit picks its libLLVM when imported: the render module's choice comes first.
-            from ..scene.render import prepare_llvm
+        if task.spec.render is not None and task.threads:
+            from ..scene.render import set_thread_count
 
-            prepare_llvm()
-            import drjit
-
-            drjit.set_thread_count(task.threads)
+            set_thread_count(task.threads)
         run = task.job_fn or pipeline.run_job
         until = pipeline.Stage(task.until) if task.until else None
         cache = Path(task.cache_dir) if task.cache_dir else None
@@ -212,8 +192,7 @@ def threads_per_worker(workers: int) -> int:
 @contextlib.contextmanager
 def _child_environment(threads: int) -> Iterator[None]:
     """Environment that spawned workers inherit: their thread share (restored afterwards)."""
-    wanted = {THREADS_ENV: str(threads)}
-    wanted.update({k: str(threads) for k in _BLAS_ENV if k not in os.environ})
+    wanted = {k: str(threads) for k in _BLAS_ENV if k not in os.environ}
     saved = {k: os.environ.get(k) for k in wanted}
     os.environ.update(wanted)
     try:

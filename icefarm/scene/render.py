@@ -39,6 +39,9 @@ LLVM_DIRS = ("/usr/lib/x86_64-linux-gnu", "/usr/lib/aarch64-linux-gnu", "/usr/li
 _LLVM_NAME = re.compile(r"^libLLVM(?:-(?P<a>\d+)[\w.]*?)?\.(?:so|dylib)(?:\.(?P<b>\d+)[\d.]*)?$")
 CREASE_ANGLE = 30.0  # degrees: sharper edges of the object stay sharp in shading
 PASS_SAMPLES = 1 << 25  # camera samples per Mitsuba render call: bounded memory, visible progress
+# Measured (Mitsuba 3.9): with a one-thread Dr.Jit pool, reading any EXR (the sky) waits forever,
+# so a process pinned to one core (taskset, a one-CPU container) hung in its first scene load.
+MIN_POOL_THREADS = 2
 
 
 # ------------------------------------------------------------------------ variants
@@ -146,7 +149,7 @@ def pick_variant(requested: str = "auto", search_dirs: Iterable[str | Path] | No
 
     Sets up ``DRJIT_LIBLLVM_PATH`` first (see `prepare_llvm`), then imports drjit and asks
     it which backends started. LLVM counts only if every libLLVM mapped into the process
-    is of version 17 or newer.
+    is of version 17 or newer. Dr.Jit's pool gets at least `MIN_POOL_THREADS` threads.
 
     Raises
     ------
@@ -154,16 +157,42 @@ def pick_variant(requested: str = "auto", search_dirs: Iterable[str | Path] | No
         An explicit variant whose backend does not work here.
     """
     prepare_llvm(search_dirs)  # also for scalar_rgb: importing drjit starts LLVM regardless
-    if requested == "scalar_rgb":
-        return requested
     import drjit as dr
 
+    set_thread_count()
+    if requested == "scalar_rgb":
+        return requested
     cuda = bool(dr.has_backend(dr.JitBackend.CUDA)) if requested in ("auto", "cuda_ad_rgb") else False
     llvm = bool(dr.has_backend(dr.JitBackend.LLVM))
     if llvm and Path("/proc/self/maps").exists():  # trust only what was really loaded
         loaded = loaded_libllvm()
         llvm = bool(loaded) and all((llvm_version(p) or 0) >= MIN_LLVM for p in loaded)
     return choose_variant(requested, cuda, llvm)
+
+
+def set_thread_count(threads: int | None = None) -> int:
+    """Size Dr.Jit's thread pool, which renders and loads scenes, importing drjit if needed.
+
+    Parameters
+    ----------
+    threads : int, optional
+        Threads wanted (a farm worker's share of the cores); default Dr.Jit's own choice,
+        one per core this process may use. Never fewer than `MIN_POOL_THREADS`.
+
+    Returns
+    -------
+    int
+        The pool's size now.
+    """
+    if threads is not None and threads < 1:
+        raise ValueError(f"threads must be >= 1, got {threads}")
+    prepare_llvm()  # Dr.Jit picks its libLLVM when imported
+    import drjit as dr
+
+    wanted = max(MIN_POOL_THREADS, threads or dr.thread_count())
+    if dr.thread_count() != wanted:
+        dr.set_thread_count(wanted)
+    return wanted
 
 
 # ------------------------------------------------------------------------ scenes
