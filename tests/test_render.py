@@ -388,24 +388,60 @@ def test_mesh2_text_holds_the_mesh_in_povray_handedness(tmp_path):
     rng = np.random.default_rng(3)
     vertices = rng.normal(size=(50, 3)) * [0.2, 3.0, 0.01]
     vertices[0] = [0.0, -4e-7, 12.5]  # rounds to zero (no "-0"), and a wide number
+    vertices[1] = [-2500.0, 0.0, 0.0]  # over 2^31 micrometres
     normals = rng.normal(size=(50, 3))
     normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    normals[0] = [0.0, -1e-6, 1.0]
     faces = rng.integers(0, 50, size=(70, 3))
     pov.write_mesh2(tmp_path / "m.inc", "M", vertices, normals, faces, inside=True)
     text = (tmp_path / "m.inc").read_text()
-    assert text.startswith("#declare M = mesh2 {") and "inside_vector" in text and "-0.000000" not in text
+    assert text.startswith("#declare M = mesh2 {") and "inside_vector" in text
+    assert text.endswith("scale 1e-06\n}\n")
 
     def block(name):
         body = text.split(name + " {")[1].split("}")[0]
         count, rows = body.split(",", 1)
-        values = np.array([[float(x) for x in r.strip(" <>\n").split(",")]
-                           for r in rows.replace("\n", "").split(">,")])
+        numbers = [x.lstrip("<").rstrip(" >") for r in rows.replace("\n", "").split(">,")
+                   for x in r.split(",")]
+        assert all(float(x) != 0 for x in numbers if x.startswith("-")), "negative zero written"
+        assert len({len(x) for x in numbers}) == 1, "numbers of different widths"
+        values = np.array([float(x) for x in numbers]).reshape(-1, 3)
         assert int(count) == len(values)
         return values
 
-    np.testing.assert_allclose(block("vertex_vectors"), vertices * [1, 1, -1], atol=5e-7)
+    np.testing.assert_allclose(block("vertex_vectors") * 1e-6, vertices * [1, 1, -1], atol=5e-7)
     np.testing.assert_allclose(block("normal_vectors"), normals * [1, 1, -1], atol=5e-5)
     np.testing.assert_array_equal(block("face_indices"), faces)
+
+
+def test_smooth_normals_are_the_ones_mitsuba_computes(tmp_path):
+    """POV-Ray gets the ice normals Mitsuba computed on load, or these: they must agree."""
+    import mitsuba as mi
+
+    from icefarm.scene.geometry import smooth_normals, write_ply
+    from icefarm.scene.render import _vertex_normals, pick_variant
+
+    mesh = trimesh.creation.icosphere(3, 0.1)
+    mesh.vertices += np.random.default_rng(5).normal(scale=0.004, size=mesh.vertices.shape)
+    mesh.vertices *= [1.0, 2.5, 0.6]  # uneven triangles: angle and area weights differ
+    write_ply(tmp_path / "m.ply", mesh.vertices, mesh.faces)
+    mi.set_variant(pick_variant("auto"))
+    scene = mi.load_dict({"type": "scene", "m": {"type": "ply", "id": "m", "filename": str(tmp_path / "m.ply")}})
+    ours = smooth_normals(mesh.vertices, mesh.faces)
+    np.testing.assert_allclose(_vertex_normals(scene, "m"), ours, atol=2e-5)
+    area_weighted = np.zeros_like(ours)
+    np.add.at(area_weighted, mesh.faces.ravel(), np.repeat(mesh.triangles_cross, 3, axis=0))
+    area_weighted /= np.linalg.norm(area_weighted, axis=1, keepdims=True)
+    assert np.abs(area_weighted - ours).max() > 1e-3  # the weighting is really different
+
+
+def test_vector_lines_refuses_what_it_cannot_write():
+    with pytest.raises(ValueError, match="integers"):
+        pov.vector_lines(np.zeros((2, 3)))
+    with pytest.raises(ValueError, match="smaller than 10"):
+        pov.vector_lines(np.full((1, 3), 12.0), unit=True)
+    with pytest.raises(ValueError, match=r"\(n, 3\)"):
+        pov.vector_lines(np.zeros((2, 2), dtype=int))
 
 
 @pytest.mark.parametrize("pixels, spp, budget, expected", [

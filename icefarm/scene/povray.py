@@ -36,69 +36,88 @@ def _rgb(v) -> str:
     return "rgb <" + ", ".join(f"{float(x):.6g}" for x in v) + ">"
 
 
-def vector_lines(rows: np.ndarray, decimals: int) -> np.ndarray:
-    """ASCII ``<x,y,z>,`` lines for ``rows`` ``(n, 3)`` in fixed point with ``decimals`` digits.
+# mesh2 text is assembled from 4-byte words (uint32 views of ASCII) looked up in tables: one
+# head word per number (separator, sign, leading digits) and 4-digit body words. Table
+# lookups and whole-word stores run about 3x faster than digit-by-digit byte arithmetic.
+_BODY_WORDS = np.frombuffer(b"".join(b"%04d" % i for i in range(10_000)), dtype=np.uint32)
+_INT_HEADS = np.frombuffer(b"".join(sep + sign + b"%02d" % d for sep in (b"<", b",")
+                                    for sign in (b" ", b"-") for d in range(100)), dtype=np.uint32)
+_UNIT_HEADS = np.frombuffer(b"".join(sep + sign + b"%d." % d for sep in (b"<", b",")
+                                     for sign in (b" ", b"-") for d in range(10)), dtype=np.uint32)
+_LINE_END = np.frombuffer(b" >,\n", dtype=np.uint32)[0]
+MICROMETRES = 1e6  # mesh2 vertices are written as integer micrometres and scaled back in POV
 
-    Digits are built with array arithmetic into a byte buffer (numbers right-aligned,
-    space-padded), ten times faster than Python formatting on million-face ice. Returns
-    the text as a flat ``uint8`` array, which file objects write without a copy.
+
+def vector_lines(rows: np.ndarray, unit: bool = False) -> np.ndarray:
+    """ASCII ``<a,b,c >,`` lines for ``rows`` ``(n, 3)``, every number the same width.
+
+    Parameters
+    ----------
+    rows : (n, 3) array
+        Integers (``unit`` False), written zero-padded: ``< 0012,-0340, 0000 >,``; or
+        components of unit vectors (``unit`` True, ``|x| < 10``) with four decimals:
+        ``< 0.7071,-0.7071, 0.0000 >,``.
+    unit : bool
+
+    Returns
+    -------
+    (k,) uint8
+        The text, which file objects write without a copy.
     """
-    rows = np.asarray(rows, dtype=np.float64).reshape(-1, 3)
-    scaled = np.rint(np.abs(rows) * 10.0 ** decimals).astype(np.int64)
-    negative = (rows < 0) & (scaled > 0)
-    top = int(scaled.max()) if scaled.size else 0
-    digits = max(len(str(top)), decimals + 1)  # at least one digit before the point
-    point = 1 if decimals else 0
-    width = digits + point + 1  # + sign
-    buf = np.full(rows.shape + (width,), ord(" "), dtype=np.uint8)
-    # Columns used by digits and point: the units digit and the decimals always show.
-    shown = np.full(rows.shape, decimals + 1 + point, dtype=np.int8)
-    rest = scaled.astype(np.int32 if top < 2 ** 31 else np.int64)
-    for k in range(digits):  # k-th digit from the right
-        column = width - 1 - k - (point if k >= decimals else 0)
-        if k <= decimals:
-            rest, digit = np.divmod(rest, 10)
-            buf[..., column] = digit.astype(np.uint8) + ord("0")
-        else:
-            visible = rest > 0
-            rest, digit = np.divmod(rest, 10)
-            buf[..., column] = np.where(visible, digit.astype(np.uint8) + ord("0"), ord(" "))
-            shown += visible
-    if point:
-        buf[..., width - 1 - decimals] = ord(".")
-    sign_column = width - 1 - shown
-    r, c = np.nonzero(negative)
-    buf[r, c, sign_column[r, c]] = ord("-")
-    line = np.empty((len(rows), 3 * width + 6), dtype=np.uint8)
-    line[:, 0] = ord("<")
+    rows = np.asarray(rows)
+    if rows.ndim != 2 or rows.shape[1] != 3:
+        raise ValueError(f"rows must be (n, 3), got shape {rows.shape}")
+    if unit:
+        scaled = np.rint(np.abs(rows.astype(np.float64)) * 1e4).astype(np.int32)
+        if scaled.size and scaled.max() >= 100_000:
+            raise ValueError("unit vector components must be smaller than 10")
+        negative = (rows < 0) & (scaled > 0)  # no "-0.0000"
+        heads, span, body_words = _UNIT_HEADS, 10, 1
+    else:
+        if not np.issubdtype(rows.dtype, np.integer):
+            raise ValueError(f"rows must be integers unless unit is set, got {rows.dtype}")
+        negative = rows < 0
+        scaled = np.abs(rows.astype(np.int64))
+        top = int(scaled.max()) if scaled.size else 0
+        scaled = scaled.astype(np.int32 if top < 2**31 else np.int64)
+        heads, span, body_words = _INT_HEADS, 100, -(-max(len(str(top)) - 2, 0) // 4)
+    words = 1 + body_words  # per number
+    line = np.empty((len(rows), 3 * words + 1), dtype=np.uint32)
     for i in range(3):
-        start = 1 + i * (width + 1)
-        line[:, start:start + width] = buf[:, i]
-        line[:, start + width] = ord(",") if i < 2 else ord(">")
-    line[:, -2:] = (ord(","), ord("\n"))
-    return line.reshape(-1)
+        rest = scaled[:, i]
+        for w in range(body_words, 0, -1):
+            rest, chunk = np.divmod(rest, 10_000)
+            line[:, i * words + w] = _BODY_WORDS.take(chunk)
+        head = rest + (2 * span if i else 0)  # rest < span: the head's digits
+        head += negative[:, i] * span
+        line[:, i * words] = heads.take(head)
+    line[:, -1] = _LINE_END
+    return line.view(np.uint8).reshape(-1)
 
 
 def write_mesh2(path: str | Path, name: str, vertices: np.ndarray, normals: np.ndarray,
                 faces: np.ndarray, inside: bool = False) -> None:
     """Write ``#declare name = mesh2 {...}`` for ``vertices``/``normals`` ``(n, 3)``, ``faces`` ``(m, 3)``.
 
-    Coordinates are written in POV's left-handed frame (Z negated), to a micrometre.
-    ``inside`` marks a closed mesh, which POV-Ray then treats as a solid with an interior.
+    Coordinates are written in POV's left-handed frame (Z negated), in integer
+    micrometres that the mesh's ``scale`` turns back into meters; unit normals with four
+    decimals. ``inside`` marks a closed mesh, which POV-Ray then treats as a solid with an
+    interior.
     """
-    blocks = (("vertex_vectors", np.asarray(vertices, dtype=np.float64) * FLIP, 6),
-              ("normal_vectors", np.asarray(normals, dtype=np.float64) * FLIP, 4),
-              ("face_indices", np.asarray(faces), 0))
+    blocks = (("vertex_vectors", vector_lines(np.rint(np.asarray(vertices, dtype=np.float64) * FLIP
+                                                      * MICROMETRES).astype(np.int64))),
+              ("normal_vectors", vector_lines(np.asarray(normals, dtype=np.float64) * FLIP, unit=True)),
+              ("face_indices", vector_lines(np.asarray(faces))))
     with open(path, "wb") as f:
         f.write(f"#declare {name} = mesh2 {{\n".encode())
-        for block, rows, decimals in blocks:
-            f.write(f"  {block} {{\n    {len(rows)},\n".encode())
-            text = memoryview(vector_lines(rows, decimals))
+        for (block, text), count in zip(blocks, (len(vertices), len(normals), len(faces))):
+            f.write(f"  {block} {{\n    {count},\n".encode())
+            text = memoryview(text)
             f.write(text[:-2] if len(text) else text)  # no comma after the last vector
             f.write(b"\n  }\n")
         if inside:
             f.write(b"  inside_vector <0.267, 0.534, 0.801>\n")
-        f.write(b"}\n")
+        f.write(f"  scale {1 / MICROMETRES:g}\n}}\n".encode())
 
 
 def _finish_object(material: dict) -> str:

@@ -214,7 +214,8 @@ class SceneFiles:
         Time taken to write everything written before `write_scenes` returned.
     povray_writer : callable or None
         Writes the POV-Ray files, when `write_scenes` was told to defer them: `render_job`
-        runs it in a thread once Mitsuba has loaded its scene. None once they are written.
+        runs it in a thread once Mitsuba has loaded its scene, with the ice normals
+        Mitsuba computed (``ice_normals=``). None once they are written.
     """
 
     xml: Path
@@ -224,7 +225,7 @@ class SceneFiles:
     sky: Path
     cameras: tuple[cam.Camera, ...]
     seconds: float
-    povray_writer: Callable[[], None] | None = None
+    povray_writer: Callable[..., None] | None = None
 
 
 def _check_mesh(mesh: trimesh.Trimesh, what: str) -> None:
@@ -362,14 +363,35 @@ def write_scenes(job_dir: str | Path, object_mesh: trimesh.Trimesh, ice_mesh: tr
 
 def _write_povray(job_dir: Path, pov_file: Path, object_geometry: tuple[np.ndarray, ...],
                   ice_mesh: trimesh.Trimesh | None, ice_flip: bool,
-                  text: str) -> None:
-    """``object.inc``, ``ice.inc`` and then ``scene.pov``: its presence means the includes are whole."""
+                  text: str, ice_normals: np.ndarray | None = None) -> None:
+    """``object.inc``, ``ice.inc`` and then ``scene.pov``: its presence means the includes are whole.
+
+    ``ice_normals`` ``(n, 3)``: the ice's vertex normals as Mitsuba computed them on load
+    (both renderers then shade the ice alike, and nothing is computed twice); without
+    them, area-weighted normals.
+    """
     obj_v, obj_n, obj_f = object_geometry
     pov.write_mesh2(job_dir / "object.inc", "Object_Mesh", obj_v, obj_n, obj_f)
     if ice_mesh is not None:
-        normals = geo.smooth_normals(ice_mesh.vertices, ice_mesh.faces) * (-1.0 if ice_flip else 1.0)
+        if ice_normals is None or len(ice_normals) != len(ice_mesh.vertices):
+            ice_normals = geo.smooth_normals(ice_mesh.vertices, ice_mesh.faces)
+        normals = ice_normals * (-1.0 if ice_flip else 1.0)
         pov.write_mesh2(job_dir / "ice.inc", "Ice_Mesh", ice_mesh.vertices, normals, ice_mesh.faces, inside=True)
     pov_file.write_text(text)
+
+
+def _vertex_normals(scene, shape_id: str) -> np.ndarray | None:
+    """Vertex normals ``(n, 3)`` of the mesh ``shape_id`` in a loaded Mitsuba scene, or None."""
+    import mitsuba as mi
+
+    for shape in scene.shapes():
+        if shape.id() == shape_id:
+            params = mi.traverse(shape)
+            if "vertex_normals" in params:
+                normals = np.array(params["vertex_normals"], dtype=np.float64)
+                if normals.size:
+                    return normals.reshape(-1, 3)
+    return None
 
 
 # ------------------------------------------------------------------------ images
@@ -484,9 +506,9 @@ def sample_passes(pixels: int, spp: int, budget: int = PASS_SAMPLES) -> list[int
 
 
 def render_mitsuba(job_dir: Path, config: RenderConfig, variant: str,
-                   on_loaded: Callable[[], None] | None = None,
+                   on_loaded: Callable[[object], None] | None = None,
                    progress: bool = False) -> tuple[float, float, list[Path], str]:
-    """Load ``scene.xml`` with ``variant`` and render every view; ``on_loaded()`` runs in between.
+    """Load ``scene.xml`` with ``variant`` and render every view; ``on_loaded(scene)`` runs in between.
 
     Scenes with ice render with the ice-aware path tracer (`integrator.ice_integrator`:
     sunlight reaches what the glaze covers) on JIT variants, with the XML's ``path``
@@ -510,7 +532,7 @@ def render_mitsuba(job_dir: Path, config: RenderConfig, variant: str,
     scene = mi.load_file(str(job_dir / "scene.xml"))
     load_seconds = time.perf_counter() - start
     if on_loaded is not None:
-        on_loaded()
+        on_loaded(scene)
     has_ice = any(shape.id() == "ice" for shape in scene.shapes())
     integrator = ice_integrator(variant, config.max_depth, config.ice.ior, config.ice.tint) if has_ice else None
     passes = sample_passes(config.width * config.height, config.spp, PASS_SAMPLES)
@@ -563,9 +585,10 @@ def render_job(job_dir: str | Path, config: RenderConfig, scene: SceneFiles | No
     writer = scene.povray_writer if scene is not None else None
     pending: list[Future] = []
     with ThreadPoolExecutor(max_workers=1) as pool:
-        def start_povray() -> None:
+        def start_povray(mitsuba_scene=None) -> None:
             if writer is not None and not pending:
-                pending.append(pool.submit(writer))
+                normals = None if mitsuba_scene is None else _vertex_normals(mitsuba_scene, "ice")
+                pending.append(pool.submit(writer, ice_normals=normals))
 
         try:
             if config.uses_mitsuba and not (job_dir / "scene.xml").is_file():
