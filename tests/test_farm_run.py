@@ -117,6 +117,28 @@ def test_a_failing_job_does_not_stop_the_others(tmp_path, ball):
             assert row["error"]
 
 
+def test_a_second_sweep_on_a_running_folder_is_refused_and_deletes_nothing(tmp_path, ball, monkeypatch):
+    path = write_manifest(tmp_path, [{"id": "ball", "mesh": ball, "size_m": 0.3}], grid(drips__count=[2, 3]))
+    out = tmp_path / "out"
+    monkeypatch.setenv(PAUSE_ENV, "ball=3")  # the first sweep's jobs are still running
+    first: list = []
+    runner = threading.Thread(target=lambda: first.append(run_sweep(path, out, workers=2, until="drips")))
+    runner.start()
+    running = out / "t" / ".farm" / "running"
+    deadline = time.monotonic() + 60
+    while not list(running.glob("*.pid")) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    started = {p.stem for p in running.glob("*.pid")}
+    assert started, "the first sweep never started a job"
+    for flags in ({"resume": True}, {"overwrite": True}):
+        with pytest.raises(InputError, match=rf"another icefarm sweep \(pid {os.getpid()}\) is writing"):
+            run_sweep(path, out, until="drips", **flags)
+    assert {p.stem for p in running.glob("*.pid")} >= started  # its markers and jobs were left alone
+    runner.join()
+    assert first[0].ok and first[0].done == 2
+    assert run_sweep(path, out, until="drips", resume=True).resumed == 2  # the lock went with the sweep
+
+
 def test_cli_dry_run_and_bad_set(tmp_path, ball):
     path = write_manifest(tmp_path, [{"id": "ball", "mesh": ball, "size_m": 0.3}])
     result = CliRunner().invoke(sweep_command, [str(path), "-o", str(tmp_path / "out"), "--dry-run",

@@ -8,6 +8,7 @@
       jobs.csv                  job id, object, swept values, status, seconds, reused stages, ...
       cache/                    stage results shared by the jobs of the sweep
       .farm/running/            one marker per job being run: the worker's pid (crash attribution)
+    <out>/.<sweep name>.lock    held (flock) by the sweep writing the folder: a second one is refused
 
 Jobs of one object that share the water stage wait for the first of them, so that a sweep
 over later stages computes the early stages once and reuses them from the cache; jobs of
@@ -16,6 +17,7 @@ other objects run meanwhile.
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import enum
 import hashlib
@@ -23,9 +25,10 @@ import io
 import itertools
 import json
 import math
+import os
 import shutil
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Protocol
@@ -435,6 +438,44 @@ def prepare_folder(sweep_dir: Path, resume: bool, overwrite: bool) -> None:
     shutil.rmtree(sweep_dir)
 
 
+@contextlib.contextmanager
+def sweep_lock(sweep_dir: Path) -> Iterator[None]:
+    """Hold ``<out>/.<sweep name>.lock`` while this process writes ``sweep_dir``.
+
+    A second sweep on the same folder (``--resume`` or ``--overwrite`` while the first runs)
+    would delete the first's jobs under its workers; it is refused instead. The lock is a
+    ``flock``: the system drops it when its process dies, so a killed sweep leaves none.
+    The file sits beside the folder, which ``--overwrite`` deletes.
+
+    Raises
+    ------
+    InputError
+        Another process holds the lock.
+    """
+    try:
+        import fcntl
+    except ImportError:  # not POSIX: no lock
+        yield
+        return
+    sweep_dir.parent.mkdir(parents=True, exist_ok=True)
+    with open(sweep_dir.parent / f".{sweep_dir.name}.lock", "a+") as fh:
+        try:
+            fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            fh.seek(0)
+            holder = fh.read().strip() or "unknown"
+            raise InputError(f"another icefarm sweep (pid {holder}) is writing {sweep_dir}: wait for it "
+                             "to end (then --resume), or choose another -o") from None
+        fh.seek(0)
+        fh.truncate()
+        fh.write(f"{os.getpid()}\n")
+        fh.flush()
+        try:
+            yield
+        finally:
+            fcntl.flock(fh, fcntl.LOCK_UN)
+
+
 # --------------------------------------------------------------------------- running
 
 def run_sweep(manifest: Manifest | str | Path, out: str | Path = "out", *, workers: int = 1,
@@ -522,51 +563,52 @@ def run_sweep(manifest: Manifest | str | Path, out: str | Path = "out", *, worke
 
     if dry_run:
         return summary()
-    prepare_folder(sweep_dir, resume, overwrite)
-    running = sweep_dir / ".farm" / "running"
-    shutil.rmtree(running, ignore_errors=True)  # markers of an earlier run that was stopped
-    running.mkdir(parents=True, exist_ok=True)
-    cache_dir = sweep_dir / "cache" if use_cache else None
-    if cache_dir is not None:
-        cache_dir.mkdir(exist_ok=True)
-    atomic_write(sweep_dir / "manifest.resolved.yaml", _resolved_yaml(manifest, jobs, sweep_dir, until))
-    csv_path = sweep_dir / "jobs.csv"
-    atomic_write(csv_path, jobs_csv_text(list(records.values()), swept))
-
-    todo = [j for j in jobs if records[j.job_id].status != Status.DONE]
-    tasks = [backends.Task(spec=j.spec, job_id=j.job_id, object_id=j.object_id,
-                           job_dir=str(records[j.job_id].job_dir),
-                           cache_dir=str(cache_dir) if cache_dir else None, until=until,
-                           running_dir=str(running), job_fn=job_fn) for j in todo]
-    # A job whose leader is already done (resume) need not wait for anything.
-    # Without a cache there is nothing to wait for.
-    waits = {k: v for k, v in leaders(jobs).items() if records[v].status != Status.DONE} if use_cache else {}
-
-    last_write = [time.monotonic()]
-
-    def on_outcome(task, outcome, attempts: int) -> None:
-        records[task.job_id] = replace(
-            records[task.job_id], status=Status.DONE if outcome.status == "done" else Status.FAILED,
-            seconds=float(sum(outcome.seconds.values())), reused=tuple(outcome.reused),
-            attempts=attempts, failed_stage=outcome.failed_stage, error=outcome.error)
-        if time.monotonic() - last_write[0] > CSV_INTERVAL_S:  # rewriting it per job is quadratic
-            atomic_write(csv_path, jobs_csv_text(list(records.values()), swept))
-            last_write[0] = time.monotonic()
-        if progress is not None:
-            progress.update(records[task.job_id])
-
-    if progress is not None:
-        progress.start(len(jobs), len(jobs) - len(todo))
-    try:
-        if tasks and backend == "local":
-            backends.run_local(tasks, workers=workers, on_outcome=on_outcome, waits=waits,
-                               max_tasks_per_child=max_tasks_per_child)
-        elif tasks:
-            backends.run_dask(tasks, workers=workers, scheduler=scheduler, on_outcome=on_outcome,
-                              waits=waits)
-    finally:
-        if progress is not None:
-            progress.close()
+    with sweep_lock(sweep_dir):
+        prepare_folder(sweep_dir, resume, overwrite)
+        running = sweep_dir / ".farm" / "running"
+        shutil.rmtree(running, ignore_errors=True)  # markers of an earlier run that was stopped
+        running.mkdir(parents=True, exist_ok=True)
+        cache_dir = sweep_dir / "cache" if use_cache else None
+        if cache_dir is not None:
+            cache_dir.mkdir(exist_ok=True)
+        atomic_write(sweep_dir / "manifest.resolved.yaml", _resolved_yaml(manifest, jobs, sweep_dir, until))
+        csv_path = sweep_dir / "jobs.csv"
         atomic_write(csv_path, jobs_csv_text(list(records.values()), swept))
-    shutil.rmtree(sweep_dir / ".farm", ignore_errors=True)
+
+        todo = [j for j in jobs if records[j.job_id].status != Status.DONE]
+        tasks = [backends.Task(spec=j.spec, job_id=j.job_id, object_id=j.object_id,
+                               job_dir=str(records[j.job_id].job_dir),
+                               cache_dir=str(cache_dir) if cache_dir else None, until=until,
+                               running_dir=str(running), job_fn=job_fn) for j in todo]
+        # A job whose leader is already done (resume) need not wait for anything.
+        # Without a cache there is nothing to wait for.
+        waits = {k: v for k, v in leaders(jobs).items() if records[v].status != Status.DONE} if use_cache else {}
+
+        last_write = [time.monotonic()]
+
+        def on_outcome(task, outcome, attempts: int) -> None:
+            records[task.job_id] = replace(
+                records[task.job_id], status=Status.DONE if outcome.status == "done" else Status.FAILED,
+                seconds=float(sum(outcome.seconds.values())), reused=tuple(outcome.reused),
+                attempts=attempts, failed_stage=outcome.failed_stage, error=outcome.error)
+            if time.monotonic() - last_write[0] > CSV_INTERVAL_S:  # rewriting it per job is quadratic
+                atomic_write(csv_path, jobs_csv_text(list(records.values()), swept))
+                last_write[0] = time.monotonic()
+            if progress is not None:
+                progress.update(records[task.job_id])
+
+        if progress is not None:
+            progress.start(len(jobs), len(jobs) - len(todo))
+        try:
+            if tasks and backend == "local":
+                backends.run_local(tasks, workers=workers, on_outcome=on_outcome, waits=waits,
+                                   max_tasks_per_child=max_tasks_per_child)
+            elif tasks:
+                backends.run_dask(tasks, workers=workers, scheduler=scheduler, on_outcome=on_outcome,
+                                  waits=waits)
+        finally:
+            if progress is not None:
+                progress.close()
+            atomic_write(csv_path, jobs_csv_text(list(records.values()), swept))
+        shutil.rmtree(sweep_dir / ".farm", ignore_errors=True)
     return summary()
