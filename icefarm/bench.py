@@ -96,6 +96,8 @@ class RenderRuns:
     write, load, wait : tuple of float
         The job's scene overhead: writing before the render, loading scene.xml, waiting
         for the POV-Ray files after the render.
+    povray_cpu : tuple of float
+        CPU time of the POV-Ray writer, which runs during the render.
     """
 
     ice_faces: int
@@ -106,6 +108,7 @@ class RenderRuns:
     write: tuple
     load: tuple
     wait: tuple
+    povray_cpu: tuple
 
     @property
     def scene(self) -> tuple:
@@ -156,4 +159,5 @@ def render_timings(mesh: str, size_m: float, p: dict, render_config: str, repeat
     return RenderRuns(ice_faces=int(runs[-1].get("ice_faces", 0)), variant=str(runs[-1]["render_variant"]),
                       step=column("step"), render=column("render_seconds"), alone=column("alone"),
                       write=column("scene_write_seconds"),
-                      load=column("scene_load_seconds"), wait=column("scene_wait_seconds"))
+                      load=column("scene_load_seconds"), wait=column("scene_wait_seconds"),
+                      povray_cpu=column("povray_write_cpu_seconds"))

@@ -242,6 +242,7 @@ def bench_render(mesh, size_m, drips, render, repeat, assignments):
                          ("scene", runs.scene), ("  write", runs.write), ("  load", runs.load),
                          ("  wait", runs.wait)):
         click.echo(f"  {name:<13} {med(values):8.3f} s  {min(values):8.3f} s")
+    click.echo(f"  POV-Ray writer, CPU time during the render: {med(runs.povray_cpu):.3f} s")
     # Ratios within each run, then their median: the load of a shared machine drifts between runs.
     scene = [100 * s / a for s, a in zip(runs.scene, runs.alone)]
     step = [100 * (s - a) / a for s, a in zip(runs.step, runs.alone)]

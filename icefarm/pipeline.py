@@ -354,7 +354,8 @@ def _surface_and_render(spec, job_dir, run, cache, until, obj, flow, water, drip
                  renderer=result.renderer,
                  render_seconds=result.seconds, scene_seconds=result.scene_seconds,
                  scene_write_seconds=result.write_seconds, scene_load_seconds=result.load_seconds,
-                 scene_wait_seconds=result.wait_seconds)
+                 scene_wait_seconds=result.wait_seconds,
+                 povray_write_cpu_seconds=result.povray_write_cpu_seconds)
     return stats
 
 

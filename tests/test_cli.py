@@ -96,7 +96,8 @@ def test_bench_render_compares_overhead_with_render_time(sphere_file, tmp_path):
     result = run("bench", "render", sphere_file, "--render", config, "--repeat", 1,
                  "--set", "drips.count=6", "--set", "water.rays=2000", "--set", "glaze.balls=0")
     assert result.exit_code == 0, result.output
-    for word in ("render step", "render alone", "write", "load", "wait", "scene / render alone", "whole step"):
+    for word in ("render step", "render alone", "write", "load", "wait", "scene / render alone", "whole step",
+                 "POV-Ray writer"):
         assert word in result.output, word
 
 

@@ -365,6 +365,8 @@ def test_deferred_povray_files_are_whole_when_the_render_returns(tmp_path):
         assert (tmp_path / "bg" / name).read_bytes() == (tmp_path / "sync" / name).read_bytes(), name
     assert result.scene_seconds == pytest.approx(result.write_seconds + result.load_seconds + result.wait_seconds)
     assert result.write_seconds == files.seconds and result.load_seconds > 0
+    assert result.povray_write_cpu_seconds > 0
+    assert render_job(tmp_path / "sync", config).povray_write_cpu_seconds == 0  # nothing deferred
 
 
 def test_a_failed_render_still_leaves_whole_povray_files(tmp_path, monkeypatch):

@@ -465,6 +465,9 @@ class RenderResult:
         Loading scene.xml (meshes, BVH).
     wait_seconds : float
         Waiting after the render for POV-Ray files written in the background.
+    povray_write_cpu_seconds : float
+        CPU time of that background writer (0 when nothing was deferred): on a machine
+        whose cores the render keeps busy, it slows the render by about as much.
     povray_seconds : float
         POV-Ray wall time, all views (0 when it did not run).
     files : tuple of Path
@@ -478,6 +481,7 @@ class RenderResult:
     write_seconds: float
     load_seconds: float
     wait_seconds: float
+    povray_write_cpu_seconds: float
     povray_seconds: float
     files: tuple[Path, ...]
 
@@ -557,6 +561,13 @@ def render_mitsuba(job_dir: Path, config: RenderConfig, variant: str,
     return load_seconds, render_seconds, files, "path" if integrator is None else "icepath"
 
 
+def _cpu_seconds(task: Callable[[], None]) -> float:
+    """Run ``task`` and return the CPU time this thread spent on it."""
+    start = time.thread_time()
+    task()
+    return time.thread_time() - start
+
+
 def render_job(job_dir: str | Path, config: RenderConfig, scene: SceneFiles | None = None,
                progress: bool = False) -> RenderResult:
     """Render the scenes `write_scenes` put in ``job_dir`` with the config's renderer(s).
@@ -588,7 +599,7 @@ def render_job(job_dir: str | Path, config: RenderConfig, scene: SceneFiles | No
         def start_povray(mitsuba_scene=None) -> None:
             if writer is not None and not pending:
                 normals = None if mitsuba_scene is None else _vertex_normals(mitsuba_scene, "ice")
-                pending.append(pool.submit(writer, ice_normals=normals))
+                pending.append(pool.submit(_cpu_seconds, functools.partial(writer, ice_normals=normals)))
 
         try:
             if config.uses_mitsuba and not (job_dir / "scene.xml").is_file():
@@ -604,8 +615,7 @@ def render_job(job_dir: str | Path, config: RenderConfig, scene: SceneFiles | No
         finally:  # the job is not over while its scene.pov is missing or being written
             start = time.perf_counter()
             start_povray()
-            if pending:
-                pending[0].result()
+            writer_cpu = pending[0].result() if pending else 0.0
             waited = time.perf_counter() - start
     if config.uses_povray:
         n_views = len(config.views)
@@ -622,5 +632,5 @@ def render_job(job_dir: str | Path, config: RenderConfig, scene: SceneFiles | No
         files.sort(key=lambda p: (not p.name.startswith("render."), p.name))
     return RenderResult(renderer=config.renderer, variant=variant, integrator=integrator, seconds=seconds,
                         write_seconds=scene.seconds if scene is not None else 0.0,
-                        load_seconds=load_seconds, wait_seconds=waited,
+                        load_seconds=load_seconds, wait_seconds=waited, povray_write_cpu_seconds=writer_cpu,
                         povray_seconds=pov_seconds, files=tuple(files))
