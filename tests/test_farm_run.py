@@ -137,6 +137,7 @@ def test_a_second_sweep_on_a_running_folder_is_refused_and_deletes_nothing(tmp_p
     runner.join()
     assert first[0].ok and first[0].done == 2
     assert run_sweep(path, out, until="drips", resume=True).resumed == 2  # the lock went with the sweep
+    assert (out / ".t.lock").read_text() == ""
 
 
 def test_cli_dry_run_and_bad_set(tmp_path, ball):

@@ -473,6 +473,7 @@ def sweep_lock(sweep_dir: Path) -> Iterator[None]:
         try:
             yield
         finally:
+            fh.truncate(0)  # an empty lock file names nobody
             fcntl.flock(fh, fcntl.LOCK_UN)
 
 
