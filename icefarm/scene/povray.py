@@ -54,7 +54,7 @@ def vector_lines(rows: np.ndarray, unit: bool = False) -> np.ndarray:
     Parameters
     ----------
     rows : (n, 3) array
-        Integers (``unit`` False), written zero-padded: ``< 0012,-0340, 0000 >,``; or
+        Integers (``unit`` False), zero-padded to 2 + 4k digits: ``< 000012,-000340, 000000 >,``; or
         components of unit vectors (``unit`` True, ``|x| < 10``) with four decimals:
         ``< 0.7071,-0.7071, 0.0000 >,``.
     unit : bool
