@@ -52,7 +52,8 @@ def stage_timings(mesh_path: str | Path | trimesh.Trimesh, size_m: float, p: dic
         rng = np.random.default_rng(run)
         t0 = time.perf_counter()
         caster = ray_caster(mesh)
-        water = compute_water(mesh, g, p["water"]["rays"], p["water"]["influence_radius"], rng, caster=caster)
+        water = compute_water(mesh, g, p["water"]["rays"], p["water"]["influence_radius"], rng, caster=caster,
+                              pools=p["water"]["pools"])
         t1 = time.perf_counter()
         drips = find_drips(mesh, water.water, g, p["drips"]["count"], p["drips"]["drip_limit"], rng,
                            exclude_boxes=exclude, caster=caster)

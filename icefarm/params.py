@@ -125,6 +125,10 @@ PARAMS: tuple[Param, ...] = (
     _p("water", "rays", "nr", "-", _I, 4000, "number of rain rays cast from the source surface", low=1),
     _p("water", "influence_radius", "rii", "m", _F, 0.01,
        "vertices this close to a rain hit join the water supply", low=0.0, low_open=True),
+    _p("water", "pools", "-", "-", Kind.CHOICE, "ignore",
+       "water caught in basins: ignore (the paper: it stays there) or overflow (a full basin spills "
+       "over its rim, adding its depth to the water of walks that end there: fountains, gutters)",
+       choices=("ignore", "overflow")),
     # Stage 2: drip points (paper 4.2)
     _p("drips", "count", "ns", "-", _I, 24, "number of drip points, one icicle each", low=0),
     _p("drips", "drip_limit", "dl", "deg", _F, 75.0,

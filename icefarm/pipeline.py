@@ -262,7 +262,7 @@ def _run_stages(spec: JobSpec, job_dir: Path, run: _Run, cache: _Cache, until: S
     def water_stage() -> WaterResult:
         source = _load_source(spec, prepared)
         result = compute_water(flow, gravity, p["water"]["rays"], p["water"]["influence_radius"],
-                               _rng(spec.seed, Stage.WATER), source, caster(flow))
+                               _rng(spec.seed, Stage.WATER), source, caster(flow), pools=p["water"]["pools"])
         if "water" in overrides:  # painted water replaces the coefficients, keeps the walks
             supply, water = artifacts.read_water_ply(Path(overrides["water"]), len(flow.vertices))
             result = WaterResult(supply, water, result.top, result.d_up, result.bottom, result.d_down, result.hits)

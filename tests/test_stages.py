@@ -7,7 +7,7 @@ import trimesh
 from icefarm.mesh import prepare
 from icefarm.stages.drips import find_drips
 from icefarm.stages.trajectories import GOLDEN_ROLL, grow_trajectories
-from icefarm.stages.water import compute_water, water_coefficients
+from icefarm.stages.water import compute_water, overflow_heights, spill_levels, water_coefficients
 
 G = np.array([0.0, -1.0, 0.0])
 TRAJ = dict(curve_angle=2.0, division_probability=0.1, roll_angle=360.0, step_length=0.004,
@@ -47,6 +47,73 @@ def test_water_matches_algorithm_1(rng):
     for v in np.unique(top):
         assert all(mesh.vertices[n] @ G >= mesh.vertices[v] @ G for n in mesh.vertex_neighbors[v])
     assert (d_up >= 0).all()
+
+
+def cup() -> trimesh.Trimesh:
+    """A closed 20 cm cup with a 1 cm rim wall: a basin 8 cm deep (floor 0.10, rim 0.18), y up."""
+    profile = np.array([[0.0, 0.0], [0.10, 0.0], [0.10, 0.18], [0.09, 0.18], [0.09, 0.10], [0.0, 0.10]])
+    mesh = trimesh.creation.revolve(profile, sections=48)  # about +z
+    mesh.apply_transform(trimesh.transformations.rotation_matrix(-np.pi / 2, (1, 0, 0)))  # z -> y up
+    return trimesh.Trimesh(*trimesh.remesh.subdivide_to_size(mesh.vertices, mesh.faces, 0.01))
+
+
+def test_spill_levels_are_the_lowest_pass_to_an_outlet():
+    heights = np.array([0.0, 2.0, 1.0, 3.0, 0.5])  # a path 0-1-2-3, vertex 4 hangs off 2
+    edges = np.array([[0, 1], [1, 2], [2, 3], [2, 4]])
+    outlets = np.array([True, False, False, False, False])
+    np.testing.assert_array_equal(spill_levels(heights, edges, outlets), [0.0, 2.0, 2.0, 3.0, 2.0])
+    assert np.isinf(spill_levels(heights, edges[:1], outlets)[2])  # cut off from every outlet
+
+
+def test_a_full_cup_spills_its_depth_over_its_rim():
+    mesh = cup()
+    supply = mesh.vertex_normals @ G < -0.5  # rain on everything facing up
+    bonus = overflow_heights(mesh, supply, G)
+    y = mesh.vertices[:, 1]
+    rim = bonus > 0
+    assert rim.any() and np.allclose(y[rim], 0.18, atol=1e-9)  # only the rim top
+    np.testing.assert_allclose(bonus[rim], 0.08, atol=1e-9)  # the basin's depth
+    assert np.all(bonus[np.abs(y - 0.18) > 1e-6] == 0)
+    assert not overflow_heights(mesh, np.zeros(len(y), bool), G).any()  # no rain in it, nothing spills
+    # Walks up the outer wall end on the rim and carry the cup's water; the paper's
+    # Algorithm 1 (pools ignored) is unchanged.
+    plain = compute_water(mesh, G, 3000, 0.01, np.random.default_rng(0))
+    spilled = compute_water(mesh, G, 3000, 0.01, np.random.default_rng(0), pools="overflow")
+    np.testing.assert_array_equal(spilled.supply, plain.supply)
+    outer_wall = (np.hypot(mesh.vertices[:, 0], mesh.vertices[:, 2]) > 0.0999) & (y > 0.01) & (y < 0.17)
+    np.testing.assert_allclose(spilled.water[outer_wall] - plain.water[outer_wall], 0.08, atol=1e-9)
+    with pytest.raises(ValueError, match="pools"):
+        compute_water(mesh, G, 10, 0.01, np.random.default_rng(0), pools="flood")
+
+
+def test_a_tilted_cup_spills_at_its_lowest_rim_point_and_a_ball_holds_nothing(sphere):
+    mesh = cup()
+    radius = np.hypot(mesh.vertices[:, 0], mesh.vertices[:, 2])
+    inner_rim = np.flatnonzero(np.isclose(mesh.vertices[:, 1], 0.18) & np.isclose(radius, 0.09))
+    mesh.apply_transform(trimesh.transformations.rotation_matrix(np.radians(10.0), (0, 0, 1)))
+    bonus = overflow_heights(mesh, mesh.vertex_normals @ G < -0.5, G)
+    lowest = inner_rim[np.argmin(mesh.vertices[inner_rim, 1])]
+    assert np.flatnonzero(bonus) == [lowest]  # water leaves over the lowest point of the lip
+    assert bonus[lowest] == pytest.approx(0.08 * np.cos(np.radians(10.0)))  # lip to the floor's low edge
+    assert not overflow_heights(sphere, np.ones(len(sphere.vertices), bool), G).any()  # nowhere to pool
+
+
+def test_water_dripping_clear_of_the_object_leaves_it():
+    """An arch whose left foot stands 2 cm higher, on a shoe: its water drips off the sole.
+
+    Were only the lowest point an outlet, the left leg would hold water up to the beam
+    (0.18 m deep over the shoe's rained-on top) and spill it there.
+    """
+    def box(lo, hi):
+        b = trimesh.creation.box(extents=np.subtract(hi, lo))
+        b.apply_translation(np.add(lo, hi) / 2)
+        return b
+
+    parts = [box((-0.10, 0.02, -0.03), (-0.06, 0.22, 0.03)), box((-0.13, 0.02, -0.03), (-0.03, 0.04, 0.03)),
+             box((0.06, 0.0, -0.03), (0.10, 0.22, 0.03)), box((-0.10, 0.20, -0.03), (0.10, 0.24, 0.03))]
+    arch = trimesh.boolean.union(parts, engine="manifold")
+    arch = trimesh.Trimesh(*trimesh.remesh.subdivide_to_size(arch.vertices, arch.faces, 0.01))
+    assert not overflow_heights(arch, arch.vertex_normals @ G < -0.5, G).any()
 
 
 def test_water_only_where_walk_reaches_supply(sphere, rng):
