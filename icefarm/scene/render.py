@@ -366,9 +366,9 @@ def _write_povray(job_dir: Path, pov_file: Path, object_geometry: tuple[np.ndarr
                   text: str, ice_normals: np.ndarray | None = None) -> None:
     """``object.inc``, ``ice.inc`` and then ``scene.pov``: its presence means the includes are whole.
 
-    ``ice_normals`` ``(n, 3)``: the ice's vertex normals as Mitsuba computed them on load
-    (both renderers then shade the ice alike, and nothing is computed twice); without
-    them, area-weighted normals.
+    ``ice_normals`` ``(n, 3)``: the ice's vertex normals as Mitsuba computed them on load,
+    so nothing is computed twice; without them, `geometry.smooth_normals` computes the
+    same angle-weighted normals.
     """
     obj_v, obj_n, obj_f = object_geometry
     pov.write_mesh2(job_dir / "object.inc", "Object_Mesh", obj_v, obj_n, obj_f)

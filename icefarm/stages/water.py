@@ -176,9 +176,10 @@ def spill_levels(heights: np.ndarray, edges: np.ndarray, outlets: np.ndarray) ->
         Level per vertex, in meters (>= its height; inf where no outlet can be reached).
     """
     n = len(heights)
-    order = np.argsort(np.concatenate([edges[:, 0], edges[:, 1]]), kind="stable")
+    sources = np.concatenate([edges[:, 0], edges[:, 1]])  # both directions of every edge
+    order = np.argsort(sources, kind="stable")
     neighbours = np.concatenate([edges[:, 1], edges[:, 0]])[order].tolist()
-    starts = np.searchsorted(np.concatenate([edges[:, 0], edges[:, 1]])[order], np.arange(n + 1)).tolist()
+    starts = np.searchsorted(sources[order], np.arange(n + 1)).tolist()
     h = heights.tolist()
     level = [float("inf")] * n
     heap = [(h[v], v) for v in np.flatnonzero(outlets).tolist()]
