@@ -8,6 +8,8 @@ import numpy as np
 import pytest
 import trimesh
 
+from icefarm import metaballs as M
+from icefarm.metaballs import fuse
 from icefarm import params
 from icefarm.errors import InputError
 from icefarm.stages import surface as S
@@ -206,7 +208,7 @@ def test_glaze_on_its_coarser_lattice_cuts_the_faces_and_keeps_mesh_and_tips(mon
     traj = _straight(drips.positions, [0.06, 0.04, 0.05])
     one_field = _ice(obj, water, drips, traj, *_groups(glaze__balls=3000, glaze__voxel_size=0.001))
     # The union runs only near the icicles: the boolean of the whole meshes is not needed.
-    monkeypatch.setattr(S, "union_meshes", lambda parts: pytest.fail("fell back to the whole-mesh union"))
+    monkeypatch.setattr(fuse, "union_meshes", lambda parts: pytest.fail("fell back to the whole-mesh union"))
     surface, glaze = _groups(glaze__balls=3000)
     assert glaze["voxel_size"] > surface["voxel_size"]
     fused = _ice(obj, water, drips, traj, surface, glaze)
@@ -227,33 +229,33 @@ def test_glaze_on_its_coarser_lattice_cuts_the_faces_and_keeps_mesh_and_tips(mon
 def test_fusing_two_lattices_is_the_union_of_the_solids():
     # One Gaussian ball weighing LEVEL * e is a sphere of radius = its width.
     def ball(centre, radius, voxel):
-        b = S.Balls(np.array([centre], float), np.array([radius]), np.array([S.LEVEL * np.e]))
-        return S.sample_field(b, voxel)
+        b = M.Balls(np.array([centre], float), np.array([radius]), np.array([M.LEVEL * np.e]))
+        return M.sample_field(b, voxel)
 
     r, d = 0.01, 0.012
-    verts, faces = S.fuse_fields(ball([0.0, 0.0, 0.0], r, 0.0004), ball([d, 0.0, 0.0], r, 0.001))
+    verts, faces = M.fuse_fields(ball([0.0, 0.0, 0.0], r, 0.0004), ball([d, 0.0, 0.0], r, 0.001))
     m = trimesh.Trimesh(verts, faces, process=False)
     assert m.is_watertight and m.is_winding_consistent and m.area_faces.min() > 0
     lens = np.pi * (4 * r + d) * (2 * r - d) ** 2 / 12
     assert m.volume == pytest.approx(2 * 4 / 3 * np.pi * r**3 - lens, rel=0.03)
     assert len(m.split(only_watertight=False)) == 1
     # Apart, the two spheres stay two; one deep inside the other vanishes.
-    m = trimesh.Trimesh(*S.fuse_fields(ball([0, 0, 0], r, 0.0004), ball([0.05, 0, 0], r, 0.001)), process=False)
+    m = trimesh.Trimesh(*M.fuse_fields(ball([0, 0, 0], r, 0.0004), ball([0.05, 0, 0], r, 0.001)), process=False)
     assert m.is_watertight and len(m.split(only_watertight=False)) == 2
     assert m.volume == pytest.approx(2 * 4 / 3 * np.pi * r**3, rel=0.03)
-    m = trimesh.Trimesh(*S.fuse_fields(ball([0, 0, 0], 0.003, 0.0004), ball([0, 0, 0], 0.03, 0.001)), process=False)
+    m = trimesh.Trimesh(*M.fuse_fields(ball([0, 0, 0], 0.003, 0.0004), ball([0, 0, 0], 0.03, 0.001)), process=False)
     assert m.is_watertight and len(m.split(only_watertight=False)) == 1
     assert m.volume == pytest.approx(4 / 3 * np.pi * 0.03**3, rel=0.03)
     # The whole-mesh union (the fallback) agrees.
     a, b = trimesh.creation.icosphere(4, r), trimesh.creation.icosphere(4, r)
     b.apply_translation([d, 0, 0])
-    m = trimesh.Trimesh(*S.union_meshes([(a.vertices, a.faces), (b.vertices, b.faces)]), process=False)
+    m = trimesh.Trimesh(*M.union_meshes([(a.vertices, a.faces), (b.vertices, b.faces)]), process=False)
     assert m.is_watertight and m.is_winding_consistent
     assert m.volume == pytest.approx(2 * 4 / 3 * np.pi * r**3 - lens, rel=0.03)
     # An empty side gives the other.
-    v, f = S.fuse_fields(None, ball([0, 0, 0], r, 0.001))
+    v, f = M.fuse_fields(None, ball([0, 0, 0], r, 0.001))
     assert trimesh.Trimesh(v, f).is_watertight
-    assert S.fuse_fields(None, None)[1].shape == (0, 3)
+    assert M.fuse_fields(None, None)[1].shape == (0, 3)
 
 
 def test_coarse_glaze_apart_from_icicles_or_alone_stays_closed():

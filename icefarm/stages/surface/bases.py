@@ -1,0 +1,114 @@
+"""Ice at the base of each icicle (paper 4.4.3, Equation 2)."""
+
+from __future__ import annotations
+
+import numpy as np
+import trimesh
+from scipy.spatial import cKDTree
+
+from ...metaballs.balls import NO_BALLS, Balls, sheet_balls
+from ..drips import DripResult
+
+def base_balls(object_mesh: trimesh.Trimesh, drips: DripResult, surface: dict,
+               rng: np.random.Generator) -> Balls:
+    """``nmb`` balls on the object around each drip point (paper 4.4.3, Equation 2).
+
+    Points are drawn area-weighted on the faces that come within ``eb`` (Euclidean) of the
+    drip point and connect to the drip point's face through such faces (so no ice jumps
+    to a nearby but separate part); each ball makes the ice ``rb = (eb - d)^2 / eb^2 *
+    wc * kb`` thick there (d: distance to the drip point, wc: its water coefficient).
+    """
+    eb, nmb, kb = surface["base_extent"], surface["base_balls"], surface["base_scale"]
+    k = len(drips.positions)
+    if k == 0 or eb <= 0 or nmb == 0 or kb <= 0:
+        return NO_BALLS
+    tris = object_mesh.triangles
+    centroids = tris.mean(axis=1)
+    reach = np.linalg.norm(tris - centroids[:, None, :], axis=2).max(axis=1)
+    pos = np.asarray(drips.positions, dtype=np.float64)
+    near = cKDTree(centroids).query_ball_point(pos, eb + reach.max())
+    drip = np.repeat(np.arange(k), [len(n) for n in near])
+    face = np.concatenate([np.asarray(n, dtype=np.int64) for n in near])
+    close = np.linalg.norm(centroids[face] - pos[drip], axis=1) - reach[face] <= eb
+    drip, face = drip[close], face[close]
+    drip, face = _grow_from_drips(drip, face, np.asarray(drips.faces, dtype=np.int64), object_mesh)
+    if len(face) == 0:
+        return NO_BALLS
+
+    # Oversample each drip's faces by area, keep the points within eb, take nmb of them.
+    areas = object_mesh.area_faces[face]
+    cum = np.cumsum(areas)
+    first = np.searchsorted(drip, np.arange(k))
+    last = np.searchsorted(drip, np.arange(k), side="right")
+    has = last > first
+    total = np.where(has, cum[np.maximum(last - 1, 0)] - np.where(first > 0, cum[np.maximum(first - 1, 0)], 0.0), 0.0)
+    n_try = 4 * nmb + 16
+    sd = np.repeat(np.flatnonzero(has & (total > 0)), n_try)
+    start = np.where(first > 0, cum[np.maximum(first - 1, 0)], 0.0)
+    pick = np.searchsorted(cum, start[sd] + rng.random(len(sd)) * total[sd], side="right")
+    pick = np.clip(pick, first[sd], last[sd] - 1)
+    pts = _sample_in_triangles(tris[face[pick]], rng)
+    d = np.linalg.norm(pts - pos[sd], axis=1)
+    inside = d < eb
+    tried = np.bincount(sd, minlength=k)
+    hit = np.bincount(sd[inside], minlength=k)
+    area_within = total * hit / np.maximum(tried, 1)
+    sd, pts, d = sd[inside], pts[inside], d[inside]
+    rank = np.arange(len(sd)) - np.searchsorted(sd, sd)  # sd is sorted
+    take = rank < nmb
+    sd, pts, d = sd[take], pts[take], d[take]
+    if len(sd) == 0:
+        return NO_BALLS
+    thickness = (eb - d) ** 2 / eb**2 * np.asarray(drips.water, dtype=np.float64)[sd] * kb
+    return sheet_balls(pts, thickness, area_within[sd] / np.minimum(hit[sd], nmb))
+
+
+def _grow_from_drips(drip, face, drip_face, mesh):
+    """Of the (drip, face) candidate pairs, those connected to the drip's own face through
+    candidate faces of the same drip (breadth-first, all drips at once); a drip whose own
+    face is not a candidate keeps all its candidates.
+
+    Returns
+    -------
+    drip, face : (p,) int
+        Sorted by drip, then face.
+    """
+    n_faces = len(mesh.faces)
+    key = np.sort(drip * n_faces + face)  # pairs are distinct
+    drip, face = key // n_faces, key % n_faces
+    start_key = np.arange(len(drip_face)) * n_faces + drip_face
+    at = np.minimum(np.searchsorted(key, start_key), max(len(key) - 1, 0))
+    seeded = (key[at] == start_key) if len(key) else np.zeros(len(start_key), dtype=bool)
+    reached = ~seeded[drip]
+    frontier = at[seeded]
+    reached[frontier] = True
+    adj = mesh.face_adjacency
+    order = np.argsort(np.r_[adj[:, 0], adj[:, 1]], kind="stable")
+    nbr = np.r_[adj[:, 1], adj[:, 0]][order]
+    nbr_start = np.searchsorted(np.r_[adj[:, 0], adj[:, 1]][order], np.arange(n_faces + 1))
+    while len(frontier):
+        f = face[frontier]
+        cnt = nbr_start[f + 1] - nbr_start[f]
+        src = np.repeat(frontier, cnt)
+        off = np.arange(cnt.sum()) - np.repeat(np.cumsum(cnt) - cnt, cnt)
+        cand = drip[src] * n_faces + nbr[nbr_start[face[src]] + off]
+        i = np.minimum(np.searchsorted(key, cand), len(key) - 1)
+        new = np.zeros(len(key), dtype=bool)
+        new[i[key[i] == cand]] = True
+        new &= ~reached
+        reached |= new
+        frontier = np.flatnonzero(new)
+    return drip[reached], face[reached]
+
+
+def _sample_in_triangles(tris: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """One uniform random point in each triangle of ``tris`` (k, 3, 3)."""
+    return np.einsum("kj,kjd->kd", _random_barycentric(len(tris), rng), tris)
+
+
+def _random_barycentric(n: int, rng: np.random.Generator) -> np.ndarray:
+    """(n, 3) barycentric coordinates of uniform random points in a triangle."""
+    r1, r2 = rng.random(n), rng.random(n)
+    flip = r1 + r2 > 1
+    r1, r2 = np.where(flip, 1 - r1, r1), np.where(flip, 1 - r2, r2)
+    return np.stack([1 - r1 - r2, r1, r2], axis=1)

@@ -1,0 +1,86 @@
+"""Metaball chains along every icicle branch (paper 4.4.1-4.4.2)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ...metaballs.balls import KAPPA, LEVEL, NO_BALLS, SPACING, TIP_WEIGHT, Balls
+from ..trajectories import TrajectoryResult
+from .profile import TIP_CALM, _branch_lengths, _points_along, profile_radius
+
+
+def icicle_balls(traj: TrajectoryResult, surface: dict, rng: np.random.Generator) -> Balls:
+    """Metaball chains along every branch (paper 4.4.1-4.4.2).
+
+    Balls are spaced ``SPACING * KAPPA * R(x)`` apart along each branch, from its base
+    (x = 0) to exactly its tip (x = L); each is moved at random within ``noise`` in the
+    plane perpendicular to the branch (uniform over the disk), except near the tip.
+
+    Returns
+    -------
+    Balls
+    """
+    tip = surface["tip_radius"]
+    prof = (tip, surface["growth_ratio"], surface["ripple_amplitude"], surface["ripple_frequency"])
+    branches = np.flatnonzero(np.diff(np.asarray(traj.branch_offsets)) > 0)
+    if len(branches) == 0:
+        return NO_BALLS
+    x_pt, all_lengths = _branch_lengths(traj)
+    lengths = all_lengths[branches]
+    nb = len(branches)
+
+    # Fine samples of each branch to integrate u(x) = int dx / h(x): balls sit at equal steps of u.
+    step_min = SPACING * KAPPA * tip / 4
+    if prof[2] > 0 and prof[3] > 0:
+        step_min = min(step_min, 2 * math.pi / prof[3] / 16)
+    nfine = np.maximum(np.ceil(lengths / step_min).astype(np.int64), 1) + 1
+    fb = np.repeat(np.arange(nb), nfine)
+    fstart = np.cumsum(nfine) - nfine
+    fj = np.arange(nfine.sum()) - np.repeat(fstart, nfine)
+    fx = fj * (lengths / (nfine - 1))[fb]
+    fr = profile_radius(fx, lengths[fb], *prof)
+    inv_h = 1.0 / (SPACING * KAPPA * fr)
+    du = np.zeros_like(fx)
+    du[1:] = 0.5 * (inv_h[1:] + inv_h[:-1]) * np.diff(fx)
+    du[fstart] = 0.0
+    u = np.cumsum(du)
+    u_len = u[fstart + nfine - 1] - u[fstart]
+    nint = np.ceil(u_len - 1e-9).astype(np.int64)  # intervals between balls; 0: one lone ball
+    nballs = nint + 1
+    bb = np.repeat(np.arange(nb), nballs)
+    bk = np.arange(nballs.sum()) - np.repeat(np.cumsum(nballs) - nballs, nballs)
+    # Global monotone u with a gap of 1 between branches, so np.interp never mixes branches.
+    gap = np.arange(nb, dtype=np.float64)
+    ug = u + gap[fb]
+    target = (u[fstart] + gap)[bb] + bk * np.where(nint > 0, u_len / np.maximum(nint, 1), 0.0)[bb]
+    bx = np.interp(target, ug, fx)
+    bx[bk == nint[bb]] = lengths[bb][bk == nint[bb]]  # the last ball exactly at the tip
+    radius = profile_radius(bx, lengths[bb], *prof)
+
+    pos, tangent = _points_along(traj, x_pt, all_lengths, branches[bb], bx)
+
+    noise = surface["noise"]
+    if noise > 0:
+        e1, e2 = _perpendicular_frame(tangent)
+        calm = np.clip((lengths[bb] - bx) / (TIP_CALM * tip), 0.0, 1.0)
+        rad = noise * np.sqrt(rng.random(len(bx))) * calm
+        ang = rng.random(len(bx)) * (2 * math.pi)
+        pos = pos + rad[:, None] * (np.cos(ang)[:, None] * e1 + np.sin(ang)[:, None] * e2)
+
+    # Weights: a chain packed tighter than SPACING weighs proportionally less; the tip
+    # ball weighs TIP_WEIGHT more to round the end; a lone ball is a sphere of radius R.
+    weight = np.where(nint > 0, u_len / np.maximum(nint, 1), 1.0)[bb]
+    weight = np.where(bk == nint[bb], weight * TIP_WEIGHT, weight)
+    lone = (nint == 0)[bb]
+    weight[lone] = LEVEL * math.exp(1.0 / KAPPA**2)
+    return Balls(pos, KAPPA * radius, weight)
+
+
+def _perpendicular_frame(tangent: np.ndarray):
+    """Two unit vectors perpendicular to each unit ``tangent`` (k, 3) and to each other."""
+    helper = np.where(np.abs(tangent[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+    e1 = np.cross(tangent, helper)
+    e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
+    return e1, np.cross(tangent, e1)

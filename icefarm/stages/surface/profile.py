@@ -1,0 +1,80 @@
+"""The radius of an icicle along its trajectory, and points along branches."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..trajectories import TrajectoryResult
+
+# Ripples and noise fade out over this many tip radii above the tip, so the drop
+# at the tip keeps the tip radius (Maeno's 2.44 mm) whatever the ripple phase.
+TIP_CALM = 2.0
+
+
+def profile_radius(x, length, tip, growth, amplitude, frequency, min_radius=None):
+    """Equation 1: icicle radius along its trajectory, in meters.
+
+    ``R(x) = tip + (L - x) t + as sin(x fs)``, with the ripple fading to nothing over the
+    last ``TIP_CALM`` tip radii so the tip keeps its radius.
+
+    Parameters
+    ----------
+    x : (k,) float
+        Arc length from the branch base (0) towards its tip, in meters.
+    length : float or (k,) float
+        Branch length L, in meters.
+    tip, growth, amplitude, frequency : float
+        ``tip`` (m), ``t`` (m/m), ``as`` (m), ``fs`` (rad/m).
+    min_radius : float, optional
+        Floor for the radius (ripples deeper than the icicle); default ``tip / 4``.
+
+    Returns
+    -------
+    (k,) float
+        Radius in meters.
+    """
+    x = np.asarray(x, dtype=np.float64)
+    remaining = np.maximum(np.asarray(length, dtype=np.float64) - x, 0.0)
+    calm = np.clip(remaining / (TIP_CALM * tip), 0.0, 1.0)
+    r = tip + remaining * growth + amplitude * np.sin(x * frequency) * calm
+    return np.maximum(r, tip / 4 if min_radius is None else min_radius)
+
+
+def _branch_lengths(traj: TrajectoryResult):
+    """Per point: arc length from its branch base; per branch: total length (meters)."""
+    pts = np.asarray(traj.points, dtype=np.float64)
+    off = np.asarray(traj.branch_offsets, dtype=np.int64)
+    seg = np.zeros(len(pts))
+    if len(pts) > 1:
+        seg[1:] = np.linalg.norm(np.diff(pts, axis=0), axis=1)
+    seg[off[:-1][off[:-1] < len(pts)]] = 0.0  # no segment across a branch start
+    cum = np.cumsum(seg)
+    start = np.repeat(cum[off[:-1]] if len(pts) else np.zeros(0), np.diff(off))
+    x = cum - start
+    lengths = np.zeros(len(off) - 1)
+    nonempty = np.diff(off) > 0
+    lengths[nonempty] = x[off[1:][nonempty] - 1]
+    return x, lengths
+
+
+def _points_along(traj: TrajectoryResult, x_pt, lengths, branch, x):
+    """Points at arc length ``x`` (k,) along branches ``branch`` (k,), with the unit direction
+    of the polyline segment there.
+
+    Returns
+    -------
+    points, directions : (k, 3) float
+    """
+    pts = np.asarray(traj.points, dtype=np.float64)
+    off = np.asarray(traj.branch_offsets, dtype=np.int64)
+    counts = np.diff(off)
+    # All branches laid end to end with a gap of 1 m: one monotone abscissa for np.interp.
+    gap = np.concatenate([[0.0], np.cumsum(lengths + 1.0)[:-1]])
+    xg = x_pt + np.repeat(gap, counts)
+    tg = np.asarray(x, dtype=np.float64) + gap[branch]
+    points = np.stack([np.interp(tg, xg, pts[:, a]) for a in range(3)], axis=1)
+    lo, hi = off[branch], off[branch + 1] - 1
+    seg = np.clip(np.searchsorted(xg, tg, side="right") - 1, lo, np.maximum(hi - 1, lo))
+    d = pts[np.minimum(seg + 1, hi)] - pts[seg]
+    norm = np.linalg.norm(d, axis=1, keepdims=True)
+    return points, np.where(norm > 0, d / np.maximum(norm, 1e-300), [[0.0, -1.0, 0.0]])
