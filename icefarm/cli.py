@@ -11,6 +11,7 @@ import click
 
 from . import __version__, params
 from .errors import InputError
+from .placement import PLACEMENTS
 
 
 class _Group(click.Group):
@@ -62,11 +63,14 @@ def _box(text: str) -> tuple:
 @click.option("--render", "render", default="preview", show_default=True, metavar="CONFIG",
               help="Render config: a name in render_configs/ (preview, lookdev, final) or a YAML path.")
 @click.option("--no-render", is_flag=True, help="Skip the scene files and the render.")
+@click.option("--placement", type=click.Choice(PLACEMENTS), default="ground", show_default=True,
+              help="ground: the object's lowest point rests on the ground (no ice on what it stands on, "
+                   "icicles stop at the ground); hanging: a sign, a branch, a lamp, the ground below its ice.")
 @click.option("--exclude", multiple=True, metavar="X0,Y0,Z0,X1,Y1,Z1",
               help="Keep icicles out of this box (meters, object centred on the origin); repeatable.")
 @click.option("--cache", type=click.Path(file_okay=False),
               help="Stage cache folder to reuse results across runs (default: none).")
-def run(mesh, size_m, assignments, seed, out, until, render, no_render, exclude, cache):
+def run(mesh, size_m, assignments, seed, out, until, render, no_render, placement, exclude, cache):
     """Run one job on MESH (any format trimesh reads, or generator:NAME) into OUT.
 
     Writes params.yaml, water.ply (vertex colours: supply red, water blue), drips.json,
@@ -80,7 +84,8 @@ def run(mesh, size_m, assignments, seed, out, until, render, no_render, exclude,
             raise InputError(f"mesh file not found: {mesh}")
         mesh = str(Path(mesh).resolve())
     spec = JobSpec(object_id=Path(mesh).stem, mesh=mesh, size_m=size_m, params=resolved, seed=seed,
-                   render=None if no_render else render, exclude=tuple(_box(b) for b in exclude))
+                   render=None if no_render else render, exclude=tuple(_box(b) for b in exclude),
+                   placement=placement)
     outcome = run_job(spec, Path(out), Path(cache) if cache else None, Stage(until) if until else None,
                       progress=sys.stderr.isatty())
     if outcome.status != "done":
@@ -118,16 +123,26 @@ def render_command(job_dir, render, out):
 
 
 def _print_plausibility(timings: dict) -> None:
+    if "upward_share" in timings:
+        share, spread, cv = (timings.get(k) for k in ("upward_share", "branch_spread_mm", "length_cv"))
+        click.echo(f"  trajectories: {'-' if share is None else f'{100 * share:.0f}'} % of segments upward "
+                   f"(real: 0); branches spread {'-' if spread is None else f'{spread:.0f}'} mm from their "
+                   f"parent; trunk lengths vary {'-' if cv is None else f'{100 * cv:.0f}'} % (std / mean)")
     if "ice_faces" not in timings:
         return
-    ratios = [r for r in timings.get("length_to_diameter") or [] if r is not None]  # None: too short
     click.echo(f"  ice: {timings['ice_faces']} faces, {timings.get('icicles', 0)} icicles")
-    tip, ripple = timings.get("tip_radius_mm"), timings.get("ripple_wavelength_cm")
-    click.echo(f"  tip radius {'-' if tip is None else f'{tip:.2f}'} mm (real: 2.44 mm); ripple wavelength "
-               f"{'-' if ripple is None else f'{ripple:.2f}'} cm (real: about 1 cm)")
-    if ratios:
-        click.echo(f"  length / base diameter: median {statistics.median(ratios):.1f}, "
-                   f"range {min(ratios):.1f}-{max(ratios):.1f} (real icicles: 8-32)")
+    tip, amplitude, ripple = (timings.get(k) for k in ("tip_radius_mm", "ripple_amplitude_mm", "ripple_wavelength_cm"))
+    click.echo(f"  tip radius {'-' if tip is None else f'{tip:.2f}'} mm (real: 2.44 mm); ripples "
+               + ("none" if amplitude is None else f"{amplitude:.2f} mm deep, {ripple:.2f} cm apart")
+               + " (real: 0.5-1 mm, about 1 cm apart, where the water is impure)")
+    for key, what, real, fmt in (("taper", "taper (radius near the base / tip)", "a carrot: 3 and more", ".1f"),
+                                 ("growth_ratio", "growth ratio (base - tip diameter) / length",
+                                  "1/32-1/8, 0.03-0.13", ".3f"),
+                                 ("profile_exponent", "profile exponent n of r - tip ~ d^n", "3/4", ".2f")):
+        values = [v for v in timings.get(key) or [] if v is not None]  # None: too short to measure
+        if values:
+            click.echo(f"  {what}: median {statistics.median(values):{fmt}}, "
+                       f"range {min(values):{fmt}}-{max(values):{fmt}} (real: {real})")
 
 
 @main.command(name="params")

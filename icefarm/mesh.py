@@ -28,6 +28,9 @@ class MeshProblems:
         Edges shared by more than two faces.
     self_intersections : int
         Faces that cross another face, or -1 when not measured.
+    edge_fraction : float
+        Median edge length over the bounding-box diagonal: how coarse the mesh is for its
+        size (dense scans: under 0.01; a box-modelled table of a few dozen faces: 0.45).
     """
 
     faces: int
@@ -35,6 +38,7 @@ class MeshProblems:
     boundary_edges: int
     nonmanifold_edges: int
     self_intersections: int = -1
+    edge_fraction: float = 0.0
 
     @property
     def watertight(self) -> bool:
@@ -99,7 +103,7 @@ def clean(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
 
 
 def detect_problems(mesh: trimesh.Trimesh, self_intersections: bool = True) -> MeshProblems:
-    """Measure loose pieces, open boundaries, non-manifold edges and crossing faces of ``mesh``.
+    """Measure loose pieces, open boundaries, non-manifold edges, crossing faces and coarseness.
 
     Parameters
     ----------
@@ -117,12 +121,14 @@ def detect_problems(mesh: trimesh.Trimesh, self_intersections: bool = True) -> M
     _, counts = np.unique(edges, axis=0, return_counts=True)
     labels = trimesh.graph.connected_component_labels(mesh.face_adjacency, node_count=faces)
     crossings = count_self_intersections(mesh) if self_intersections else -1
+    diagonal = float(np.linalg.norm(np.ptp(mesh.vertices[mesh.faces.ravel()], axis=0)))
     return MeshProblems(
         faces=faces,
         components=int(labels.max()) + 1,
         boundary_edges=int((counts == 1).sum()),
         nonmanifold_edges=int((counts > 2).sum()),
         self_intersections=crossings,
+        edge_fraction=float(np.median(mesh.edges_unique_length)) / diagonal if diagonal > 0 else 0.0,
     )
 
 

@@ -41,6 +41,7 @@ class Param:
     low_open: bool = False
     high_open: bool = False
     choices: tuple[str, ...] = ()
+    zero_ok: bool = False  # a VECTOR that may be (0, 0, 0), meaning "none"
 
     @property
     def key(self) -> str:
@@ -51,7 +52,7 @@ class Param:
         if self.kind is Kind.CHOICE:
             return " | ".join(self.choices)
         if self.kind is Kind.VECTOR:
-            return "3 numbers, not all zero"
+            return "3 numbers (0 0 0: none)" if self.zero_ok else "3 numbers, not all zero"
         if self.kind is Kind.TEXT:
             return "text"
         low = "-inf" if self.low is None else _fmt(self.low)
@@ -77,7 +78,7 @@ class Param:
                 vec = [float(v) for v in value]
             except (TypeError, ValueError):
                 raise self._refuse(value) from None
-            if len(vec) != 3 or not all(map(math.isfinite, vec)) or not any(vec):
+            if len(vec) != 3 or not all(map(math.isfinite, vec)) or not (any(vec) or self.zero_ok):
                 raise self._refuse(value)
             return vec
         if isinstance(value, bool) or not isinstance(value, (int, float)):
@@ -134,6 +135,13 @@ PARAMS: tuple[Param, ...] = (
     _p("drips", "drip_limit", "dl", "deg", _F, 75.0,
        "water drips where every vertex normal of a face lies within this angle of gravity",
        low=1.0, high=90.0, low_open=True, high_open=True),
+    _p("drips", "spacing", "-", "m", _F, 0.025,
+       "drip points never lie closer than this (icicles on eaves and wires settle 2.3-2.5 cm apart)",
+       low=0.0),
+    _p("drips", "distribution", "-", "-", Kind.CHOICE, "water",
+       "where drip points go: water (weighted by water, towards the lowest rim of each drip region: "
+       "lips, eaves, spouts) or area (the paper: uniform over the drip region)",
+       choices=("water", "area")),
     _p("drips", "ground_clearance", "-", "height", _F, 0.02,
        "no icicles this close to the object's lowest point (a fraction of its height): it rests "
        "on the ground there; 0 for hanging objects", low=0.0, high=1.0, high_open=True),
@@ -152,37 +160,74 @@ PARAMS: tuple[Param, ...] = (
        low=0.0, low_open=True),
     _p("trajectories", "max_branches", "-", "-", _I, 32,
        "branches per icicle at most; further divisions grow the trunk instead", low=1),
+    _p("trajectories", "max_tilt", "-", "deg", _F, 60.0,
+       "bends saturate: no segment leans further than this from gravity, so no icicle curls up",
+       low=0.0, high=90.0),
+    _p("trajectories", "wind", "-", "-", Kind.VECTOR, [0.0, 0.0, 0.0],
+       "direction the wind blows (its horizontal part is used): every icicle bends that way; "
+       "0 0 0 for still air (bends spread at random)", zero_ok=True),
+    _p("trajectories", "branch_spread", "-", "m", _F, 0.02,
+       "a branch leaves its parent at 30 deg and holds that angle until it is this far aside, "
+       "then grows on parallel (the paper's p1'' with one F: 2 mm)", low=0.0),
     # Stage 4: surface (paper 4.4)
     _p("surface", "mode", "-", "-", Kind.CHOICE, "metaballs",
        "metaballs (fused, the paper's surface) or tubes (swept tubes, instant preview)",
        choices=("metaballs", "tubes")),
+    _p("surface", "profile", "-", "-", Kind.CHOICE, "physical",
+       "radius along an icicle: physical (tip + k d^3/4 from the tip, as measured on real icicles) "
+       "or paper (Equation 1: a straight cone, tip + t (L - x))", choices=("physical", "paper")),
     _p("surface", "tip_radius", "tip", "m", _F, 0.00244,
        "radius of the hemispherical drop at the tip (Maeno: 2.44 mm)", low=0.0, low_open=True),
-    _p("surface", "growth_ratio", "t", "m/m", _F, 0.012,
-       "radius added per meter from the tip: the cone of the icicle", low=0.0),
-    _p("surface", "ripple_amplitude", "as", "m", _F, 0.0002, "amplitude of the ripples", low=0.0),
+    _p("surface", "growth_ratio", "t", "m/m", _F, 0.0625,
+       "base radius added per meter of icicle length (base = tip + t L); real icicles widen their "
+       "diameter by 1/32 to 1/8 of their length, t = 0.016 to 0.0625", low=0.0),
+    _p("surface", "impurity", "-", "-", _F, 0.7,
+       "dissolved salts in the water: 0 pure (smooth, clear icicles), about 0.7 tap water (rippled, "
+       "cloudy core), 1 the full ripple amplitude; scales the ripples and the render's cloudiness",
+       low=0.0, high=1.0),
+    _p("surface", "ripple_amplitude", "as", "m", _F, 0.001,
+       "amplitude of the ripples at impurity 1 (real: 0.5-1 mm); the icicle gets as * impurity",
+       low=0.0),
     _p("surface", "ripple_frequency", "fs", "rad/m", _F, 628.3,
        "angular frequency of the ripples (628 rad/m: 1 cm apart, as on real icicles)", low=0.0),
     _p("surface", "noise", "nc", "m", _F, 0.0004,
        "metaballs move at random up to this far off the trajectory", low=0.0),
-    _p("surface", "base_extent", "eb", "m", _F, 0.01,
+    _p("surface", "base_extent", "eb", "m", _F, 0.02,
        "ice at the base of an icicle spreads this far over the object", low=0.0),
-    _p("surface", "base_balls", "nmb", "-", _I, 30, "metaballs in the base of each icicle", low=0),
-    _p("surface", "base_scale", "kb", "m/m", _F, 0.03,
-       "base ice thickness at the drip point per meter of water coefficient (Equation 2)", low=0.0),
+    _p("surface", "base_balls", "nmb", "-", _I, 30,
+       "metaballs in the base of each icicle; they add up, so more balls swell the base", low=0),
+    _p("surface", "base_scale", "kb", "m/m", _F, 0.2,
+       "radius of a base ball at the drip point per meter of water coefficient (Equation 2); "
+       "the icicle's own base is t kL wc wide, so kb above t kL makes a swelling", low=0.0),
     _p("surface", "voxel_size", "-", "m", _F, 0.001,
        "edge of a marching-cubes voxel; must resolve the tip radius", low=0.0, low_open=True),
     # Glaze ice (paper 4.4.4)
-    _p("glaze", "min_radius", "minGI", "m", _F, 0.0008, "minimum thickness of the glaze ice", low=0.0),
-    _p("glaze", "balls", "ngi", "-", _I, 20000,
-       "metaballs spread over the wet surface (more: a finer, smoother coat)", low=0),
-    _p("glaze", "scale", "s", "m/m", _F, 0.006, "glaze thickness per meter of dUp/dDown", low=0.0),
+    _p("glaze", "mode", "-", "-", Kind.CHOICE, "coat",
+       "glaze ice over the wet surface: coat (one continuous clear coat, Equation 3 thick), "
+       "metaballs (the paper's balls, glaze.density per square meter: lumpy) or none",
+       choices=("coat", "metaballs", "none")),
+    _p("glaze", "min_radius", "minGI", "m", _F, 0.0,
+       "minimum thickness of the glaze ice (Equation 3; the paper's default 0 keeps lt's "
+       "top/bottom contrast)", low=0.0),
+    _p("glaze", "scale", "s", "m/m", _F, 0.01,
+       "glaze thickness per meter of dUp/dDown (Equation 3): about 1.6 mm on a 0.3 m object, "
+       "5 mm on a 1 m roof at lt 0.5", low=0.0),
     _p("glaze", "lifetime", "lt", "-", _F, 0.5,
        "water drop lifetime: 0 thick high up (freezes where it lands), 1 thick low down (runs first)",
        low=0.0, high=1.0),
-    _p("glaze", "voxel_size", "-", "m", _F, 0.003,
-       "edge of a marching-cubes voxel for the glaze shell; coarser than surface.voxel_size keeps "
-       "the mesh light", low=0.0, low_open=True),
+    _p("glaze", "edge", "-", "m", _F, 0.01,
+       "coat mode: past the edge of the wet surface the coat thins to nothing over this distance "
+       "(0: it ends in a step)", low=0.0),
+    _p("glaze", "density", "-", "1/m^2", _F, 50000.0,
+       "metaballs mode: balls per square meter of wet surface (the paper's ngi over the wet area)",
+       low=0.0),
+    _p("glaze", "balls", "ngi", "-", _I, 20000,
+       "legacy (before glaze.mode): 0 means glaze.mode none; a positive count turns the glaze on "
+       "(glaze.mode none becomes coat) and is otherwise ignored: use glaze.density", low=0),
+    _p("glaze", "voxel_size", "-", "m", _F, 0.004,
+       "edge of a marching-cubes voxel for the glaze (the coat's thickness does not depend on it; "
+       "parts thinner than two voxels, wet on one side only, need a finer one); coarser than "
+       "surface.voxel_size keeps the mesh light", low=0.0, low_open=True),
     # Approximate surface for problem meshes (paper 5.1)
     _p("proxy", "mode", "-", "-", Kind.CHOICE, "auto",
        "build an approximate surface for the water: auto (for problem meshes), always or never",
@@ -259,11 +304,27 @@ def resolve(*layers: Mapping[str, Any] | None) -> dict[str, dict[str, Any]]:
     """
     out = defaults()
     for layer in layers:
-        for key, value in flatten(layer or {}).items():
+        flat = flatten(layer or {})
+        for key, value in flat.items():
             param = lookup(key)
             out[param.group][param.name] = param.validate(value)
+        # Legacy glaze.balls (ngi, before glaze.mode): 0 is no glaze; a positive count turns
+        # the glaze on. A glaze.mode in the same layer wins.
+        if "glaze.balls" in flat and "glaze.mode" not in flat:
+            if out["glaze"]["balls"] == 0:
+                out["glaze"]["mode"] = "none"
+            else:
+                import warnings
+
+                warnings.warn(f"glaze.balls = {out['glaze']['balls']} is a legacy key and only turns the glaze on "
+                              "(0 turns it off): the default glaze is a continuous coat; for balls set "
+                              "glaze.mode = metaballs and glaze.density (per square meter)", FutureWarning,
+                              stacklevel=2)
+                if out["glaze"]["mode"] == "none":
+                    out["glaze"]["mode"] = "coat"
     for p in PARAMS:  # the defaults go through the same checks and coercions
         out[p.group][p.name] = p.validate(out[p.group][p.name])
+    del out["glaze"]["balls"]  # stood for glaze.mode (above)
     return out
 
 

@@ -28,8 +28,9 @@ from . import artifacts
 from .errors import InputError
 from .geometry import ray_caster
 from .mesh import PreparedMesh, prepare
+from .placement import Placement, ground_height, sole_vertices, stop_at_ground
 from .stages.drips import DripResult, find_drips
-from .stages.trajectories import TrajectoryResult, grow_trajectories
+from .stages.trajectories import TrajectoryResult, grow_trajectories, measure_trajectories
 from .stages.water import WaterResult, compute_water
 
 GENERATOR_PREFIX = "generator:"
@@ -53,7 +54,8 @@ class JobSpec:
     ``mesh`` is an absolute path or ``generator:NAME``; ``params`` is
     `icefarm.params.resolve` output; ``exclude`` holds boxes ``((lo), (hi))`` in meters in
     the object's frame; ``overrides`` pairs a stage name with a file that replaces its
-    result; ``render`` is a render config name or path, None for no render.
+    result; ``render`` is a render config name or path, None for no render; ``placement``
+    is ``ground`` (the object stands on the ground plane) or ``hanging``.
     """
 
     object_id: str
@@ -65,6 +67,7 @@ class JobSpec:
     exclude: tuple = ()
     overrides: tuple = ()
     material: tuple = ()
+    placement: str = "ground"
 
 
 @dataclass(frozen=True)
@@ -120,6 +123,7 @@ def job_id(spec: JobSpec) -> str:
     return _digest(
         mesh_digest(spec.mesh), spec.size_m, spec.params, render_digest(spec.render), spec.seed,
         spec.exclude, [(stage, _file_digest(path)) for stage, path in spec.overrides], spec.material,
+        spec.placement,
     )[:12]
 
 
@@ -284,7 +288,8 @@ def _run_stages(spec: JobSpec, job_dir: Path, run: _Run, cache: _Cache, until: S
         found = find_drips(flow, water.water, gravity, p["drips"]["count"], p["drips"]["drip_limit"],
                            _rng(spec.seed, Stage.DRIPS), exclude_boxes=spec.exclude,
                            exclude_vertices=grounded if p["drips"]["ground_clearance"] > 0 else None,
-                           caster=caster(flow))
+                           caster=caster(flow), spacing=p["drips"]["spacing"],
+                           distribution=p["drips"]["distribution"])
         if flow is obj:
             return found
         from .proxy import snap_to_surface
@@ -299,10 +304,17 @@ def _run_stages(spec: JobSpec, job_dir: Path, run: _Run, cache: _Cache, until: S
     if _stops(until, Stage.DRIPS):
         return stats
 
-    traj_key = _digest(drips_key, p["trajectories"], p["drips"]["drip_limit"],
+    traj_key = _digest(drips_key, p["trajectories"], p["drips"]["drip_limit"], spec.placement,
+                       p["surface"]["tip_radius"] if spec.placement == Placement.GROUND.value else None,
                        _file_digest(overrides["trajectories"]) if "trajectories" in overrides else None)
 
     def trajectory_stage() -> TrajectoryResult:
+        result = grown_trajectories()
+        if spec.placement == Placement.GROUND.value:  # an icicle that reaches the ground stops at it
+            result = stop_at_ground(result, gravity, ground_height(obj.vertices, gravity), p["surface"]["tip_radius"])
+        return result
+
+    def grown_trajectories() -> TrajectoryResult:
         if "trajectories" in overrides:
             return artifacts.trajectories_from_json(Path(overrides["trajectories"]))
         # Lift each start off the surface along its face normal; on a proxy run the snap
@@ -316,25 +328,41 @@ def _run_stages(spec: JobSpec, job_dir: Path, run: _Run, cache: _Cache, until: S
 
     traj = run.timed("trajectories", lambda: cache.get("trajectories", traj_key, trajectory_stage))
     artifacts.write_json(job_dir / "trajectories.json", artifacts.trajectories_to_json(traj))
-    stats["branches"] = traj.n_branches
+    t = measure_trajectories(traj, gravity)
+    stats.update(branches=traj.n_branches, upward_share=_finite(t.upward_share),
+                 branch_spread_mm=_finite(t.branch_spread_mm), length_cv=_finite(t.length_cv),
+                 trunk_lengths_m=_finite_list(t.trunk_lengths, 4))
     if not _stops(until, Stage.TRAJECTORIES):
         stats.update(_surface_and_render(spec, job_dir, run, cache, until, obj, flow, water, drips, traj,
-                                         gravity, _digest(traj_key, p["surface"], p["glaze"])))
+                                         gravity, _digest(traj_key, p["surface"], p["glaze"]), caster(flow)))
     return stats
 
 
-def _surface_and_render(spec, job_dir, run, cache, until, obj, flow, water, drips, traj, gravity, key) -> dict:
+def _surface_and_render(spec, job_dir, run, cache, until, obj, flow, water, drips, traj, gravity, key,
+                        cast) -> dict:
     from .stages.surface import build_ice
+    from .stages.surface.glaze import measure_glaze
 
     p = spec.params
+    clearance = p["drips"]["ground_clearance"]
+    sole = (sole_vertices(flow.vertices, gravity, clearance)
+            if spec.placement == Placement.GROUND.value and clearance > 0 else None)
     ice = run.timed("surface", lambda: cache.get("surface", key, lambda: build_ice(
-        obj, flow, water, drips, traj, p["surface"], p["glaze"], gravity, _rng(spec.seed, Stage.SURFACE))))
+        obj, flow, water, drips, traj, p["surface"], p["glaze"], gravity, _rng(spec.seed, Stage.SURFACE),
+        exclude=sole, cast=cast)))
     ice_mesh = trimesh.Trimesh(ice.vertices, ice.faces, process=False)
     artifacts.write_mesh(job_dir / "ice.ply", ice_mesh)
+    glaze = run.timed("measure", lambda: measure_glaze(ice.vertices, ice.faces, flow, water, gravity,
+                                                       exclude=_not_glaze(flow, drips, sole, p["surface"])))
+    m = ice.icicles
     stats = {
-        "ice_faces": len(ice.faces), "metaballs": ice.balls, "tip_radius_mm": _finite(ice.tip_radius_mm),
-        "length_to_diameter": [round(float(x), 3) if np.isfinite(x) else None for x in ice.length_to_diameter],
-        "ripple_wavelength_cm": _finite(ice.ripple_wavelength_cm),
+        "glaze_coverage": _finite(glaze.coverage), "glaze_p10_mm": _finite(glaze.p10_mm),
+        "glaze_p50_mm": _finite(glaze.p50_mm), "glaze_p90_mm": _finite(glaze.p90_mm),
+        "glaze_top_bottom": _finite(glaze.top_bottom),
+        "ice_faces": len(ice.faces), "metaballs": ice.balls, "tip_radius_mm": _finite(m.tip_radius_mm),
+        "taper": _finite_list(m.taper), "growth_ratio": _finite_list(m.growth_ratio, 4),
+        "profile_exponent": _finite_list(m.profile_exponent),
+        "ripple_amplitude_mm": _finite(m.ripple_amplitude_mm), "ripple_wavelength_cm": _finite(m.ripple_wavelength_cm),
     }
     if spec.render is None or _stops(until, Stage.SURFACE):
         return stats
@@ -420,6 +448,22 @@ def _frame(obj: trimesh.Trimesh, ice: trimesh.Trimesh) -> np.ndarray:
     return np.vstack(corners)
 
 
+def _not_glaze(flow: trimesh.Trimesh, drips: DripResult, sole: np.ndarray | None, surface: dict) -> np.ndarray:
+    """Flow-mesh vertices whose ice is not glaze: the sole, and around each drip point the
+    base and the icicle's root (within twice the base extent), which stand thicker."""
+    out = np.zeros(len(flow.vertices), dtype=bool) if sole is None else sole.copy()
+    if len(drips.positions):
+        from scipy.spatial import cKDTree
+
+        out |= cKDTree(drips.positions).query(flow.vertices)[0] < 2 * max(surface["base_extent"], surface["tip_radius"])
+    return out
+
+
 def _finite(value: float) -> float | None:
     """JSON has no NaN: an unmeasured value is null."""
     return float(value) if np.isfinite(value) else None
+
+
+def _finite_list(values: np.ndarray, digits: int = 3) -> list[float | None]:
+    """Per-icicle figures for JSON, aligned with the trunks: an unmeasured one is null."""
+    return [round(float(x), digits) if np.isfinite(x) else None for x in values]

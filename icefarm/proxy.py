@@ -13,7 +13,16 @@ meshes stages 1-2 run on a proxy built with pymeshlab:
   isotropically (`meshing_isotropic_explicit_remeshing`) to an edge length suited to the
   flow;
 * clean meshes that are only too detailed are decimated
-  (`meshing_decimation_quadric_edge_collapse`) to the face budget.
+  (`meshing_decimation_quadric_edge_collapse`) to the face budget;
+* clean meshes that are too coarse for their size (box-modelled assets of a few dozen
+  faces: a table, a sign, a low-poly cylinder) are refined: remeshed isotropically, creases
+  kept, down to the size of their finest features (`FEATURE_PERCENTILE`), never finer
+  than the flow's edge length. Their few vertices average their normals across sharp
+  edges, so no face meets the drip criterion, and their few edges leave the water nowhere
+  to go; the refined surface has crisp faces beside every crease and edges the walks can
+  follow. Closed pieces that pass through each other (boxes stacked into a table) are
+  refined as they are: water runs on each, and faces buried in another piece drip
+  nowhere. Open coarse meshes are wrapped and remeshed to the same edge.
 
 Drip points found on the proxy are moved back onto the real mesh with `snap_to_surface`,
 so the icicles hang from the object itself.
@@ -57,6 +66,16 @@ REMESH_ITERATIONS = 3
 UNIT_TRIANGLE_AREA = np.sqrt(3.0) / 4.0
 # Remeshing overshoots its area estimate by up to ~15 %: aim below the budget.
 BUDGET_MARGIN = 0.8
+# A mesh whose median edge is longer than this fraction of its diagonal is too coarse to
+# carry the flow (a box-modelled table: 0.45, a 10-sided cylinder: 0.24, an 80-face
+# icosphere: 0.17; the generators at their default detail: 0.02-0.03, the shared scans
+# under 0.025).
+COARSE_EDGE_FRACTION = 0.1
+# A coarse mesh is refined down to its own finest features (this percentile of its edge
+# lengths: a table top's thickness), not finer: Algorithm 1 counts an edge with one wet
+# end at half its height, so splitting a slab's side into rows starves its rim of the
+# water that runs over it (a 5 cm top split at 1.6 cm: 0.4 cm icicles; kept whole: 2.8 cm).
+FEATURE_PERCENTILE = 10
 
 
 class ProxyMethod(enum.Enum):
@@ -65,6 +84,7 @@ class ProxyMethod(enum.Enum):
     WRAP = "alpha wrap + isotropic remesh"
     FILL = "hole filling"
     DECIMATE = "quadric decimation"
+    REFINE = "isotropic refinement"
 
 
 @dataclass(frozen=True)
@@ -84,8 +104,8 @@ class ProxyResult:
     seconds : float
         Wall time of the build.
     method : ProxyMethod
-        Wrap, hole filling or decimation (the last two are followed by decimation when
-        over the budget).
+        Wrap, hole filling, decimation or refinement (all but decimation are followed by
+        decimation when over the budget).
     alpha : float
         Alpha the wrap used, in meters (0 when not wrapped): the proxy bridges gaps about
         this wide, so it lies up to about alpha from the object.
@@ -114,6 +134,11 @@ def _problem_phrases(problems: MeshProblems) -> list[str]:
     return phrases
 
 
+def _coarse(problems: MeshProblems) -> bool:
+    """Too few faces for its size: the median edge is over `COARSE_EDGE_FRACTION` of the diagonal."""
+    return problems.edge_fraction > COARSE_EDGE_FRACTION
+
+
 def proxy_reason(problems: MeshProblems, mode: str, face_budget: int) -> str | None:
     """Why stages 1-2 need an approximate surface, or None when the mesh itself will do.
 
@@ -128,6 +153,8 @@ def proxy_reason(problems: MeshProblems, mode: str, face_budget: int) -> str | N
     face_budget : int
         ``proxy.face_budget``: more faces than this is a reason in itself.
 
+    A coarse mesh (`COARSE_EDGE_FRACTION`) is a reason too: its flow runs on a refined copy.
+
     Returns
     -------
     str or None
@@ -140,6 +167,9 @@ def proxy_reason(problems: MeshProblems, mode: str, face_budget: int) -> str | N
     phrases = _problem_phrases(problems)
     if problems.faces > face_budget:
         phrases.append(f"{problems.faces} faces over the budget of {face_budget}")
+    if _coarse(problems):
+        phrases.append(f"coarse: {problems.faces} faces, median edge {problems.edge_fraction:.2f} "
+                       "of the diagonal")
     if phrases:
         return ", ".join(phrases)
     return "proxy.mode is always" if mode == "always" else None
@@ -219,15 +249,28 @@ def _run_filter(ms, name: str, **kwargs) -> None:
                          "set proxy.mode: never to run the water on the mesh as it is") from None
 
 
-def _remesh(mesh: trimesh.Trimesh, edge: float, tolerance: float) -> trimesh.Trimesh:
+def _remesh(mesh: trimesh.Trimesh, edge: float, tolerance: float,
+            iterations: int = REMESH_ITERATIONS) -> trimesh.Trimesh:
     """Isotropic remesh to edges of ``edge`` m, staying within ``tolerance`` m of ``mesh``."""
     import pymeshlab
 
     ms = _meshset(mesh)
-    _run_filter(ms, "meshing_isotropic_explicit_remeshing", iterations=REMESH_ITERATIONS,
+    _run_filter(ms, "meshing_isotropic_explicit_remeshing", iterations=int(iterations),
                 targetlen=pymeshlab.PureValue(edge), featuredeg=30.0, checksurfdist=True,
                 maxsurfdist=pymeshlab.PureValue(tolerance))
     return _to_trimesh(ms)
+
+
+def _refine(mesh: trimesh.Trimesh, edge: float, tolerance: float) -> trimesh.Trimesh | None:
+    """A coarse mesh remeshed to edges of about ``edge`` m, creases over 30 degrees kept.
+
+    Each pass splits a long edge once, so the passes grow with how many times the longest
+    edge must be halved. None when the result is not watertight.
+    """
+    longest = float(mesh.edges_unique_length.max())
+    passes = REMESH_ITERATIONS + max(0, int(np.ceil(np.log2(max(longest / edge, 1.0)))))
+    out = _remesh(mesh, edge, tolerance, iterations=passes)
+    return out if out.is_watertight and len(out.faces) else None
 
 
 def _decimate(mesh: trimesh.Trimesh, faces: int) -> trimesh.Trimesh:
@@ -355,6 +398,17 @@ def build_proxy(mesh: trimesh.Trimesh, proxy: Mapping[str, Any],
     force = proxy.get("mode", "auto") == "always"
     if not force and _only_holes(problems):
         out, method = _fill_small_holes(mesh, diag), ProxyMethod.FILL
+    # A coarse mesh's flow needs edges no finer than its own features (`FEATURE_PERCENTILE`).
+    flow_edge = max(edge * diag, float(np.percentile(mesh.edges_unique_length, FEATURE_PERCENTILE))
+                    if _coarse(problems) else 0.0)
+    if not force and _coarse(problems) and (out is not None or problems.watertight):
+        # coarse closed pieces (filled, or boxes stacked into a table, crossing or not):
+        # refine them; the walks run on each piece, buried faces drip nowhere (`find_drips`)
+        edge_m = _edge_for_budget(float(mesh.area), flow_edge, budget)
+        refined = _refine(mesh if out is None else out, edge_m, offset * diag)
+        if refined is None:
+            notes.append("refining broke the surface, it is wrapped instead")
+        out, method = refined, ProxyMethod.REFINE
     if out is None and not force and not _problem_phrases(problems) and problems.faces > budget:
         out, method = mesh, ProxyMethod.DECIMATE  # clean, only too detailed
     if out is None:
@@ -376,7 +430,7 @@ def build_proxy(mesh: trimesh.Trimesh, proxy: Mapping[str, Any],
         if len(wrapped.faces) == 0:
             raise InputError("the alpha wrap of this mesh came out empty; set proxy.mode: never "
                              "to let the water run on the mesh as it is")
-        out = _remesh(wrapped, _edge_for_budget(wrapped.area, edge * diag, budget), offset_m)
+        out = _remesh(wrapped, _edge_for_budget(wrapped.area, flow_edge, budget), offset_m)
         if not out.is_watertight:  # remeshing pinched a thin part: the wrap itself is sound
             notes.append("remeshing broke the surface, the raw wrap is used")
             out = wrapped

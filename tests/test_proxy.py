@@ -292,5 +292,7 @@ def test_problem_mesh_job_hangs_icicles_from_the_real_object(problem_mesh, tmp_p
     for icicle in icicles:
         top = drips[icicle["drip_point"]] @ gravity
         for branch in icicle["branches"]:
+            if not branch["points"]:  # cut away where it would reach the ground (placement)
+                continue
             rise = top - (np.asarray(branch["points"]) @ gravity).min()
             assert rise <= tolerance, f"icicle {icicle['id']} rises {rise:.2g} m above its drip point"

@@ -215,8 +215,9 @@ def test_full_division_branches_every_generation_at_30_degrees():
     mesh = trimesh.creation.box(extents=(0.1, 0.02, 0.1))
     start = np.array([[0.0, -0.01, 0.0]])
     gens = 5
+    # branch_spread = 0: the paper's p1'' exactly, one F at 30 degrees
     traj = grow_trajectories(mesh, start, [[0, -1, 0]], [0.004 * (1 + 3 * gens) / 0.6], G,
-                             np.random.default_rng(0), **{**TRAJ, "curve_angle": 0.0,
+                             np.random.default_rng(0), **{**TRAJ, "curve_angle": 0.0, "branch_spread": 0.0,
                                                            "division_probability": 1.0, "max_branches": 1000})
     assert traj.n_branches - 1 == lsystem_branches(gens)
     for b in np.flatnonzero(traj.branch_parent >= 0):

@@ -15,6 +15,7 @@ parameters in the shape of a W&B sweep config::
         exclude: [{min: [0, 0, 0], max: [0.1, 0.1, 0.1]}]
         overrides: {drips: edited_drips.json}
         material: {color: [0.8, 0.8, 0.8]}
+        placement: ground          # or hanging (a sign, a branch, a lamp)
     sweep:
       method: grid                  # grid | zip | random
       count: 8                      # random only
@@ -41,11 +42,12 @@ import yaml
 
 from .. import params as P
 from ..errors import InputError
+from ..placement import PLACEMENTS
 
 GENERATOR_PREFIX = "generator:"
 OVERRIDE_STAGES = {"water": (".ply",), "drips": (".json",), "trajectories": (".json",)}
 TOP_KEYS = ("name", "seed", "render", "defaults", "objects", "sweep")
-OBJECT_KEYS = ("id", "mesh", "size_m", "params", "exclude", "overrides", "material")
+OBJECT_KEYS = ("id", "mesh", "size_m", "placement", "params", "exclude", "overrides", "material")
 SWEEP_KEYS = ("method", "count", "parameters")
 AXIS_KEYS = ("values", "value", "min", "max", "distribution")
 _ID = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
@@ -116,6 +118,8 @@ class ObjectSpec:
         ``((stage, absolute path), ...)`` files replacing a stage's result.
     material : tuple
         ``((key, value), ...)`` for rendering.
+    placement : str
+        ``ground`` (stands on the ground plane) or ``hanging``.
     """
 
     id: str
@@ -125,6 +129,7 @@ class ObjectSpec:
     exclude: tuple = ()
     overrides: tuple = ()
     material: tuple = ()
+    placement: str = "ground"
 
 
 @dataclass(frozen=True)
@@ -308,8 +313,13 @@ def _objects(value: Any, path: Path, errors: list[str]) -> list[ObjectSpec]:
         if isinstance(size, bool) or not isinstance(size, (int, float)) or not math.isfinite(size) or size <= 0:
             errors.append(f"{where}.size_m: expected the object's height in meters, a number > 0, got {_kind(size)}")
             size = 1.0
+        placement = item.get("placement", "ground")
+        if placement not in PLACEMENTS:
+            errors.append(f"{where}.placement: expected one of {' | '.join(PLACEMENTS)} (ground: it stands on "
+                          f"the ground; hanging: a sign, a branch, a lamp), got {_kind(placement)}")
+            placement = "ground"
         out.append(ObjectSpec(
-            id=str(obj_id), mesh=mesh, size_m=float(size),
+            id=str(obj_id), mesh=mesh, size_m=float(size), placement=placement,
             params=_params(item.get("params"), f"{where}.params", errors),
             exclude=_exclude(item.get("exclude"), f"{where}.exclude", errors),
             overrides=_overrides(item.get("overrides"), path, f"{where}.overrides", errors),
@@ -538,7 +548,7 @@ def manifest_to_dict(manifest: Manifest) -> dict[str, Any]:
     if manifest.fixed:
         out["fixed"] = dict(manifest.fixed)
     out["objects"] = [
-        {"id": o.id, "mesh": o.mesh, "size_m": o.size_m,
+        {"id": o.id, "mesh": o.mesh, "size_m": o.size_m, "placement": o.placement,
          "params": P.resolve(manifest.defaults, o.params, manifest.fixed),
          "exclude": [{"min": list(lo), "max": list(hi)} for lo, hi in o.exclude],
          "overrides": dict(o.overrides), "material": {k: list(v) if isinstance(v, tuple) else v

@@ -335,7 +335,8 @@ def plan_jobs(manifest: Manifest, render: bool = True) -> tuple[tuple[PlannedJob
             spec = JobSpec(object_id=obj.id, mesh=obj.mesh, size_m=obj.size_m, params=resolved,
                            seed=job_seed(manifest.seed, obj.id),
                            render=manifest.render if render else None,
-                           exclude=obj.exclude, overrides=obj.overrides, material=obj.material)
+                           exclude=obj.exclude, overrides=obj.overrides, material=obj.material,
+                           placement=obj.placement)
             jid = job_id(spec)
             if jid in seen:
                 duplicates += 1

@@ -35,7 +35,7 @@ closed tube with the same profile instead: instant, no fusion, no base, no glaze
 
 from __future__ import annotations
 
-from .build import IceResult, build_ice, ice_mesh
+from .build import IceResult, build_ice
 from .profile import TIP_CALM, profile_radius
 
-__all__ = ["IceResult", "TIP_CALM", "build_ice", "ice_mesh", "profile_radius"]
+__all__ = ["IceResult", "TIP_CALM", "build_ice", "profile_radius"]

@@ -2,12 +2,20 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import trimesh
 from scipy.spatial import cKDTree
 
-from ...metaballs.balls import NO_BALLS, Balls, sheet_balls
+from ...metaballs.balls import LEVEL, NO_BALLS, Balls
 from ..drips import DripResult
+
+# Width over radius of a base ball: a lone ball's surface sits at its radius rb, and wide
+# balls blend into one smooth swelling rather than a cluster of beads.
+BASE_KAPPA = 1.0
+# Candidate points drawn per drip point (at least; more for nmb over 60).
+BASE_POOL = 256
 
 def base_balls(object_mesh: trimesh.Trimesh, drips: DripResult, surface: dict,
                rng: np.random.Generator) -> Balls:
@@ -15,8 +23,11 @@ def base_balls(object_mesh: trimesh.Trimesh, drips: DripResult, surface: dict,
 
     Points are drawn area-weighted on the faces that come within ``eb`` (Euclidean) of the
     drip point and connect to the drip point's face through such faces (so no ice jumps
-    to a nearby but separate part); each ball makes the ice ``rb = (eb - d)^2 / eb^2 *
-    wc * kb`` thick there (d: distance to the drip point, wc: its water coefficient).
+    to a nearby but separate part); each is a ball of radius ``rb = (eb - d)^2 / eb^2 *
+    wc * kb`` (d: distance to the drip point, wc: its water coefficient). The balls add
+    into one field, so where they crowd (near the drip point) the base swells past any
+    one of them: more balls or a wider extent, more ice. Each drip's candidates come from a
+    pool of a fixed size, so the balls of a smaller ``nmb`` are the first of a larger one's.
     """
     eb, nmb, kb = surface["base_extent"], surface["base_balls"], surface["base_scale"]
     k = len(drips.positions)
@@ -35,32 +46,30 @@ def base_balls(object_mesh: trimesh.Trimesh, drips: DripResult, surface: dict,
     if len(face) == 0:
         return NO_BALLS
 
-    # Oversample each drip's faces by area, keep the points within eb, take nmb of them.
+    # Draw a pool of points on each drip's faces by area, keep those within eb, take nmb.
     areas = object_mesh.area_faces[face]
     cum = np.cumsum(areas)
     first = np.searchsorted(drip, np.arange(k))
     last = np.searchsorted(drip, np.arange(k), side="right")
     has = last > first
     total = np.where(has, cum[np.maximum(last - 1, 0)] - np.where(first > 0, cum[np.maximum(first - 1, 0)], 0.0), 0.0)
-    n_try = 4 * nmb + 16
-    sd = np.repeat(np.flatnonzero(has & (total > 0)), n_try)
+    sd = np.repeat(np.flatnonzero(has & (total > 0)), max(BASE_POOL, 4 * nmb + 16))
     start = np.where(first > 0, cum[np.maximum(first - 1, 0)], 0.0)
     pick = np.searchsorted(cum, start[sd] + rng.random(len(sd)) * total[sd], side="right")
     pick = np.clip(pick, first[sd], last[sd] - 1)
     pts = _sample_in_triangles(tris[face[pick]], rng)
     d = np.linalg.norm(pts - pos[sd], axis=1)
     inside = d < eb
-    tried = np.bincount(sd, minlength=k)
-    hit = np.bincount(sd[inside], minlength=k)
-    area_within = total * hit / np.maximum(tried, 1)
     sd, pts, d = sd[inside], pts[inside], d[inside]
     rank = np.arange(len(sd)) - np.searchsorted(sd, sd)  # sd is sorted
     take = rank < nmb
     sd, pts, d = sd[take], pts[take], d[take]
-    if len(sd) == 0:
+    radius = (eb - d) ** 2 / eb**2 * np.asarray(drips.water, dtype=np.float64)[sd] * kb
+    keep = radius > 0
+    if not keep.any():
         return NO_BALLS
-    thickness = (eb - d) ** 2 / eb**2 * np.asarray(drips.water, dtype=np.float64)[sd] * kb
-    return sheet_balls(pts, thickness, area_within[sd] / np.minimum(hit[sd], nmb))
+    widths = BASE_KAPPA * radius[keep]
+    return Balls(pts[keep], widths, np.full(len(widths), LEVEL * math.exp(1.0 / BASE_KAPPA**2)))
 
 
 def _grow_from_drips(drip, face, drip_face, mesh):

@@ -7,15 +7,22 @@ from dataclasses import dataclass
 import numpy as np
 import trimesh
 
-from ...metaballs import Balls, concat_balls, fuse_fields, polygonize, sample_field
+from ...metaballs import concat_balls, fuse_fields, sample_field
+from ...metaballs.clean import collapse_slivers, flip_needles
 from ..drips import DripResult
 from ..trajectories import TrajectoryResult
 from ..water import WaterResult
 from .bases import base_balls
-from .glaze import COAT_SHEET, glaze_balls
+from .glaze import glaze_field
 from .icicles import icicle_balls
-from .measure import measure_icicles
+from .measure import IcicleStats, measure_icicles
+from .profile import profile_args
+from .ripples import carve_ripples
 from .tubes import tube_mesh
+
+# Vertices closer than this many voxels are one (`collapse_slivers`), and faces flatter
+# than it are flipped (`flip_needles`).
+SLIVER = 1e-3
 
 
 @dataclass(frozen=True)
@@ -29,71 +36,30 @@ class IceResult:
     faces : (m, 3) int64
         Outward-wound triangles; watertight in metaball mode, one closed tube per
         branch in tubes mode.
-    tip_radius_mm : float
-        Distance from each trunk's tip point to the ice surface ahead of it (median over
-        the drop's mesh vertices), median over icicles, in millimeters; nan without icicles.
-    length_to_diameter : (i,) float64
-        Per icicle trunk (in branch order): trunk length over the base diameter measured on
-        the mesh (a line fitted to the trunk's radius along its length, taken at x = 0).
-        Real icicles: 8 to 32. NaN where a trunk cannot be measured: too short for four
-        radius samples between 30 % and 90 % of its length (under 5 mm), or a fitted base
-        radius that is not positive. Entries stay aligned with the trunks, so consumers
-        drop the NaN themselves (the CLI's summary does).
-    ripple_wavelength_cm : float
-        Dominant period of the trunks' radius along their length, measured on the mesh,
-        in centimeters (real icicles: about 1 cm); nan when ``ripple_amplitude`` is 0 or
-        no trunk is long enough to show two ripples.
+    icicles : IcicleStats
+        The icicles' tip radius, taper, growth ratio, profile exponent and ripples, measured
+        on the mesh.
     balls : int
-        Metaballs in the fields: icicles, bases and glaze (0 in tubes mode).
+        Metaballs of the icicles and bases (0 in tubes mode; the coat has none).
     """
 
     vertices: np.ndarray
     faces: np.ndarray
-    tip_radius_mm: float
-    length_to_diameter: np.ndarray
-    ripple_wavelength_cm: float
+    icicles: IcicleStats
     balls: int
-
-
-def ice_mesh(ice: Balls, coat: Balls, voxel: float, coat_voxel: float):
-    """The icicles with their bases, and the glaze, as one watertight mesh.
-
-    With ``coat_voxel <= voxel`` (or no glaze) all balls add into one field polygonised at
-    ``voxel``: the glaze fuses smoothly with the bases. Otherwise the icicles and bases
-    are polygonised at ``voxel`` (which the tip radius needs), the glaze alone at the
-    coarser ``coat_voxel`` (it covers the whole wet surface, so its face count rules the
-    mesh: about ``(coat_voxel / voxel)^2`` times fewer faces), and the two closed surfaces
-    are joined by a boolean union (`fuse_fields`).
-
-    Parameters
-    ----------
-    ice, coat : Balls
-        Icicle chains and bases; glaze.
-    voxel, coat_voxel : float
-        ``surface.voxel_size`` and ``glaze.voxel_size``, in meters.
-
-    Returns
-    -------
-    vertices : (n, 3) float64
-        In meters.
-    faces : (m, 3) int64
-        Outward-wound, watertight.
-    """
-    if len(coat) == 0 or coat_voxel <= voxel:
-        return polygonize(concat_balls(ice, coat), voxel)
-    coat_field = sample_field(coat, coat_voxel, name="glaze.voxel_size")
-    return fuse_fields(sample_field(ice, voxel), coat_field)
 
 
 def build_ice(object_mesh: trimesh.Trimesh, flow_mesh: trimesh.Trimesh, water: WaterResult,
               drips: DripResult, trajectories: TrajectoryResult, surface: dict, glaze: dict,
-              gravity: np.ndarray, rng: np.random.Generator) -> IceResult:
+              gravity: np.ndarray, rng: np.random.Generator, exclude: np.ndarray | None = None,
+              cast=None) -> IceResult:
     """Stage 4: icicles, their bases and glaze ice as one mesh (paper 4.4).
 
-    ``surface["mode"] == "metaballs"``: one watertight mesh of the icicle chains, the
-    bases and the glaze (`ice_mesh`: the glaze on its own coarser lattice, joined by a
-    boolean union, or all in one field). ``"tubes"``: each branch as its own closed tube
-    (`tube_mesh`), without bases or glaze: an instant preview.
+    ``surface["mode"] == "metaballs"``: one watertight mesh of the icicle chains and the
+    bases (one field at ``surface.voxel_size``) and the glaze (`glaze_field`, on its own
+    coarser lattice), joined by a boolean union where they meet (`fuse_fields`); the
+    ripples are then carved in and slivers cleaned. ``"tubes"``: each branch as its own
+    closed tube (`tube_mesh`), without bases or glaze: an instant preview.
 
     Parameters
     ----------
@@ -113,6 +79,10 @@ def build_ice(object_mesh: trimesh.Trimesh, flow_mesh: trimesh.Trimesh, water: W
         Direction of gravity (orients the first frame of each tube).
     rng : numpy.random.Generator
         Noise, base and glaze ball positions.
+    exclude : (n,) bool, optional
+        Flow-mesh vertices where no glaze may be (the sole the object stands on).
+    cast : callable, optional
+        A ray caster of ``flow_mesh`` to reuse (`icefarm.geometry.ray_caster`).
 
     Returns
     -------
@@ -145,11 +115,12 @@ def build_ice(object_mesh: trimesh.Trimesh, flow_mesh: trimesh.Trimesh, water: W
         verts, faces = tube_mesh(trajectories, surface, g)
         n_balls = 0
     else:
-        voxel, coat_voxel = surface["voxel_size"], glaze["voxel_size"]
+        voxel = surface["voxel_size"]
         ice = concat_balls(icicle_balls(trajectories, surface, rng), base_balls(object_mesh, drips, surface, rng))
-        coarse = coat_voxel > voxel
-        coat = glaze_balls(flow_mesh, water, glaze, rng, min_sheet=COAT_SHEET * coat_voxel if coarse else 0.0)
-        verts, faces = ice_mesh(ice, coat, voxel, coat_voxel)
-        n_balls = len(ice) + len(coat)
-    tip_mm, ratios, wavelength = measure_icicles(verts, faces, trajectories, surface)
-    return IceResult(verts, faces, tip_mm, ratios, wavelength, n_balls)
+        coat = glaze_field(flow_mesh, water, glaze, rng, exclude=exclude, cast=cast)
+        verts, faces = fuse_fields(sample_field(ice, voxel), coat)
+        verts = carve_ripples(verts, trajectories, profile_args(surface))
+        verts, faces = collapse_slivers(verts, faces, SLIVER * voxel)
+        faces = flip_needles(verts, faces, SLIVER * voxel)
+        n_balls = len(ice)
+    return IceResult(verts, faces, measure_icicles(verts, faces, trajectories, surface), n_balls)

@@ -8,22 +8,24 @@ import numpy as np
 
 from ...metaballs.balls import KAPPA, LEVEL, NO_BALLS, SPACING, TIP_WEIGHT, Balls
 from ..trajectories import TrajectoryResult
-from .profile import TIP_CALM, _branch_lengths, _points_along, profile_radius
+from .profile import TIP_CALM, _branch_lengths, _points_along, profile_args, smooth_radius
 
 
 def icicle_balls(traj: TrajectoryResult, surface: dict, rng: np.random.Generator) -> Balls:
     """Metaball chains along every branch (paper 4.4.1-4.4.2).
 
     Balls are spaced ``SPACING * KAPPA * R(x)`` apart along each branch, from its base
-    (x = 0) to exactly its tip (x = L); each is moved at random within ``noise`` in the
-    plane perpendicular to the branch (uniform over the disk), except near the tip.
+    (x = 0) to exactly its tip (x = L), R the profile without its ripple (a chain of balls
+    that wide blurs centimetre ripples away: `icefarm.stages.surface.ripples` carves them
+    into the mesh instead); each is moved at random within ``noise`` in the plane
+    perpendicular to the branch (uniform over the disk), except near the tip.
 
     Returns
     -------
     Balls
     """
-    tip = surface["tip_radius"]
-    prof = (tip, surface["growth_ratio"], surface["ripple_amplitude"], surface["ripple_frequency"])
+    prof = profile_args(surface)
+    tip = prof["tip"]
     branches = np.flatnonzero(np.diff(np.asarray(traj.branch_offsets)) > 0)
     if len(branches) == 0:
         return NO_BALLS
@@ -33,14 +35,12 @@ def icicle_balls(traj: TrajectoryResult, surface: dict, rng: np.random.Generator
 
     # Fine samples of each branch to integrate u(x) = int dx / h(x): balls sit at equal steps of u.
     step_min = SPACING * KAPPA * tip / 4
-    if prof[2] > 0 and prof[3] > 0:
-        step_min = min(step_min, 2 * math.pi / prof[3] / 16)
     nfine = np.maximum(np.ceil(lengths / step_min).astype(np.int64), 1) + 1
     fb = np.repeat(np.arange(nb), nfine)
     fstart = np.cumsum(nfine) - nfine
     fj = np.arange(nfine.sum()) - np.repeat(fstart, nfine)
     fx = fj * (lengths / (nfine - 1))[fb]
-    fr = profile_radius(fx, lengths[fb], *prof)
+    fr = smooth_radius(fx, lengths[fb], **prof)
     inv_h = 1.0 / (SPACING * KAPPA * fr)
     du = np.zeros_like(fx)
     du[1:] = 0.5 * (inv_h[1:] + inv_h[:-1]) * np.diff(fx)
@@ -57,7 +57,7 @@ def icicle_balls(traj: TrajectoryResult, surface: dict, rng: np.random.Generator
     target = (u[fstart] + gap)[bb] + bk * np.where(nint > 0, u_len / np.maximum(nint, 1), 0.0)[bb]
     bx = np.interp(target, ug, fx)
     bx[bk == nint[bb]] = lengths[bb][bk == nint[bb]]  # the last ball exactly at the tip
-    radius = profile_radius(bx, lengths[bb], *prof)
+    radius = smooth_radius(bx, lengths[bb], **prof)
 
     pos, tangent = _points_along(traj, x_pt, all_lengths, branches[bb], bx)
 
@@ -84,3 +84,4 @@ def _perpendicular_frame(tangent: np.ndarray):
     e1 = np.cross(tangent, helper)
     e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
     return e1, np.cross(tangent, e1)
+

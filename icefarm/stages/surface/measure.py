@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -10,9 +11,60 @@ from scipy.spatial import cKDTree
 from ..trajectories import TrajectoryResult
 from .profile import _branch_lengths, _points_along
 
+# Radius samples along a trunk: from TAPER_AT of its length below its base to FIT_END; the
+# profile is fitted between FIT_START and FIT_END of the distance from the tip, clear of the
+# drop at the tip and of the base ice around the drip point.
+TAPER_AT = 0.1
+FIT_START, FIT_END = 0.15, 0.85
+# A ripple whose fitted amplitude stays under this many times what the scatter of the
+# radius samples around the fit (the mesh's own noise: marching cubes, metaball bumps,
+# fused neighbours) would fit by chance is none.
+RIPPLE_SIGNAL = 4.0
+# Exponents tried by the profile fit.
+_EXPONENTS = tuple(np.round(np.arange(0.2, 2.0001, 0.01), 2))
+
+
+@dataclass(frozen=True)
+class IcicleStats:
+    """Plausibility of the icicles, measured on the ice mesh (see `measure_icicles`).
+
+    Per-trunk arrays follow the trunks in branch order, NaN where a trunk is too short to
+    measure (fewer than 4 radius samples, under about 7 mm).
+
+    Attributes
+    ----------
+    tip_radius_mm : float
+        Median over trunks of the drop's radius at the tip (real: 2.44 mm).
+    taper : (i,) float
+        Radius at 10 % of the trunk's length below its base over the tip radius (a carrot:
+        3 and more; a straw: 1).
+    growth_ratio : (i,) float
+        (base diameter - tip diameter) / length, from the fitted profile taken at the base
+        (real icicles: 1/32 to 1/8; length grows 8-32 times faster than width).
+    profile_exponent : (i,) float
+        n of ``r - tip ~ d^n`` fitted in log-log (real: 3/4; a cone: 1).
+    ripple_amplitude_mm : float
+        Median over trunks of the amplitude of the radius at the ripple frequency; NaN when
+        the icicles have no ripple or it stays under the mesh's own noise.
+    ripple_wavelength_cm : float
+        Period at the peak of the trunks' radius spectra; NaN with no ripple (as above).
+    """
+
+    tip_radius_mm: float
+    taper: np.ndarray
+    growth_ratio: np.ndarray
+    profile_exponent: np.ndarray
+    ripple_amplitude_mm: float
+    ripple_wavelength_cm: float
+
+
 def measure_icicles(vertices: np.ndarray, faces: np.ndarray, traj: TrajectoryResult,
-                    surface: dict, sample_step: float = 0.001):
+                    surface: dict, sample_step: float = 0.001) -> IcicleStats:
     """Physical plausibility of the icicles, measured on the ice mesh.
+
+    The radius of a trunk at arc length x is the distance from its axis point to the nearest
+    ice vertex (vertices lie on the iso-surface), sampled every ``sample_step`` from
+    ``TAPER_AT`` of its length to ``FIT_END``.
 
     Parameters
     ----------
@@ -21,31 +73,21 @@ def measure_icicles(vertices: np.ndarray, faces: np.ndarray, traj: TrajectoryRes
     faces : (m, 3) int
     traj : TrajectoryResult
     surface : dict
-        The resolved ``surface`` group (only ``ripple_amplitude`` is read: 0 means no ripple).
+        The resolved ``surface`` group (tip radius, ripple amplitude, impurity, frequency).
     sample_step : float
         Spacing of the radius samples along each trunk, in meters.
 
     Returns
     -------
-    tip_radius_mm : float
-        Median over trunks of the distance from the tip point to the ice ahead of it (median
-        over the drop's mesh vertices, which lie on the iso-surface).
-    length_to_diameter : (i,) float
-        Per trunk, its length over twice the base radius of a line fitted to its radius
-        (distance from the axis to the nearest vertex) between 30 % and 90 % of its length,
-        taken at x = 0; nan for a trunk with fewer than 4 samples there (shorter than
-        ``4 sample_step / 0.6``) or whose fitted base radius is not positive.
-    ripple_wavelength_cm : float
-        Peak of the trunks' radius spectra (quadratic trend removed, Hann window, each trunk
-        normalised), in centimeters; nan when the ripple amplitude is 0 or no trunk spans
-        eight samples.
+    IcicleStats
     """
     nan = float("nan")
     off = np.asarray(traj.branch_offsets, dtype=np.int64)
     trunks = np.flatnonzero(np.asarray(traj.branch_parent) < 0)
     trunks = trunks[np.diff(off)[trunks] > 0]
+    empty = np.full(len(trunks), np.nan)
     if len(trunks) == 0 or len(faces) == 0:
-        return nan, np.full(len(trunks), np.nan), nan
+        return IcicleStats(nan, empty, empty.copy(), empty.copy(), nan, nan)
     x_pt, lengths = _branch_lengths(traj)
     pts = np.asarray(traj.points, dtype=np.float64)
     tree = cKDTree(vertices, balanced_tree=False, compact_nodes=False)
@@ -56,35 +98,88 @@ def measure_icicles(vertices: np.ndarray, faces: np.ndarray, traj: TrajectoryRes
     tip_d = _tip_radius(tips, direction, vertices, tree)
     tip_mm = float(np.nanmedian(tip_d) * 1000) if np.isfinite(tip_d).any() else nan
 
-    # Radius samples along the free part of every trunk, all queried at once.
+    # Radius samples along every trunk, all queried at once.
     L = lengths[trunks]
-    n = np.maximum((0.6 * L / sample_step).astype(np.int64), 0) + 1
+    span = (1 - TAPER_AT - (1 - FIT_END)) * L
+    n = np.maximum((span / sample_step).astype(np.int64), 0) + 1
     ok = n >= 4
     n = np.where(ok, n, 0)
     owner = np.repeat(np.arange(len(trunks)), n)
     k = np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)
-    x = (0.3 * L)[owner] + k * sample_step
-    axis, _ = _points_along(traj, x_pt, lengths, trunks[owner], x)
-    r = tree.query(axis)[0] if len(axis) else np.zeros(0)
+    x = (TAPER_AT * L)[owner] + k * sample_step
+    axis, tangent = _points_along(traj, x_pt, lengths, trunks[owner], x)
+    r = _slab_radius(axis, tangent, vertices, tree, sample_step,
+                     2 * surface["ripple_amplitude"] * surface["impurity"])
 
-    ratios = np.full(len(trunks), np.nan)
-    spectra = []
+    tip = surface["tip_radius"]
+    amplitude = surface["ripple_amplitude"] * surface["impurity"]
+    fs = surface["ripple_frequency"]
+    taper, growth, exponent = empty.copy(), empty.copy(), empty.copy()
+    amplitudes, spectra = [], []
     for j in np.flatnonzero(ok):
         sel = owner == j
         xj, rj = x[sel], r[sel]
-        A = np.stack([np.ones_like(xj), L[j] - xj], axis=1)
-        (a0, slope), *_ = np.linalg.lstsq(A, rj, rcond=None)
-        base = a0 + max(slope, 0.0) * L[j]
-        if base > 0:
-            ratios[j] = L[j] / (2 * base)
+        taper[j] = rj[0] / tip
+        d = L[j] - xj
+        # Clear of the base ice too, which swells the first centimetres below the drip point.
+        fit = (d >= FIT_START * L[j]) & (d <= FIT_END * L[j]) & (xj >= 0.5 * surface["base_extent"])
+        if fit.sum() >= 4:
+            n_j, k_j = _power_fit(d[fit], rj[fit] - tip)
+            exponent[j] = n_j
+            growth[j] = 2 * k_j * L[j] ** n_j / L[j]
         if len(xj) >= 8:
             u = (xj - xj.mean()) / max(np.ptp(xj), 1e-300)
-            trend = np.polyval(np.polyfit(u, rj, 2), u)
-            spectra.append((rj - trend) * np.hanning(len(rj)))
-    wavelength = nan
-    if surface["ripple_amplitude"] > 0 and spectra:
-        wavelength = _dominant_period(spectra, sample_step) * 100
-    return tip_mm, ratios, wavelength
+            trend = np.polyval(np.polyfit(u, rj, 3), u)
+            residual = rj - trend
+            spectra.append(residual * np.hanning(len(rj)))
+            if amplitude > 0 and fs > 0 and np.ptp(xj) * fs >= 4 * math.pi:  # two ripples or more
+                basis = np.stack([np.cos(fs * xj), np.sin(fs * xj)], axis=1)
+                coef, *_ = np.linalg.lstsq(basis, residual, rcond=None)
+                # What noise alone would fit: an amplitude of about sigma sqrt(2 / N).
+                noise = np.std(residual - basis @ coef) * math.sqrt(2.0 / len(xj))
+                amplitudes.append((math.hypot(*coef), noise))
+    ripple_mm = wavelength = nan
+    if amplitudes:
+        amp, noise = np.median(np.array(amplitudes), axis=0)
+        if amp > RIPPLE_SIGNAL * noise:
+            ripple_mm = float(amp * 1000)
+            wavelength = _dominant_period(spectra, sample_step) * 100
+    return IcicleStats(tip_mm, taper, growth, exponent, ripple_mm, wavelength)
+
+
+def _slab_radius(axis, tangent, vertices, tree, thickness, slack):
+    """Radius of the ice around each axis point (k, 3): the median distance from the axis of
+    the vertices in a slab ``thickness`` thick across it, within ``slack`` (and a margin)
+    of the nearest vertex's distance; the nearest vertex's distance where the slab is empty.
+
+    The nearest vertex alone under-reads ripple crests: a trough a few millimetres along
+    the axis lies closer than the crest.
+    """
+    if len(axis) == 0:
+        return np.zeros(0)
+    near = tree.query(axis)[0]
+    out = near.copy()
+    for i, idx in enumerate(tree.query_ball_point(axis, near + slack + thickness)):
+        rel = vertices[np.asarray(idx, dtype=np.int64)] - axis[i]
+        along = rel @ tangent[i]
+        slab = np.abs(along) <= 0.5 * thickness
+        if slab.any():
+            radial = np.sqrt(np.maximum((rel[slab] ** 2).sum(axis=1) - along[slab] ** 2, 0.0))
+            out[i] = np.median(radial)
+    return out
+
+
+def _power_fit(d: np.ndarray, y: np.ndarray) -> tuple[float, float]:
+    """``(n, k)`` of ``y = k d^n`` by least squares in y over a grid of n.
+
+    Fitting in y, not in log y, keeps the samples near the tip (where y is small and the
+    mesh's noise is a large share of it) from pulling n.
+    """
+    n = np.asarray(_EXPONENTS)[:, None]
+    basis = d[None, :] ** n
+    k = (basis @ y) / np.maximum((basis * basis).sum(axis=1), 1e-300)
+    best = int(np.argmin(((y[None, :] - k[:, None] * basis) ** 2).sum(axis=1)))
+    return float(_EXPONENTS[best]), float(k[best])
 
 
 def _tip_radius(points, directions, vertices, tree):

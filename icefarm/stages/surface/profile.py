@@ -9,13 +9,32 @@ from ..trajectories import TrajectoryResult
 # Ripples and noise fade out over this many tip radii above the tip, so the drop
 # at the tip keeps the tip radius (Maeno's 2.44 mm) whatever the ripple phase.
 TIP_CALM = 2.0
+# Exponent of the physical profile r - tip ~ d^(3/4), d the distance from the tip: the
+# similarity solution of a growing icicle (Short, Baygents & Goldstein, Phys. Fluids 18,
+# 083101, 2006), confirmed on 93 lab icicles (Chen & Morris, Phys. Rev. E 83, 026307, 2011).
+PHYSICAL_EXPONENT = 0.75
 
 
-def profile_radius(x, length, tip, growth, amplitude, frequency, min_radius=None):
-    """Equation 1: icicle radius along its trajectory, in meters.
+def profile_args(surface: dict) -> dict:
+    """The keyword arguments of `profile_radius` from a resolved ``surface`` group.
 
-    ``R(x) = tip + (L - x) t + as sin(x fs)``, with the ripple fading to nothing over the
-    last ``TIP_CALM`` tip radii so the tip keeps its radius.
+    The ripple amplitude is ``as * impurity``: ripples need dissolved salts, pure water
+    grows smooth icicles (Chen & Morris, New J. Phys. 15, 2013).
+    """
+    return {"tip": surface["tip_radius"], "growth": surface["growth_ratio"],
+            "amplitude": surface["ripple_amplitude"] * surface["impurity"],
+            "frequency": surface["ripple_frequency"], "shape": surface["profile"]}
+
+
+def profile_radius(x, length, tip, growth, amplitude, frequency, min_radius=None, *, shape="paper"):
+    """Icicle radius along its trajectory, in meters.
+
+    ``shape="paper"``, Equation 1: ``R(x) = tip + (L - x) t + as sin(x fs)``, a straight
+    cone. ``shape="physical"``: ``R(x) = tip + t L^(1/4) d^(3/4) + as sin(x fs)`` with
+    ``d = L - x`` the distance from the tip, the profile of real icicles; both reach
+    ``tip + t L`` at the base, so ``t`` sets how much the base widens either way. The
+    ripple fades to nothing over the last ``TIP_CALM`` tip radii so the tip keeps its
+    radius.
 
     Parameters
     ----------
@@ -27,6 +46,7 @@ def profile_radius(x, length, tip, growth, amplitude, frequency, min_radius=None
         ``tip`` (m), ``t`` (m/m), ``as`` (m), ``fs`` (rad/m).
     min_radius : float, optional
         Floor for the radius (ripples deeper than the icicle); default ``tip / 4``.
+    shape : {"paper", "physical"}
 
     Returns
     -------
@@ -34,10 +54,33 @@ def profile_radius(x, length, tip, growth, amplitude, frequency, min_radius=None
         Radius in meters.
     """
     x = np.asarray(x, dtype=np.float64)
-    remaining = np.maximum(np.asarray(length, dtype=np.float64) - x, 0.0)
+    length = np.asarray(length, dtype=np.float64)
+    remaining = np.maximum(length - x, 0.0)
     calm = np.clip(remaining / (TIP_CALM * tip), 0.0, 1.0)
-    r = tip + remaining * growth + amplitude * np.sin(x * frequency) * calm
+    r = tip + _widening(remaining, length, growth, shape) + amplitude * np.sin(x * frequency) * calm
     return np.maximum(r, tip / 4 if min_radius is None else min_radius)
+
+
+def smooth_radius(x, length, tip, growth, amplitude=0.0, frequency=0.0, min_radius=None, *, shape="paper"):
+    """`profile_radius` without its ripple: the radius the ripple rides on (meters)."""
+    x = np.asarray(x, dtype=np.float64)
+    length = np.asarray(length, dtype=np.float64)
+    return tip + _widening(np.maximum(length - x, 0.0), length, growth, shape)
+
+
+def ripple(x, length, tip, amplitude, frequency):
+    """The ripple term of `profile_radius`, faded near the tip (meters)."""
+    x = np.asarray(x, dtype=np.float64)
+    calm = np.clip(np.maximum(np.asarray(length, dtype=np.float64) - x, 0.0) / (TIP_CALM * tip), 0.0, 1.0)
+    return amplitude * np.sin(x * frequency) * calm
+
+
+def _widening(d, length, growth, shape):
+    if shape == "paper":
+        return d * growth
+    if shape != "physical":
+        raise ValueError(f"profile shape must be 'paper' or 'physical', got {shape!r}")
+    return growth * np.maximum(length, 0.0) ** (1 - PHYSICAL_EXPONENT) * d**PHYSICAL_EXPONENT
 
 
 def _branch_lengths(traj: TrajectoryResult):
@@ -49,7 +92,8 @@ def _branch_lengths(traj: TrajectoryResult):
         seg[1:] = np.linalg.norm(np.diff(pts, axis=0), axis=1)
     seg[off[:-1][off[:-1] < len(pts)]] = 0.0  # no segment across a branch start
     cum = np.cumsum(seg)
-    start = np.repeat(cum[off[:-1]] if len(pts) else np.zeros(0), np.diff(off))
+    # (an empty branch, e.g. one the ground cut away, may start at len(pts): clip its index)
+    start = np.repeat(cum[np.minimum(off[:-1], len(pts) - 1)] if len(pts) else np.zeros(0), np.diff(off))
     x = cum - start
     lengths = np.zeros(len(off) - 1)
     nonempty = np.diff(off) > 0

@@ -8,7 +8,7 @@ import numpy as np
 
 from ..trajectories import TrajectoryResult
 from .icicles import _perpendicular_frame
-from .profile import _branch_lengths, _points_along, profile_radius
+from .profile import _branch_lengths, _points_along, profile_args, profile_radius
 
 def tube_mesh(traj: TrajectoryResult, surface: dict, gravity=(0.0, -1.0, 0.0), ring: int = 12,
               cap_rings: int = 4):
@@ -35,15 +35,15 @@ def tube_mesh(traj: TrajectoryResult, surface: dict, gravity=(0.0, -1.0, 0.0), r
     faces : (m, 3) int64
         Outward-wound; each branch's tube is closed (watertight) on its own.
     """
-    tip = surface["tip_radius"]
-    prof = (tip, surface["growth_ratio"], surface["ripple_amplitude"], surface["ripple_frequency"])
+    prof = profile_args(surface)
+    tip = prof["tip"]
     x_pt, lengths = _branch_lengths(traj)
     branches = np.flatnonzero(np.diff(np.asarray(traj.branch_offsets)) > 0)
     if len(branches) == 0:
         return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64)
     step = tip
-    if prof[2] > 0 and prof[3] > 0:
-        step = min(step, 2 * math.pi / prof[3] / 6)
+    if prof["amplitude"] > 0 and prof["frequency"] > 0:
+        step = min(step, 2 * math.pi / prof["frequency"] / 6)
     L = lengths[branches]
     n = np.maximum(np.ceil(L / step).astype(np.int64), 1) + 1  # body rings per tube
     rb = np.repeat(np.arange(len(branches)), n)
@@ -51,7 +51,7 @@ def tube_mesh(traj: TrajectoryResult, surface: dict, gravity=(0.0, -1.0, 0.0), r
     rk = np.arange(n.sum()) - first[rb]
     xr = rk * (L / (n - 1))[rb]
     centre, _ = _points_along(traj, x_pt, lengths, branches[rb], xr)
-    radius = profile_radius(xr, L[rb], *prof)
+    radius = profile_radius(xr, L[rb], **prof)
     # Tangents by central differences within each tube (one-sided at its ends).
     last = first + n - 1
     ahead = centre[np.minimum(np.arange(len(rb)) + 1, last[rb])]

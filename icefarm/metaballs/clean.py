@@ -1,0 +1,137 @@
+"""Sliver clean-up: vertices closer than a tolerance merged, the faces they collapse dropped."""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
+
+
+def collapse_slivers(vertices: np.ndarray, faces: np.ndarray, tol: float):
+    """Merge vertices closer than ``tol`` and drop the faces that collapse.
+
+    A boolean union cuts along the other surface's faces, and marching cubes can land two
+    vertices a hair apart: both leave faces of next to no area (edges of 1e-8 m), which
+    renderers and exporters treat as broken. Merging them is an edge collapse: the mesh
+    stays closed, so the result is kept only where it still has every edge shared by
+    exactly two faces; otherwise the input comes back unchanged.
+
+    Parameters
+    ----------
+    vertices : (n, 3) float
+        Meters.
+    faces : (m, 3) int
+    tol : float
+        Meters; a thousandth of a voxel is ample.
+
+    Returns
+    -------
+    vertices : (k, 3) float64
+    faces : (j, 3) int64
+    """
+    vertices = np.asarray(vertices, dtype=np.float64)
+    faces = np.asarray(faces, dtype=np.int64)
+    if len(faces) == 0:
+        return vertices, faces
+    pairs = cKDTree(vertices).query_pairs(tol, output_type="ndarray")
+    if len(pairs) == 0:
+        return vertices, faces
+    n = len(vertices)
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+    _, label = connected_components(graph, directed=False)
+    touched = np.zeros(n, dtype=bool)
+    touched[pairs.ravel()] = True
+    # Only faces at a merged vertex change, and every edge at one lies in such faces only,
+    # so the collapse is done and checked on those faces alone.
+    hit = touched[faces].any(axis=1)
+    merged = label[faces[hit]]
+    keep = (merged[:, 0] != merged[:, 1]) & (merged[:, 1] != merged[:, 2]) & (merged[:, 0] != merged[:, 2])
+    merged = merged[keep]
+    # A collapse can leave a face and its mirror image back to back: drop both.
+    _, inverse, count = np.unique(np.sort(merged, axis=1), axis=0, return_inverse=True, return_counts=True)
+    merged = merged[count[inverse.reshape(-1)] == 1]
+    if not _closed_at(merged, np.unique(label[touched])):
+        return vertices, faces
+    out = np.concatenate([label[faces[~hit]], merged])
+    used, remap = np.unique(out, return_inverse=True)
+    first = np.zeros(label.max() + 1, dtype=np.int64)
+    first[label[::-1]] = np.arange(n)[::-1]  # the first vertex of each group stands for it
+    return vertices[first[used]], remap.reshape(-1, 3)
+
+
+def _closed_at(faces: np.ndarray, at: np.ndarray) -> bool:
+    """Every directed edge of ``faces`` with an end in ``at`` appears once and its reverse
+    once: closed and consistently wound there."""
+    edges = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    edges = edges[np.isin(edges, at).any(axis=1)]
+    fwd = np.unique(edges, axis=0, return_counts=True)
+    if (fwd[1] != 1).any():
+        return False
+    rev = np.unique(edges[:, ::-1], axis=0)
+    return len(rev) == len(fwd[0]) and np.array_equal(rev, fwd[0])
+
+
+def flip_needles(vertices: np.ndarray, faces: np.ndarray, height: float):
+    """Flip the longest edge of each face flatter than ``height`` (a needle: one corner on
+    the opposite edge, no short edge to collapse) with the face across it.
+
+    Faces ``(u, v, w)`` and ``(v, u, x)`` become ``(u, x, w)`` and ``(x, v, w)``: the same
+    surface, closed and wound as before. A flip that would make an edge the mesh already
+    has, or a new needle, is skipped.
+
+    Parameters
+    ----------
+    vertices : (n, 3) float
+    faces : (m, 3) int
+    height : float
+        Meters: a face's least height under this makes it a needle.
+
+    Returns
+    -------
+    (m, 3) int64
+        The faces (the same array when there is no needle).
+    """
+    faces = np.asarray(faces, dtype=np.int64)
+    needles = np.flatnonzero(_heights(vertices, faces) < height)
+    if len(needles) == 0:
+        return faces
+    faces = faces.copy()
+    directed = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    n = len(vertices)
+    owner = {int(k): int(i % len(faces)) for i, k in enumerate(directed[:, 0] * n + directed[:, 1])}
+    for f in needles:
+        u, v, w = _longest_edge_first(vertices, faces[f])
+        g = owner.get(v * n + u)
+        if g is None or g == f:
+            continue
+        x = int(next(c for c in faces[g] if c != u and c != v))
+        if x * n + w in owner or w * n + x in owner or x == w:
+            continue
+        new = np.array([[u, x, w], [x, v, w]])
+        if (_heights(vertices, new) < height).any():
+            continue
+        for face in (faces[f], faces[g]):
+            for a, b in ((face[0], face[1]), (face[1], face[2]), (face[2], face[0])):
+                owner.pop(int(a) * n + int(b), None)
+        faces[f], faces[g] = new
+        for i in (f, g):
+            for a, b in ((faces[i][0], faces[i][1]), (faces[i][1], faces[i][2]), (faces[i][2], faces[i][0])):
+                owner[int(a) * n + int(b)] = int(i)
+    return faces
+
+
+def _heights(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Least height of each triangle (twice its area over its longest edge), meters."""
+    tri = np.asarray(vertices, dtype=np.float64)[faces]
+    edges = np.linalg.norm(tri - np.roll(tri, 1, axis=1), axis=2).max(axis=1)
+    double_area = np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    return double_area / np.maximum(edges, 1e-300)
+
+
+def _longest_edge_first(vertices, face):
+    """``(u, v, w)``: the face rolled so that ``u -> v`` is its longest edge."""
+    tri = np.asarray(vertices)[face]
+    lengths = np.linalg.norm(tri[[1, 2, 0]] - tri, axis=1)  # edge i runs from corner i to i + 1
+    i = int(np.argmax(lengths))
+    return int(face[i]), int(face[(i + 1) % 3]), int(face[(i + 2) % 3])

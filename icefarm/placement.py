@@ -1,0 +1,76 @@
+"""Where an object stands: on the ground, or hanging (a sign, a branch, a lamp).
+
+A grounded object's lowest point rests on the ground plane; the faces it stands on get no
+icicle, base or glaze, and an icicle that would reach the ground stops at it. A hanging
+object keeps the ground below its lowest ice.
+"""
+
+from __future__ import annotations
+
+import enum
+
+import numpy as np
+
+from .stages.trajectories import TrajectoryResult
+
+
+class Placement(enum.Enum):
+    GROUND = "ground"
+    HANGING = "hanging"
+
+
+PLACEMENTS = tuple(p.value for p in Placement)
+
+
+def ground_height(vertices: np.ndarray, gravity) -> float:
+    """Height (m, along -gravity) of the lowest of ``vertices`` (n, 3): the ground under it."""
+    g = np.asarray(gravity, dtype=np.float64)
+    return float((np.asarray(vertices, dtype=np.float64) @ -(g / np.linalg.norm(g))).min())
+
+
+def sole_vertices(vertices: np.ndarray, gravity, clearance: float) -> np.ndarray:
+    """``(n,) bool``: vertices within ``clearance`` of the object's height above its lowest
+    point, where it rests on the ground (no icicle, base or glaze there)."""
+    g = np.asarray(gravity, dtype=np.float64)
+    heights = np.asarray(vertices, dtype=np.float64) @ -(g / np.linalg.norm(g))
+    return heights < heights.min() + clearance * np.ptp(heights)
+
+
+def stop_at_ground(traj: TrajectoryResult, gravity, floor: float, margin: float) -> TrajectoryResult:
+    """Icicles cut where they come within ``margin`` of the ground at height ``floor``.
+
+    Each branch keeps its points down to the last one above ``floor + margin`` (the drop at
+    the tip then just touches the ground), and ends exactly there; a branch that starts
+    below it is left empty (no points), so branch indices keep their meaning.
+
+    Parameters
+    ----------
+    traj : TrajectoryResult
+    gravity : (3,) float
+    floor, margin : float
+        Ground height along -gravity and the clearance to keep (the tip radius), meters.
+    """
+    g = np.asarray(gravity, dtype=np.float64)
+    g = g / np.linalg.norm(g)
+    pts = np.asarray(traj.points, dtype=np.float64)
+    off = np.asarray(traj.branch_offsets, dtype=np.int64)
+    limit = floor + margin
+    height = pts @ -g
+    if len(pts) == 0 or height.min() >= limit:
+        return traj
+    kept, counts = [], []
+    for b in range(len(off) - 1):
+        branch, h = pts[off[b]:off[b + 1]], height[off[b]:off[b + 1]]
+        low = np.flatnonzero(h < limit)
+        if len(branch) == 0 or len(low) == 0:
+            kept.append(branch)
+        elif low[0] == 0:  # a branch of an icicle already cut: nothing of it is left
+            kept.append(branch[:0])
+        else:
+            i = low[0]
+            t = (h[i - 1] - limit) / max(h[i - 1] - h[i], 1e-300)
+            kept.append(np.vstack([branch[:i], branch[i - 1] + t * (branch[i] - branch[i - 1])]))
+        counts.append(len(kept[-1]))
+    return TrajectoryResult(points=np.concatenate(kept) if kept else np.zeros((0, 3)),
+                            branch_offsets=np.r_[0, np.cumsum(counts)].astype(np.int64),
+                            branch_icicle=traj.branch_icicle, branch_parent=traj.branch_parent)

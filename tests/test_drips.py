@@ -1,0 +1,218 @@
+"""Stage 2: where the drip points go (drips.distribution, drips.spacing) and coarse meshes."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import trimesh
+from scipy.spatial.distance import pdist
+
+from icefarm import params
+from icefarm.generators import generate, lathe, resample_polyline
+from icefarm.geometry import sample_faces
+from icefarm.mesh import detect_problems, prepare
+from icefarm.pipeline import JobSpec, Stage, run_job
+from icefarm.proxy import ProxyMethod, build_proxy, proxy_reason
+from icefarm.stages.drips import drip_flux, drip_region, find_drips
+from icefarm.stages.trajectories import grow_trajectories
+from icefarm.stages.water import compute_water
+
+G = np.array([0.0, -1.0, 0.0])
+DEFAULTS = params.resolve()
+
+# An umbrella on a column, 0.45 tall: rain on its cone runs down to the rim at r = 0.30,
+# y = 0.30; the underside rises from there to the column at y = 0.40.
+UMBRELLA = np.array([[0.0, 0.0], [0.05, 0.0], [0.05, 0.40], [0.30, 0.30], [0.30, 0.32], [0.0, 0.45]])
+UMBRELLA_RIM = (0.30, 0.30)
+
+
+def umbrella(offset=(0.0, 0.0, 0.0)) -> trimesh.Trimesh:
+    vertices, faces = lathe(resample_polyline(UMBRELLA, 40), 48)
+    return trimesh.Trimesh(vertices + np.asarray(offset), faces)
+
+
+def off_the_ground(mesh: trimesh.Trimesh, fraction: float = 0.05) -> np.ndarray:
+    """Vertices near the object's lowest point, as the pipeline's drips.ground_clearance."""
+    heights = mesh.vertices[:, 1]
+    return heights < heights.min() + fraction * np.ptp(heights)
+
+
+def umbrella_drips(mesh, water, distribution, count=40, spacing=0.025, seed=3):
+    return find_drips(mesh, water, G, count, 75.0, np.random.default_rng(seed), spacing=spacing,
+                      distribution=distribution, exclude_vertices=off_the_ground(mesh))
+
+
+@pytest.fixture(scope="module")
+def wet_umbrella():
+    mesh = umbrella()
+    return mesh, compute_water(mesh, G, 4000, 0.01, np.random.default_rng(1)).water
+
+
+def rim_distance(points: np.ndarray, rim=UMBRELLA_RIM) -> np.ndarray:
+    radius = np.hypot(points[:, 0], points[:, 2])
+    return np.hypot(radius - rim[0], points[:, 1] - rim[1])
+
+
+@pytest.mark.parametrize("distribution", ["water", "area"])
+def test_drip_points_keep_the_spacing(sphere, distribution):
+    water = compute_water(sphere, G, 4000, 0.01, np.random.default_rng(2)).water
+    drips = find_drips(sphere, water, G, 40, 75.0, np.random.default_rng(3), spacing=0.03,
+                       distribution=distribution)
+    assert len(drips.positions) == 40
+    assert pdist(drips.positions).min() >= 0.03
+    # a region too small for the count gives fewer points, still spaced
+    crowded = find_drips(sphere, water, G, 200, 30.0, np.random.default_rng(3), spacing=0.03,
+                         distribution=distribution)
+    assert 1 <= len(crowded.positions) < 60
+    assert pdist(crowded.positions).min() >= 0.03
+
+
+def test_area_without_spacing_is_the_papers_spread(sphere):
+    water = compute_water(sphere, G, 4000, 0.01, np.random.default_rng(2)).water
+    drips = find_drips(sphere, water, G, 30, 60.0, np.random.default_rng(5), spacing=0.0, distribution="area")
+    region = drip_region(sphere, water, G, 60.0)
+    points, face, _ = sample_faces(sphere, region, 60, np.random.default_rng(5))
+    np.testing.assert_array_equal(drips.positions, points[:30])
+    np.testing.assert_array_equal(drips.faces, face[:30])
+
+
+def test_water_drips_from_the_rim_not_the_underside(wet_umbrella):
+    mesh, water = wet_umbrella
+    by_water = umbrella_drips(mesh, water, "water")
+    by_area = umbrella_drips(mesh, water, "area")
+    assert len(by_water.positions) == len(by_area.positions) == 40
+    # the rim is the underside's lowest edge (the wet part of the region hugs it): water
+    # puts the points lower, on it
+    assert by_water.positions[:, 1].mean() < by_area.positions[:, 1].mean() - 0.002
+    assert rim_distance(by_water.positions).max() < 0.002
+    assert rim_distance(by_water.positions).mean() < 0.5 * rim_distance(by_area.positions).mean()
+    assert (by_water.water > 0).all()
+    # every point still lies on the drip region
+    assert np.isin(by_water.faces, by_water.region_faces).all()
+
+
+def test_a_sharp_lip_sheds_its_water_and_a_dome_its_whole_cap(sphere, wet_umbrella):
+    mesh, water = wet_umbrella
+    region = drip_region(mesh, water, G, 75.0, off_the_ground(mesh))
+    flux = drip_flux(mesh, water, G, 75.0, region)
+    shed = flux > 0
+    assert (rim_distance(mesh.vertices[shed]) < 0.01).all()
+    # a dome sheds as the paper spreads: over its whole cap, not at one ring
+    water = compute_water(sphere, G, 4000, 0.01, np.random.default_rng(2)).water
+    flux = drip_flux(sphere, water, G, 75.0, drip_region(sphere, water, G, 75.0))
+    heights = sphere.vertices[flux > 0, 1]
+    assert np.ptp(heights) > 0.1
+
+
+def test_more_water_longer_icicles(wet_umbrella):
+    mesh, water = wet_umbrella
+    once = umbrella_drips(mesh, water, "water")
+    twice = umbrella_drips(mesh, 2 * water, "water")
+    np.testing.assert_allclose(twice.positions, once.positions)
+    np.testing.assert_allclose(twice.water, 2 * once.water)
+    # two umbrellas, one twice as wet: its icicles get more water and grow longer
+    pair = trimesh.util.concatenate([mesh, umbrella((1.0, 0.0, 0.0))])
+    wet = np.r_[water, 2 * water]
+    drips = find_drips(pair, wet, G, 60, 75.0, np.random.default_rng(4), spacing=0.025, distribution="water",
+                       exclude_vertices=off_the_ground(pair))
+    second = drips.positions[:, 0] > 0.5
+    assert 10 <= second.sum() <= 50
+    assert drips.water[second].mean() > 1.5 * drips.water[~second].mean()
+    traj = grow_trajectories(pair, drips.positions, drips.normals, drips.water, G, np.random.default_rng(0),
+                             drip_limit=75.0, **{**DEFAULTS["trajectories"], "curve_angle": 0.0,
+                                                 "division_probability": 0.0})
+    trunks = np.flatnonzero(traj.branch_parent == -1)
+    length = np.array([np.linalg.norm(np.diff(traj.branch(b), axis=0), axis=1).sum() for b in trunks])
+    icicle_of = traj.branch_icicle[trunks]
+    assert length[second[icicle_of]].mean() > 1.5 * length[~second[icicle_of]].mean()
+    order = np.argsort(drips.water[icicle_of])
+    assert (np.diff(length[order]) >= -1e-9).all(), "more water never gives a shorter trunk"
+
+
+def test_fountain_icicles_hang_from_the_upper_bowls_lip():
+    # the acceptance run: generator:fountain --size-m 0.6, water.pools=overflow,
+    # drips.ground_clearance=0.3, drips.count=32, the default spacing and distribution
+    size = 0.6
+    prepared = prepare(generate("fountain"), size, G)
+    mesh = prepared.mesh
+    water = compute_water(mesh, G, 4000, 0.01, np.random.default_rng(0), pools="overflow").water
+    ground = off_the_ground(mesh, 0.3)
+    results = {}
+    for distribution in ("water", "area"):
+        drips = find_drips(mesh, water, G, 32, 75.0, np.random.default_rng(1), spacing=0.025,
+                           distribution=distribution, exclude_vertices=ground)
+        # the lip: (r, y) = (0.58, 1.00) to (0.56, 0.97) in the profile's units, 1.17 tall
+        scale = size / 1.17
+        points = drips.positions + prepared.offset
+        r, y = np.hypot(points[:, 0], points[:, 2]) / scale, points[:, 1] / scale
+        a, b = np.array([0.56, 0.97]), np.array([0.58, 1.00])
+        rel = np.c_[r, y] - a
+        t = np.clip(rel @ (b - a) / ((b - a) @ (b - a)), 0, 1)
+        near = np.linalg.norm(rel - t[:, None] * (b - a), axis=1) * scale < 0.02
+        results[distribution] = (near.mean(), drips.water.std() / drips.water.mean(), len(drips.positions))
+    near, spread, count = results["water"]
+    assert count == 32 and near >= 0.8 and spread >= 0.3
+    assert results["area"][0] < 0.5 and results["area"][1] < 0.3  # the paper's spread: all over, alike
+
+
+def test_bad_spacing_or_distribution_is_refused(sphere):
+    water = np.ones(len(sphere.vertices))
+    with pytest.raises(ValueError, match="spacing"):
+        find_drips(sphere, water, G, 5, 75.0, np.random.default_rng(0), spacing=-0.01)
+    with pytest.raises(ValueError, match="distribution"):
+        find_drips(sphere, water, G, 5, 75.0, np.random.default_rng(0), distribution="uniform")
+
+
+# ------------------------------------------------------------------------------ coarse meshes
+
+def table_boxes() -> list[trimesh.Trimesh]:
+    """A box-modelled table 0.8 tall: a 1.2 x 0.05 x 0.8 top on four 0.06 wide legs."""
+    move = trimesh.transformations.translation_matrix
+    return [trimesh.creation.box(extents=(1.2, 0.05, 0.8), transform=move((0, 0.775, 0))),
+            *[trimesh.creation.box(extents=(0.06, 0.76, 0.06), transform=move((x, 0.38, z)))
+              for x in (-0.52, 0.52) for z in (-0.32, 0.32)]]
+
+
+def test_coarse_meshes_are_refined_and_dense_ones_left_alone(sphere):
+    cylinder = trimesh.creation.cylinder(radius=0.3, height=0.1, sections=10)
+    problems = detect_problems(cylinder)
+    assert "coarse" in proxy_reason(problems, "auto", DEFAULTS["proxy"]["face_budget"])
+    assert proxy_reason(problems, "never", DEFAULTS["proxy"]["face_budget"]) is None
+    assert proxy_reason(detect_problems(sphere), "auto", DEFAULTS["proxy"]["face_budget"]) is None
+    assert proxy_reason(detect_problems(generate("fountain")), "auto", DEFAULTS["proxy"]["face_budget"]) is None
+    proxy = build_proxy(cylinder, DEFAULTS["proxy"], problems)
+    assert proxy.method is ProxyMethod.REFINE and proxy.mesh.is_watertight
+    assert proxy.faces > 4 * len(cylinder.faces)
+    # refining keeps the shape: every proxy vertex lies on the cylinder
+    _, distance, _ = trimesh.proximity.closest_point(cylinder, proxy.mesh.vertices)
+    assert distance.max() < 1e-6
+
+
+@pytest.mark.parametrize("loose", [False, True], ids=["welded", "loose-boxes"])
+def test_low_poly_table_gets_icicles_along_its_tops_rim(tmp_path, loose):
+    # welded: one clean coarse manifold, refined; loose: the boxes merely stacked (loose,
+    # intersecting parts), wrapped
+    boxes = table_boxes()
+    table = trimesh.util.concatenate(boxes) if loose else trimesh.boolean.union(boxes, engine="manifold")
+    assert len(table.faces) < 100
+    path = tmp_path / "table.obj"
+    table.export(path)
+    spec = JobSpec("table", str(path), 0.8, params.resolve({}), seed=0)
+    outcome = run_job(spec, tmp_path / "job", until=Stage.TRAJECTORIES)
+    assert outcome.status == "done", outcome.error
+    done = json.loads((tmp_path / "job" / "done.json").read_text())
+    assert "coarse" in done["proxy_reason"]
+    drips = json.loads((tmp_path / "job" / "drips.json").read_text())["drip_points"]
+    points = np.array([d["position"] for d in drips])
+    assert len(points) >= 16
+    # the object is centred on its bounding box: the top's underside lies at y = 0.35, its
+    # rim at |x| = 0.6 or |z| = 0.4
+    on_rim = (np.abs(points[:, 1] - 0.35) < 0.02) & (
+        (np.abs(np.abs(points[:, 0]) - 0.6) < 0.02) | (np.abs(np.abs(points[:, 2]) - 0.4) < 0.02))
+    assert on_rim.mean() >= 0.8
+    icicles = json.loads((tmp_path / "job" / "trajectories.json").read_text())["icicles"]
+    trunks = [np.asarray(b["points"]) for ic in icicles for b in ic["branches"] if b["parent"] == -1]
+    lengths = [np.linalg.norm(np.diff(t, axis=0), axis=1).sum() for t in trunks]
+    assert np.median(lengths) >= 0.02

@@ -1,0 +1,200 @@
+"""Glaze ice (paper 4.4.4, Equation 3): a continuous clear coat, measured on the mesh."""
+
+from __future__ import annotations
+
+import math
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+
+from icefarm import params
+from icefarm.generators import generate
+from icefarm.geometry import inside, ray_caster
+from icefarm.mesh import prepare
+from icefarm.metaballs import KAPPA, SPACING, Balls, fuse_fields, sample_field
+from icefarm.stages.surface.glaze import (GlazeStats, glaze_balls, glaze_field, glaze_thickness,
+                                          measure_glaze, wet_vertices)
+from icefarm.stages.water import WaterResult, compute_water
+
+G = np.array([0.0, -1.0, 0.0])
+BUNNY = Path(__file__).resolve().parents[1].parent / "shared" / "meshes" / "stanford-bunny.obj"
+
+
+def _glaze(**changes):
+    """The resolved glaze group with ``name=value`` changes."""
+    return params.resolve({f"glaze.{k}": v for k, v in changes.items()})["glaze"]
+
+
+def _by_height(mesh, wet):
+    """Water by hand: ``wet`` vertices, dUp and dDown from their heights."""
+    h = mesh.vertices @ -G
+    top, bottom = h[wet].max(), h[wet].min()
+    n = len(h)
+    return WaterResult(supply=wet, water=np.where(wet, 0.1, 0.0), top=np.zeros(n, int),
+                       d_up=np.where(wet, top - h, 0.0), bottom=np.zeros(n, int),
+                       d_down=np.where(wet, h - bottom, 0.0), hits=np.zeros((0, 3)))
+
+
+def _coat(mesh, water, glaze, exclude=None):
+    field = glaze_field(mesh, water, glaze, np.random.default_rng(0), exclude=exclude)
+    return fuse_fields(None, field)
+
+
+def _closed(vertices, faces):
+    m = trimesh.Trimesh(vertices, faces, process=False)
+    assert len(faces) > 0
+    assert m.is_watertight and m.is_winding_consistent
+    assert m.volume > 0
+    return m
+
+
+def _grounded(mesh):
+    """The pipeline's sole: vertices within 2 % of the height of the lowest point."""
+    h = mesh.vertices @ -G
+    return h < h.min() + 0.02 * np.ptp(h)
+
+
+@pytest.fixture(scope="module")
+def bunny_water():
+    """The bunny at 0.3 m, wet by 400 rain rays, with its sole."""
+    if not BUNNY.is_file():
+        pytest.skip(f"{BUNNY} not available")
+    mesh = prepare(BUNNY, 0.3, G).mesh
+    return mesh, compute_water(mesh, G, 400, 0.01, np.random.default_rng(0)), _grounded(mesh)
+
+
+@pytest.fixture(scope="module")
+def roof_water():
+    """A small generated roof (0.5 m), wet by 400 rain rays, with its sole."""
+    mesh = prepare(generate("roof", 2), 0.5, G).mesh
+    return mesh, compute_water(mesh, G, 400, 0.01, np.random.default_rng(0)), _grounded(mesh)
+
+
+@pytest.mark.parametrize("case", ["bunny_water", "roof_water"])
+def test_default_coat_covers_the_wet_surface_evenly(case, request):
+    mesh, water, sole = request.getfixturevalue(case)
+    v, f = _coat(mesh, water, _glaze(), exclude=sole)
+    _closed(v, f)
+    s = measure_glaze(v, f, mesh, water, G, exclude=sole, samples=5000)
+    assert isinstance(s, GlazeStats) and s.samples == 5000 and s.wet_area_m2 > 0
+    assert s.coverage >= 0.95
+    assert s.p90_mm <= 2 * s.p50_mm
+    assert s.p50_mm >= 1.0  # thick enough to read as ice
+
+
+@pytest.mark.parametrize("case", ["bunny_water", "roof_water"])
+def test_lifetime_puts_the_ice_high_up_or_low_down(case, request):
+    mesh, water, sole = request.getfixturevalue(case)
+    ratio = {}
+    for lt in (0.0, 1.0):
+        v, f = _coat(mesh, water, _glaze(lifetime=lt), exclude=sole)
+        ratio[lt] = measure_glaze(v, f, mesh, water, G, exclude=sole, samples=5000).top_bottom
+    assert ratio[0.0] >= 3  # freezes where it lands: thick up high
+    assert ratio[1.0] <= 1 / 3  # runs down first: thick low down
+
+
+def test_lifetime_on_a_sphere_with_water_by_height():
+    sphere = trimesh.creation.icosphere(subdivisions=4, radius=0.15)
+    water = _by_height(sphere, np.ones(len(sphere.vertices), dtype=bool))
+    low, high = (measure_glaze(*_coat(sphere, water, _glaze(lifetime=lt)), sphere, water, G, samples=4000).top_bottom
+                 for lt in (0.0, 1.0))
+    assert low >= 3 and high <= 1 / 3
+
+
+def test_thickness_is_equation_3_on_a_flat_wet_plate():
+    plate = trimesh.creation.box(extents=(0.2, 0.03, 0.2))
+    plate = trimesh.Trimesh(*trimesh.remesh.subdivide_to_size(plate.vertices, plate.faces, 0.02))
+    top = plate.vertices[:, 1] > 0.0149
+    x = plate.vertices[:, 0] + 0.1  # 0 .. 0.2 m across the plate
+    n = len(x)
+    water = WaterResult(top, np.where(top, 0.1, 0.0), np.zeros(n, int), np.where(top, x, 0.0),
+                        np.zeros(n, int), np.where(top, 0.2 - x, 0.0), np.zeros((0, 3)))
+    for lt in (0.0, 0.5, 1.0):
+        glaze = _glaze(lifetime=lt, min_radius=0.001, scale=0.02)
+        v, f = _coat(plate, water, glaze)
+        ice = _closed(v, f)
+        # Points on the top, away from its rim: the ice above them, straight up.
+        px = np.linspace(-0.07, 0.07, 15)
+        pts = np.stack(np.meshgrid(px, [0.015], px, indexing="ij"), axis=-1).reshape(-1, 3)
+        up = np.broadcast_to(-G, pts.shape)
+        d, face = ray_caster(ice)(pts - 1e-4 * up, up)
+        assert np.isfinite(d).all() and (ice.face_normals[face] @ -G > 0).all()  # leaving the ice
+        expected = 0.001 + 0.02 * ((pts[:, 0] + 0.1) * lt + (0.1 - pts[:, 0]) * (1 - lt))
+        assert np.abs(d - 1e-4 - expected).max() <= glaze["voxel_size"]
+        assert np.abs(d - 1e-4 - expected).mean() <= 0.25 * glaze["voxel_size"]
+    assert np.allclose(glaze_thickness(water, glaze)[top], 0.001 + 0.02 * (x[top] * 1.0))
+
+
+def test_coat_fuses_with_an_icicle_into_one_watertight_mesh():
+    sphere = trimesh.creation.icosphere(subdivisions=4, radius=0.1)
+    water = _by_height(sphere, sphere.vertices[:, 1] < 0.08)  # all but a dry cap: one surface
+    coat = glaze_field(sphere, water, _glaze(), np.random.default_rng(0))
+    # An icicle: a chain of balls of radius 4 mm from inside the bottom down 6 cm.
+    r = 0.004
+    z = np.arange(-0.095, -0.16, -SPACING * KAPPA * r)
+    chain = Balls(np.c_[np.zeros_like(z), z, np.zeros_like(z)], np.full(len(z), KAPPA * r), np.ones(len(z)))
+    v, f = fuse_fields(sample_field(chain, 0.001), coat)
+    ice = _closed(v, f)
+    assert len(ice.split(only_watertight=False)) == 1
+    assert ice.bounds[0, 1] < -0.155 and ice.bounds[1, 1] > 0.08  # icicle tip and coat top
+
+
+def test_excluded_vertices_get_no_ice():
+    sphere = trimesh.creation.icosphere(subdivisions=4, radius=0.1)
+    wet = np.ones(len(sphere.vertices), dtype=bool)
+    sole = sphere.vertices[:, 1] < -0.07
+    water = _by_height(sphere, wet)
+    v, f = _coat(sphere, water, _glaze(), exclude=sole)
+    ice = _closed(v, f)
+    cast = ray_caster(ice)
+    points = sphere.vertices[sole]
+    normal = sphere.vertex_normals[sole]
+    assert not inside(cast, points).any()
+    d, _ = cast(points - 1e-4 * normal, normal)
+    assert (d > 0.01).all()  # no ice over them, not even a thin one
+    s = measure_glaze(v, f, sphere, water, G, exclude=sole, samples=4000)
+    assert s.coverage >= 0.95
+
+
+def test_legacy_zero_balls_means_no_glaze():
+    glaze = params.resolve({"glaze.balls": 0})["glaze"]
+    assert glaze["mode"] == "none" and "balls" not in glaze
+    assert params.resolve({"glaze": {"balls": 0}}, {"drips.count": 3})["glaze"]["mode"] == "none"
+    assert params.parse_assignment("glaze.balls=0") == ("glaze.balls", 0)
+    assert params.resolve({"glaze.balls": 0, "glaze.mode": "coat"})["glaze"]["mode"] == "coat"
+    with pytest.warns(FutureWarning, match="legacy"):
+        assert params.resolve({"glaze.balls": 5000})["glaze"]["mode"] == "coat"
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert params.resolve()["glaze"]["mode"] == "coat"
+    sphere = trimesh.creation.icosphere(subdivisions=3, radius=0.1)
+    water = _by_height(sphere, np.ones(len(sphere.vertices), dtype=bool))
+    assert glaze_field(sphere, water, glaze, np.random.default_rng(0)) is None
+
+
+def test_metaballs_mode_spreads_balls_by_density():
+    sphere = trimesh.creation.icosphere(subdivisions=3, radius=0.1)
+    water = _by_height(sphere, sphere.vertices[:, 1] > 0)
+    wet = wet_vertices(water)
+    area = sphere.area_faces[wet[sphere.faces].sum(axis=1) >= 2].sum()
+    balls = glaze_balls(sphere, water, _glaze(mode="metaballs", density=20000.0), np.random.default_rng(0))
+    assert len(balls) == round(20000 * area)
+    assert (balls.centers[:, 1] > -0.02).all()
+    field = glaze_field(sphere, water, _glaze(mode="metaballs"), np.random.default_rng(0))
+    _closed(*fuse_fields(None, field))
+
+
+def test_dry_surface_or_no_ice_measures_as_such():
+    sphere = trimesh.creation.icosphere(subdivisions=3, radius=0.1)
+    n = len(sphere.vertices)
+    z = np.zeros(n)
+    dry = WaterResult(np.zeros(n, bool), z, z.astype(int), z, z.astype(int), z, np.zeros((0, 3)))
+    assert glaze_field(sphere, dry, _glaze(), np.random.default_rng(0)) is None
+    s = measure_glaze(np.zeros((0, 3)), np.zeros((0, 3), int), sphere, dry, G)
+    assert s.wet_area_m2 == 0 and math.isnan(s.coverage)
+    wet = _by_height(sphere, np.ones(n, dtype=bool))
+    s = measure_glaze(np.zeros((0, 3)), np.zeros((0, 3), int), sphere, wet, G, samples=100)
+    assert s.coverage == 0 and math.isnan(s.p50_mm)
