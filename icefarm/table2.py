@@ -108,7 +108,12 @@ class RowObject:
         return self.source.startswith("generator:")
 
 
-_NO_GLAZE = (("glaze.balls", 0),)
+_NO_GLAZE = (("glaze.mode", "none"),)
+# The paper's icicles, whose polygons Table 2 counts: Equation 1's cone at the slope and the
+# bases of its era (icefarm's defaults grow carrot-shaped icicles about twice as wide at the
+# base, with swollen bases: more ice, more polygons for the same voxel).
+_PAPER_ICICLES = (("surface.profile", "paper"), ("surface.growth_ratio", 0.012),
+                  ("surface.base_scale", 0.03), ("surface.base_extent", 0.01))
 
 # Glaze ice covers whole wet surfaces, so it sets the polygon count: rows whose paper count
 # is low for their icicles (a few hundred to a few thousand polygons per icicle) are
@@ -116,13 +121,13 @@ _NO_GLAZE = (("glaze.balls", 0),)
 # keep the calibrated voxel at or below the tip radius with the default icicle lengths
 # (small objects, shorter icicles: lengths follow the water, which climbs with the size).
 ROW_OBJECTS: dict[str, RowObject] = {
-    "a": RowObject("cow.obj", "cow", 0.15, _NO_GLAZE),
-    "b": RowObject("generator:fountain", "fountain (generated)", 0.6, _NO_GLAZE),
-    "c": RowObject("dragon.obj", "Stanford dragon", 0.3),
-    "d": RowObject("stanford-bunny.obj", "Stanford bunny", 0.3, _NO_GLAZE),
-    "e": RowObject("armadillo.obj", "Stanford armadillo", 0.3),
-    "f": RowObject("stanford-bunny.obj", "Stanford bunny", 0.2, _NO_GLAZE),
-    "g": RowObject("generator:roof", "house with eaves (generated)", 0.17, _NO_GLAZE),
+    "a": RowObject("cow.obj", "cow", 0.15, _PAPER_ICICLES + _NO_GLAZE),
+    "b": RowObject("generator:fountain", "fountain (generated)", 0.6, _PAPER_ICICLES + _NO_GLAZE),
+    "c": RowObject("dragon.obj", "Stanford dragon", 0.3, _PAPER_ICICLES),
+    "d": RowObject("stanford-bunny.obj", "Stanford bunny", 0.3, _PAPER_ICICLES + _NO_GLAZE),
+    "e": RowObject("armadillo.obj", "Stanford armadillo", 0.3, _PAPER_ICICLES),
+    "f": RowObject("stanford-bunny.obj", "Stanford bunny", 0.2, _PAPER_ICICLES + _NO_GLAZE),
+    "g": RowObject("generator:roof", "house with eaves (generated)", 0.17, _PAPER_ICICLES + _NO_GLAZE),
 }
 
 

@@ -94,7 +94,7 @@ def test_bench_render_compares_overhead_with_render_time(sphere_file, tmp_path):
     config = tmp_path / "tiny.yaml"
     config.write_text("resolution: [40, 30]\nspp: 2\nmax_depth: 4\n")
     result = run("bench", "render", sphere_file, "--render", config, "--repeat", 1,
-                 "--set", "drips.count=6", "--set", "water.rays=2000", "--set", "glaze.balls=0")
+                 "--set", "drips.count=6", "--set", "water.rays=2000", "--set", "glaze.mode=none")
     assert result.exit_code == 0, result.output
     for word in ("render step", "render alone", "write", "load", "wait", "scene / render alone", "whole step",
                  "POV-Ray writer"):
@@ -108,7 +108,7 @@ def test_render_again_makes_new_frames_and_leaves_the_job_as_it_was(sphere_file,
     wide.write_text("resolution: [64, 32]\nspp: 4\nmax_depth: 6\nviews: [three_quarter, front]\n")
     job = tmp_path / "job"
     result = run("run", sphere_file, "--size-m", 0.3, "-o", job, "--render", small,
-                 "--set", "drips.count=6", "--set", "water.rays=2000", "--set", "glaze.balls=0")
+                 "--set", "drips.count=6", "--set", "water.rays=2000", "--set", "glaze.mode=none")
     assert result.exit_code == 0, result.output
     before = {p.name: p.read_bytes() for p in job.iterdir() if p.is_file()}
     assert json.loads((job / "done.json").read_text())["object_material"]["type"] == "diffuse"
@@ -134,6 +134,6 @@ def test_render_again_refuses_what_is_not_a_rendered_job(sphere_file, tmp_path):
     assert result.exit_code == 2 and "not a finished job" in result.output
     job = tmp_path / "job"
     assert run("run", sphere_file, "--size-m", 0.3, "-o", job, "--no-render",
-               "--set", "drips.count=4", "--set", "water.rays=2000", "--set", "glaze.balls=0").exit_code == 0
+               "--set", "drips.count=4", "--set", "water.rays=2000", "--set", "glaze.mode=none").exit_code == 0
     result = run("render", job)
     assert result.exit_code == 2 and "no object.ply" in result.output

@@ -44,3 +44,18 @@ def test_nothing_to_collapse_returns_the_mesh_as_it_was():
     sphere = trimesh.creation.icosphere(subdivisions=2, radius=0.1)
     v, f = collapse_slivers(sphere.vertices, sphere.faces, 1e-6)
     assert np.array_equal(f, sphere.faces) and np.array_equal(v, sphere.vertices)
+
+
+def test_a_needle_is_flipped_away_and_the_mesh_stays_closed():
+    from icefarm.metaballs.clean import _heights, flip_needles
+
+    sphere = trimesh.creation.icosphere(subdivisions=2, radius=0.1)
+    vertices = sphere.vertices.copy()
+    u, v, w = sphere.faces[0]
+    # Pull w onto the middle of u-v: a needle with no short edge to collapse.
+    vertices[w] = 0.5 * (vertices[u] + vertices[v]) + 1e-10 * sphere.face_normals[0]
+    assert _heights(vertices, sphere.faces).min() < 1e-9
+    faces = flip_needles(vertices, sphere.faces, 1e-6)
+    after = trimesh.Trimesh(vertices, faces, process=False)
+    assert after.is_watertight and after.is_winding_consistent
+    assert _heights(vertices, faces).min() > 1e-6

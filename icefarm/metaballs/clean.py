@@ -97,27 +97,37 @@ def flip_needles(vertices: np.ndarray, faces: np.ndarray, height: float):
     if len(needles) == 0:
         return faces
     faces = faces.copy()
-    directed = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
-    n = len(vertices)
-    owner = {int(k): int(i % len(faces)) for i, k in enumerate(directed[:, 0] * n + directed[:, 1])}
+    m, n = len(faces), len(vertices)
+    keys = np.concatenate([faces[:, 0] * n + faces[:, 1], faces[:, 1] * n + faces[:, 2], faces[:, 2] * n + faces[:, 0]])
+    order = np.argsort(keys)
+    sorted_keys = keys[order]
+    changed: dict[int, int | None] = {}  # directed edges the flips made (face) or unmade (None)
+
+    def owner(a: int, b: int) -> int | None:
+        key = a * n + b
+        if key in changed:
+            return changed[key]
+        i = int(np.searchsorted(sorted_keys, key))
+        return int(order[i] % m) if i < len(sorted_keys) and sorted_keys[i] == key else None
+
     for f in needles:
         u, v, w = _longest_edge_first(vertices, faces[f])
-        g = owner.get(v * n + u)
+        g = owner(v, u)
         if g is None or g == f:
             continue
         x = int(next(c for c in faces[g] if c != u and c != v))
-        if x * n + w in owner or w * n + x in owner or x == w:
+        if x == w or owner(x, w) is not None or owner(w, x) is not None:
             continue
         new = np.array([[u, x, w], [x, v, w]])
         if (_heights(vertices, new) < height).any():
             continue
         for face in (faces[f], faces[g]):
             for a, b in ((face[0], face[1]), (face[1], face[2]), (face[2], face[0])):
-                owner.pop(int(a) * n + int(b), None)
+                changed[int(a) * n + int(b)] = None
         faces[f], faces[g] = new
         for i in (f, g):
             for a, b in ((faces[i][0], faces[i][1]), (faces[i][1], faces[i][2]), (faces[i][2], faces[i][0])):
-                owner[int(a) * n + int(b)] = int(i)
+                changed[int(a) * n + int(b)] = int(i)
     return faces
 
 
