@@ -135,6 +135,13 @@ def _print_plausibility(timings: dict) -> None:
     click.echo(f"  tip radius {'-' if tip is None else f'{tip:.2f}'} mm (real: 2.44 mm); ripples "
                + ("none" if amplitude is None else f"{amplitude:.2f} mm deep, {ripple:.2f} cm apart")
                + " (real: 0.5-1 mm, about 1 cm apart, where the water is impure)")
+    coverage = timings.get("glaze_coverage")
+    if coverage is not None:
+        p10, p50, p90, ratio = (timings.get(k) for k in ("glaze_p10_mm", "glaze_p50_mm", "glaze_p90_mm",
+                                                        "glaze_top_bottom"))
+        click.echo(f"  glaze: covers {100 * coverage:.1f} % of the wet surface, "
+                   + ("-" if p50 is None else f"{p10:.1f} / {p50:.1f} / {p90:.1f} mm thick (p10/p50/p90)")
+                   + ("" if ratio is None else f", top/bottom {ratio:.2f}"))
     for key, what, real, fmt in (("taper", "taper (radius near the base / tip)", "a carrot: 3 and more", ".1f"),
                                  ("growth_ratio", "growth ratio (base - tip diameter) / length",
                                   "1/32-1/8, 0.03-0.13", ".3f"),

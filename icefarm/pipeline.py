@@ -237,7 +237,8 @@ def _run_stages(spec: JobSpec, job_dir: Path, run: _Run, cache: _Cache, until: S
     prepared = run.timed("prepare", lambda: load_object(spec))
     obj = prepared.mesh
     mesh_key = _digest(mesh_digest(spec.mesh), spec.size_m, p["water"]["gravity"])
-    stats: dict[str, Any] = {"input_faces": prepared.problems.faces, "problems": vars(prepared.problems)}
+    stats: dict[str, Any] = {"input_faces": prepared.problems.faces, "problems": vars(prepared.problems),
+                             "placement": spec.placement}
 
     flow, proxy_key = obj, "none"
     if p["proxy"]["mode"] != "never":
@@ -374,7 +375,9 @@ def _surface_and_render(spec, job_dir, run, cache, until, obj, flow, water, drip
 
     def render() -> Any:
         files = write_scenes(job_dir, obj, ice_mesh if len(ice.faces) else None, config, gravity, material,
-                             frame_points=_frame(obj, ice_mesh), defer_povray=True)
+                             frame_points=_frame(obj, ice_mesh), defer_povray=True,
+                             impurity=p["surface"]["impurity"],  # impure water: a cloudy core
+                             ground_level=_ground_level(spec.placement, obj, gravity))
         return render_job(job_dir, config, files, progress=run.progress)  # POV-Ray files written meanwhile
 
     result = run.timed("render", render)
@@ -436,7 +439,10 @@ def render_again(job_dir: Path, render: str, out_dir: Path, progress: bool = Fal
     ice_mesh = ice if has_ice else trimesh.Trimesh()
     files = write_scenes(out_dir, obj, ice_mesh if has_ice else None, config, gravity,
                          material_from_dict(done.get("object_material")),
-                         frame_points=_frame(obj, ice_mesh), defer_povray=True)
+                         frame_points=_frame(obj, ice_mesh), defer_povray=True,
+                         impurity=float((yaml.safe_load((job_dir / "params.yaml").read_text()).get("surface")
+                                         or {}).get("impurity", 0.0)),  # 0 for jobs older than it
+                         ground_level=_ground_level(done.get("placement", Placement.HANGING.value), obj, gravity))
     return render_job(out_dir, config, files, progress=progress)
 
 
@@ -446,6 +452,12 @@ def _frame(obj: trimesh.Trimesh, ice: trimesh.Trimesh) -> np.ndarray:
     if len(ice.faces):
         corners.append(trimesh.bounds.corners(ice.bounds))
     return np.vstack(corners)
+
+
+def _ground_level(placement: str, obj: trimesh.Trimesh, gravity) -> float | None:
+    """Height of the ground plane: under the object's lowest point for a grounded object;
+    None (below the lowest ice, the scene's own choice) for a hanging one."""
+    return ground_height(obj.vertices, gravity) if placement == Placement.GROUND.value else None
 
 
 def _not_glaze(flow: trimesh.Trimesh, drips: DripResult, sole: np.ndarray | None, surface: dict) -> np.ndarray:

@@ -3,7 +3,8 @@
 Reads the artifact contract of DESIGN.md ("Artifacts")::
 
     RUN_DIR/jobs/<object>/<job>/  params.yaml, render.exr (linear), render.png (sRGB),
-                                  timings.json, scene.xml, ice.ply, done.json | error.json
+                                  timings.json, scene.xml, ice.ply, done.json | error.json,
+                                  views.json and render_view<i>.exr (optional: the views)
     RUN_DIR/jobs.csv              optional: job order (``job_id`` column) and swept columns
     RUN_DIR/manifest.resolved.yaml optional: sweep name and method
 
@@ -12,6 +13,10 @@ and writes::
     RUN_DIR/sheets/<object>.exr   the sheet, linear Rec.709 (half), for pixel comparison
     RUN_DIR/sheets/<object>.png   the same after one display transform to sRGB, for review
     RUN_DIR/sheets/index.html     every sheet and every job, opened straight from disk
+
+A cell shows the job's main render, or its ice view (a render zoomed on the densest
+icicles, ``frame: ice`` in ``views.json``) where the main render would show the icicles
+under `ICE_VIEW_BELOW_PX` pixels wide at the cell's size; such a cell is tagged "ice view".
 
 The parameters that vary are found per object by comparing the ``params.yaml`` of its jobs,
 so the sheets do not depend on the manifest's format. Two varying parameters give a grid
@@ -66,6 +71,8 @@ COL_HEAD_H = 28
 MIN_WIDTH = 640
 DEFAULT_ASPECT = 0.75  # cell height / width when no render can be read
 WRAP_AFTER = 8  # a one-parameter sweep longer than this wraps into a grid
+ICE_VIEW_BELOW_PX = 4.0  # icicles narrower than this in a cell: show the job's ice view there
+VIEWS_FILE = "views.json"  # written beside the renders (icefarm.scene.render.VIEWS_FILE)
 # fit's filter: no negative lobes (no ringing around highlights, no negative linear values)
 # and 4x faster than its default lanczos3 (40 ms against 170 ms for 320x240 into 160x120).
 FIT_FILTER = "blackman-harris"
@@ -602,6 +609,54 @@ def _cell_aspect(jobs: Sequence[JobInfo]) -> float:
     return DEFAULT_ASPECT
 
 
+def _image_width(path: Path) -> int | None:
+    """Width in pixels of an image, from its header."""
+    image = _oiio().ImageInput.open(str(path))
+    if image is None:
+        return None
+    width = image.spec().width
+    image.close()
+    return width if width > 0 else None
+
+
+def _views(job: JobInfo) -> list[dict]:
+    """The job's ``views.json`` (one entry per rendered view), or [] without a usable one."""
+    path = job.file(VIEWS_FILE)
+    if path is None:
+        return []
+    try:
+        views = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return []
+    return [v for v in views if isinstance(v, Mapping)] if isinstance(views, list) else []
+
+
+def cell_render(job: JobInfo, cell_width: int) -> tuple[Path | None, str | None]:
+    """The EXR a cell of ``cell_width`` pixels shows, and the name of its view if not the main one.
+
+    The main render, unless its densest icicles (``icicle_px`` of view 0 in
+    ``views.json``) would be under `ICE_VIEW_BELOW_PX` pixels wide at the cell's size and
+    the job has an ice view (``frame: ice``) rendered: then that view.
+    """
+    exr = job.file("render.exr")
+    views = _views(job)
+    if exr is None or not views:
+        return exr, None
+    px = views[0].get("icicle_px")
+    if isinstance(px, bool) or not isinstance(px, (int, float)) or not math.isfinite(px):
+        return exr, None
+    width = _image_width(exr)
+    if width is None or px * cell_width / width >= ICE_VIEW_BELOW_PX:
+        return exr, None
+    for view in views[1:]:
+        stem = view.get("stem")
+        if view.get("frame") == "ice" and isinstance(stem, str) and "/" not in stem:
+            zoomed = job.file(f"{stem}.exr")
+            if zoomed is not None:
+                return zoomed, str(view.get("name") or "ice")
+    return exr, None
+
+
 def _seconds(job: JobInfo) -> float | None:
     data = job.timings if job.timings is not None else (job.error or {})
     seconds = data.get("seconds")
@@ -628,7 +683,7 @@ def _draw_cell(buf, job: JobInfo, x: int, y: int, cw: int, ch: int, label_keys: 
     """Draw one job into the cell at ``(x, y)``; returns what was drawn (``render``, a state)."""
     oiio = _oiio()
     inner = cw - 16
-    exr = job.file("render.exr")
+    exr, view = cell_render(job, cw)
     drawn = "render"
     if job.state is JobState.FAILED:
         err = job.error or {}
@@ -647,6 +702,10 @@ def _draw_cell(buf, job: JobInfo, x: int, y: int, cw: int, ch: int, label_keys: 
             cell = _fitted(exr, cw, ch)
             if not oiio.ImageBufAlgo.paste(buf, x, y, 0, 0, cell):
                 raise OSError(buf.geterror())
+            if view is not None:  # say that this cell is zoomed on the ice
+                tag = _clip(f"{view} view", cw - 8, 12)
+                _fill(buf, x, y, _width(tag, 12) + 8, 18, BACKGROUND_SRGB)
+                _text(buf, x + 4, y + 2, tag, 12, TEXT_SRGB)
         except OSError as exc:
             _placeholder(buf, x, y, cw, ch, FAILED_SRGB, "UNREADABLE RENDER",
                          _wrap(str(exc).split(), inner, 12, 3, sep=" "))
@@ -923,6 +982,11 @@ def _job_html(job: JobInfo, varying: Sequence[str], here: Path) -> str:
             links.append(f'<a href="{_href(path, here)}">{_e(name)}</a>')
         elif name in ("scene.xml", "ice.ply"):
             links.append(f'<span class="muted">{_e(name)} (none)</span>')
+    for view in _views(job)[1:]:
+        stem = view.get("stem")
+        path = job.file(f"{stem}.png") if isinstance(stem, str) and "/" not in stem else None
+        if path is not None:
+            links.append(f'<a href="{_href(path, here)}">{_e(view.get("name") or stem)} view</a>')
     if job.path is not None:
         links.append(f'<a href="{_href(job.path, here)}/">folder</a>')
     return (f'<article class="job {_e(state)}" id="{_e(job.object_id)}-{_e(job.job_id)}">{picture}{vary}'

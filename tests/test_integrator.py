@@ -165,3 +165,91 @@ def test_plugin_and_parameters(mi):
         ice_integrator(mi.variant(), ior=0.5)
     with pytest.raises(ValueError, match="tint"):
         ice_integrator(mi.variant(), tint=(1.2, 1.0, 1.0))
+
+
+# ------------------------------------------------------------------ the medium inside the ice
+CENTRE = (slice(15, 21), slice(21, 27))  # the middle of the ball in the medium tests
+
+
+def ball_scene(mi, env=1.0, sun=0.0, sun_dir=SUN_DIR):
+    """Looking straight at an ice ball (radius 0.45, centre at y = 0.5) from 4 m."""
+    scene = base_scene(mi, width=48, height=36, origin=(0, 0.5, 4), target=(0, 0.5, 0), fov=20,
+                       env={"type": "constant", "radiance": {"type": "rgb", "value": [env] * 3}},
+                       sun=sun, sun_dir=sun_dir)
+    del scene["ground"]
+    scene["ball"] = ball(radius=0.45, bsdf=ice())
+    return scene
+
+
+def test_absorption_follows_beer_lambert_toward_blue_green(mi):
+    from icefarm.scene.integrator import ice_integrator
+
+    sigma_a = (1.0, 0.3, 0.2)  # per meter: red goes first, as in real ice
+    scene = ball_scene(mi)
+    clear = render(mi, scene, ice_integrator(mi.variant(), max_depth=8), 64)
+    tinted = render(mi, scene, ice_integrator(mi.variant(), max_depth=8, sigma_a=sigma_a), 64)
+    assert np.isfinite(tinted).all() and (tinted >= 0).all()
+    ratio = tinted[CENTRE].mean(axis=(0, 1)) / clear[CENTRE].mean(axis=(0, 1))
+    # Straight through the middle: 0.9 m of ice.
+    np.testing.assert_allclose(ratio, np.exp(-np.array(sigma_a) * 0.9), rtol=0.08)
+    assert ratio[0] < ratio[1] < ratio[2] < 1.0  # toward blue-green
+    # Outside the ball nothing changes.
+    assert tinted[:, :6].mean() == pytest.approx(clear[:, :6].mean(), rel=1e-3)
+
+
+def test_default_absorption_is_a_faint_tint_on_a_2cm_icicle():
+    from icefarm.scene.config import ABSORPTION_PER_M, load_render_config
+
+    through = np.exp(-np.array(load_render_config("lookdev").ice.absorption) * 0.02)
+    assert np.allclose(load_render_config("lookdev").ice.absorption, ABSORPTION_PER_M, rtol=0.01)
+    assert 0.8 < through[0] < through[1] < through[2] < 0.99  # visible, blue-green, not a filter
+    assert through[2] - through[0] > 0.05
+
+
+def test_scattering_clouds_the_ice_and_zero_scattering_is_no_medium(mi):
+    from icefarm.scene.integrator import ice_integrator
+
+    # A dark world, a sun from behind the camera: clear ice shows the dark behind it,
+    # cloudy ice sends sunlight back.
+    scene = ball_scene(mi, env=0.02, sun=3.0, sun_dir=[0.2, -0.3, -1.0])
+    absorbing = ice_integrator(mi.variant(), max_depth=8, sigma_a=ABS)
+    clear = render(mi, scene, absorbing, 64)
+    zero = render(mi, scene, ice_integrator(mi.variant(), max_depth=8, sigma_a=ABS, sigma_s=0.0), 64)
+    np.testing.assert_array_equal(zero, clear)  # no scattering is exactly the absorbing medium
+    cloudy = render(mi, scene, ice_integrator(mi.variant(), max_depth=8, sigma_a=ABS, sigma_s=20.0), 64)
+    assert np.isfinite(cloudy).all()
+    c, k = cloudy[CENTRE].mean(axis=(0, 1)), clear[CENTRE].mean(axis=(0, 1))
+    assert c.mean() > 2 * k.mean()  # brighter core
+    assert c.min() / c.max() > k.min() / k.max()  # and whiter: less saturated
+
+
+ABS = (2.0, 0.6, 0.4)
+
+
+def test_shadow_through_absorbing_ice_is_tinted(mi):
+    from icefarm.scene.integrator import ice_integrator
+
+    scene = base_scene(mi, width=48, height=48, origin=(0, 6, 0.01), target=(0, 0, 0), fov=40,
+                       sun_dir=(-1.5, -1.0, 0.0))
+    scene["cube"] = {"type": "cube", "bsdf": ice(),
+                     "to_world": mi.ScalarTransform4f().translate([0.6, 0.9, 0]).scale(0.3)}
+    plain = render(mi, scene, ice_integrator(mi.variant(), max_depth=8), 64)[SHADOW_PIXELS].mean(axis=(0, 1))
+    tinted = render(mi, scene, ice_integrator(mi.variant(), max_depth=8, sigma_a=ABS),
+                    64)[SHADOW_PIXELS].mean(axis=(0, 1))
+    ratio = tinted / plain
+    assert np.isfinite(ratio).all()
+    assert ratio[0] < ratio[1] < ratio[2] < 1.0  # red absorbed most in the shadow's light
+    assert ratio[2] > 0.3  # still a light shadow
+
+
+def test_medium_parameters_are_checked(mi):
+    from icefarm.scene.integrator import ice_integrator
+
+    it = ice_integrator(mi.variant(), sigma_a=(1, 2, 3), sigma_s=4.0)
+    assert it.sigma_a == (1.0, 2.0, 3.0) and it.sigma_s == (4.0, 4.0, 4.0)
+    assert it.has_medium and it.has_scattering
+    assert not ice_integrator(mi.variant()).has_medium
+    with pytest.raises(ValueError, match="sigma_a"):
+        ice_integrator(mi.variant(), sigma_a=(-1, 0, 0))
+    with pytest.raises(ValueError, match="sigma_s"):
+        ice_integrator(mi.variant(), sigma_s=float("nan"))

@@ -76,3 +76,29 @@ def test_manifest_placement_defaults_to_ground_and_refuses_others(tmp_path):
     (tmp_path / "c.yaml").write_text(text % ", placement: floating")
     with pytest.raises(InputError, match="placement"):
         load_manifest(tmp_path / "c.yaml")
+
+
+@pytest.mark.parametrize("placement", ["ground", "hanging"])
+def test_a_grounded_object_rests_on_the_ground_plane_of_its_scene(tmp_path, placement, sphere):
+    import xml.etree.ElementTree as ET
+
+    path = tmp_path / "sphere.ply"
+    sphere.export(path)
+    config = tmp_path / "tiny.yaml"
+    config.write_text("resolution: [40, 30]\nspp: 2\nmax_depth: 4\n")
+    p = params.resolve({"water.rays": 1500, "drips.count": 8, "drips.drip_limit": 80, "glaze.mode": "none"})
+    spec = JobSpec("sphere", str(path), 0.3, p, seed=2, render=str(config), placement=placement)
+    outcome = run_job(spec, tmp_path / placement)
+    assert outcome.status == "done", outcome.error
+    job = tmp_path / placement
+    shape = next(s for s in ET.parse(job / "scene.xml").getroot().iter("shape") if s.get("id") == "ground")
+    matrix = np.array(shape.find("transform/matrix").get("value").split(), dtype=float).reshape(4, 4)
+    ground = matrix[1, 3]  # y of the ground rectangle's centre: gravity is -y
+    lowest = trimesh.load(job / "object.ply").vertices[:, 1].min()
+    ice_lowest = trimesh.load(job / "ice.ply").vertices[:, 1].min()
+    if placement == "ground":
+        assert abs(lowest - ground) <= 0.001  # the object stands on it
+        assert ice_lowest >= ground - 1e-6     # no ice below the ground
+        assert json.loads((job / "done.json").read_text())["placement"] == "ground"
+    else:
+        assert ground < min(lowest, ice_lowest)  # the ground below the lowest ice

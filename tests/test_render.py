@@ -304,7 +304,7 @@ def test_render_job_writes_linear_exr_and_srgb_png(tmp_path):
     files = write_scenes(tmp_path, box, ice, config)
     result = render_job(tmp_path, config, files)
     assert result.variant in ("scalar_rgb", "llvm_ad_rgb", "cuda_ad_rgb")
-    assert result.integrator == ("path" if result.variant == "scalar_rgb" else "icepath")
+    assert result.integrator == ("volpath" if result.variant == "scalar_rgb" else "icepath")
     assert result.seconds > 0 and result.scene_seconds >= files.seconds
     assert [p.name for p in result.files] == ["render.exr", "render.png",
                                               "render_view1.exr", "render_view1.png"]
@@ -508,3 +508,215 @@ def test_rough_ice_renders_finite_and_differs_from_clear_ice(tmp_path):
     on_ice[np.clip(xy[:, 1], 0, 47), np.clip(xy[:, 0], 0, 63)] = True
     diff = np.abs(images["clear"] - images["frosted"]).mean(axis=2)
     assert diff[on_ice].mean() > 2 * diff[~on_ice].mean()  # the ice changed, not just the noise
+
+
+# ------------------------------------------------------------------ ice that renders as ice
+def dense_icicles(count: int = 5, spacing: float = 0.05):
+    """A 30 cm box with ``count`` cones hanging from its underside, finely meshed like the
+    pipeline's marching-cubes ice (edges of about 1.5 mm), 12 mm radius at the root."""
+    box = trimesh.creation.box(extents=(0.3, 0.1, 0.2))
+    box.apply_translation((0.0, 0.05, 0.0))
+    cones = []
+    for i in range(count):
+        cone = trimesh.creation.cone(radius=0.012, height=0.08 + 0.02 * (i % 3), sections=48)
+        cone.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, (1, 0, 0)))  # tip -Y
+        cone.apply_translation(((i - (count - 1) / 2) * spacing, 0.0, 0.04))
+        cones.append(cone)
+    ice = trimesh.util.concatenate(cones)
+    v, f = trimesh.remesh.subdivide_to_size(ice.vertices, ice.faces, max_edge=0.0015)
+    return box, trimesh.Trimesh(v, f, process=False), cones
+
+
+def cone_widths(camera, cones, width, height):
+    """Width in pixels of each cone halfway down, and whether that point is in the frame."""
+    right = np.cross(camera.forward, camera.up)
+    right /= np.linalg.norm(right)
+    out = []
+    for cone in cones:
+        lo, hi = cone.bounds
+        mid = np.array([(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, (lo[2] + hi[2]) / 2])
+        radius = 0.012 * 0.5  # halfway down the cone
+        a, b = camera.project(np.array([mid - radius * right, mid + radius * right]), width, height)
+        centre = camera.project(mid[None], width, height)[0]
+        inside = 0 <= centre[0] < width and 0 <= centre[1] < height
+        out.append((float(np.linalg.norm(a - b)), inside))
+    return out
+
+
+def test_lookdev_has_an_ice_view_that_frames_the_icicles(tmp_path):
+    import json
+
+    lookdev = load_render_config("lookdev")
+    assert [v.frame for v in lookdev.views] == ["all", "ice"]
+    config = render_config_from_dict({"resolution": [160, 120]}, base=lookdev)
+    box, ice, cones = dense_icicles()
+    files = write_scenes(tmp_path, box, ice, config)
+    full, zoomed = files.cameras
+    assert np.allclose(full.origin, zoomed.origin) and zoomed.fov_x < full.fov_x / 2
+    seen_full = cone_widths(full, cones, 160, 120)
+    seen_ice = cone_widths(zoomed, cones, 160, 120)
+    assert all(inside for _, inside in seen_full) and max(w for w, _ in seen_full) < 8
+    in_frame = [w for w, inside in seen_ice if inside]
+    assert in_frame and min(in_frame) >= 8  # every icicle it shows is at least 8 px wide
+    views = json.loads((tmp_path / "views.json").read_text())
+    assert [(v["name"], v["frame"], v["stem"]) for v in views] == [
+        ("three_quarter", "all", "render"), ("ice", "ice", "render_view1")]
+    assert views[0]["icicle_px"] < 8 <= views[1]["icicle_px"]
+    assert files.icicle_px == (views[0]["icicle_px"], views[1]["icicle_px"])
+    # Both renderers get the zoomed camera.
+    assert f"{zoomed.fov_x:.9g}" in files.xml.read_text() and f"angle {zoomed.fov_x:.9g}" in files.pov.read_text()
+
+
+def test_ice_view_without_ice_or_icicles_still_renders_a_view(tmp_path):
+    import json
+
+    config = render_config_from_dict({"resolution": [64, 48]}, base=load_render_config("lookdev"))
+    box, _, _ = dense_icicles()
+    files = write_scenes(tmp_path / "bare", box, None, config)
+    assert len(files.cameras) == 2 and np.allclose(files.cameras[0].origin, files.cameras[1].origin)
+    assert [v["icicle_px"] for v in json.loads((tmp_path / "bare" / "views.json").read_text())] == [None, None]
+    glaze = box.copy()
+    glaze.vertices *= 1.02  # a thin shell: ice, but no icicles
+    files = write_scenes(tmp_path / "glaze", box, glaze, config)
+    assert files.cameras[1].fov_x < files.cameras[0].fov_x
+
+
+def medium_of(xml: Path):
+    root = ET.parse(xml).getroot()
+    return root.find("integrator").get("type"), root.find("shape[@id='ice']/medium")
+
+
+def test_ice_holds_an_absorbing_medium_that_scatters_with_impurity(tmp_path):
+    box, ice = box_with_icicles()
+    config = tiny_config()
+    absorption = np.array(config.ice.absorption)
+    for impurity in (0.0, 0.6):
+        files = write_scenes(tmp_path / str(impurity), box, ice, config, impurity=impurity)
+        integrator, medium = medium_of(files.xml)
+        assert integrator == "volpath" and medium.get("type") == "homogeneous"
+        assert medium.get("name") == "interior"
+        scale = float(medium.find("float[@name='scale']").get("value"))
+        sigma_t = scale * np.array([float(x) for x in medium.find("rgb[@name='sigma_t']").get("value").split(",")])
+        albedo = np.array([float(x) for x in medium.find("rgb[@name='albedo']").get("value").split(",")])
+        scattering = config.ice.scattering * impurity
+        np.testing.assert_allclose(sigma_t, absorption + scattering, rtol=1e-6)
+        np.testing.assert_allclose(albedo * sigma_t, scattering, atol=1e-6)
+    # No absorption and pure water: no medium, the plain path tracer.
+    files = write_scenes(tmp_path / "none", box, ice, tiny_config(ice={"absorption": [0, 0, 0]}))
+    assert medium_of(files.xml) == ("path", None)
+    with pytest.raises(ValueError, match="impurity"):
+        write_scenes(tmp_path / "bad", box, ice, config, impurity=1.5)
+
+
+def test_scene_xml_with_the_medium_loads_and_gives_icepath_its_coefficients(tmp_path):
+    import mitsuba as mi
+
+    from icefarm.scene.integrator import medium_coefficients
+    from icefarm.scene.render import pick_variant
+
+    box, ice = box_with_icicles()
+    config = tiny_config()
+    files = write_scenes(tmp_path, box, ice, config, impurity=0.5)
+    mi.set_variant(pick_variant("auto"))
+    scene = mi.load_file(str(files.xml))
+    sigma_a, sigma_s = medium_coefficients(scene, "ice")
+    np.testing.assert_allclose(sigma_a, config.ice.absorption, rtol=1e-4)
+    np.testing.assert_allclose(sigma_s, [config.ice.scattering * 0.5] * 3, rtol=1e-4)
+    assert medium_coefficients(scene, "object") is None
+
+
+def _ice_mask(camera, ice, width, height):
+    samples, _ = trimesh.sample.sample_surface(ice, 6000, seed=1)
+    xy = camera.project(samples, width, height).astype(int)
+    mask = np.zeros((height, width), bool)
+    mask[np.clip(xy[:, 1], 0, height - 1), np.clip(xy[:, 0], 0, width - 1)] = True
+    return mask
+
+
+def test_impurity_clouds_the_ice_and_impurity_zero_is_clear(tmp_path):
+    from icefarm.scene.render import pick_variant
+
+    if pick_variant("auto") == "scalar_rgb":
+        pytest.skip("icepath (a JIT variant) renders the medium's scattering cheaply; volpath is too noisy here")
+    box, ice = box_with_icicles()
+    points = np.vstack([box.vertices, ice.vertices])  # same camera for every picture
+    look = {"resolution": [80, 60], "spp": 32,
+            "environment": {"sun_elevation": 10, "sun_azimuth": 35}}  # a low sun lights the icicles
+    config = tiny_config(**look)
+    images = {}
+    for name, impurity, cfg in (("pure", 0.0, config), ("tap", 0.6, config),
+                                ("unscattering", 0.6, tiny_config(**look, ice={"scattering": 0.0}))):
+        files = write_scenes(tmp_path / name, box, ice, cfg, frame_points=points, impurity=impurity)
+        render_job(tmp_path / name, cfg)
+        images[name] = read_image(tmp_path / name / "render.exr")
+        assert_not_blank(images[name])
+    # Impurity 0 is the absorbing ice without scattering: the same scene, the same picture
+    # (up to the order in which the film's threads add samples).
+    assert (tmp_path / "pure" / "scene.xml").read_text() == (tmp_path / "unscattering" / "scene.xml").read_text()
+    np.testing.assert_allclose(images["pure"], images["unscattering"], atol=2e-3)
+    on_ice = _ice_mask(files.cameras[0], ice, 80, 60)
+    diff = np.abs(images["tap"] - images["pure"]).mean(axis=2)
+    assert diff[on_ice].mean() > 3 * diff[~on_ice].mean()  # the ice changed, not the rest
+    tap, pure = images["tap"][on_ice].mean(axis=0), images["pure"][on_ice].mean(axis=0)
+    assert tap.mean() > 1.15 * pure.mean()  # a brighter, whiter core
+    assert tap.min() / tap.max() > pure.min() / pure.max()
+
+
+def test_povray_scene_has_the_fade_and_the_cloudy_medium(tmp_path):
+    box, ice = box_with_icicles()
+    config = tiny_config(renderer="povray", resolution=[40, 30])
+    files = write_scenes(tmp_path / "clear", box, ice, config, impurity=0.0)
+    text = files.pov.read_text()
+    a = np.array(config.ice.absorption)
+    fade = text.split("interior {")[1].split("}")[0]
+    assert "fade_power 1001" in fade and f"fade_distance {1 / a.max():.6g}" in fade
+    colour = np.array([float(x) for x in fade.split("fade_color rgb <")[1].split(">")[0].split(",")])
+    # POV-Ray: exp(-(1 - fade_color) d / fade_distance) is Beer-Lambert with these coefficients.
+    np.testing.assert_allclose((1 - colour) * a.max(), a, rtol=1e-5)
+    assert "media" not in text and "Ice_Mesh hollow" not in text
+    files = write_scenes(tmp_path / "cloudy", box, ice, config, impurity=0.6)
+    text = files.pov.read_text()
+    assert "Ice_Mesh hollow" in text and f"scattering {{ 1, rgb {config.ice.scattering * 0.6:.6g} }}" in text
+    if shutil.which("povray") is None:
+        pytest.skip("povray is not installed (apt-get install povray)")
+    for name in ("clear", "cloudy"):
+        render_job(tmp_path / name, config)
+        assert_not_blank(read_image(tmp_path / name / "render_povray.png"))
+
+
+def test_ground_level_places_the_ground_plane(tmp_path):
+    box, ice = box_with_icicles()
+    config = tiny_config()
+    default = write_scenes(tmp_path / "default", box, ice, config)
+    level = 0.0  # the box's underside: the icicles would reach below it
+    files = write_scenes(tmp_path / "level", box, ice, config, ground_level=level)
+
+    def ground_height(xml):
+        m = np.array([float(x) for x in ET.parse(xml).getroot().find(
+            "shape[@id='ground']/transform/matrix").get("value").split()]).reshape(4, 4)
+        return m[1, 3]  # y is up
+
+    assert ground_height(default.xml) == pytest.approx(ice.vertices[:, 1].min(), abs=1e-3)
+    assert ground_height(files.xml) == pytest.approx(level, abs=1e-9)
+    assert all(c.origin[1] > level for c in files.cameras)
+    assert f"{level:.9g}" in files.pov.read_text().split("polygon {")[1].split("\n")[0]
+    with pytest.raises(ValueError, match="ground_level"):
+        write_scenes(tmp_path / "bad", box, ice, config, ground_level=float("nan"))
+
+
+def test_absorption_accepts_per_meter_or_a_colour_at_a_distance():
+    a = render_config_from_dict({"ice": {"absorption": {"color": [0.5, 0.8, 0.9], "distance": 0.1}}}).ice.absorption
+    np.testing.assert_allclose(a, -np.log([0.5, 0.8, 0.9]) / 0.1)
+    assert render_config_from_dict({"ice.absorption": [1, 2, 3]}).ice.absorption == (1.0, 2.0, 3.0)
+    assert render_config_from_dict({"ice.absorption": 0}).ice.absorption == (0.0, 0.0, 0.0)
+    for bad in ({"color": [0, 1, 1], "distance": 0.1}, {"color": [0.5, 0.5, 0.5], "distance": 0},
+                {"color": [0.5, 0.5]}, [-1, 0, 0], "blue"):
+        with pytest.raises(InputError, match="ice.absorption"):
+            render_config_from_dict({"ice": {"absorption": bad}})
+    with pytest.raises(InputError, match="ice.scattering"):
+        render_config_from_dict({"ice": {"scattering": -1}})
+    config = load_render_config("lookdev", {"views": [{"azimuth": 200, "elevation": 5, "frame": "ice"}]})
+    assert config.views[0].frame == "ice"
+    assert render_config_from_dict(render_config_to_dict(config), name=config.name) == config
+    with pytest.raises(InputError, match="frame"):
+        render_config_from_dict({"views": [{"azimuth": 0, "elevation": 0, "frame": "icicles"}]})

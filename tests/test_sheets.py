@@ -267,3 +267,44 @@ def test_refuses_a_folder_without_jobs(tmp_path):
         S.build_sheets(tmp_path, cell_width=0)
     assert S.build_sheets(tmp_path) == []
     assert (tmp_path / "sheets" / "index.html").is_file()
+
+
+def test_cells_show_the_ice_view_where_the_icicles_would_be_too_thin(tmp_path):
+    """A cell shows render_view<i> (frame: ice) when the main view's icicles would be under
+    4 px wide at the cell's size; otherwise, or without such a view, the main render."""
+    root = tmp_path / "ice"
+    (root / "jobs").mkdir(parents=True)
+    cases = {0.1: 2.0, 0.2: 12.0, 0.3: None}  # impurity -> icicle_px of the main view (64 px wide)
+    paths = {}
+    for impurity, px in cases.items():
+        path = make_job(root, "cube", {"surface.impurity": impurity}, (0.8, 0.2, 0.1))
+        zoom = path / "zoom"
+        zoom.mkdir()
+        write_render(zoom, (0.1, 0.3, 0.9))  # the ice view: blue
+        (zoom / "render.exr").rename(path / "render_view1.exr")
+        (zoom / "render.png").rename(path / "render_view1.png")
+        (path / "views.json").write_text(json.dumps([
+            {"index": 0, "name": "three_quarter", "frame": "all", "stem": "render", "icicle_px": px},
+            {"index": 1, "name": "ice", "frame": "ice", "stem": "render_view1", "icicle_px": 20.0}]))
+        paths[impurity] = path
+    jobs = {j.job_id: j for j in S.scan_run(root).objects["cube"]}
+    for impurity, path in paths.items():
+        exr, view = S.cell_render(jobs[path.name], CELL_W)
+        if impurity == 0.1:  # 2 px at 64 wide: 3 px in a 96 px cell, under 4
+            assert (exr.name, view) == ("render_view1.exr", "ice")
+        else:
+            assert (exr.name, view) == ("render.exr", None)
+    # At a cell twice as wide the same icicles are 6 px: the main render again.
+    assert S.cell_render(jobs[paths[0.1].name], 192)[0].name == "render.exr"
+    # The sheet really shows it, tagged.
+    sheet = pixels(S.build_sheets(root, cell_width=CELL_W)[0].exr)
+    ch = 72
+    for k, impurity in enumerate(sorted(cases)):
+        x, y = S.MARGIN + k * (CELL_W + S.GAP), S.MARGIN + S.HEADER_H
+        block = sheet[y + 20:y + ch, x:x + CELL_W]  # below the tag
+        name = "render_view1.exr" if impurity == 0.1 else "render.exr"
+        np.testing.assert_allclose(block, fitted(paths[impurity] / name, CELL_W, ch)[20:], atol=2e-3, rtol=2e-3)
+    tag = sheet[S.MARGIN + S.HEADER_H:S.MARGIN + S.HEADER_H + 18, S.MARGIN:S.MARGIN + 60]
+    assert tag.max() > 0.5  # the "ice view" text
+    page = (root / "sheets" / "index.html").read_text()
+    assert "render_view1.png" in page and "ice view" in page

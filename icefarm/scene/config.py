@@ -1,7 +1,8 @@
 """Render configurations: ``render_configs/*.yaml`` read, validated and frozen.
 
 A render config says how a job is rendered (renderer, variant, resolution, samples,
-views) and how the ice and its surroundings look (ior, roughness, sky, sun, ground).
+views) and how the ice and its surroundings look (ior, roughness, absorption, cloudiness,
+sky, sun, ground).
 Keys are checked like parameters: an unknown key is refused with the nearest valid one,
 a wrong value with the key, the value and what was expected.
 """
@@ -24,6 +25,7 @@ VARIANTS = ("auto", "scalar_rgb", "llvm_ad_rgb", "cuda_ad_rgb")
 GROUNDS = ("checker", "plain", "none")
 CONFIG_DIR = Path(__file__).resolve().parents[2] / "render_configs"
 
+FRAMES = ("all", "ice")
 # Named views: (azimuth, elevation) in degrees around "up" (minus gravity). Azimuth 0
 # looks at the object's front, 90 at its right side; negative elevation looks up at it.
 NAMED_VIEWS: dict[str, tuple[float, float]] = {
@@ -33,25 +35,108 @@ NAMED_VIEWS: dict[str, tuple[float, float]] = {
     "back": (200.0, 5.0),
     "above": (35.0, 35.0),
     "below": (35.0, -25.0),
+    "ice": (35.0, -8.0),  # the three-quarter view's camera, zoomed on the densest icicles
 }
+# Named views that frame the ice rather than everything.
+NAMED_FRAMES: dict[str, str] = {"ice": "ice"}
 
 
 @dataclass(frozen=True)
 class View:
-    """One camera direction: azimuth and elevation in degrees (the camera sits there)."""
+    """One camera direction: azimuth and elevation in degrees (the camera sits there).
+
+    ``frame`` is what the view shows: ``all`` (object and ice, the whole scene) or ``ice``
+    (a zoom from the same camera position onto the densest cluster of icicles, close
+    enough that icicles are several pixels wide; see `camera.ice_focus`).
+    """
 
     name: str
     azimuth: float
     elevation: float
+    frame: str = "all"
+
+
+# Ice absorption, per meter (R, G, B): white light through 10 cm of ice comes out
+# (0.45, 0.78, 0.84), a faint blue-green; through a 2 cm icicle (0.85, 0.95, 0.965).
+# Real ice absorbs about 0.02 /m in the blue and some 0.5 /m in the red: this is an
+# artistic exaggeration of a real effect, some ten times stronger, so that thick ice
+# reads as ice and not as a glass rod, while thin glaze stays clear.
+ABSORPTION_PER_M = (8.0, 2.5, 1.75)
+# Scattering (per meter) of ice whose water carried the most impurities (surface.impurity
+# = 1): bubbles and brine inclusions cloud an impure icicle's core. Bubbly ice measures
+# about 1-8 /m on average; the core of a tap-water icicle, where the inclusions gather,
+# is far cloudier. A job's scattering is this times its impurity (0: clear).
+SCATTERING_PER_M = 60.0
 
 
 @dataclass(frozen=True)
 class IceLook:
-    """The ice material: index of refraction, GGX roughness (0: smooth), transmittance tint."""
+    """The ice material.
+
+    Attributes
+    ----------
+    ior : float
+        Index of refraction (1.31, water ice).
+    roughness : float
+        GGX roughness of the surface (0: smooth).
+    tint : (3,) float
+        Transmittance per surface crossing (1, 1, 1: none); the colour of thick ice comes
+        from ``absorption``, which depends on the distance travelled.
+    absorption : (3,) float
+        Absorption coefficients per meter (R, G, B) inside the ice (Beer-Lambert).
+    scattering : float
+        Scattering coefficient per meter at ``surface.impurity`` 1 (the job's impurity
+        scales it): the milky core of ice grown from impure water.
+    """
 
     ior: float = 1.31
     roughness: float = 0.0
-    tint: tuple[float, float, float] = (0.96, 0.985, 1.0)
+    tint: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    absorption: tuple[float, float, float] = ABSORPTION_PER_M
+    scattering: float = SCATTERING_PER_M
+
+
+@dataclass(frozen=True)
+class IceMedium:
+    """What fills the ice, per meter: absorption (R, G, B) and a grey scattering coefficient.
+
+    Scattering is isotropic (Mitsuba's default phase function for a ``homogeneous`` medium).
+    """
+
+    absorption: tuple[float, float, float]
+    scattering: float
+
+    @property
+    def extinction(self) -> tuple[float, float, float]:
+        return tuple(a + self.scattering for a in self.absorption)
+
+    @property
+    def albedo(self) -> tuple[float, float, float]:
+        return tuple(self.scattering / t if t > 0 else 0.0 for t in self.extinction)
+
+
+def ice_medium(ice: IceLook, impurity: float = 0.0) -> IceMedium | None:
+    """The medium inside the ice of a job with ``impurity`` (``surface.impurity``, [0, 1]).
+
+    Absorption is the config's; scattering grows with impurity (0: none, clear ice).
+    None when the ice neither absorbs nor scatters.
+
+    Raises
+    ------
+    ValueError
+        ``impurity`` outside [0, 1].
+    """
+    impurity = float(impurity)
+    if not 0.0 <= impurity <= 1.0:
+        raise ValueError(f"impurity must be in [0, 1], got {impurity}")
+    medium = IceMedium(tuple(float(a) for a in ice.absorption), float(ice.scattering) * impurity)
+    return medium if max(medium.extinction) > 0 else None
+
+
+# Ground albedos (linear): dark enough that clear icicles read against it by their bright
+# refracted sky and highlights, as against wet asphalt or dark earth.
+GROUND_CHECKER = ((0.085, 0.08, 0.075), (0.15, 0.14, 0.13))
+GROUND_PLAIN = (0.11, 0.105, 0.1)
 
 
 @dataclass(frozen=True)
@@ -161,8 +246,8 @@ def _choice(choices: Sequence[str]) -> Callable[[str, Any], str]:
     return check
 
 
-def _triple(low: float, high: float) -> Callable[[str, Any], tuple[float, float, float]]:
-    expected = f"3 numbers in [{low:g}, {high:g}]"
+def _triple(low: float, high: float, expected: str | None = None) -> Callable[[str, Any], tuple[float, float, float]]:
+    expected = expected or f"3 numbers in [{low:g}, {high:g}]"
 
     def check(key, value):
         if isinstance(value, (str, bytes)) or not isinstance(value, Sequence) or len(value) != 3:
@@ -187,22 +272,30 @@ def _resolution(key, value):
 
 
 def parse_view(key: str, value: Any) -> View:
-    """A view from a name (``three_quarter``), ``[azimuth, elevation]`` or a mapping."""
+    """A view from a name (``three_quarter``, ``ice``), ``[azimuth, elevation]`` or a mapping.
+
+    A mapping may add ``frame: ice`` to zoom on the ice (``frame: all``, the default,
+    frames everything).
+    """
     expected = ("a view name (" + " | ".join(NAMED_VIEWS) + "), [azimuth, elevation] in degrees"
-                " with elevation in [-89, 89], or {azimuth: .., elevation: ..}")
+                " with elevation in [-89, 89], or {azimuth: .., elevation: .., frame: all | ice}")
     if isinstance(value, View):
         return value
     if isinstance(value, str):
         if value not in NAMED_VIEWS:
             hint = difflib.get_close_matches(value, list(NAMED_VIEWS), n=1, cutoff=0.5)
             raise _refuse(key, value, expected + (f"; did you mean {hint[0]!r}?" if hint else ""))
-        return View(value, *NAMED_VIEWS[value])
+        return View(value, *NAMED_VIEWS[value], frame=NAMED_FRAMES.get(value, "all"))
+    frame = "all"
     if isinstance(value, Mapping):
-        unknown = set(value) - {"azimuth", "elevation", "name"}
+        unknown = set(value) - {"azimuth", "elevation", "name", "frame"}
         if unknown or not {"azimuth", "elevation"} <= set(value):
             raise _refuse(key, value, expected)
         az, el, name = value["azimuth"], value["elevation"], value.get("name")
-    elif isinstance(value, Sequence) and len(value) == 2:
+        frame = value.get("frame", "all")
+        if frame not in FRAMES:
+            raise _refuse(f"{key}.frame", frame, "one of " + " | ".join(FRAMES))
+    elif isinstance(value, Sequence) and not isinstance(value, (str, bytes)) and len(value) == 2:
         (az, el), name = value, None
     else:
         raise _refuse(key, value, expected)
@@ -211,8 +304,8 @@ def parse_view(key: str, value: Any) -> View:
             raise _refuse(key, value, expected)
     if not -89.0 <= el <= 89.0:
         raise _refuse(key, value, expected)
-    name = str(name) if name else f"az{az:g}_el{el:g}"
-    return View(name, float(az), float(el))
+    name = str(name) if name else f"az{az:g}_el{el:g}" + ("_ice" if frame == "ice" else "")
+    return View(name, float(az), float(el), frame)
 
 
 def _views(key, value):
@@ -236,10 +329,40 @@ def _sky(key, value):
     return str(path.resolve())
 
 
+MAX_ABSORPTION = 1.0e4  # per meter: light through 1 mm of ice keeps e^-10
+
+
+def _absorption(key, value):
+    """Per-meter coefficients ``[r, g, b]`` (or one number for all three), or the colour
+    white light takes after a distance of ice, ``{color: [r, g, b], distance: m}``."""
+    expected = (f"[r, g, b] absorption per meter, each in [0, {MAX_ABSORPTION:g}], or "
+                "{color: [r, g, b] in (0, 1], distance: meters > 0}: the colour white light "
+                "takes after that distance of ice")
+    if isinstance(value, Mapping):
+        if set(value) != {"color", "distance"}:
+            raise _refuse(key, value, expected)
+        color, distance = value["color"], value["distance"]
+        if isinstance(distance, bool) or not isinstance(distance, (int, float)) \
+                or not math.isfinite(distance) or distance <= 0:
+            raise _refuse(key, value, expected)
+        if isinstance(color, (str, bytes)) or not isinstance(color, Sequence) or len(color) != 3 or not all(
+                not isinstance(c, bool) and isinstance(c, (int, float)) and 0.0 < c <= 1.0 for c in color):
+            raise _refuse(key, value, expected)
+        per_m = tuple(-math.log(float(c)) / float(distance) + 0.0 for c in color)
+        if max(per_m) > MAX_ABSORPTION:
+            raise _refuse(key, value, expected)
+        return per_m
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        value = [value] * 3
+    return _triple(0.0, MAX_ABSORPTION, expected)(key, value)
+
+
 _ICE: dict[str, Callable] = {
     "ior": _number(1.0, 3.0),
     "roughness": _number(0.0, 1.0),
     "tint": _triple(0.0, 1.0),
+    "absorption": _absorption,
+    "scattering": _number(0.0, MAX_ABSORPTION),
 }
 _ENVIRONMENT: dict[str, Callable] = {
     "sky": _sky,
@@ -377,9 +500,12 @@ def render_config_to_dict(config: RenderConfig) -> dict[str, Any]:
     out.pop("name")
     out["resolution"] = list(config.resolution)
     out["views"] = [v.name if NAMED_VIEWS.get(v.name) == (v.azimuth, v.elevation)
-                    else {"name": v.name, "azimuth": v.azimuth, "elevation": v.elevation}
+                    and NAMED_FRAMES.get(v.name, "all") == v.frame
+                    else {"name": v.name, "azimuth": v.azimuth, "elevation": v.elevation,
+                          **({"frame": v.frame} if v.frame != "all" else {})}
                     for v in config.views]
     out["ice"]["tint"] = list(config.ice.tint)
+    out["ice"]["absorption"] = list(config.ice.absorption)
     return out
 
 
@@ -392,7 +518,9 @@ _MATERIAL: dict[str, Callable] = {
     "roughness": _number(0.0, 1.0),
     "metal": _choice(METALS),
 }
-DEFAULT_MATERIAL = {"type": "diffuse", "color": (0.62, 0.6, 0.57), "roughness": 0.2, "metal": "Al"}
+# A darker, warm object (weathered wood, terracotta): clear ice over it reads by its
+# highlights and its blue-green depth; over a pale grey one it disappears.
+DEFAULT_MATERIAL = {"type": "diffuse", "color": (0.3, 0.17, 0.1), "roughness": 0.2, "metal": "Al"}
 
 
 def material_from_dict(values: Mapping[str, Any] | None) -> dict[str, Any]:

@@ -11,6 +11,20 @@ ice surface is a straight pass-through weighted by its Fresnel transmittance, fo
 path itself and for next-event shadow rays alike. This drops caustics, which is what the
 eye expects from clear ice anyway.
 
+What fills the ice (the ``homogeneous`` medium of ``scene.xml``: absorption and, for ice
+grown from impure water, scattering) is handled as ``volpath`` does, with the same
+shortcut at the ice's surface. Absorption is Beer-Lambert, ``exp(-sigma_a d)`` over the
+distance ``d`` a path travels inside, applied exactly rather than sampled (no noise,
+however faint the tint). Scattering (grey, isotropic: the phase function Mitsuba gives a
+``homogeneous`` medium by default) is sampled: inside the ice a path meets a scattering
+point at a distance drawn from ``sigma_s exp(-sigma_s s)``, where it takes next-event
+estimation and a new direction, like a surface vertex; as that is not a delta event, the
+ice surfaces it meets afterwards are pass-throughs, so light scattered in an icicle's
+cloudy core leaves it without being trapped by total internal reflection. Shadow rays
+are attenuated by ``exp(-(sigma_a + sigma_s) d)``. A segment is inside the ice when the
+last ice surface it crossed was entered (the ray against the surface's outward normal);
+a shadow ray needs no such state: every ice surface it leaves ends a stretch inside.
+
 The integrator is a Python `mitsuba.SamplingIntegrator`, so it only makes sense on JIT
 variants (``llvm_ad_rgb``, ``cuda_ad_rgb``), where Mitsuba traces `sample` once into a
 kernel; on scalar variants it would run in Python per sample, and `ice_integrator`
@@ -21,6 +35,7 @@ built per variant by `integrator_class`.
 from __future__ import annotations
 
 import functools
+import math
 from collections.abc import Sequence
 
 from .config import IceLook
@@ -29,6 +44,26 @@ PLUGIN_NAME = "icepath"
 MAX_CROSSINGS = 16  # pass-throughs per path segment (and per shadow ray) before absorbing
 RR_DEPTH = 5  # Mitsuba's path default: Russian roulette from this depth on
 _JIT_PREFIXES = ("llvm_", "cuda_")
+ISOTROPIC = 1.0 / (4.0 * math.pi)  # phase function value of isotropic scattering
+
+
+def _coefficients(value, name: str) -> tuple[float, float, float]:
+    """Three finite non-negative numbers (per meter) from a number, a sequence or a colour."""
+    try:
+        values = [float(value)] * 3
+    except TypeError:
+        values = [float(v) for v in value]
+    if len(values) != 3 or not all(math.isfinite(v) and v >= 0.0 for v in values):
+        raise ValueError(f"{name} must be three finite numbers >= 0 (per meter), got {value!r}")
+    return tuple(values)
+
+
+def dr_opaque_spectrum(values: Sequence[float]):
+    """``mi.Spectrum`` of ``values`` as a kernel input, not a constant compiled into it."""
+    import drjit as dr
+    import mitsuba as mi
+
+    return mi.Spectrum(*(dr.opaque(mi.Float, float(v)) for v in values))
 
 
 def _mis_weight(pdf_a, pdf_b):
@@ -48,8 +83,9 @@ class _IcePathMethods:
     subclass of that variant's ``mitsuba.SamplingIntegrator``.
 
     Properties: ``max_depth`` (int, -1 unbounded; default 12), ``rr_depth`` (5),
-    ``ior`` (1.31), ``tint`` (rgb, (0.96, 0.985, 1.0)), ``max_crossings`` (16) and the
-    base class's ``hide_emitters``.
+    ``ior`` (1.31), ``tint`` (rgb, (1, 1, 1)), ``max_crossings`` (16), ``sigma_a`` and
+    ``sigma_s`` (rgb, absorption and scattering of the ice per scene unit; default 0)
+    and the base class's ``hide_emitters``.
     """
 
     def __init__(self, props):
@@ -70,10 +106,26 @@ class _IcePathMethods:
             raise ValueError(f"tint must be three numbers in [0, 1], got {self.tint}")
         if self.rr_depth < 1 or self.max_crossings < 0:
             raise ValueError("rr_depth must be >= 1 and max_crossings >= 0")
+        self.sigma_a = _coefficients(props.get("sigma_a", 0.0), "sigma_a")
+        self.sigma_s = _coefficients(props.get("sigma_s", 0.0), "sigma_s")
+        # Kernel inputs rather than constants: a sweep over impurity reuses one kernel.
+        self._sigma_t = dr_opaque_spectrum([a + s for a, s in zip(self.sigma_a, self.sigma_s)])
+        self._sigma_a = dr_opaque_spectrum(self.sigma_a)
+        self._sigma_s = dr_opaque_spectrum(self.sigma_s)
+
+    @property
+    def has_medium(self) -> bool:
+        """Whether the ice absorbs or scatters (otherwise no segment is attenuated)."""
+        return max(self.sigma_a) + max(self.sigma_s) > 0.0
+
+    @property
+    def has_scattering(self) -> bool:
+        return max(self.sigma_s) > 0.0
 
     def to_string(self):
         return (f"IcePathIntegrator[max_depth={self.max_depth}, rr_depth={self.rr_depth}, "
-                f"ior={self.ior:g}, tint={self.tint}, max_crossings={self.max_crossings}]")
+                f"ior={self.ior:g}, tint={self.tint}, max_crossings={self.max_crossings}, "
+                f"sigma_a={self.sigma_a}, sigma_s={self.sigma_s}]")
 
     def _crossing(self, d, n):
         """Transmittance of one straight ice crossing: ``(1 - F(|cos|, ior)) * tint``.
@@ -95,14 +147,14 @@ class _IcePathMethods:
 
         return si.is_valid() & mi.has_flag(si.bsdf().flags(), mi.BSDFFlags.Transmission)
 
-    def _shadow(self, scene, si, target, active):
-        """Transmittance from ``si`` to point ``target``: through ice, 0 past anything else.
+    def _shadow(self, scene, it, target, active):
+        """Transmittance from ``it`` to point ``target``: through ice, 0 past anything else.
 
         Parameters
         ----------
         scene : mi.Scene
-        si : mi.SurfaceInteraction3f
-            Where the shadow ray starts.
+        it : mi.SurfaceInteraction3f or mi.Interaction3f
+            Where the shadow ray starts (on a surface, or a point inside the ice).
         target : mi.Point3f
             The emitter sample's position (``ds.p``; a far point for sun and sky).
         active : mi.Bool
@@ -110,12 +162,14 @@ class _IcePathMethods:
         Returns
         -------
         mi.Spectrum
-            Product of the crossings' transmittances; 0 where blocked.
+            Product of the crossings' transmittances and, where the ice absorbs or
+            scatters, of ``exp(-sigma_t d)`` over each stretch ``d`` inside it (ended
+            by an ice surface the ray leaves); 0 where blocked.
         """
         import drjit as dr
         import mitsuba as mi
 
-        ray = si.spawn_ray_to(target)
+        ray = it.spawn_ray_to(target)
         trans = mi.Spectrum(1.0)
         crossings = mi.UInt32(0)
         active = mi.Bool(active)
@@ -126,11 +180,42 @@ class _IcePathMethods:
             blocked = active & hit.is_valid() & ~ice
             crossings[ice] += 1
             trans[ice] *= self._crossing(ray.d, hit.n)
+            if dr.hint(self.has_medium, mode="scalar"):
+                # spawn_ray_to leaves d unnormalised (t runs to 1 at the target)
+                leaving = ice & (dr.dot(ray.d, hit.n) > 0.0)
+                trans[leaving] *= dr.exp(-self._sigma_t * (hit.t * dr.norm(ray.d)))
             blocked |= ice & (crossings > self.max_crossings)
             trans[blocked] = 0.0
             active = ice & ~blocked
             ray = hit.spawn_ray_to(target)
         return trans
+
+    def _free_flight(self, sampler, length, active):
+        """Where a path inside the ice scatters on a stretch of ``length``, and its weight.
+
+        The distance is drawn from ``m exp(-m s)`` with ``m`` the mean scattering
+        coefficient; a path that gets past ``length`` reaches the surface. The weight
+        holds the absorption over the distance travelled and, for a scattering
+        coefficient that is not grey, the ratio to its mean (1 for icefarm's media).
+
+        Returns
+        -------
+        scatters : mi.Bool
+            Lanes that scatter before the surface.
+        distance : mi.Float
+            Distance travelled: to the scattering point, or ``length``.
+        weight : mi.Spectrum
+        """
+        import drjit as dr
+
+        mean_s = dr.mean(self._sigma_s)
+        u = sampler.next_1d(active)
+        s = -dr.log(1.0 - u) / mean_s
+        scatters = active & (s < length)
+        distance = dr.select(scatters, s, length)
+        weight = dr.exp(-self._sigma_a * distance) * dr.exp((mean_s - self._sigma_s) * distance)
+        weight[scatters] *= self._sigma_s / mean_s
+        return scatters, distance, weight
 
     def sample(self, scene, sampler, ray_, medium=None, active_=True):
         """Radiance along camera rays ``ray_``: (spectrum, valid mask, no AOVs)."""
@@ -150,17 +235,42 @@ class _IcePathMethods:
         prev_si = dr.zeros(mi.SurfaceInteraction3f)
         prev_pdf = mi.Float(1.0)
         prev_delta = mi.Bool(True)
+        inside = mi.Bool(False)  # the segment being traced runs inside the ice
+        scattered = mi.Bool(False)  # the path scattered inside the ice already
 
         while dr.hint(active, label="icepath"):
             si = scene.ray_intersect(ray, active)
-            through = active & ~specular & self._is_ice(si)
-            real = active & ~through
-            valid_ray |= real & (depth == 0) & si.is_valid()
+            ice = self._is_ice(si)
+
+            # ---- the medium inside the ice along the segment just traced (ray.d is unit):
+            # absorption, and for cloudy ice a scattering point before the surface
+            scatter = mi.Bool(False)
+            scatter_p = mi.Point3f(0.0)
+            if dr.hint(self.has_medium, mode="scalar"):
+                seg = active & inside & si.is_valid()  # a miss from inside: a leak, no medium
+                length = dr.select(seg, si.t, 0.0)
+                if dr.hint(self.has_scattering, mode="scalar"):
+                    # One scattering event per path; after it the light is taken to go on
+                    # forward through the cloudy ice, losing only what it absorbs.
+                    flight = seg & ~scattered
+                    scatter, distance, weight = self._free_flight(sampler, length, flight)
+                    beta[flight] *= weight
+                    beta[seg & scattered] *= dr.exp(-self._sigma_a * length)
+                    scatter_p = ray(distance)
+                    scattered |= scatter
+                else:
+                    beta[seg] *= dr.exp(-self._sigma_a * length)
+
+            surface = active & ~scatter
+            through = surface & ~specular & ice
+            real = surface & ~through
+            valid_ray |= (real & (depth == 0) & si.is_valid()) | scatter
             bsdf = si.bsdf(ray)
 
             # ---- pass-through: same direction, Fresnel transmittance, not a bounce
             crossings[through] += 1
             beta[through] *= self._crossing(ray.d, si.n)
+            inside[through] = dr.dot(ray.d, si.n) < 0.0  # entering against the outward normal
             through_next = through & (crossings <= self.max_crossings)
 
             # ---- real vertex: emission reached by BSDF sampling, MIS against NEE at prev_si
@@ -173,15 +283,25 @@ class _IcePathMethods:
             L += dr.select(emit, Le, 0.0)
 
             real_next = real & si.is_valid() & (depth + 1 < self.max_depth)
+            scatter_next = scatter & (depth + 1 < self.max_depth)
 
-            # ---- next-event estimation with shadow rays that pass through ice
+            # ---- next-event estimation with shadow rays that pass through ice, from si
+            # or from the scattering point (one emitter sample, one shadow ray)
             active_em = real_next & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
-            ds, em_weight = scene.sample_emitter_direction(si, sampler.next_2d(), False, active_em)
+            ref = dr.zeros(mi.Interaction3f)
+            ref.p = dr.select(scatter, scatter_p, si.p)
+            ref.n = dr.select(scatter, mi.Vector3f(0.0), si.n)  # no offset inside the ice
+            ref.time, ref.wavelengths = ray.time, ray.wavelengths
+            ds, em_weight = scene.sample_emitter_direction(ref, sampler.next_2d(), False,
+                                                           active_em | scatter_next)
             active_em &= ds.pdf != 0.0
-            trans = self._shadow(scene, si, ds.p, active_em)
+            active_ph = scatter_next & (ds.pdf != 0.0)
+            trans = em_weight * self._shadow(scene, ref, ds.p, active_em | active_ph)
             bsdf_val, bsdf_pdf = bsdf.eval_pdf(bsdf_ctx, si, si.to_local(ds.d), active_em)
-            mis_em = dr.select(ds.delta, 1.0, _mis_weight(ds.pdf, bsdf_pdf))
-            L += dr.select(active_em, beta * mis_em * bsdf_val * em_weight * trans, 0.0)
+            f_pdf = dr.select(active_ph, ISOTROPIC, bsdf_pdf)
+            mis_em = dr.select(ds.delta, 1.0, _mis_weight(ds.pdf, f_pdf))
+            f_val = dr.select(active_ph, mi.Spectrum(ISOTROPIC), bsdf_val)
+            L += dr.select(active_em | active_ph, beta * mis_em * f_val * trans, 0.0)
 
             # ---- BSDF sampling
             bs, bsdf_weight = bsdf.sample(bsdf_ctx, si, sampler.next_1d(), sampler.next_2d(),
@@ -192,24 +312,40 @@ class _IcePathMethods:
             # light then passes straight out) never leaves, which would darken everything
             # under glaze by 1/1.31^2. Ice here does not concentrate light: undo it.
             beta[real] *= bsdf_weight * dr.square(bs.eta)
+            wo = si.to_world(bs.wo)
+            inside[real & ice] = dr.dot(wo, si.n) < 0.0  # refracted in (or reflected inside)
             prev_si = dr.select(real, si, prev_si)
             prev_pdf[real] = bs.pdf
             prev_delta[real] = delta
             specular &= ~real | delta  # the first non-delta bounce turns ice into pass-through
-            crossings[real] = 0
+
+            # ---- phase function sampling at a scattering point (isotropic: weight 1)
+            if dr.hint(self.has_scattering, mode="scalar"):
+                wo = dr.select(scatter, mi.warp.square_to_uniform_sphere(sampler.next_2d(scatter)), wo)
+                at = dr.zeros(mi.SurfaceInteraction3f)
+                at.p, at.t, at.time, at.wavelengths = scatter_p, 0.0, ray.time, ray.wavelengths
+                prev_si = dr.select(scatter, at, prev_si)
+                prev_pdf[scatter] = ISOTROPIC
+                prev_delta[scatter] = False
+                specular &= ~scatter
+            vertex = real | scatter
+            vertex_next = real_next | scatter_next
+            crossings[vertex] = 0
 
             # ---- Russian roulette, as in Mitsuba's path (whose eta^2 factor here only
             # cancels the radiance scaling undone above)
             beta_max = dr.max(beta)
-            real_next &= beta_max != 0.0
+            vertex_next &= beta_max != 0.0
             rr_prob = dr.minimum(beta_max, 0.95)
-            rr_active = real_next & (depth >= self.rr_depth)
+            rr_active = vertex_next & (depth >= self.rr_depth)
             beta[rr_active] *= dr.rcp(rr_prob)
-            real_next &= ~rr_active | (sampler.next_1d() < rr_prob)
-            depth[real & si.is_valid()] += 1
+            vertex_next &= ~rr_active | (sampler.next_1d() < rr_prob)
+            depth[(real & si.is_valid()) | scatter] += 1
 
-            ray = dr.select(through, si.spawn_ray(ray.d), si.spawn_ray(si.to_world(bs.wo)))
-            active = (through_next & (beta_max != 0.0)) | real_next
+            ray = dr.select(through, si.spawn_ray(ray.d), si.spawn_ray(wo))
+            if dr.hint(self.has_scattering, mode="scalar"):
+                ray = dr.select(scatter, mi.Ray3f(scatter_p, wo, ray.time, ray.wavelengths), ray)
+            active = (through_next & (beta_max != 0.0)) | vertex_next
 
         return L, valid_ray, []
 
@@ -252,7 +388,8 @@ def integrator_class(variant: str) -> type:
 
 
 def ice_integrator(variant: str, max_depth: int = 12, ior: float = IceLook.ior,
-                   tint: Sequence[float] = IceLook.tint, max_crossings: int = MAX_CROSSINGS):
+                   tint: Sequence[float] = IceLook.tint, max_crossings: int = MAX_CROSSINGS,
+                   sigma_a: Sequence[float] | float = 0.0, sigma_s: Sequence[float] | float = 0.0):
     """The ice-aware path tracer for ``variant``, or None on scalar variants.
 
     Render with ``mi.render(scene, sensor=i, spp=spp, integrator=it)``; on None keep the
@@ -271,6 +408,9 @@ def ice_integrator(variant: str, max_depth: int = 12, ior: float = IceLook.ior,
         RGB transmittance per ice crossing, in [0, 1] (the XML's ``specular_transmittance``).
     max_crossings : int
         Pass-throughs per path segment and per shadow ray before the light is absorbed.
+    sigma_a, sigma_s : (3,) float or float
+        Absorption and scattering coefficients inside the ice, per scene unit (meter):
+        the ice's ``homogeneous`` medium (`medium_coefficients` reads them from a scene).
 
     Returns
     -------
@@ -292,4 +432,34 @@ def ice_integrator(variant: str, max_depth: int = 12, ior: float = IceLook.ior,
     props["ior"] = float(ior)
     props["tint"] = mi.ScalarColor3f(*(float(t) for t in tint))
     props["max_crossings"] = int(max_crossings)
+    props["sigma_a"] = mi.ScalarColor3f(*_coefficients(sigma_a, "sigma_a"))
+    props["sigma_s"] = mi.ScalarColor3f(*_coefficients(sigma_s, "sigma_s"))
     return cls(props)
+
+
+def medium_coefficients(scene, shape_id: str = "ice") -> tuple[tuple[float, ...], tuple[float, ...]] | None:
+    """Absorption and scattering per scene unit ``(sigma_a, sigma_s)`` of the interior
+    medium of shape ``shape_id`` in a loaded Mitsuba scene; None without one.
+
+    Evaluated at the medium's origin: homogeneous media (what icefarm writes) are the
+    same everywhere.
+    """
+    import drjit as dr
+    import mitsuba as mi
+    import numpy as np
+
+    for shape in scene.shapes():
+        if shape.id() != shape_id:
+            continue
+        medium = shape.interior_medium()
+        if medium is None:
+            return None
+        mei = dr.zeros(mi.MediumInteraction3f)
+        mei.t = 0.0  # valid
+        sigma_s, _, sigma_t = medium.get_scattering_coefficients(mei, True)
+        s = np.array(sigma_s, dtype=np.float64).reshape(-1)[:3]
+        t = np.array(sigma_t, dtype=np.float64).reshape(-1)[:3]
+        if s.size == 1:
+            s, t = np.repeat(s, 3), np.repeat(t, 3)
+        return tuple(float(x) for x in np.maximum(t - s, 0.0)), tuple(float(x) for x in s)
+    return None

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .camera import Camera
-from .config import RenderConfig
+from .config import GROUND_CHECKER, GROUND_PLAIN, IceMedium, RenderConfig
 
 WATER_ICE_IOR = 1.31  # Mitsuba's "water ice"
 
@@ -80,13 +80,28 @@ def _bsdf_ice(parent: ET.Element, config: RenderConfig) -> None:
     if ice.roughness > 0:
         _add(b, "string", name="distribution", value="ggx")
         _add(b, "float", name="alpha", value=ice.roughness)
-    # A faint tint stands in for the blue of thick ice without a volume integrator.
-    _add(b, "rgb", name="specular_transmittance", value=_vec(ice.tint))
+    if tuple(ice.tint) != (1.0, 1.0, 1.0):  # a per-crossing tint (thick ice gets its colour inside)
+        _add(b, "rgb", name="specular_transmittance", value=_vec(ice.tint))
+
+
+def _medium_ice(parent: ET.Element, medium: IceMedium) -> None:
+    """The ice's ``interior``: a homogeneous medium, coefficients per meter (scene units).
+
+    ``sigma_t`` is written as an RGB in [0, 1] times ``scale`` (RGB values above 1 are not
+    colours in Mitsuba's spectral variants); ``albedo`` is scattering over extinction.
+    """
+    extinction = np.asarray(medium.extinction)
+    scale = float(extinction.max())
+    m = _add(parent, "medium", type="homogeneous", name="interior")
+    _add(m, "rgb", name="sigma_t", value=_vec(extinction / scale))
+    _add(m, "float", name="scale", value=f"{scale:.9g}")
+    _add(m, "rgb", name="albedo", value=_vec(medium.albedo))
 
 
 def scene_xml(config: RenderConfig, cameras: Sequence[Camera], frame: np.ndarray, *,
               object_ply: str, ice_ply: str | None, ice_flip: bool, sky_file: str,
-              sun_dir: np.ndarray, ground: Ground | None, material: dict) -> str:
+              sun_dir: np.ndarray, ground: Ground | None, material: dict,
+              medium: IceMedium | None = None) -> str:
     """The text of ``scene.xml``.
 
     Parameters
@@ -107,19 +122,24 @@ def scene_xml(config: RenderConfig, cameras: Sequence[Camera], frame: np.ndarray
     ground : Ground or None
     material : dict
         Validated object material (`config.material_from_dict`).
+    medium : IceMedium, optional
+        What fills the ice (absorption, scattering); the XML then names ``volpath``,
+        which renders media, instead of ``path``.
     """
     env = config.environment
     gain = 2.0 ** env.exposure
     root = ET.Element("scene", version="3.0.0")
+    volumetric = ice_ply is not None and medium is not None
     root.append(ET.Comment(" icefarm renders scenes with ice with its own `icepath` integrator, a path "
                            "tracer that lets sunlight through the ice to what the glaze covers; the "
-                           "`path` below (for the mitsuba command) leaves glazed surfaces darker "))
+                           f"`{'volpath' if volumetric else 'path'}` below (for the mitsuba command) "
+                           "leaves glazed surfaces darker "))
     _add(root, "default", name="spp", value=config.spp)
     _add(root, "default", name="resx", value=config.width)
     _add(root, "default", name="resy", value=config.height)
     _add(root, "default", name="max_depth", value=config.max_depth)
 
-    integrator = _add(root, "integrator", type="path")
+    integrator = _add(root, "integrator", type="volpath" if volumetric else "path")
     _add(integrator, "integer", name="max_depth", value="$max_depth")
 
     for cam in cameras:
@@ -160,6 +180,8 @@ def scene_xml(config: RenderConfig, cameras: Sequence[Camera], frame: np.ndarray
         if ice_flip:
             _add(ice, "boolean", name="flip_normals", value="true")
         _bsdf_ice(ice, config)
+        if medium is not None:
+            _medium_ice(ice, medium)
 
     if ground is not None:
         shape = _add(root, "shape", type="rectangle", id="ground")
@@ -174,13 +196,13 @@ def scene_xml(config: RenderConfig, cameras: Sequence[Camera], frame: np.ndarray
         b = _add(two, "bsdf", type="diffuse")
         if env.ground == "checker":
             tex = _add(b, "texture", type="checkerboard", name="reflectance")
-            _add(tex, "rgb", name="color0", value="0.3, 0.3, 0.31")
-            _add(tex, "rgb", name="color1", value="0.42, 0.42, 0.43")
+            _add(tex, "rgb", name="color0", value=_vec(GROUND_CHECKER[0]))
+            _add(tex, "rgb", name="color1", value=_vec(GROUND_CHECKER[1]))
             checks = 2 * ground.half_size / ground.cell / 2  # the texture has 2 cells per uv unit
             tt = _add(tex, "transform", name="to_uv")
             _add(tt, "scale", x=f"{checks:.9g}", y=f"{checks:.9g}")
         else:
-            _add(b, "rgb", name="reflectance", value="0.36, 0.36, 0.37")
+            _add(b, "rgb", name="reflectance", value=_vec(GROUND_PLAIN))
 
     ET.indent(root, space="    ")
     return '<?xml version="1.0" encoding="utf-8"?>\n' + ET.tostring(root, encoding="unicode") + "\n"

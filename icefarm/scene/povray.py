@@ -19,7 +19,7 @@ import numpy as np
 from ..errors import InputError
 from .camera import Camera
 from .camera import direction as direction_of
-from .config import RenderConfig
+from .config import GROUND_CHECKER, GROUND_PLAIN, IceMedium, RenderConfig
 from .mitsuba import Ground
 
 FLIP = np.array([1.0, 1.0, -1.0])  # right-handed world -> POV's left-handed one
@@ -135,24 +135,52 @@ def _finish_object(material: dict) -> str:
             "reflection { 0.75 metallic } } }")
 
 
-def _ice_material(config: RenderConfig) -> str:
+def _fade(medium: IceMedium | None) -> str:
+    """POV-Ray's exponential fade for absorption ``a`` per meter (R, G, B).
+
+    With ``fade_power`` 1000 or more POV-Ray 3.7 multiplies light that crossed ``d``
+    meters of the interior by ``exp(-(1 - fade_color) d / fade_distance)``: the strongest
+    channel gets ``fade_color`` 0 and ``fade_distance`` 1 / max(a), the others
+    ``1 - a / max(a)``. Empty when nothing absorbs.
+    """
+    if medium is None or max(medium.absorption) <= 0:
+        return ""
+    a = np.asarray(medium.absorption, dtype=np.float64)
+    top = float(a.max())
+    return f" fade_distance {1.0 / top:.6g} fade_power 1001 fade_color {_rgb(1.0 - a / top)}"
+
+
+def _scattering_media(medium: IceMedium | None) -> str:
+    """Isotropic scattering media (per meter) for cloudy ice; empty for clear ice."""
+    if medium is None or medium.scattering <= 0:
+        return ""
+    return (f"\n    media {{ method 3 intervals 1 samples 2, 2 "
+            f"scattering {{ 1, rgb {medium.scattering:.6g} }} }}")
+
+
+def _ice_material(config: RenderConfig, medium: IceMedium | None = None) -> str:
     ice = config.ice
     bumps = (f"\n    normal {{ bumps {min(ice.roughness * 2, 1):.4g} scale 0.0015 }}"
              if ice.roughness > 0 else "")
+    filt = ", ".join(f"{float(t):.6g}" for t in ice.tint)
     return f"""material {{
   texture {{
-    pigment {{ color rgbf <1, 1, 1, 1> }}
+    pigment {{ color rgbf <{filt}, 1> }}
     finish {{ ambient 0 diffuse 0 specular 0.8 roughness 0.0008
              reflection {{ 0.0, 1.0 fresnel on }} conserve_energy }}{bumps}
   }}
-  interior {{ ior {ice.ior:.6g} fade_distance 0.25 fade_power 1001 fade_color {_rgb(ice.tint)} }}
+  interior {{ ior {ice.ior:.6g}{_fade(medium)}{_scattering_media(medium)} }}
 }}"""
 
 
 def scene_pov(config: RenderConfig, cameras: Sequence[Camera], frame: np.ndarray, *,
               object_inc: str, ice_inc: str | None, sky_file: str, sun_dir: np.ndarray,
-              ground: Ground | None, material: dict) -> str:
-    """The text of ``scene.pov`` (POV-Ray 3.7); arguments as in `mitsuba.scene_xml`."""
+              ground: Ground | None, material: dict, medium: IceMedium | None = None) -> str:
+    """The text of ``scene.pov`` (POV-Ray 3.7); arguments as in `mitsuba.scene_xml`.
+
+    The ice's absorption becomes its interior's exponential fade, its scattering an
+    isotropic scattering medium.
+    """
     env = config.environment
     gain = 2.0 ** env.exposure
     aspect = config.width / config.height
@@ -197,7 +225,7 @@ def scene_pov(config: RenderConfig, cameras: Sequence[Camera], frame: np.ndarray
                "point_at <0, 0, 0> shadowless }\n")
     if ground is not None:  # light bounced off the ground onto faces that look down
         level = env.sun_strength * max(np.sin(np.radians(env.sun_elevation)), 0.0) + env.sky_strength
-        bounce = np.full(3, 0.36 * level * gain / np.pi)
+        bounce = np.asarray(GROUND_PLAIN) * level * gain / np.pi
         out.append(f"light_source {{ {_v(-up * 1e4)} color {_rgb(bounce)} parallel "
                    "point_at <0, 0, 0> shadowless }\n")
     out.append("\n")
@@ -206,7 +234,9 @@ def scene_pov(config: RenderConfig, cameras: Sequence[Camera], frame: np.ndarray
     out.append(f"object {{ Object_Mesh\n  {_finish_object(material)}\n}}\n\n")
     if ice_inc is not None:
         out.append(f"#include \"{ice_inc}\"\n")
-        out.append(f"object {{ Ice_Mesh\n  {_ice_material(config)}\n}}\n\n")
+        # POV-Ray renders media only inside hollow objects.
+        hollow = " hollow" if medium is not None and medium.scattering > 0 else ""
+        out.append(f"object {{ Ice_Mesh{hollow}\n  {_ice_material(config, medium)}\n}}\n\n")
 
     if ground is not None:
         h = ground.half_size
@@ -216,10 +246,10 @@ def scene_pov(config: RenderConfig, cameras: Sequence[Camera], frame: np.ndarray
         g[:3, 3] = ground.centre * FLIP
         gm = ", ".join(f"{x:.9g}" for x in np.concatenate([g[:3, :3].T.ravel(), g[:3, 3]]))
         if env.ground == "checker":
-            pigment = (f"checker color rgb <0.3, 0.3, 0.31> color rgb <0.42, 0.42, 0.43> "
+            pigment = (f"checker color {_rgb(GROUND_CHECKER[0])} color {_rgb(GROUND_CHECKER[1])} "
                        f"translate <0, 0.5, 0> scale {ground.cell:.9g} matrix <{gm}>")
         else:
-            pigment = "color rgb <0.36, 0.36, 0.37>"
+            pigment = f"color {_rgb(GROUND_PLAIN)}"
         out.append(f"polygon {{ 5, {', '.join(_v(c) for c in corners)}, {_v(corners[0])}\n"
                    f"  texture {{ pigment {{ {pigment} }} finish {{ ambient 0.02 diffuse 1.0 }} }}\n}}\n")
     return "".join(out)

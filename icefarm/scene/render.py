@@ -10,6 +10,7 @@ or newer itself and sets ``DRJIT_LIBLLVM_PATH`` *before* drjit is imported, and 
 from __future__ import annotations
 
 import functools
+import json
 import os
 import re
 import shutil
@@ -30,7 +31,7 @@ from . import camera as cam
 from . import geometry as geo
 from . import mitsuba as mx
 from . import povray as pov
-from .config import RenderConfig, material_from_dict
+from .config import RenderConfig, ice_medium, material_from_dict
 from .sky import procedural_sky
 
 MIN_LLVM = 17
@@ -39,6 +40,9 @@ LLVM_DIRS = ("/usr/lib/x86_64-linux-gnu", "/usr/lib/aarch64-linux-gnu", "/usr/li
 _LLVM_NAME = re.compile(r"^libLLVM(?:-(?P<a>\d+)[\w.]*?)?\.(?:so|dylib)(?:\.(?P<b>\d+)[\d.]*)?$")
 CREASE_ANGLE = 30.0  # degrees: sharper edges of the object stay sharp in shading
 PASS_SAMPLES = 1 << 25  # camera samples per Mitsuba render call: bounded memory, visible progress
+VIEWS_FILE = "views.json"  # what each view shows and how wide its icicles are, for contact sheets
+OBJECT_POINTS = 15_000  # object vertices (at most) and ...
+OBJECT_SAMPLES = 4_000  # ... points on its faces that tell icicles from glaze
 # Measured (Mitsuba 3.9): with a one-thread Dr.Jit pool, reading any EXR (the sky) waits forever,
 # so a process pinned to one core (taskset, a one-CPU container) hung in its first scene load.
 MIN_POOL_THREADS = 2
@@ -210,6 +214,9 @@ class SceneFiles:
         Environment image.
     cameras : tuple of Camera
         One per view, the main view first.
+    icicle_px : tuple of (float or None)
+        Per view, how wide (pixels) the densest icicles are in it; None where not
+        measured (no ice view configured, or no icicles).
     seconds : float
         Time taken to write everything written before `write_scenes` returned.
     povray_writer : callable or None
@@ -226,6 +233,7 @@ class SceneFiles:
     cameras: tuple[cam.Camera, ...]
     seconds: float
     povray_writer: Callable[..., None] | None = None
+    icicle_px: tuple[float | None, ...] = ()
 
 
 def _check_mesh(mesh: trimesh.Trimesh, what: str) -> None:
@@ -248,8 +256,10 @@ def write_scenes(job_dir: str | Path, object_mesh: trimesh.Trimesh, ice_mesh: tr
                  config: RenderConfig, gravity: Sequence[float] = (0.0, -1.0, 0.0),
                  object_material: dict | None = None,
                  frame_points: np.ndarray | None = None,
-                 defer_povray: bool = False) -> SceneFiles:
-    """Write ``object.ply``, ``scene.xml``, ``scene.pov`` (+ includes) and the sky into ``job_dir``.
+                 defer_povray: bool = False, impurity: float = 0.0,
+                 ground_level: float | None = None) -> SceneFiles:
+    """Write ``object.ply``, ``scene.xml``, ``scene.pov`` (+ includes), the sky and
+    ``views.json`` into ``job_dir``.
 
     ``ice.ply`` is the pipeline's: it is written from ``ice_mesh`` only when missing.
 
@@ -273,6 +283,16 @@ def write_scenes(job_dir: str | Path, object_mesh: trimesh.Trimesh, ice_mesh: tr
         Leave the POV-Ray files (``scene.pov``, ``object.inc``, ``ice.inc``: tens of
         megabytes of text for million-face ice) to ``SceneFiles.povray_writer``, which
         `render_job` runs alongside Mitsuba's render. Default: written before returning.
+    impurity : float
+        The job's ``surface.impurity`` in [0, 1]: the ice's scattering (its cloudy core)
+        is the config's ``ice.scattering`` times this; 0 gives clear ice.
+    ground_level : float, optional
+        Height (m, along minus gravity) of the ground plane: the lowest point of an
+        object standing on it. Default: just below the lowest framed point.
+
+    ``views.json`` lists each view: ``index``, ``name``, ``frame`` (``all`` or ``ice``),
+    ``stem`` (its image files' stem) and ``icicle_px``, the width in pixels of the
+    densest icicles in it (null where not measured).
 
     Returns
     -------
@@ -283,9 +303,13 @@ def write_scenes(job_dir: str | Path, object_mesh: trimesh.Trimesh, ice_mesh: tr
     InputError
         A bad material.
     ValueError
-        Empty meshes or a zero gravity.
+        Empty meshes, a zero gravity, an impurity outside [0, 1] or a ground level that
+        is not finite.
     """
     start = time.perf_counter()
+    medium = ice_medium(config.ice, impurity) if ice_mesh is not None else None
+    if ground_level is not None and not np.isfinite(ground_level):
+        raise ValueError(f"ground_level must be finite, got {ground_level!r}")
     job_dir = Path(job_dir)
     job_dir.mkdir(parents=True, exist_ok=True)
     _check_mesh(object_mesh, "object_mesh")
@@ -323,13 +347,26 @@ def write_scenes(job_dir: str | Path, object_mesh: trimesh.Trimesh, ice_mesh: tr
     centre = (lo + hi) / 2
     ground = None
     if env.ground != "none":
-        ground_centre = centre + (heights.min() - 1e-4 * size - centre @ up) * up
+        level = heights.min() - 1e-4 * size if ground_level is None else float(ground_level)
+        ground_centre = centre + (level - centre @ up) * up
         ground = mx.Ground(centre=ground_centre, half_size=15.0 * size, cell=size / 6, frame=frame)
     ground_height = None if ground is None else float(ground.centre @ up)
-    cameras = tuple(
-        cam.frame_view(points, gravity, v.azimuth, v.elevation, config.width / config.height,
-                       fov_y=config.fov, ground=ground_height)
-        for v in config.views)
+    cameras = [cam.frame_view(points, gravity, v.azimuth, v.elevation, config.width / config.height,
+                              fov_y=config.fov, ground=ground_height)
+               for v in config.views]
+    # Views of the ice: the same camera turned and zoomed onto the densest icicles.
+    focus = None
+    if ice_mesh is not None and any(v.frame == "ice" for v in config.views):
+        focus = cam.ice_focus(ice_mesh.vertices, ice_mesh.faces, _surface_points(object_mesh), frame, size)
+    icicle_px: list[float | None] = [None] * len(cameras)
+    if focus is not None:
+        for i, v in enumerate(config.views):
+            if v.frame == "ice":
+                cameras[i] = cam.zoom_on_ice(cameras[i], focus, config.width, config.height)
+        if focus.diameter:
+            spot = np.median(focus.points, axis=0)
+            icicle_px = [round(focus.diameter / cam.pixel_size(c, spot, config.width), 2) for c in cameras]
+    cameras = tuple(cameras)
     sun_dir = cam.direction(frame, env.sun_azimuth, env.sun_elevation)
 
     # Geometry: the object smooth with its creases kept; the ice as the pipeline wrote it.
@@ -341,7 +378,7 @@ def write_scenes(job_dir: str | Path, object_mesh: trimesh.Trimesh, ice_mesh: tr
         _write_povray, job_dir, pov_file, (obj_v, obj_n, obj_f), ice_mesh, ice_flip,
         pov.scene_pov(config, cameras, frame, object_inc="object.inc",
                       ice_inc=None if ice_mesh is None else "ice.inc", sky_file=sky.name,
-                      sun_dir=sun_dir, ground=ground, material=material))
+                      sun_dir=sun_dir, ground=ground, material=material, medium=medium))
     if not defer_povray:
         write_pov()
 
@@ -355,10 +392,35 @@ def write_scenes(job_dir: str | Path, object_mesh: trimesh.Trimesh, ice_mesh: tr
     xml = job_dir / "scene.xml"
     xml.write_text(mx.scene_xml(config, cameras, frame, object_ply=object_ply.name,
                                 ice_ply=None if ice_ply is None else ice_ply.name, ice_flip=ice_flip,
-                                sky_file=sky.name, sun_dir=sun_dir, ground=ground, material=material))
+                                sky_file=sky.name, sun_dir=sun_dir, ground=ground, material=material,
+                                medium=medium))
+    (job_dir / VIEWS_FILE).write_text(json.dumps([
+        {"index": i, "name": v.name, "frame": v.frame, "stem": view_stem(i), "icicle_px": icicle_px[i]}
+        for i, v in enumerate(config.views)], indent=1) + "\n")
     return SceneFiles(xml=xml, pov=pov_file, object_ply=object_ply, ice_ply=ice_ply, sky=sky,
                       cameras=cameras, seconds=time.perf_counter() - start,
-                      povray_writer=write_pov if defer_povray else None)
+                      povray_writer=write_pov if defer_povray else None, icicle_px=tuple(icicle_px))
+
+
+def _surface_points(mesh: trimesh.Trimesh, count: int = OBJECT_SAMPLES,
+                    most: int = OBJECT_POINTS) -> np.ndarray:
+    """Points on ``mesh``'s surface: its vertices (at most ``most``) and ``count`` samples
+    of its faces by area (for big faces), the same for the same mesh."""
+    vertices = np.asarray(mesh.vertices, dtype=np.float64)
+    vertices = vertices[:: -(-len(vertices) // most)]
+    faces = np.asarray(mesh.faces)
+    tri = np.asarray(mesh.vertices, dtype=np.float64)[faces]
+    area = np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    if not area.sum() > 0:
+        return vertices
+    rng = np.random.default_rng(0)
+    face = rng.choice(len(faces), size=count, p=area / area.sum())
+    r = rng.random((count, 2))
+    flip = r.sum(axis=1) > 1
+    r[flip] = 1 - r[flip]
+    t = tri[face]
+    samples = t[:, 0] + r[:, :1] * (t[:, 1] - t[:, 0]) + r[:, 1:] * (t[:, 2] - t[:, 0])
+    return np.vstack([vertices, samples])
 
 
 def _write_povray(job_dir: Path, pov_file: Path, object_geometry: tuple[np.ndarray, ...],
@@ -457,7 +519,8 @@ class RenderResult:
     variant : str
         Mitsuba variant used (``""`` when Mitsuba did not run).
     integrator : str
-        Mitsuba integrator: ``icepath`` (scenes with ice on JIT variants) or ``path``.
+        Mitsuba integrator: ``icepath`` (scenes with ice on JIT variants), else the XML's
+        ``path`` or ``volpath``.
     seconds : float
         Mitsuba render time, all views, up to the NumPy conversion of the image.
     write_seconds : float
@@ -516,8 +579,8 @@ def render_mitsuba(job_dir: Path, config: RenderConfig, variant: str,
     """Load ``scene.xml`` with ``variant`` and render every view; ``on_loaded(scene)`` runs in between.
 
     Scenes with ice render with the ice-aware path tracer (`integrator.ice_integrator`:
-    sunlight reaches what the glaze covers) on JIT variants, with the XML's ``path``
-    otherwise. Large frames render in passes (`sample_passes`, each with its own seed,
+    sunlight reaches what the glaze covers; the ice's medium as the XML gives it) on JIT
+    variants, with the XML's ``path`` or ``volpath`` otherwise. Large frames render in passes (`sample_passes`, each with its own seed,
     averaged), with a progress bar over them when ``progress`` is set.
 
     Returns
@@ -525,11 +588,12 @@ def render_mitsuba(job_dir: Path, config: RenderConfig, variant: str,
     load_seconds, render_seconds : float
     files : list of Path
     integrator : str
-        ``icepath`` or ``path``.
+        ``icepath``, or what scene.xml names (``path``, ``volpath`` when the ice holds a
+        medium) where icepath does not run (scalar variants, scenes without ice).
     """
     import mitsuba as mi
 
-    from .integrator import ice_integrator
+    from .integrator import ice_integrator, medium_coefficients
 
     if mi.variant() != variant:
         mi.set_variant(variant)
@@ -539,7 +603,12 @@ def render_mitsuba(job_dir: Path, config: RenderConfig, variant: str,
     if on_loaded is not None:
         on_loaded(scene)
     has_ice = any(shape.id() == "ice" for shape in scene.shapes())
-    integrator = ice_integrator(variant, config.max_depth, config.ice.ior, config.ice.tint) if has_ice else None
+    integrator = None
+    if has_ice and variant.startswith(("llvm_", "cuda_")):
+        # the medium as scene.xml has it (written from the config and the job's impurity)
+        sigma_a, sigma_s = medium_coefficients(scene, "ice") or ((0.0,) * 3, (0.0,) * 3)
+        integrator = ice_integrator(variant, config.max_depth, config.ice.ior, config.ice.tint,
+                                    sigma_a=sigma_a, sigma_s=sigma_s)
     passes = sample_passes(config.width * config.height, config.spp, PASS_SAMPLES)
     n_views = len(scene.sensors())
     bar = tqdm(total=n_views * config.spp, unit="spp", desc="render", dynamic_ncols=True,
@@ -558,8 +627,15 @@ def render_mitsuba(job_dir: Path, config: RenderConfig, variant: str,
         write_png(job_dir / f"{stem}.png", image[..., :3])
         files += [job_dir / f"{stem}.exr", job_dir / f"{stem}.png"]
     bar.close()
+    name = "icepath" if integrator is not None else _integrator_name(scene)
     del scene  # no scene outlives the job (Mitsuba's memory grows with loads)
-    return load_seconds, render_seconds, files, "path" if integrator is None else "icepath"
+    return load_seconds, render_seconds, files, name
+
+
+def _integrator_name(scene) -> str:
+    """``path`` or ``volpath``: the plugin scene.xml names (from the integrator's description)."""
+    text = str(scene.integrator())
+    return "volpath" if text.startswith("Volumetric") else "path"
 
 
 def _cpu_seconds(task: Callable[[], None]) -> float:

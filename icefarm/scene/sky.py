@@ -49,8 +49,10 @@ def procedural_sky(width: int = 512, height: int = 256, sun_azimuth: float = 120
     az, el = sky_directions(width, height)
     s = np.clip(el / (np.pi / 2), 0.0, 1.0)[..., None]
     # Calibrated so the sky gives about 1 W/m^2 on a level surface, a third of the sun.
-    zenith = np.array([0.07, 0.12, 0.3])
-    horizon = np.array([0.3, 0.32, 0.36])
+    # A clear winter blue down to the horizon: behind clear ice a grey sky leaves nothing
+    # for the ice to bend, a blue one shows as blue highlights against the warm object.
+    zenith = np.array([0.05, 0.11, 0.36])
+    horizon = np.array([0.2, 0.28, 0.44])
     sky = horizon + (zenith - horizon) * np.sqrt(s)
     # A smooth step over about one degree keeps the horizon sharp in refraction.
     above = np.clip(0.5 + el / np.radians(1.0), 0.0, 1.0)[..., None]

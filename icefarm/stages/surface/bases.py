@@ -14,11 +14,13 @@ from ..drips import DripResult
 # Width over radius of a base ball: a lone ball's surface sits at its radius rb, and wide
 # balls blend into one smooth swelling rather than a cluster of beads.
 BASE_KAPPA = 1.0
+# Most a base ball's radius may be, in radii of its icicle where it leaves the object.
+BASE_SWELL = 1.0
 # Candidate points drawn per drip point (at least; more for nmb over 60).
 BASE_POOL = 256
 
 def base_balls(object_mesh: trimesh.Trimesh, drips: DripResult, surface: dict,
-               rng: np.random.Generator) -> Balls:
+               rng: np.random.Generator, icicle_radius: np.ndarray | None = None) -> Balls:
     """``nmb`` balls on the object around each drip point (paper 4.4.3, Equation 2).
 
     Points are drawn area-weighted on the faces that come within ``eb`` (Euclidean) of the
@@ -28,6 +30,10 @@ def base_balls(object_mesh: trimesh.Trimesh, drips: DripResult, surface: dict,
     into one field, so where they crowd (near the drip point) the base swells past any
     one of them: more balls or a wider extent, more ice. Each drip's candidates come from a
     pool of a fixed size, so the balls of a smaller ``nmb`` are the first of a larger one's.
+
+    ``icicle_radius`` (k,), meters: each icicle's radius where it leaves the object. A
+    ball's radius is held to ``BASE_SWELL`` times it, so a drip with much water but a short
+    icicle (one the ground stopped) grows a fillet, not a boulder.
     """
     eb, nmb, kb = surface["base_extent"], surface["base_balls"], surface["base_scale"]
     k = len(drips.positions)
@@ -65,6 +71,8 @@ def base_balls(object_mesh: trimesh.Trimesh, drips: DripResult, surface: dict,
     take = rank < nmb
     sd, pts, d = sd[take], pts[take], d[take]
     radius = (eb - d) ** 2 / eb**2 * np.asarray(drips.water, dtype=np.float64)[sd] * kb
+    if icicle_radius is not None:
+        radius = np.minimum(radius, BASE_SWELL * np.asarray(icicle_radius, dtype=np.float64)[sd])
     keep = radius > 0
     if not keep.any():
         return NO_BALLS

@@ -16,7 +16,7 @@ from .bases import base_balls
 from .glaze import glaze_field
 from .icicles import icicle_balls
 from .measure import IcicleStats, measure_icicles
-from .profile import profile_args
+from .profile import _branch_lengths, profile_args, smooth_radius
 from .ripples import carve_ripples
 from .tubes import tube_mesh
 
@@ -116,7 +116,8 @@ def build_ice(object_mesh: trimesh.Trimesh, flow_mesh: trimesh.Trimesh, water: W
         n_balls = 0
     else:
         voxel = surface["voxel_size"]
-        ice = concat_balls(icicle_balls(trajectories, surface, rng), base_balls(object_mesh, drips, surface, rng))
+        ice = concat_balls(icicle_balls(trajectories, surface, rng),
+                           base_balls(object_mesh, drips, surface, rng, _root_radius(trajectories, k, surface)))
         coat = glaze_field(flow_mesh, water, glaze, rng, exclude=exclude, cast=cast)
         verts, faces = fuse_fields(sample_field(ice, voxel), coat)
         verts = carve_ripples(verts, trajectories, profile_args(surface))
@@ -124,3 +125,13 @@ def build_ice(object_mesh: trimesh.Trimesh, flow_mesh: trimesh.Trimesh, water: W
         faces = flip_needles(verts, faces, SLIVER * voxel)
         n_balls = len(ice)
     return IceResult(verts, faces, measure_icicles(verts, faces, trajectories, surface), n_balls)
+
+
+def _root_radius(traj: TrajectoryResult, k: int, surface: dict) -> np.ndarray:
+    """(k,) radius of each icicle's trunk where it leaves the object (the tip radius for a
+    drip point without a trunk), meters."""
+    _, lengths = _branch_lengths(traj)
+    trunk_length = np.zeros(k)
+    trunks = np.flatnonzero(np.asarray(traj.branch_parent) < 0)
+    trunk_length[np.asarray(traj.branch_icicle)[trunks]] = lengths[trunks]
+    return smooth_radius(0.0, trunk_length, **profile_args(surface))
