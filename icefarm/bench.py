@@ -68,7 +68,7 @@ def stage_timings(mesh_path: str | Path | trimesh.Trimesh, size_m: float, p: dic
             from .stages.surface import build_ice
 
             t4 = time.perf_counter()
-            ice = build_ice(mesh, mesh, water, drips, traj, p["surface"], p["glaze"], g, rng)
+            ice = build_ice(mesh, mesh, water, drips, traj, p["surface"], p["glaze"], g, rng, measure=False)
             seconds["surface"].append(time.perf_counter() - t4)
             ice_faces = len(ice.faces)
             ice_faces_runs.append(ice_faces)

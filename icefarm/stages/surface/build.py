@@ -36,23 +36,23 @@ class IceResult:
     faces : (m, 3) int64
         Outward-wound triangles; watertight in metaball mode, one closed tube per
         branch in tubes mode.
-    icicles : IcicleStats
+    icicles : IcicleStats or None
         The icicles' tip radius, taper, growth ratio, profile exponent and ripples, measured
-        on the mesh.
+        on the mesh (None when ``build_ice`` was asked not to measure).
     balls : int
         Metaballs of the icicles and bases (0 in tubes mode; the coat has none).
     """
 
     vertices: np.ndarray
     faces: np.ndarray
-    icicles: IcicleStats
+    icicles: IcicleStats | None
     balls: int
 
 
 def build_ice(object_mesh: trimesh.Trimesh, flow_mesh: trimesh.Trimesh, water: WaterResult,
               drips: DripResult, trajectories: TrajectoryResult, surface: dict, glaze: dict,
               gravity: np.ndarray, rng: np.random.Generator, exclude: np.ndarray | None = None,
-              cast=None) -> IceResult:
+              cast=None, measure: bool = True) -> IceResult:
     """Stage 4: icicles, their bases and glaze ice as one mesh (paper 4.4).
 
     ``surface["mode"] == "metaballs"``: one watertight mesh of the icicle chains and the
@@ -83,6 +83,9 @@ def build_ice(object_mesh: trimesh.Trimesh, flow_mesh: trimesh.Trimesh, water: W
         Flow-mesh vertices where no glaze may be (the sole the object stands on).
     cast : callable, optional
         A ray caster of ``flow_mesh`` to reuse (`icefarm.geometry.ray_caster`).
+    measure : bool
+        Measure the icicles on the mesh (`measure_icicles`); False leaves
+        ``IceResult.icicles`` None (a caller that times the modelling alone measures apart).
 
     Returns
     -------
@@ -124,7 +127,8 @@ def build_ice(object_mesh: trimesh.Trimesh, flow_mesh: trimesh.Trimesh, water: W
         verts, faces = collapse_slivers(verts, faces, SLIVER * voxel)
         faces = flip_needles(verts, faces, SLIVER * voxel)
         n_balls = len(ice)
-    return IceResult(verts, faces, measure_icicles(verts, faces, trajectories, surface), n_balls)
+    return IceResult(verts, faces, measure_icicles(verts, faces, trajectories, surface) if measure else None,
+                     n_balls)
 
 
 def _root_radius(traj: TrajectoryResult, k: int, surface: dict) -> np.ndarray:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass
 
@@ -158,14 +159,25 @@ def _slab_radius(axis, tangent, vertices, tree, thickness, slack):
     if len(axis) == 0:
         return np.zeros(0)
     near = tree.query(axis)[0]
+    lists = tree.query_ball_point(axis, near + slack + thickness, return_sorted=False)
+    counts = np.fromiter(map(len, lists), dtype=np.int64, count=len(lists))
+    owner = np.repeat(np.arange(len(axis)), counts)
+    idx = np.fromiter(itertools.chain.from_iterable(lists), dtype=np.int64, count=int(counts.sum()))
+    rel = vertices[idx] - axis[owner]
+    along = np.einsum("ij,ij->i", rel, tangent[owner])
+    radial = np.sqrt(np.maximum(np.einsum("ij,ij->i", rel, rel) - along**2, 0.0))
+    slab = np.abs(along) <= 0.5 * thickness
+    owner, radial = owner[slab], radial[slab]
+    # The median of each sample's slab: sort by (sample, radius), take the middle entries.
+    order = np.lexsort((radial, owner))
+    owner, radial = owner[order], radial[order]
+    n = np.bincount(owner, minlength=len(axis))
+    start = np.cumsum(n) - n
     out = near.copy()
-    for i, idx in enumerate(tree.query_ball_point(axis, near + slack + thickness)):
-        rel = vertices[np.asarray(idx, dtype=np.int64)] - axis[i]
-        along = rel @ tangent[i]
-        slab = np.abs(along) <= 0.5 * thickness
-        if slab.any():
-            radial = np.sqrt(np.maximum((rel[slab] ** 2).sum(axis=1) - along[slab] ** 2, 0.0))
-            out[i] = np.median(radial)
+    has = n > 0
+    lo = start[has] + (n[has] - 1) // 2
+    hi = start[has] + n[has] // 2
+    out[has] = 0.5 * (radial[lo] + radial[hi])
     return out
 
 
