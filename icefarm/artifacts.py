@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import tempfile
@@ -17,18 +18,105 @@ from .stages.drips import DripResult
 from .stages.trajectories import TrajectoryResult
 
 
+def current_umask() -> int:
+    """This process's umask, read without changing it (``os.umask`` can only set it, and a
+    set-and-restore would race other threads creating files)."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("Umask:"):
+                return int(line.split()[1], 8)
+    except (OSError, ValueError, IndexError):
+        pass
+    mask = os.umask(0o022)  # no /proc: set and restore at once
+    os.umask(mask)
+    return mask
+
+
 def atomic_write(path: Path, data: bytes | str) -> None:
-    """Write ``data`` to ``path`` through a temporary file and a rename: never half a file."""
+    """Write ``data`` to ``path`` through a temporary file and a rename: never half a file.
+
+    The file gets the mode a plain ``open`` would give it (0666 less the umask), not the
+    temporary file's 0600: a shared output folder stays readable to its group.
+    """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
         with os.fdopen(fd, "wb") as f:
+            os.fchmod(f.fileno(), 0o666 & ~current_umask())
             f.write(data.encode() if isinstance(data, str) else data)
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+
+
+def file_digest(path: Path, chunk: int = 1 << 20) -> str:
+    """sha256 of a file's bytes, read in chunks."""
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        while block := f.read(chunk):
+            h.update(block)
+    return h.hexdigest()
+
+
+# Files of a job folder that done.json does not list: itself, a failure's report, and
+# what `icefarm render` adds later (renders/).
+_UNLISTED = ("done.json", "error.json")
+_LATER = ("renders",)
+
+
+def list_artifacts(job_dir: Path) -> dict[str, dict]:
+    """``{relative path: {"size": bytes, "sha256": hex}}`` for every file of a finished job,
+    for done.json: a later ``--resume`` checks them (`check_done`)."""
+    job_dir = Path(job_dir)
+    out = {}
+    for path in sorted(job_dir.rglob("*")):
+        rel = path.relative_to(job_dir)
+        if (not path.is_file() or path.is_symlink() or rel.parts[0] in _LATER
+                or str(rel) in _UNLISTED or any(part.startswith(".") for part in rel.parts)):
+            continue
+        out[rel.as_posix()] = {"size": path.stat().st_size, "sha256": file_digest(path)}
+    return out
+
+
+def check_done(job_dir: Path, digests: bool = True) -> str | None:
+    """Why the job in ``job_dir`` is not done, or None when it is.
+
+    Done means: done.json is there and reads as JSON, and every artifact it lists is there
+    with the size (and, with ``digests``, the sha256) it had when the job finished. A
+    done.json of an older icefarm, without the list, only has to read as JSON.
+    """
+    job_dir = Path(job_dir)
+    try:
+        text = (job_dir / "done.json").read_text()
+    except FileNotFoundError:
+        return "no done.json"
+    except (OSError, UnicodeDecodeError) as exc:
+        return f"done.json unreadable ({exc})"
+    try:
+        done = json.loads(text)
+    except ValueError:
+        return "done.json is damaged (not JSON: truncated?)"
+    if not isinstance(done, dict):
+        return "done.json is damaged (not a JSON object)"
+    listed = done.get("artifacts")
+    if listed is None:
+        return None
+    if not isinstance(listed, dict):
+        return "done.json is damaged (its artifacts are not a mapping)"
+    for name, entry in listed.items():
+        path = job_dir / name
+        try:
+            size = path.stat().st_size
+        except OSError:
+            return f"{name} is missing"
+        if not isinstance(entry, dict) or size != entry.get("size"):
+            recorded = entry.get("size") if isinstance(entry, dict) else "?"
+            return f"{name} changed size ({size} bytes, done.json says {recorded})"
+        if digests and entry.get("sha256") and file_digest(path) != entry["sha256"]:
+            return f"{name} changed (its sha256 is not the one done.json recorded)"
+    return None
 
 
 def write_json(path: Path, value: Any) -> None:

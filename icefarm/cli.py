@@ -10,19 +10,38 @@ from pathlib import Path
 import click
 
 from . import __version__, params
-from .errors import InputError
+from .errors import InputError, Interrupted, one_line_each
 from .placement import PLACEMENTS
 
 
 class _Group(click.Group):
-    """Turns `InputError` into one clean line and exit status 2 instead of a traceback."""
+    """Turns `InputError` into one clean line and exit status 2 instead of a traceback;
+    Ctrl-C exits 130 (128 + the signal), not 1 like a failed job."""
 
     def invoke(self, ctx):
         try:
             return super().invoke(ctx)
         except InputError as exc:
-            click.echo(f"error: {exc}", err=True)
+            click.echo(one_line_each(f"error: {exc}"), err=True)
             sys.exit(2)
+        except KeyboardInterrupt as exc:
+            stop = exc if isinstance(exc, Interrupted) else Interrupted()
+            click.echo(f"interrupted by {stop.name}", err=True)
+            sys.exit(stop.exit_code)
+
+
+def _writable_folder(out: str | Path) -> Path:
+    """``out``, created when missing; refused in one line when it cannot be written."""
+    import tempfile
+
+    out = Path(out)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=out):
+            pass
+    except OSError as exc:
+        raise InputError(f"cannot write the output folder {out}: {exc.strerror or exc}") from None
+    return out
 
 
 @click.group(cls=_Group, context_settings={"help_option_names": ["-h", "--help"]})
@@ -86,6 +105,9 @@ def run(mesh, size_m, assignments, seed, out, until, render, no_render, placemen
     spec = JobSpec(object_id=Path(mesh).stem, mesh=mesh, size_m=size_m, params=resolved, seed=seed,
                    render=None if no_render else render, exclude=tuple(_box(b) for b in exclude),
                    placement=placement)
+    _writable_folder(out)
+    if cache:
+        _writable_folder(cache)
     outcome = run_job(spec, Path(out), Path(cache) if cache else None, Stage(until) if until else None,
                       progress=sys.stderr.isatty())
     if outcome.status != "done":

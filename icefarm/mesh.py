@@ -149,8 +149,21 @@ def count_self_intersections(mesh: trimesh.Trimesh) -> int:
     return int(ms.current_mesh().selected_face_number())
 
 
+# A mesh thinner than this fraction of its diagonal is flat (a plane, a sign, a sheet, a
+# single triangle): it gets FLAT_THICKNESS_M of thickness, so that the water that falls on
+# it runs over its faces and round its rims as on any closed object.
+FLAT_FRACTION = 1e-6
+FLAT_THICKNESS_M = 0.002  # a sheet of metal, a sign's board (at most FLAT_THICKNESS_RATIO of the diagonal)
+FLAT_THICKNESS_RATIO = 0.01
+
+
 def prepare(path: str | Path | trimesh.Trimesh, size_m: float, gravity=(0.0, -1.0, 0.0)) -> PreparedMesh:
-    """Load, clean and scale a mesh so its height along gravity is ``size_m`` meters.
+    """Load, scale and clean a mesh so its height along gravity is ``size_m`` meters.
+
+    The mesh is scaled before it is cleaned, so its units do not matter (welding and the
+    test for degenerate faces work in meters: a model in nanometres is not one point).
+    A flat mesh is given a thickness (`solidify`): a plane, a sign or a single triangle
+    becomes a thin closed slab that water can run over.
 
     Parameters
     ----------
@@ -172,20 +185,74 @@ def prepare(path: str | Path | trimesh.Trimesh, size_m: float, gravity=(0.0, -1.
     if isinstance(path, trimesh.Trimesh):
         if len(path.faces) == 0 or not np.isfinite(path.vertices).all():
             raise InputError("the generated mesh is empty or has non-finite vertices")
-        mesh = clean(path)
+        raw = trimesh.Trimesh(np.asarray(path.vertices, dtype=np.float64), np.asarray(path.faces, dtype=np.int64),
+                              process=False)
         path = "(generated)"
     else:
-        mesh = clean(load_mesh(path))
-    if len(mesh.faces) == 0:
-        raise InputError(f"mesh {path} has only degenerate faces")
+        raw = load_mesh(path)
     g = np.asarray(gravity, dtype=np.float64)
     g = g / np.linalg.norm(g)
-    heights = mesh.vertices @ g
+    if np.asarray(raw.faces).min() < 0 or np.asarray(raw.faces).max() >= len(raw.vertices):
+        raise InputError(f"mesh {path} has faces that name vertices it does not have")
+    # Scale on the vertices the faces use, then clean in meters; scale again for what cleaning removed.
+    scale, centre = _fit(raw.vertices[np.unique(raw.faces)], size_m, g, path)
+    mesh = clean(trimesh.Trimesh(raw.vertices * scale - centre, raw.faces, process=False))
+    if len(mesh.faces) == 0:
+        raise InputError(f"mesh {path} has only degenerate faces")
+    again, shift = _fit(mesh.vertices, size_m, g, path)
+    mesh.vertices = mesh.vertices * again - shift
+    scale, centre = scale * again, centre * again + shift
+    if is_flat(mesh):
+        mesh = solidify(mesh, min(FLAT_THICKNESS_M, FLAT_THICKNESS_RATIO * float(np.linalg.norm(mesh.extents))))
+    return PreparedMesh(mesh=mesh, scale=scale, offset=centre, problems=detect_problems(mesh))
+
+
+def _fit(vertices: np.ndarray, size_m: float, g: np.ndarray, path) -> tuple[float, np.ndarray]:
+    """``scale, centre`` that bring ``vertices`` to ``size_m`` along ``g`` (or their largest
+    extent when flat along ``g``), centred on the origin: ``v * scale - centre``."""
+    heights = vertices @ g
     height = float(heights.max() - heights.min())
-    extent = float(mesh.extents.max())
-    if extent <= 0:
+    lo, hi = vertices.min(axis=0), vertices.max(axis=0)
+    extent = float((hi - lo).max())
+    if not extent > 0 or not np.isfinite(extent):
         raise InputError(f"mesh {path} has no extent: all its vertices coincide")
     scale = size_m / (height if height > 1e-9 * extent else extent)
-    centre = mesh.bounds.mean(axis=0) * scale
-    mesh.vertices = mesh.vertices * scale - centre
-    return PreparedMesh(mesh=mesh, scale=scale, offset=centre, problems=detect_problems(mesh))
+    return scale, (lo + hi) / 2 * scale
+
+
+def _thin_axis(mesh: trimesh.Trimesh) -> tuple[np.ndarray, float]:
+    """The unit direction along which ``mesh`` is thinnest, and its thickness there."""
+    v = mesh.vertices - mesh.vertices.mean(axis=0)
+    _, _, axes = np.linalg.svd(v, full_matrices=False)
+    normal = axes[-1] if len(axes) == 3 else np.cross(*axes[:2]) if len(axes) == 2 else np.array([0.0, 1.0, 0.0])
+    normal = normal / np.linalg.norm(normal)
+    return normal, float(np.ptp(v @ normal))
+
+
+def is_flat(mesh: trimesh.Trimesh) -> bool:
+    """All faces in one plane (to `FLAT_FRACTION` of the diagonal): no volume, no inside."""
+    diagonal = float(np.linalg.norm(mesh.extents))
+    return diagonal > 0 and _thin_axis(mesh)[1] <= FLAT_FRACTION * diagonal
+
+
+def solidify(mesh: trimesh.Trimesh, thickness: float) -> trimesh.Trimesh:
+    """A flat ``mesh`` as a closed slab ``thickness`` thick: its faces on both sides of its
+    plane, joined along its open rims, every face pointing out."""
+    normal, _ = _thin_axis(mesh)
+    centre = mesh.vertices.mean(axis=0)
+    flat = mesh.vertices - np.outer((mesh.vertices - centre) @ normal, normal)  # exactly in the plane
+    faces = np.asarray(mesh.faces).copy()
+    facing = np.cross(flat[faces[:, 1]] - flat[faces[:, 0]], flat[faces[:, 2]] - flat[faces[:, 0]]) @ normal
+    faces[facing < 0] = faces[facing < 0][:, ::-1]  # all wound counter-clockwise seen from +normal
+    n = len(flat)
+    vertices = np.vstack([flat + normal * thickness / 2, flat - normal * thickness / 2])
+    edges = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    key = np.sort(edges, axis=1)
+    _, inverse, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    rim = edges[counts[inverse.ravel()] == 1]  # open edges, in their face's winding
+    a, b = rim[:, 0], rim[:, 1]
+    sides = np.concatenate([np.column_stack([b, a, a + n]), np.column_stack([b, a + n, b + n])])
+    out = trimesh.Trimesh(vertices, np.concatenate([faces, faces[:, ::-1] + n, sides]), process=False)
+    out.merge_vertices()
+    trimesh.repair.fix_normals(out)
+    return out

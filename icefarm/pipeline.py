@@ -138,25 +138,91 @@ def load_object(spec: JobSpec) -> PreparedMesh:
 
 
 class _Cache:
-    """Pickled stage results under ``root/<stage>/<key>.pkl``; no root, no cache."""
+    """Pickled stage results under ``root/<stage>/<key>.<code>.pkl``; no root, no cache.
+
+    ``<code>`` is `code_version` (a hash of icefarm's source): results of other code are
+    never read. Each entry starts with a line ``icefarm-cache 1 <sha256 of the pickle>``: an
+    entry whose bytes no longer match (a bad disk, a copy cut short, a hand edit) is deleted
+    and recomputed with a `CacheWarning`, never trusted. The entries are pickles: whoever
+    can write the cache folder can run code in the jobs that read it.
+
+    ``root/policy.json`` (a sweep writes it) may name ``private`` stages: their results
+    are used by one job only, so they are not stored (they are still read when there).
+    """
+
+    MAGIC = b"icefarm-cache 1"
+    POLICY = "policy.json"
+    _code: str | None = None
 
     def __init__(self, root: Path | None):
         self.root = root
         self.reused: list[str] = []
+        self.warnings: list[str] = []
+        self.private: set[str] = set()
+        if root is not None:
+            try:
+                self.private = {str(s) for s in json.loads((root / self.POLICY).read_text()).get("private", ())}
+            except (OSError, ValueError, AttributeError, TypeError):
+                pass
+
+    @classmethod
+    def code_version(cls) -> str:
+        """Hash of icefarm's version and of every source file of the package (12 hex digits)."""
+        if cls._code is None:
+            from . import __version__
+
+            h = hashlib.sha256(__version__.encode())
+            package = Path(__file__).resolve().parent
+            for path in sorted(package.rglob("*.py")):
+                h.update(path.relative_to(package).as_posix().encode() + b"\0")
+                h.update(path.read_bytes() + b"\0")
+            cls._code = h.hexdigest()[:12]
+        return cls._code
+
+    def path(self, stage: str, key: str) -> Path | None:
+        return self.root / stage / f"{key}.{self.code_version()}.pkl" if self.root else None
 
     def get(self, stage: str, key: str, compute: Callable[[], Any]) -> Any:
-        path = self.root / stage / f"{key}.pkl" if self.root else None
+        path = self.path(stage, key)
         if path is not None and path.is_file():
-            try:
-                value = pickle.loads(path.read_bytes())
+            found, value = self._load(path)
+            if found:
                 self.reused.append(stage)
                 return value
-            except Exception:  # a damaged entry is recomputed, not fatal
-                path.unlink(missing_ok=True)
         value = compute()
-        if path is not None:
-            artifacts.atomic_write(path, pickle.dumps(value, protocol=pickle.HIGHEST_PROTOCOL))
+        if path is not None and stage not in self.private:
+            payload = pickle.dumps(value, protocol=pickle.HIGHEST_PROTOCOL)
+            header = self.MAGIC + b" " + hashlib.sha256(payload).hexdigest().encode() + b"\n"
+            artifacts.atomic_write(path, header + payload)
         return value
+
+    def _load(self, path: Path) -> tuple[bool, Any]:
+        """``(True, value)`` for an intact entry; a damaged one is deleted: ``(False, None)``."""
+        import warnings
+
+        from .errors import CacheWarning
+
+        try:
+            data = path.read_bytes()
+        except OSError:
+            return False, None
+        header, _, payload = data.partition(b"\n")
+        magic, _, digest = header.rpartition(b" ")
+        problem = None
+        if magic != self.MAGIC:
+            problem = "it is not an icefarm cache entry of this format"
+        elif hashlib.sha256(payload).hexdigest().encode() != digest:
+            problem = "its bytes do not match the digest written with it"
+        else:
+            try:
+                return True, pickle.loads(payload)
+            except Exception as exc:  # intact bytes that do not unpickle: another library version
+                problem = f"it does not load ({type(exc).__name__}: {exc})"
+        message = f"stage cache entry {path} is damaged ({problem}): recomputed"
+        self.warnings.append(message)
+        warnings.warn(message, CacheWarning, stacklevel=2)
+        path.unlink(missing_ok=True)
+        return False, None
 
 
 def _rng(seed: int, stage: Stage) -> np.random.Generator:
@@ -218,8 +284,11 @@ def run_job(spec: JobSpec, job_dir: Path, cache_dir: Path | None = None,
         })
         return JobOutcome("failed", dict(run.seconds), tuple(cache.reused), run.stage, message)
     artifacts.write_json(job_dir / "timings.json", {"seconds": run.seconds, **summary, "reused": cache.reused})
+    # Last, and listing every artifact with its size and digest: `--resume` checks them.
     artifacts.write_json(job_dir / "done.json", {
         "job": spec.object_id, "seconds": run.seconds, "reused": cache.reused, **summary,
+        **({"cache_warnings": cache.warnings} if cache.warnings else {}),
+        "artifacts": artifacts.list_artifacts(job_dir),
     })
     return JobOutcome("done", dict(run.seconds), tuple(cache.reused))
 

@@ -135,3 +135,49 @@ def test_dask_without_a_scheduler_starts_a_local_cluster(tmp_path):
     summary = run_sweep(path, tmp_path / "out", backend="dask", workers=2, until="drips")
     assert summary.ok and summary.done == 2 and summary.workers == 2
     assert summary.jobs[1].reused == ("water",)
+
+
+def test_a_sweep_says_when_its_cluster_has_no_workers(tmp_path):
+    """A scheduler without workers: the sweep says it waits (and for what) instead of sitting
+    silent, and says when a worker joined."""
+    if not DASK.exists():
+        pytest.skip(f"no dask command at {DASK}")
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")])))
+    procs = []
+
+    def start(*args, log):
+        procs.append(subprocess.Popen([str(DASK), *args], env=env, cwd=tmp_path, start_new_session=True,
+                                      stdout=(tmp_path / log).open("w"), stderr=subprocess.STDOUT))
+
+    try:
+        info = tmp_path / "scheduler.json"
+        start("scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard",
+              "--dashboard-address", "127.0.0.1:0", "--scheduler-file", str(info), log="scheduler.log")
+        address = _wait_for(lambda: info.is_file() and json.loads(info.read_text() or "{}").get("address"),
+                            60, "the scheduler")
+        path = _manifest(tmp_path, [{"id": "ball", "mesh": "ball.ply", "size_m": 0.3}],
+                         {"drips.count": {"values": [2, 3]}})
+        notes: list[str] = []
+        result: list = []
+        sweep = threading.Thread(target=lambda: result.append(run_sweep(
+            path, tmp_path / "out", backend="dask", scheduler=address, until="water", note=notes.append)))
+        sweep.start()
+        _wait_for(lambda: any("no workers" in n for n in notes), 60, "the sweep to say it waits")
+        assert f"dask worker {address}" in notes[0]
+        start("worker", address, "--nthreads", "1", "--host", "127.0.0.1", "--no-dashboard", "--name", "late",
+              log="worker.log")
+        sweep.join(timeout=300)
+        assert result and result[0].ok and result[0].done == 2
+        assert any("1 worker joined" in n for n in notes), notes
+    finally:
+        for proc in reversed(procs):
+            try:
+                os.killpg(proc.pid, signal.SIGTERM)
+            except ProcessLookupError:
+                pass
+        for proc in procs:
+            try:
+                proc.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                os.killpg(proc.pid, signal.SIGKILL)
+                proc.wait(timeout=10)

@@ -149,6 +149,39 @@ def _test_pause(task: Task) -> None:
         time.sleep(float(seconds or 0))
 
 
+WATCHDOG_S = 0.5  # how often a local worker checks that its driver is still there
+
+
+def _worker_init(driver: int) -> None:
+    """Initializer of every local worker process.
+
+    Ctrl-C is the driver's to handle (it ends the workers), so a worker ignores SIGINT. A
+    worker ends by itself when its driver is gone (SIGKILL, the OOM killer), instead of
+    running on with parent pid 1 and writing jobs that a later ``--resume`` also writes:
+    on Linux the kernel kills it (``PR_SET_PDEATHSIG``), elsewhere a thread notices.
+    """
+    import signal
+    import sys
+    import threading
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if sys.platform.startswith("linux"):
+        with contextlib.suppress(Exception):
+            import ctypes
+
+            PR_SET_PDEATHSIG = 1
+            ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0)
+    if os.getppid() != driver:  # the driver died before the line above took effect
+        os._exit(1)
+
+    def watch() -> None:
+        while os.getppid() == driver:
+            time.sleep(WATCHDOG_S)
+        os.kill(os.getpid(), signal.SIGKILL)
+
+    threading.Thread(target=watch, name="icefarm-driver-watch", daemon=True).start()
+
+
 # --------------------------------------------------------------------------- scheduling
 
 class _Gate:
@@ -232,7 +265,8 @@ def run_local(tasks: Sequence[Task], *, workers: int, on_outcome: OnOutcome,
     gate = _Gate(tasks, waits or {})
 
     def new_pool(n: int) -> ProcessPoolExecutor:
-        return ProcessPoolExecutor(max_workers=n, mp_context=ctx, max_tasks_per_child=max_tasks_per_child)
+        return ProcessPoolExecutor(max_workers=n, mp_context=ctx, max_tasks_per_child=max_tasks_per_child,
+                                   initializer=_worker_init, initargs=(os.getpid(),))
 
     with _child_environment(threads):
         pool = new_pool(workers)
@@ -302,7 +336,8 @@ def _isolated(tasks: Sequence[Task], workers: int, ctx) -> Iterator[tuple[Task, 
         while queue or active:
             while queue and len(active) < workers:
                 task = queue.popleft()
-                pool = ProcessPoolExecutor(max_workers=1, mp_context=ctx)
+                pool = ProcessPoolExecutor(max_workers=1, mp_context=ctx, initializer=_worker_init,
+                                           initargs=(os.getpid(),))
                 active[pool.submit(execute, task)] = (task, pool)
             done, _ = wait(active, return_when=FIRST_COMPLETED)
             for fut in done:
@@ -337,23 +372,49 @@ def _kill_workers(pool: ProcessPoolExecutor) -> None:
 
 # --------------------------------------------------------------------------- dask
 
-def run_dask(tasks: Sequence[Task], *, workers: int, on_outcome: OnOutcome,
-             scheduler: str | None = None, waits: Mapping[str, str] | None = None,
-             connect_timeout: float = 30.0) -> None:
-    """Run ``tasks`` on a Dask cluster: the scheduler at ``scheduler``, or a LocalCluster of
+def check_scheduler_address(address: str) -> None:
+    """Refuse what is no Dask scheduler address before anything tries to reach it.
+
+    Raises
+    ------
+    InputError
+        Not ``[scheme://]host:port`` with a scheme Dask knows (tcp, tls, ws, ...).
+    """
+    from ..errors import InputError, short_repr
+
+    try:
+        from distributed.comm import registry
+        from distributed.comm.addressing import parse_address, parse_host_port
+
+        scheme, location = parse_address(address)
+        registry.get_backend(scheme)
+        if scheme != "inproc":
+            host, port = parse_host_port(location)
+            if not host or not 0 < int(port) < 65536:
+                raise ValueError("expected a host and a port from 1 to 65535")
+    except ImportError:
+        return
+    except (ValueError, TypeError) as exc:
+        raise InputError(f"--scheduler {short_repr(address)} is not a Dask scheduler address ({exc}): "
+                         f"expected tcp://HOST:PORT, e.g. tcp://10.0.0.5:8786") from None
+
+
+@contextlib.contextmanager
+def dask_client(workers: int, scheduler: str | None = None, connect_timeout: float = 30.0) -> Iterator[Any]:
+    """A `distributed.Client` of the scheduler at ``scheduler``, or of a LocalCluster of
     ``workers`` single-threaded worker processes started (and stopped) here.
 
-    The workers must import icefarm and see the sweep folder at the same path (one machine, or
-    a shared file system). Parameters as `run_local`.
+    Raises
+    ------
+    InputError
+        A bad address, or no scheduler answering there within ``connect_timeout`` seconds.
     """
     import dask
-    from distributed import Client, LocalCluster, as_completed
-    from distributed.scheduler import KilledWorker
+    from distributed import Client, LocalCluster
 
     from ..errors import InputError
 
-    cluster = None
-    threads = threads_per_worker(workers) if scheduler is None else None
+    cluster = client = None
     try:
         if scheduler is None:
             with dask.config.set({"distributed.scheduler.allowed-failures": 1}):
@@ -361,50 +422,141 @@ def run_dask(tasks: Sequence[Task], *, workers: int, on_outcome: OnOutcome,
                                        dashboard_address=None, silence_logs=logging.ERROR)
             client = Client(cluster)
         else:
+            check_scheduler_address(scheduler)
             try:
-                client = Client(scheduler, timeout=connect_timeout)
-            except (OSError, TimeoutError) as exc:
-                raise InputError(f"cannot reach the Dask scheduler at {scheduler}: {exc}") from None
-    except BaseException:
+                with dask.config.set({"distributed.comm.timeouts.connect": f"{connect_timeout}s"}):
+                    client = Client(scheduler, timeout=connect_timeout)
+            except (OSError, TimeoutError, ValueError) as exc:
+                raise InputError(f"cannot reach the Dask scheduler at {scheduler} within {connect_timeout:g} s "
+                                 f"({type(exc).__name__}: {_first_line(exc)}): is `dask scheduler` running "
+                                 f"there? nothing was written") from None
+        yield client
+    finally:
+        if client is not None:
+            with contextlib.suppress(Exception):
+                client.close()
         if cluster is not None:
-            cluster.close()
-        raise
+            with contextlib.suppress(Exception):
+                cluster.close()
+
+
+def _first_line(exc: BaseException) -> str:
+    text = str(exc).strip().splitlines()
+    return text[0][:200] if text else "no answer"
+
+
+def _worker_count(client) -> int:
+    try:
+        return len(client.scheduler_info().get("workers", {}))
+    except Exception:
+        return -1
+
+
+@contextlib.contextmanager
+def _watch_workers(client, address: str, note: Callable[[str], None], every: float = 2.0,
+                   remind: float = 60.0) -> Iterator[None]:
+    """Say when the cluster has no worker to run the jobs (and when workers join), instead
+    of a sweep that sits silent; a reminder every ``remind`` seconds while it waits."""
+    import threading
+
+    stop = threading.Event()
+    waiting = [None]
+
+    def check() -> None:
+        n = _worker_count(client)
+        now = time.monotonic()
+        if n == 0 and waiting[0] is None:
+            waiting[0] = now
+            note(f"dask: the scheduler at {address} has no workers: the jobs wait for one to join "
+                 f"(start them with `dask worker {address}`)")
+        elif n == 0 and now - waiting[0] >= remind:
+            note(f"dask: still waiting for a worker to join the scheduler at {address} "
+                 f"({(now - waiting[0]) / 60:.0f} min)")
+            waiting[0] = now
+        elif n > 0 and waiting[0] is not None:
+            waiting[0] = None
+            note(f"dask: {n} worker{'s' * (n != 1)} joined the scheduler at {address}: running")
+
+    def loop() -> None:
+        while not stop.wait(every):
+            check()
+
+    check()
+    thread = threading.Thread(target=loop, name="icefarm-dask-workers", daemon=True)
+    thread.start()
+    try:
+        yield
+    finally:
+        stop.set()
+        thread.join(timeout=every + 5)
+        if waiting[0] is not None and not thread.is_alive():
+            check()  # workers that came and did the work between two looks
+
+
+def run_dask(tasks: Sequence[Task], *, workers: int, on_outcome: OnOutcome,
+             scheduler: str | None = None, waits: Mapping[str, str] | None = None,
+             connect_timeout: float = 30.0, client=None,
+             note: Callable[[str], None] | None = None) -> None:
+    """Run ``tasks`` on a Dask cluster: ``client``'s, or the scheduler at ``scheduler``, or
+    a LocalCluster of ``workers`` single-threaded worker processes started (and stopped) here.
+
+    The workers must import icefarm and see the sweep folder at the same path (one machine, or
+    a shared file system). ``note(text)`` hears when the cluster has no workers (and when
+    they join). Other parameters as `run_local`.
+    """
+    if client is None:
+        with dask_client(workers, scheduler, connect_timeout) as own:
+            return run_dask(tasks, workers=workers, on_outcome=on_outcome, scheduler=scheduler, waits=waits,
+                            client=own, note=note)
+    from distributed import as_completed
+    from distributed.scheduler import KilledWorker
+
+    threads = threads_per_worker(workers) if scheduler is None else None
     run = uuid.uuid4().hex[:8]
     gate = _Gate([replace(t, threads=threads) for t in tasks], waits or {})
     futures: dict[str, Task] = {}
+    live: dict[str, Any] = {}
     stream = as_completed()
 
     def submit_ready() -> None:
         while (task := gate.next()) is not None:
             fut = client.submit(execute, task, key=f"icefarm-{task.job_id}-{run}", pure=False)
             futures[fut.key] = task
+            live[fut.key] = fut
             stream.add(fut)
 
+    watch = (_watch_workers(client, scheduler, note) if scheduler is not None and note is not None
+             else contextlib.nullcontext())
     try:
-        submit_ready()
-        for fut in stream:
-            task = futures.pop(fut.key)
-            try:
-                outcome, attempt = fut.result()
-            except KilledWorker:
-                attempt = max(1, attempts_started(task))
-                message = (f"the worker running this job died {attempt} times (killed, out of memory, or a "
-                           f"crash in native code); the scheduler gave up on it (allowed-failures)")
-                write_error(task.job_dir, message)
-                outcome = failed_outcome(message)
-            except Exception as exc:
-                attempt = max(1, attempts_started(task))
-                message = f"{type(exc).__name__}: {exc}"
-                write_error(task.job_dir, message, None, traceback.format_exc())
-                outcome = failed_outcome(message)
-            fut.release()
-            _marker(task).unlink(missing_ok=True)
-            gate.finish(task)
-            on_outcome(task, outcome, attempt)
+        with watch:
             submit_ready()
-        if gate:
-            raise RuntimeError("farm: tasks wait for each other in a cycle")  # a planning bug
-    finally:
-        client.close()
-        if cluster is not None:
-            cluster.close()
+            for fut in stream:
+                task = futures.pop(fut.key)
+                live.pop(fut.key, None)
+                try:
+                    outcome, attempt = fut.result()
+                except KilledWorker:
+                    attempt = max(1, attempts_started(task))
+                    message = (f"the worker running this job died {attempt} times (killed, out of memory, or a "
+                               f"crash in native code); the scheduler gave up on it (allowed-failures)")
+                    write_error(task.job_dir, message)
+                    outcome = failed_outcome(message)
+                except Exception as exc:
+                    attempt = max(1, attempts_started(task))
+                    message = f"{type(exc).__name__}: {exc}"
+                    write_error(task.job_dir, message, None, traceback.format_exc())
+                    outcome = failed_outcome(message)
+                fut.release()
+                _marker(task).unlink(missing_ok=True)
+                gate.finish(task)
+                on_outcome(task, outcome, attempt)
+                submit_ready()
+            if gate:
+                raise RuntimeError("farm: tasks wait for each other in a cycle")  # a planning bug
+    except BaseException:
+        # Stopped (a signal, an error): the jobs not yet started are taken off the cluster. A
+        # job already running on an external cluster's worker cannot be stopped by Dask: it
+        # finishes there (a --resume redoes it unless it wrote done.json).
+        with contextlib.suppress(Exception):
+            client.cancel(list(live.values()), force=True)
+        raise

@@ -15,15 +15,22 @@ from pathlib import Path
 
 import click
 
-from ..errors import InputError
+from ..errors import InputError, Interrupted, one_line_each
 from .manifest import Manifest, load_manifest
-from .sweep import JobRecord, Status, SweepSummary, apply_sets, expand, run_sweep
+from .sweep import (MAX_JOBS, JobRecord, Status, SweepSummary, apply_sets, check_job_count, count_points,
+                    run_sweep)
 
 
 class BadInput(click.ClickException):
     """An `InputError` on the command line: exit status 2, as the icefarm group gives it."""
 
     exit_code = 2
+
+    def __init__(self, message: str):
+        super().__init__(one_line_each(message))
+
+    def show(self, file=None) -> None:
+        click.echo(f"error: {self.format_message()}", err=True)  # as the icefarm group writes it
 
 
 # --------------------------------------------------------------------------- progress
@@ -54,6 +61,9 @@ class LineProgress:
     def close(self) -> None:
         pass
 
+    def note(self, text: str) -> None:
+        self.echo(f"note: {text}")
+
 
 class TqdmProgress:
     """A live bar on a terminal: jobs done, failed, and the time left."""
@@ -78,6 +88,11 @@ class TqdmProgress:
         if self.bar is not None:
             self.bar.close()
 
+    def note(self, text: str) -> None:
+        from tqdm import tqdm
+
+        tqdm.write(f"note: {text}", file=sys.stderr)
+
 
 def default_progress():
     """A tqdm bar when stderr is a terminal, plain lines otherwise."""
@@ -97,16 +112,19 @@ def _last_line(text: str | None) -> str:
 
 # --------------------------------------------------------------------------- validate
 
-def validate_manifest(path: str | Path, sets: Sequence[str] = ()) -> tuple[Manifest, str]:
+def validate_manifest(path: str | Path, sets: Sequence[str] = (),
+                      max_jobs: int | None = MAX_JOBS) -> tuple[Manifest, str]:
     """Validate ``path`` (and ``--set`` assignments); return the manifest and a short description.
 
     Raises
     ------
     InputError
-        Every problem found, each naming the file, the key path and what was expected.
+        Every problem found, each naming the file, the key path and what was expected; a
+        sweep of more than ``max_jobs`` jobs (counted, not expanded).
     """
     manifest = apply_sets(load_manifest(path), sets)
-    points = len(expand(manifest.sweep, manifest.seed))
+    check_job_count(manifest, max_jobs)
+    points = count_points(manifest.sweep)
     n = len(manifest.objects)
     method = manifest.sweep.method.value if manifest.sweep else "none"
     text = (f"{manifest.path}: valid. sweep {manifest.name!r}: {n} object{'s' * (n != 1)} x {points} "
@@ -118,7 +136,9 @@ def validate_manifest(path: str | Path, sets: Sequence[str] = ()) -> tuple[Manif
 @click.argument("manifest", type=click.Path(dir_okay=False, path_type=Path))
 @click.option("--set", "sets", multiple=True, metavar="GROUP.PARAM=V[,V...]",
               help="Check these overrides too (as `icefarm sweep --set` would apply them).")
-def validate(manifest: Path, sets: tuple[str, ...]) -> None:
+@click.option("--max-jobs", type=click.IntRange(min=1), default=MAX_JOBS, show_default=True,
+              help="Refuse a sweep of more jobs than this.")
+def validate(manifest: Path, sets: tuple[str, ...], max_jobs: int) -> None:
     """Check MANIFEST without running anything.
 
     Reports every problem at once, each with the file, the key path and what was expected
@@ -127,7 +147,7 @@ def validate(manifest: Path, sets: tuple[str, ...]) -> None:
     Prints the number of jobs the sweep would run. Exit status 2 when the manifest is invalid.
     """
     try:
-        _, text = validate_manifest(manifest, sets)
+        _, text = validate_manifest(manifest, sets, max_jobs)
     except InputError as exc:
         raise BadInput(str(exc)) from None
     click.echo(text)
@@ -148,6 +168,11 @@ def format_summary(summary: SweepSummary) -> str:
                  + (f"; jobs retried after a worker died: {summary.retried}" if summary.retried else ""))
     if summary.duplicates:
         lines.append(f"{summary.duplicates} sweep point(s) repeated an earlier job and were dropped")
+    if summary.stale:
+        lines.append(f"{len(summary.stale)} stale job folder(s) of an earlier manifest left in "
+                     f"{summary.sweep_dir / 'jobs'} (not jobs of this one): "
+                     + ", ".join(str(p.relative_to(summary.sweep_dir)) for p in summary.stale[:10])
+                     + (" ..." if len(summary.stale) > 10 else ""))
     for r in summary.jobs:
         if r.status is Status.FAILED:
             stage = f" in stage {r.failed_stage}" if r.failed_stage else ""
@@ -159,7 +184,8 @@ def format_summary(summary: SweepSummary) -> str:
 def format_plan(summary: SweepSummary) -> str:
     """A dry run's job list."""
     lines = [f"dry run: sweep {summary.name} -> {summary.sweep_dir}: {len(summary.jobs)} jobs"
-             + (f", {summary.resumed} already done" if summary.resumed else "")]
+             + (f", {summary.resumed} already done" if summary.resumed else "")
+             + (f"; {len(summary.stale)} stale job folder(s) not in this manifest" if summary.stale else "")]
     for r in summary.jobs:
         values = " ".join(f"{k}={_short(v)}" for k, v in r.values)
         state = "done" if r.status is Status.DONE else "to run"
@@ -196,26 +222,47 @@ def make_sweep_command(after: Callable[[SweepSummary], None] | None = None) -> c
                   help="Replace a local worker process after this many jobs (bounds memory growth).")
     @click.option("--no-cache", is_flag=True,
                   help="Do not share stage results between jobs (every job computes every stage).")
+    @click.option("--max-jobs", type=click.IntRange(min=1), default=MAX_JOBS, show_default=True,
+                  help="Refuse a sweep of more jobs than this (counted before anything is expanded).")
+    @click.option("--scheduler-timeout", type=click.FloatRange(min=0.1), default=30.0, show_default=True,
+                  metavar="SECONDS", help="How long to try reaching the --scheduler before giving up.")
     def sweep(manifest: Path, out: Path, workers: int, backend: str, scheduler: str | None,
               sets: tuple[str, ...], resume: bool, overwrite: bool, dry_run: bool, no_render: bool,
-              until: str | None, tasks_per_worker: int, no_cache: bool) -> None:
+              until: str | None, tasks_per_worker: int, no_cache: bool, max_jobs: int,
+              scheduler_timeout: float) -> None:
         """Run every job of MANIFEST's sweep: one job per (object, sweep point).
 
         Results go to OUT/<name>/: manifest.resolved.yaml, jobs/<object>/<job id>/ (one
         folder per job, done.json written last), jobs.csv and a stage cache shared by the
         jobs, so that a sweep over surface parameters computes water, drips and trajectories
         once per object. A failing job does not stop the others; a job whose worker dies is
-        retried once. An existing OUT/<name> needs --resume or --overwrite. Exit status 1 when
-        any job failed, 2 for an invalid manifest or option.
+        retried once. An existing OUT/<name> needs --resume or --overwrite. Ctrl-C, SIGTERM or
+        SIGHUP end the workers and keep the done jobs (--resume finishes the rest). Exit status
+        1 when any job failed, 2 for an invalid manifest or option, 128 + the signal when
+        stopped by one (130: Ctrl-C, 143: SIGTERM).
         """
+        progress = None if dry_run else default_progress()
         try:
             summary = run_sweep(manifest, out, workers=workers, backend=backend, scheduler=scheduler,
                                 sets=sets, resume=resume, overwrite=overwrite, dry_run=dry_run,
                                 render=not no_render, until=until, max_tasks_per_child=tasks_per_worker,
-                                use_cache=not no_cache,
-                                progress=None if dry_run else default_progress())
+                                use_cache=not no_cache, progress=progress, max_jobs=max_jobs,
+                                connect_timeout=scheduler_timeout,
+                                note=progress.note if progress is not None
+                                else lambda text: click.echo(f"note: {text}", err=True))
         except InputError as exc:
             raise BadInput(str(exc)) from None
+        except KeyboardInterrupt as exc:
+            stop = exc if isinstance(exc, Interrupted) else Interrupted()
+            if stop.summary is not None:
+                click.echo(format_summary(stop.summary), err=True)
+            click.echo(f"interrupted by {stop.name}: the workers were stopped; done jobs are kept, the others "
+                       f"have no done.json. Finish the sweep with: icefarm sweep {manifest} -o {out} --resume",
+                       err=True)
+            sys.exit(stop.exit_code)
+        except OSError as exc:  # the disk filled up, a folder became read-only, ... while running
+            click.echo(one_line_each(f"error: {exc.strerror or exc}: {exc.filename or ''}".rstrip(": ")), err=True)
+            sys.exit(1)
         if dry_run:
             click.echo(format_plan(summary))
             return

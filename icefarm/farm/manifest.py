@@ -41,7 +41,7 @@ from typing import Any
 import yaml
 
 from .. import params as P
-from ..errors import InputError
+from ..errors import InputError, short_repr
 from ..placement import PLACEMENTS
 
 GENERATOR_PREFIX = "generator:"
@@ -160,10 +160,64 @@ def load_manifest(path: str | Path) -> Manifest:
     if not path.is_file():
         raise InputError(f"manifest not found: {path}")
     try:
-        data = yaml.safe_load(path.read_text())
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise InputError(f"cannot read the manifest {path}: {exc.strerror or exc}") from None
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = raw[:exc.start].count(b"\n") + 1
+        raise InputError(f"{path}: not UTF-8 text: byte 0x{raw[exc.start]:02x} on line {line} "
+                         f"(save the manifest as UTF-8)") from None
+    try:
+        data = yaml.load(text, Loader=StrictLoader)
     except yaml.YAMLError as exc:
         raise InputError(f"{path}: not valid YAML: {exc}") from None
     return parse_manifest(data, path)
+
+
+class StrictLoader(yaml.SafeLoader):
+    """`yaml.SafeLoader` that refuses a key given twice in one mapping (the plain loader
+    keeps the last silently). Keys brought in by a merge (``<<: *base``) may be overridden."""
+
+    def construct_mapping(self, node, deep=False):
+        if isinstance(node, yaml.MappingNode):
+            seen: dict[Any, Any] = {}
+            for key_node, _ in node.value:
+                if key_node.tag == "tag:yaml.org,2002:merge":
+                    continue
+                key = self.construct_object(key_node, deep=deep)
+                try:
+                    first = seen.setdefault(key, key_node.start_mark)
+                except TypeError:  # an unhashable key: the base class says so
+                    continue
+                if first is not key_node.start_mark:
+                    raise yaml.constructor.ConstructorError(
+                        "while constructing a mapping", node.start_mark,
+                        f"found the key {short_repr(key)} twice (first on line {first.line + 1}); "
+                        "a key may be given once", key_node.start_mark)
+        return super().construct_mapping(node, deep=deep)
+
+
+MAX_VALUE_ITEMS = 10_000  # a parameter value holding more items is refused (a YAML alias bomb)
+MAX_ERRORS = 50  # problems listed one by one; the rest are counted
+
+
+def too_big(value: Any, limit: int = MAX_VALUE_ITEMS) -> bool:
+    """Whether ``value`` holds more than ``limit`` items in all, counted without expanding it:
+    YAML aliases nest lists that a repr or a walk would take to billions of items."""
+    stack, seen = [value], 0
+    while stack:
+        item = stack.pop()
+        seen += 1
+        if seen > limit:
+            return True
+        if isinstance(item, Mapping):
+            stack.extend(item.keys())
+            stack.extend(item.values())
+        elif isinstance(item, (list, tuple, set)):
+            stack.extend(item)
+    return False
 
 
 def parse_manifest(data: Any, path: Path) -> Manifest:
@@ -172,7 +226,8 @@ def parse_manifest(data: Any, path: Path) -> Manifest:
     manifest = _parse(data, Path(path), errors)
     if errors:
         head = f"{path}: {len(errors)} problem{'s' if len(errors) > 1 else ''} in the manifest"
-        raise InputError(head + "\n" + "\n".join(f"  {path}: {e}" for e in errors))
+        more = [f"  ... and {len(errors) - MAX_ERRORS} more"] if len(errors) > MAX_ERRORS else []
+        raise InputError(head + "\n" + "\n".join([f"  {path}: {e}" for e in errors[:MAX_ERRORS]] + more))
     return manifest
 
 
@@ -183,10 +238,10 @@ def _parse(data: Any, path: Path, errors: list[str]) -> Manifest | None:
     _unknown_keys(data, TOP_KEYS, "", errors)
     name = data.get("name", path.stem)
     if not isinstance(name, str) or not _ID.match(name):
-        errors.append(f"name: expected a folder-safe name (letters, digits, _ . -), got {name!r}")
+        errors.append(f"name: expected a folder-safe name (letters, digits, _ . -), got {short_repr(name)}")
     seed = data.get("seed", 0)
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
-        errors.append(f"seed: expected an integer >= 0, got {seed!r}")
+        errors.append(f"seed: expected an integer >= 0, got {short_repr(seed)}")
     render = _render(data.get("render"), path, errors)
     defaults = _params(data.get("defaults"), "defaults", errors)
     objects = _objects(data.get("objects"), path, errors)
@@ -201,14 +256,43 @@ def _parse(data: Any, path: Path, errors: list[str]) -> Manifest | None:
             P.resolve(defaults, obj.params)
         except InputError as exc:
             errors.append(f"objects[{obj.id}]: {exc}")
-    return Manifest(path=path, name=name, seed=seed, render=render, defaults=defaults,
-                    objects=tuple(objects), sweep=sweep)
+    manifest = Manifest(path=path, name=name, seed=seed, render=render, defaults=defaults,
+                        objects=tuple(objects), sweep=sweep)
+    errors.extend(source_problems(manifest))
+    return None if errors else manifest
+
+
+SOURCE_KEY = "water.source"
+
+
+def source_path(source: str, mesh: str) -> Path:
+    """Where a job looks for its ``water.source`` mesh (as `icefarm.pipeline` does):
+    a relative path is taken from the mesh file's folder (for a generator: the working folder)."""
+    path = Path(source).expanduser()
+    if not path.is_absolute() and not mesh.startswith(GENERATOR_PREFIX):
+        path = Path(mesh).parent / path
+    return path.resolve()
+
+
+def source_problems(manifest: Manifest) -> list[str]:
+    """Each ``water.source`` a job of ``manifest`` would use that names no file."""
+    sweep = manifest.sweep
+    swept = [v for a in ((sweep.axes + sweep.product) if sweep else ()) if a.key == SOURCE_KEY for v in a.values]
+    problems = []
+    for i, obj in enumerate(manifest.objects):
+        fixed = manifest.fixed.get(SOURCE_KEY, obj.params.get(SOURCE_KEY, manifest.defaults.get(SOURCE_KEY)))
+        for source in dict.fromkeys([fixed, *swept]):
+            if isinstance(source, str) and source != "auto" and not source_path(source, obj.mesh).is_file():
+                problems.append(f"objects[{i}] ({obj.id}): water.source {short_repr(source)}: no file at "
+                                f"{source_path(source, obj.mesh)} (a relative path is taken from the mesh's folder)")
+    return problems
 
 
 def _kind(value: Any) -> str:
     if value is None:
         return "nothing"
-    return f"{type(value).__name__} {value!r}" if not isinstance(value, (Mapping, list)) else type(value).__name__
+    return (f"{type(value).__name__} {short_repr(value)}" if not isinstance(value, (Mapping, list))
+            else type(value).__name__)
 
 
 def _join(where: str, key: Any) -> str:
@@ -219,6 +303,7 @@ def _unknown_keys(data: Mapping, allowed: tuple[str, ...], where: str, errors: l
     for key in data:
         if key in allowed:
             continue
+        key = short_repr(key) if not isinstance(key, str) or len(key) > 60 else key
         hint = difflib.get_close_matches(str(key), allowed, n=1, cutoff=0.5)
         tip = f"did you mean {hint[0]!r}?" if hint else f"expected one of {', '.join(allowed)}"
         errors.append(f"{_join(where, key)}: unknown key; {tip}")
@@ -281,6 +366,10 @@ def _params(value: Any, where: str, errors: list[str]) -> dict[str, Any]:
         else:
             items = [(str(key), v)]
         for full, x in items:
+            if too_big(x):
+                errors.append(f"{_join(where, full)}: a value of more than {MAX_VALUE_ITEMS:,} items "
+                              "(nested YAML aliases?): expected a number, a word or a short list")
+                continue
             try:
                 param = P.lookup(full)
                 flat[param.key] = param.validate(x)
@@ -305,9 +394,9 @@ def _objects(value: Any, path: Path, errors: list[str]) -> list[ObjectSpec]:
         default_id = mesh.removeprefix(GENERATOR_PREFIX) if mesh.startswith(GENERATOR_PREFIX) else Path(mesh).stem
         obj_id = item.get("id", default_id)
         if not isinstance(obj_id, str) or not _ID.match(obj_id):
-            errors.append(f"{where}.id: expected a folder-safe name (letters, digits, _ . -), got {obj_id!r}")
+            errors.append(f"{where}.id: expected a folder-safe name (letters, digits, _ . -), got {short_repr(obj_id)}")
         elif obj_id in seen:
-            errors.append(f"{where}.id: {obj_id!r} is used by an earlier object; ids must be unique")
+            errors.append(f"{where}.id: {short_repr(obj_id)} is used by an earlier object; ids must be unique")
         seen.add(str(obj_id))
         size = item.get("size_m")
         if isinstance(size, bool) or not isinstance(size, (int, float)) or not math.isfinite(size) or size <= 0:
@@ -340,7 +429,7 @@ def _mesh(value: Any, path: Path, where: str, errors: list[str]) -> str:
             hint = difflib.get_close_matches(name, sorted(known), n=1, cutoff=0.5)
             tip = (f"did you mean {GENERATOR_PREFIX}{hint[0]}?" if hint
                    else f"expected one of {', '.join(sorted(known))}")
-            errors.append(f"{where}: unknown generator {name!r}; {tip}")
+            errors.append(f"{where}: unknown generator {short_repr(name)}; {tip}")
         return value
     file = (path.parent / value).expanduser().resolve()
     if not file.is_file():
@@ -374,7 +463,8 @@ def _exclude(value: Any, where: str, errors: list[str]) -> tuple:
         else:
             lo = hi = None
         if lo is None or hi is None:
-            errors.append(f"{where}[{i}]: expected a box {{min: [x, y, z], max: [x, y, z]}} in meters, got {box!r}")
+            errors.append(f"{where}[{i}]: expected a box {{min: [x, y, z], max: [x, y, z]}} in meters, "
+                          f"got {short_repr(box)}")
         elif not all(a < b for a, b in zip(lo, hi)):
             errors.append(f"{where}[{i}]: expected min < max on every axis, got min {list(lo)} max {list(hi)}")
         else:
@@ -411,6 +501,9 @@ def _material(value: Any, where: str, errors: list[str]) -> tuple:
     """The object's material for rendering, checked by the scene module's rules."""
     if value is None:
         return ()
+    if too_big(value, 1000):
+        errors.append(f"{where}: expected a short mapping (type, color, ...), got one of more than 1,000 items")
+        return ()
     from ..scene.config import material_from_dict
 
     try:
@@ -430,7 +523,7 @@ def _sweep(value: Any, errors: list[str]) -> Sweep | None:
     try:
         method = SweepMethod(raw_method)
     except ValueError:
-        errors.append(f"sweep.method: expected one of grid, zip, random, got {raw_method!r}")
+        errors.append(f"sweep.method: expected one of grid, zip, random, got {short_repr(raw_method)}")
         return None
     count = value.get("count")
     if method is SweepMethod.RANDOM:
@@ -485,6 +578,10 @@ def parse_axis(key: str, spec: Any, method: SweepMethod, where: str, errors: lis
         if not isinstance(raw, list) or not raw:
             errors.append(f"{where}.values: expected a non-empty list of values, got {_kind(raw)}")
             return None
+        if too_big(raw):
+            errors.append(f"{where}.values: more than {MAX_VALUE_ITEMS:,} items (nested YAML aliases?): "
+                          "list the values one by one")
+            return None
         values = []
         for i, v in enumerate(raw):
             try:
@@ -492,7 +589,7 @@ def parse_axis(key: str, spec: Any, method: SweepMethod, where: str, errors: lis
             except InputError as exc:
                 errors.append(f"{where}.values[{i}]: {exc}")
         if len({repr(v) for v in values}) != len(values):
-            errors.append(f"{where}.values: a value is listed twice: {raw}")
+            errors.append(f"{where}.values: a value is listed twice: {short_repr(raw)}")
         return Axis(key=param.key, values=tuple(values))
     if "min" not in spec or "max" not in spec:
         errors.append(f"{where}: expected values: [...] or both min and max")
@@ -503,6 +600,9 @@ def parse_axis(key: str, spec: Any, method: SweepMethod, where: str, errors: lis
         return None
     if param.kind not in (P.Kind.INT, P.Kind.FLOAT):
         errors.append(f"{where}: {param.key} is not a number; list its values instead")
+        return None
+    if too_big(spec["min"]) or too_big(spec["max"]):
+        errors.append(f"{where}: min and max must be numbers")
         return None
     try:
         low, high = param.validate(spec["min"]), param.validate(spec["max"])
@@ -515,7 +615,7 @@ def parse_axis(key: str, spec: Any, method: SweepMethod, where: str, errors: lis
     try:
         dist = Distribution(raw_dist)
     except ValueError:
-        errors.append(f"{where}.distribution: expected uniform or log_uniform, got {raw_dist!r}")
+        errors.append(f"{where}.distribution: expected uniform or log_uniform, got {short_repr(raw_dist)}")
         return None
     if dist is Distribution.LOG_UNIFORM and low <= 0:
         errors.append(f"{where}: log_uniform needs min > 0, got {low}")

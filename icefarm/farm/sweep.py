@@ -27,7 +27,11 @@ import json
 import math
 import os
 import shutil
+import signal
+import sys
+import threading
 import time
+from collections import Counter
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -37,14 +41,21 @@ import numpy as np
 import yaml
 
 from .. import params as P
-from ..artifacts import atomic_write
-from ..errors import InputError
-from .manifest import (Axis, Distribution, Manifest, Sweep, SweepMethod, load_manifest,
-                       manifest_to_dict)
+from ..artifacts import atomic_write, check_done
+from ..errors import InputError, Interrupted, short_repr
+from .manifest import (SOURCE_KEY, Axis, Distribution, Manifest, Sweep, SweepMethod, load_manifest,
+                       manifest_to_dict, source_problems)
 
 # The parameter groups each early stage reads: jobs that agree on them share that stage.
 WATER_GROUPS = ("water", "proxy")
 CSV_INTERVAL_S = 2.0  # jobs.csv is rewritten at most this often while a sweep runs, and at its end
+MAX_JOBS = 10_000  # a sweep of more jobs is refused unless --max-jobs raises the limit
+# What each stage's result depends on besides the object (its mesh, size, seed, overrides):
+# jobs of one object that agree on these groups may share the stage (its cache key holds
+# them, and more). A stage that no two jobs of a sweep can share is not stored in its cache.
+STAGE_GROUPS = (("proxy", ()), ("water", ("water",)), ("drips", ("water", "drips")),
+                ("trajectories", ("water", "drips", "trajectories")),
+                ("surface", ("water", "drips", "trajectories", "surface", "glaze")))
 
 
 class Status(enum.Enum):
@@ -119,6 +130,7 @@ class SweepSummary:
     workers: int
     dry_run: bool = False
     duplicates: int = 0
+    stale: tuple[Path, ...] = ()
 
     @property
     def done(self) -> int:
@@ -162,6 +174,9 @@ class Progress(Protocol):
     def update(self, record: JobRecord) -> None: ...
 
     def close(self) -> None: ...
+
+    # Optional: ``note(text)`` for a message that is not a job's (a job folder that will be
+    # redone, stale folders, a Dask cluster waiting for workers).
 
 
 # --------------------------------------------------------------------------- sweep points
@@ -235,7 +250,12 @@ def apply_sets(manifest: Manifest, sets: Sequence[str]) -> Manifest:
             sweep = replace(sweep, product=sweep.product + (axis,))
     if sweep is not None and not sweep.axes and not sweep.product:
         sweep = None
-    return replace(manifest, sweep=sweep, fixed=fixed)
+    out = replace(manifest, sweep=sweep, fixed=fixed)
+    if any(text.partition("=")[0].strip() in (SOURCE_KEY, "source") for text in sets):
+        problems = source_problems(out)
+        if problems:
+            raise InputError(f"{manifest.path}: --set: " + "; ".join(problems))
+    return out
 
 
 def swept_keys(sweep: Sweep | None) -> tuple[str, ...]:
@@ -243,6 +263,41 @@ def swept_keys(sweep: Sweep | None) -> tuple[str, ...]:
     if sweep is None:
         return ()
     return tuple(a.key for a in sweep.axes) + tuple(a.key for a in sweep.product)
+
+
+def count_points(sweep: Sweep | None) -> int:
+    """How many points `expand` gives, counted without making them."""
+    if sweep is None:
+        return 1
+    if sweep.method is SweepMethod.GRID:
+        n = math.prod(len(a.values) for a in sweep.axes)
+    elif sweep.method is SweepMethod.ZIP:
+        n = max((len(a.values) for a in sweep.axes), default=1)
+    else:
+        n = sweep.count or 0
+    return n * math.prod(len(a.values) for a in sweep.product)
+
+
+def count_jobs(manifest: Manifest) -> int:
+    """Jobs of the manifest (objects times sweep points; repeated points still counted)."""
+    return len(manifest.objects) * count_points(manifest.sweep)
+
+
+def check_job_count(manifest: Manifest, max_jobs: int | None = MAX_JOBS) -> int:
+    """The manifest's job count; refused past ``max_jobs`` before anything is expanded.
+
+    Raises
+    ------
+    InputError
+        More jobs than ``max_jobs`` (a 10^10-point grid, a random sweep with count 1e9).
+    """
+    n = count_jobs(manifest)
+    if max_jobs is not None and n > max_jobs:
+        points = count_points(manifest.sweep)
+        raise InputError(f"{manifest.path}: the sweep makes {n:,} jobs ({len(manifest.objects)} object(s) x "
+                         f"{points:,} point(s)), more than the limit of {max_jobs:,}: shrink the sweep, "
+                         f"or raise the limit with --max-jobs {n} if you mean it")
+    return n
 
 
 def expand(sweep: Sweep | None, seed: int = 0) -> list[dict[str, Any]]:
@@ -331,7 +386,8 @@ def plan_jobs(manifest: Manifest, render: bool = True) -> tuple[tuple[PlannedJob
             try:
                 resolved = P.resolve(manifest.defaults, obj.params, point, manifest.fixed)
             except InputError as exc:
-                raise InputError(f"{manifest.path}: object {obj.id}, sweep point {point}: {exc}") from None
+                raise InputError(f"{manifest.path}: object {obj.id}, sweep point {short_repr(point)}: "
+                                 f"{exc}") from None
             spec = JobSpec(object_id=obj.id, mesh=obj.mesh, size_m=obj.size_m, params=resolved,
                            seed=job_seed(manifest.seed, obj.id),
                            render=manifest.render if render else None,
@@ -369,12 +425,39 @@ def leaders(jobs: Sequence[PlannedJob]) -> dict[str, str]:
 
 # --------------------------------------------------------------------------- the sweep folder
 
+def private_stages(jobs: Sequence[PlannedJob]) -> list[str]:
+    """Stages whose result no two of ``jobs`` can share (`STAGE_GROUPS`).
+
+    The sweep's cache does not store them (``cache/policy.json``): a sweep over surface
+    parameters would otherwise pickle every job's ice surface, which no other job reads.
+    Jobs are compared on fewer inputs than the cache keys hold, so a stage that two jobs
+    might share is always stored.
+    """
+    out = []
+    for stage, groups in STAGE_GROUPS:
+        signatures = Counter(json.dumps([j.object_id, [j.spec.params.get(g) for g in groups]],
+                                        sort_keys=True, default=str) for j in jobs)
+        if signatures and max(signatures.values()) == 1:
+            out.append(stage)
+    return out
+
+
 def job_dir(sweep_dir: Path, job: PlannedJob) -> Path:
     return sweep_dir / "jobs" / job.object_id / job.job_id
 
 
 def is_done(path: Path) -> bool:
-    return (path / "done.json").is_file()
+    """The job in ``path`` finished and its artifacts are as done.json lists them."""
+    return check_done(path) is None
+
+
+def stale_folders(sweep_dir: Path, jobs: Sequence[PlannedJob]) -> list[Path]:
+    """Job folders in ``sweep_dir/jobs`` that are no job of ``jobs`` (an edited manifest)."""
+    planned = {job_dir(sweep_dir, j) for j in jobs}
+    root = sweep_dir / "jobs"
+    if not root.is_dir():
+        return []
+    return sorted(p for p in root.glob("*/*") if p.is_dir() and p not in planned)
 
 
 def _format(value: Any) -> str:
@@ -419,13 +502,25 @@ def _previous_seconds(path: Path) -> float:
     return float(sum(v for v in seconds.values() if isinstance(v, (int, float)) and not isinstance(v, bool)))
 
 
-def prepare_folder(sweep_dir: Path, resume: bool, overwrite: bool) -> None:
-    """Refuse an existing sweep folder unless resuming; clear it for ``overwrite``."""
+def check_folder(sweep_dir: Path, resume: bool, overwrite: bool) -> bool:
+    """Refuse what `prepare_folder` would refuse, deleting nothing; True when there is an
+    existing sweep folder to keep (resume) or to delete (overwrite)."""
     if resume and overwrite:
         raise InputError("--resume and --overwrite exclude each other: resume keeps the done jobs, "
                          "overwrite deletes them")
-    if not sweep_dir.exists() or (sweep_dir.is_dir() and not any(sweep_dir.iterdir())):
-        return
+    if sweep_dir.is_symlink():
+        target = os.readlink(sweep_dir)
+        if not sweep_dir.exists():
+            raise InputError(f"output {sweep_dir} is a symbolic link to {target}, which does not exist: "
+                             "remove the link or choose another -o")
+        if overwrite:
+            raise InputError(f"refusing to overwrite {sweep_dir}: it is a symbolic link (to {target}); "
+                             "delete the link or what it points to yourself, or choose another -o")
+    try:
+        if not sweep_dir.exists() or (sweep_dir.is_dir() and not any(sweep_dir.iterdir())):
+            return False
+    except OSError as exc:
+        raise InputError(f"cannot read the output folder {sweep_dir}: {exc.strerror or exc}") from None
     if not sweep_dir.is_dir():
         raise InputError(f"output {sweep_dir} exists and is not a folder")
     if resume:
@@ -436,7 +531,16 @@ def prepare_folder(sweep_dir: Path, resume: bool, overwrite: bool) -> None:
     if not ((sweep_dir / "manifest.resolved.yaml").exists() or (sweep_dir / "jobs").is_dir()):
         raise InputError(f"refusing to overwrite {sweep_dir}: it does not look like an icefarm sweep folder "
                          f"(no manifest.resolved.yaml, no jobs/); remove it yourself or choose another -o")
-    shutil.rmtree(sweep_dir)
+    return True
+
+
+def prepare_folder(sweep_dir: Path, resume: bool, overwrite: bool) -> None:
+    """Refuse an existing sweep folder unless resuming; clear it for ``overwrite``."""
+    if check_folder(sweep_dir, resume, overwrite) and overwrite:
+        try:
+            shutil.rmtree(sweep_dir)
+        except OSError as exc:
+            raise InputError(f"--overwrite: cannot delete {exc.filename or sweep_dir}: {exc.strerror or exc}") from None
 
 
 @contextlib.contextmanager
@@ -458,8 +562,14 @@ def sweep_lock(sweep_dir: Path) -> Iterator[None]:
     except ImportError:  # not POSIX: no lock
         yield
         return
-    sweep_dir.parent.mkdir(parents=True, exist_ok=True)
-    with open(sweep_dir.parent / f".{sweep_dir.name}.lock", "a+") as fh:
+    lock = sweep_dir.parent / f".{sweep_dir.name}.lock"
+    try:
+        sweep_dir.parent.mkdir(parents=True, exist_ok=True)
+        fh = open(lock, "a+")
+    except OSError as exc:
+        raise InputError(f"cannot write the output folder {sweep_dir.parent}: "
+                         f"{exc.strerror or exc} ({exc.filename or lock})") from None
+    with fh:
         try:
             fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
@@ -478,6 +588,43 @@ def sweep_lock(sweep_dir: Path) -> Iterator[None]:
             fcntl.flock(fh, fcntl.LOCK_UN)
 
 
+@contextlib.contextmanager
+def stop_on_signals() -> Iterator[None]:
+    """While a sweep runs in the main thread, SIGTERM and SIGHUP raise `Interrupted` as
+    Ctrl-C does (SIGINT too, as `Interrupted`), so that the backends end their workers and
+    the lock goes; a second signal meanwhile ends the process at once (its local workers
+    follow it: `backends._worker_init`). Signals this process ignores (``nohup``) stay
+    ignored. Elsewhere than in the main thread, nothing changes.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    wanted = [signal.SIGINT, signal.SIGTERM] + ([signal.SIGHUP] if hasattr(signal, "SIGHUP") else [])
+    previous = {s: signal.getsignal(s) for s in wanted}
+    mine = [s for s, h in previous.items() if h in (signal.SIG_DFL, signal.default_int_handler)]
+
+    def handler(signum, frame):
+        for s in mine:
+            signal.signal(s, signal.SIG_DFL)
+        raise Interrupted(signum)
+
+    for s in mine:
+        signal.signal(s, handler)
+    try:
+        yield
+    finally:
+        for s in mine:
+            signal.signal(s, previous[s])
+
+
+def _stderr_note(text: str) -> None:
+    print(f"note: {text}", file=sys.stderr, flush=True)
+
+
+def _os_error(exc: OSError, what: str) -> InputError:
+    return InputError(f"cannot write {what}: {exc.strerror or exc} ({exc.filename or what})")
+
+
 # --------------------------------------------------------------------------- running
 
 def run_sweep(manifest: Manifest | str | Path, out: str | Path = "out", *, workers: int = 1,
@@ -485,7 +632,8 @@ def run_sweep(manifest: Manifest | str | Path, out: str | Path = "out", *, worke
               resume: bool = False, overwrite: bool = False, dry_run: bool = False,
               render: bool = True, until: str | None = None, max_tasks_per_child: int = 8,
               use_cache: bool = True, progress: Progress | None = None,
-              job_fn: Callable | None = None) -> SweepSummary:
+              job_fn: Callable | None = None, max_jobs: int | None = MAX_JOBS,
+              connect_timeout: float = 30.0, note: Callable[[str], None] | None = None) -> SweepSummary:
     """Run every job of a manifest's sweep and return what became of them.
 
     Parameters
@@ -503,7 +651,8 @@ def run_sweep(manifest: Manifest | str | Path, out: str | Path = "out", *, worke
         ``group.param=value`` (fixed) or ``group.param=v1,v2`` (swept) overrides.
     resume, overwrite : bool
         What to do with an existing sweep folder: finish its jobs (done ones are skipped,
-        half-written ones redone), or delete it. Without either an existing folder is refused.
+        half-written ones, and done ones whose artifacts changed, are redone), or delete it.
+        Without either an existing folder is refused.
     dry_run : bool
         Plan only: nothing is written or run; jobs already done are reported as done.
     render : bool
@@ -518,6 +667,13 @@ def run_sweep(manifest: Manifest | str | Path, out: str | Path = "out", *, worke
         Told when the sweep starts and after every job.
     job_fn : callable, optional
         Replaces ``pipeline.run_job`` (same signature; a module-level function). For tests.
+    max_jobs : int or None
+        Refuse a sweep of more jobs (counted before anything is expanded); None: no limit.
+    connect_timeout : float
+        Seconds to reach a Dask ``scheduler``.
+    note : callable, optional
+        ``note(text)`` for messages that are not a job's (folders to redo, stale folders,
+        a cluster waiting for workers); default: ``progress.note``, else stderr.
 
     Returns
     -------
@@ -526,11 +682,17 @@ def run_sweep(manifest: Manifest | str | Path, out: str | Path = "out", *, worke
     Raises
     ------
     InputError
-        An invalid manifest or ``--set``, an existing output folder, an unknown backend.
+        An invalid manifest or ``--set``, too many jobs, an existing or unwritable output
+        folder, an unknown backend, a bad or unreachable scheduler; nothing is written then.
+    Interrupted
+        SIGINT, SIGTERM or SIGHUP (main thread only): the workers were ended, jobs.csv
+        written; its ``summary`` says what was done.
     """
     from . import backends
 
     started = time.perf_counter()
+    if note is None:
+        note = getattr(progress, "note", None) or _stderr_note
     if not isinstance(manifest, Manifest):
         manifest = load_manifest(manifest)
     manifest = apply_sets(manifest, sets)
@@ -538,6 +700,8 @@ def run_sweep(manifest: Manifest | str | Path, out: str | Path = "out", *, worke
         raise InputError(f"unknown backend {backend!r}: expected local or dask")
     if scheduler and backend != "dask":
         raise InputError("--scheduler needs --backend dask")
+    if scheduler:
+        backends.check_scheduler_address(scheduler)
     if workers < 1:
         raise InputError(f"--workers must be at least 1, got {workers}")
     if until is not None:
@@ -547,37 +711,63 @@ def run_sweep(manifest: Manifest | str | Path, out: str | Path = "out", *, worke
         except ValueError:
             raise InputError(f"unknown stage {until!r}: expected one of "
                              f"{', '.join(s.value for s in Stage)}") from None
+    check_job_count(manifest, max_jobs)
     jobs, duplicates = plan_jobs(manifest, render=render)
     swept = swept_keys(manifest.sweep)
     sweep_dir = Path(out).expanduser().resolve() / manifest.name
     records = {j.job_id: JobRecord(job_id=j.job_id, object_id=j.object_id, values=j.values,
                                    job_dir=job_dir(sweep_dir, j)) for j in jobs}
-    for j in jobs:
-        path = records[j.job_id].job_dir
-        if (resume or dry_run) and is_done(path):
-            records[j.job_id] = replace(records[j.job_id], status=Status.DONE, resumed=True,
-                                        seconds=_previous_seconds(path))
+    stale: list[Path] = []
+    if resume or dry_run:
+        for j in jobs:
+            path = records[j.job_id].job_dir
+            why = check_done(path)
+            if why is None:
+                records[j.job_id] = replace(records[j.job_id], status=Status.DONE, resumed=True,
+                                            seconds=_previous_seconds(path))
+            elif path.is_dir() and why != "no done.json":
+                note(f"{path.relative_to(sweep_dir)}: {why}: {'would be' if dry_run else 'it is'} redone")
+        stale = stale_folders(sweep_dir, jobs)
+        if stale:
+            shown = ", ".join(str(p.relative_to(sweep_dir)) for p in stale[:10])
+            more = f" and {len(stale) - 10} more" if len(stale) > 10 else ""
+            note(f"{len(stale)} job folder(s) in {sweep_dir / 'jobs'} are not jobs of this manifest (it was "
+                 f"edited since they were made, or --set differs); they are stale and left as they are: "
+                 f"{shown}{more}")
 
     def summary() -> SweepSummary:
         return SweepSummary(name=manifest.name, sweep_dir=sweep_dir, jobs=tuple(records.values()),
                             swept=swept, wall_seconds=time.perf_counter() - started, backend=backend,
-                            workers=workers, dry_run=dry_run, duplicates=duplicates)
+                            workers=workers, dry_run=dry_run, duplicates=duplicates, stale=tuple(stale))
 
     if dry_run:
         return summary()
-    with sweep_lock(sweep_dir):
+    todo = [j for j in jobs if records[j.job_id].status != Status.DONE]
+    check_folder(sweep_dir, resume, overwrite)
+    # A cluster is reached before anything is written: an unreachable one leaves nothing behind.
+    cluster = (backends.dask_client(workers, scheduler, connect_timeout=connect_timeout)
+               if backend == "dask" and todo else contextlib.nullcontext())
+    with stop_on_signals(), cluster as client, sweep_lock(sweep_dir):
         prepare_folder(sweep_dir, resume, overwrite)
+        made = not sweep_dir.exists()  # by this run: removed again when it cannot be written
         running = sweep_dir / ".farm" / "running"
-        shutil.rmtree(running, ignore_errors=True)  # markers of an earlier run that was stopped
-        running.mkdir(parents=True, exist_ok=True)
         cache_dir = sweep_dir / "cache" if use_cache else None
-        if cache_dir is not None:
-            cache_dir.mkdir(exist_ok=True)
-        atomic_write(sweep_dir / "manifest.resolved.yaml", _resolved_yaml(manifest, jobs, sweep_dir, until))
         csv_path = sweep_dir / "jobs.csv"
-        atomic_write(csv_path, jobs_csv_text(list(records.values()), swept))
+        try:
+            shutil.rmtree(running, ignore_errors=True)  # markers of an earlier run that was stopped
+            running.mkdir(parents=True, exist_ok=True)
+            if cache_dir is not None:
+                cache_dir.mkdir(exist_ok=True)
+                from ..pipeline import _Cache
 
-        todo = [j for j in jobs if records[j.job_id].status != Status.DONE]
+                atomic_write(cache_dir / _Cache.POLICY, json.dumps({"private": private_stages(jobs)}) + "\n")
+            atomic_write(sweep_dir / "manifest.resolved.yaml", _resolved_yaml(manifest, jobs, sweep_dir, until))
+            atomic_write(csv_path, jobs_csv_text(list(records.values()), swept))
+        except OSError as exc:
+            if made:
+                shutil.rmtree(sweep_dir, ignore_errors=True)  # nothing half-made left behind
+            raise _os_error(exc, f"the sweep folder {sweep_dir}") from None
+
         tasks = [backends.Task(spec=j.spec, job_id=j.job_id, object_id=j.object_id,
                                job_dir=str(records[j.job_id].job_dir),
                                cache_dir=str(cache_dir) if cache_dir else None, until=until,
@@ -601,16 +791,22 @@ def run_sweep(manifest: Manifest | str | Path, out: str | Path = "out", *, worke
 
         if progress is not None:
             progress.start(len(jobs), len(jobs) - len(todo))
+        stopped: Interrupted | None = None
         try:
             if tasks and backend == "local":
                 backends.run_local(tasks, workers=workers, on_outcome=on_outcome, waits=waits,
                                    max_tasks_per_child=max_tasks_per_child)
             elif tasks:
                 backends.run_dask(tasks, workers=workers, scheduler=scheduler, on_outcome=on_outcome,
-                                  waits=waits)
+                                  waits=waits, client=client, note=note)
+        except KeyboardInterrupt as exc:  # the workers are gone (the backends saw to it)
+            stopped = exc if isinstance(exc, Interrupted) else Interrupted(signal.SIGINT)
         finally:
             if progress is not None:
                 progress.close()
             atomic_write(csv_path, jobs_csv_text(list(records.values()), swept))
+        if stopped is not None:
+            stopped.summary = summary()
+            raise stopped
         shutil.rmtree(sweep_dir / ".farm", ignore_errors=True)
     return summary()

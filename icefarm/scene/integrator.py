@@ -13,17 +13,21 @@ eye expects from clear ice anyway.
 
 What fills the ice (the ``homogeneous`` medium of ``scene.xml``: absorption and, for ice
 grown from impure water, scattering) is handled as ``volpath`` does, with the same
-shortcut at the ice's surface. Absorption is Beer-Lambert, ``exp(-sigma_a d)`` over the
-distance ``d`` a path travels inside, applied exactly rather than sampled (no noise,
-however faint the tint). Scattering (grey, isotropic: the phase function Mitsuba gives a
-``homogeneous`` medium by default) is sampled: inside the ice a path meets a scattering
-point at a distance drawn from ``sigma_s exp(-sigma_s s)``, where it takes next-event
-estimation and a new direction, like a surface vertex; as that is not a delta event, the
-ice surfaces it meets afterwards are pass-throughs, so light scattered in an icicle's
-cloudy core leaves it without being trapped by total internal reflection. Shadow rays
-are attenuated by ``exp(-(sigma_a + sigma_s) d)``. A segment is inside the ice when the
-last ice surface it crossed was entered (the ray against the surface's outward normal);
-a shadow ray needs no such state: every ice surface it leaves ends a stretch inside.
+shortcut at the ice's surface and a cheaper walk. Absorption is Beer-Lambert,
+``exp(-sigma_a d)`` over the distance ``d`` a path travels inside, applied exactly rather
+than sampled (no noise, however faint the tint). Scattering (grey, isotropic: the phase
+function Mitsuba gives a ``homogeneous`` medium by default) is sampled: inside the ice a
+path meets a scattering point at a distance drawn from ``sigma_s exp(-sigma_s s)``,
+where it takes next-event estimation and a new direction, like a surface vertex; as that
+is not a delta event, the ice surfaces it meets afterwards are pass-throughs, so light
+scattered in an icicle's cloudy core leaves it without being trapped by total internal
+reflection. Cheaply: a path scatters at most once in the ice (after that its light is
+taken to go on forward, losing only what the ice absorbs), and after that point it gets
+`AFTER_SCATTER` more vertices (the light that reaches the cloudy core from the object and
+the ground after one bounce, not after several). Shadow rays are attenuated by
+``exp(-(sigma_a + sigma_s) d)``. A segment is inside the ice when the last ice surface it
+crossed was entered (the ray against the surface's outward normal); a shadow ray needs
+no such state: every ice surface it leaves ends a stretch inside.
 
 The integrator is a Python `mitsuba.SamplingIntegrator`, so it only makes sense on JIT
 variants (``llvm_ad_rgb``, ``cuda_ad_rgb``), where Mitsuba traces `sample` once into a
@@ -45,6 +49,7 @@ MAX_CROSSINGS = 16  # pass-throughs per path segment (and per shadow ray) before
 RR_DEPTH = 5  # Mitsuba's path default: Russian roulette from this depth on
 _JIT_PREFIXES = ("llvm_", "cuda_")
 ISOTROPIC = 1.0 / (4.0 * math.pi)  # phase function value of isotropic scattering
+AFTER_SCATTER = 2  # real vertices a path may have after it scattered inside the ice
 
 
 def _coefficients(value, name: str) -> tuple[float, float, float]:
@@ -237,6 +242,7 @@ class _IcePathMethods:
         prev_delta = mi.Bool(True)
         inside = mi.Bool(False)  # the segment being traced runs inside the ice
         scattered = mi.Bool(False)  # the path scattered inside the ice already
+        last = mi.UInt32(self.max_depth)  # real vertices allowed (fewer once it scattered)
 
         while dr.hint(active, label="icepath"):
             si = scene.ray_intersect(ray, active)
@@ -258,6 +264,7 @@ class _IcePathMethods:
                     beta[seg & scattered] *= dr.exp(-self._sigma_a * length)
                     scatter_p = ray(distance)
                     scattered |= scatter
+                    last[scatter] = dr.minimum(last, depth + 1 + AFTER_SCATTER)
                 else:
                     beta[seg] *= dr.exp(-self._sigma_a * length)
 
@@ -282,8 +289,8 @@ class _IcePathMethods:
             Le = beta * _mis_weight(prev_pdf, em_pdf) * ds.emitter.eval(si, emit)
             L += dr.select(emit, Le, 0.0)
 
-            real_next = real & si.is_valid() & (depth + 1 < self.max_depth)
-            scatter_next = scatter & (depth + 1 < self.max_depth)
+            real_next = real & si.is_valid() & (depth + 1 < last)
+            scatter_next = scatter & (depth + 1 < last)
 
             # ---- next-event estimation with shadow rays that pass through ice, from si
             # or from the scattering point (one emitter sample, one shadow ray)

@@ -32,6 +32,7 @@ from . import geometry as geo
 from . import mitsuba as mx
 from . import povray as pov
 from .config import RenderConfig, ice_medium, material_from_dict
+from .focus import ice_focus, pixel_size, surface_points, zoom_on_ice
 from .sky import procedural_sky
 
 MIN_LLVM = 17
@@ -41,8 +42,6 @@ _LLVM_NAME = re.compile(r"^libLLVM(?:-(?P<a>\d+)[\w.]*?)?\.(?:so|dylib)(?:\.(?P<
 CREASE_ANGLE = 30.0  # degrees: sharper edges of the object stay sharp in shading
 PASS_SAMPLES = 1 << 25  # camera samples per Mitsuba render call: bounded memory, visible progress
 VIEWS_FILE = "views.json"  # what each view shows and how wide its icicles are, for contact sheets
-OBJECT_POINTS = 15_000  # object vertices (at most) and ...
-OBJECT_SAMPLES = 4_000  # ... points on its faces that tell icicles from glaze
 # Measured (Mitsuba 3.9): with a one-thread Dr.Jit pool, reading any EXR (the sky) waits forever,
 # so a process pinned to one core (taskset, a one-CPU container) hung in its first scene load.
 MIN_POOL_THREADS = 2
@@ -354,20 +353,21 @@ def write_scenes(job_dir: str | Path, object_mesh: trimesh.Trimesh, ice_mesh: tr
     cameras = [cam.frame_view(points, gravity, v.azimuth, v.elevation, config.width / config.height,
                               fov_y=config.fov, ground=ground_height)
                for v in config.views]
+    sun_dir = cam.direction(frame, env.sun_azimuth, env.sun_elevation)
+
     # Views of the ice: the same camera turned and zoomed onto the densest icicles.
     focus = None
     if ice_mesh is not None and any(v.frame == "ice" for v in config.views):
-        focus = cam.ice_focus(ice_mesh.vertices, ice_mesh.faces, _surface_points(object_mesh), frame, size)
+        focus = ice_focus(ice_mesh.vertices, ice_mesh.faces, surface_points(object_mesh), frame, size)
     icicle_px: list[float | None] = [None] * len(cameras)
     if focus is not None:
         for i, v in enumerate(config.views):
             if v.frame == "ice":
-                cameras[i] = cam.zoom_on_ice(cameras[i], focus, config.width, config.height)
+                cameras[i] = zoom_on_ice(cameras[i], focus, config.width, config.height)
         if focus.diameter:
             spot = np.median(focus.points, axis=0)
-            icicle_px = [round(focus.diameter / cam.pixel_size(c, spot, config.width), 2) for c in cameras]
+            icicle_px = [round(focus.diameter / pixel_size(c, spot, config.width), 2) for c in cameras]
     cameras = tuple(cameras)
-    sun_dir = cam.direction(frame, env.sun_azimuth, env.sun_elevation)
 
     # Geometry: the object smooth with its creases kept; the ice as the pipeline wrote it.
     obj_v, obj_n, obj_f = geo.crease_split(object_mesh, CREASE_ANGLE)
@@ -400,27 +400,6 @@ def write_scenes(job_dir: str | Path, object_mesh: trimesh.Trimesh, ice_mesh: tr
     return SceneFiles(xml=xml, pov=pov_file, object_ply=object_ply, ice_ply=ice_ply, sky=sky,
                       cameras=cameras, seconds=time.perf_counter() - start,
                       povray_writer=write_pov if defer_povray else None, icicle_px=tuple(icicle_px))
-
-
-def _surface_points(mesh: trimesh.Trimesh, count: int = OBJECT_SAMPLES,
-                    most: int = OBJECT_POINTS) -> np.ndarray:
-    """Points on ``mesh``'s surface: its vertices (at most ``most``) and ``count`` samples
-    of its faces by area (for big faces), the same for the same mesh."""
-    vertices = np.asarray(mesh.vertices, dtype=np.float64)
-    vertices = vertices[:: -(-len(vertices) // most)]
-    faces = np.asarray(mesh.faces)
-    tri = np.asarray(mesh.vertices, dtype=np.float64)[faces]
-    area = np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
-    if not area.sum() > 0:
-        return vertices
-    rng = np.random.default_rng(0)
-    face = rng.choice(len(faces), size=count, p=area / area.sum())
-    r = rng.random((count, 2))
-    flip = r.sum(axis=1) > 1
-    r[flip] = 1 - r[flip]
-    t = tri[face]
-    samples = t[:, 0] + r[:, :1] * (t[:, 1] - t[:, 0]) + r[:, 1:] * (t[:, 2] - t[:, 0])
-    return np.vstack([vertices, samples])
 
 
 def _write_povray(job_dir: Path, pov_file: Path, object_geometry: tuple[np.ndarray, ...],
@@ -580,8 +559,9 @@ def render_mitsuba(job_dir: Path, config: RenderConfig, variant: str,
 
     Scenes with ice render with the ice-aware path tracer (`integrator.ice_integrator`:
     sunlight reaches what the glaze covers; the ice's medium as the XML gives it) on JIT
-    variants, with the XML's ``path`` or ``volpath`` otherwise. Large frames render in passes (`sample_passes`, each with its own seed,
-    averaged), with a progress bar over them when ``progress`` is set.
+    variants, with the XML's ``path`` or ``volpath`` otherwise. Large frames render in
+    passes (`sample_passes`, each with its own seed, averaged), with a progress bar over
+    them when ``progress`` is set.
 
     Returns
     -------

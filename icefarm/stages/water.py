@@ -126,7 +126,7 @@ def steepest_neighbours(mesh: trimesh.Trimesh, gravity: np.ndarray) -> tuple[tup
         ka, kb, kp, kl = a[keep], b[keep], p2[keep], length2[keep]
         order = np.argsort(ka + 0.5 * (1.0 + sign * kp), kind="stable")
         ka, kb, kp, kl = ka[order], kb[order], kp[order], kl[order]
-        first = np.flatnonzero(np.r_[True, ka[1:] != ka[:-1]])
+        first = np.flatnonzero(np.r_[True, ka[1:] != ka[:-1]]) if len(ka) else np.zeros(0, dtype=np.int64)
         nxt, best_p, best_len = np.arange(n), np.zeros(n), np.zeros(n)
         nxt[ka[first]], best_p[ka[first]], best_len[ka[first]] = kb[first], kp[first], kl[first]
         result.append((nxt, best_p, best_len))

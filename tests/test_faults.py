@@ -1,0 +1,263 @@
+"""Faults a farm must survive: its driver killed (no orphaned workers, a --resume that finishes),
+corrupted stage-cache entries and job folders (recomputed, never trusted), and file modes
+on a shared output folder. Real processes and real signals; stage-only jobs on a tiny mesh."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+import warnings
+from pathlib import Path
+
+import pytest
+import trimesh
+import yaml
+
+from icefarm import params
+from icefarm.artifacts import atomic_write
+from icefarm.errors import CacheWarning
+from icefarm.farm.backends import PAUSE_ENV
+from icefarm.farm.sweep import run_sweep
+from icefarm.pipeline import JobSpec, Stage, _Cache, run_job
+
+ICEFARM = Path(sys.executable).parent / "icefarm"
+FAST = {"water": {"rays": 300}, "drips": {"count": 4}, "proxy": {"mode": "never"}}
+
+
+@pytest.fixture
+def ball(tmp_path: Path) -> Path:
+    path = tmp_path / "ball.ply"
+    trimesh.creation.icosphere(subdivisions=2, radius=1.0).export(path)
+    return path
+
+
+def manifest(tmp_path: Path, parameters: dict, name: str = "t", objects: list | None = None) -> Path:
+    data = {"name": name, "seed": 1, "render": None, "defaults": FAST,
+            "objects": objects or [{"id": "ball", "mesh": "ball.ply", "size_m": 0.3}],
+            "sweep": {"method": "grid", "parameters": {k: {"values": v} for k, v in parameters.items()}}}
+    path = tmp_path / f"{name}.yaml"
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    return path
+
+
+def wait_for(predicate, what: str, timeout: float = 120.0):
+    """Poll ``predicate`` until it returns something true (a generous deadline, not a timing)."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        value = predicate()
+        if value:
+            return value
+        time.sleep(0.05)
+    raise AssertionError(f"timed out after {timeout} s waiting for {what}")
+
+
+def session_processes(sid: int) -> set[int]:
+    """Live (not zombie) processes of session ``sid``."""
+    found = set()
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            stat = (entry / "stat").read_text()
+        except OSError:
+            continue
+        fields = stat[stat.rindex(")") + 2:].split()  # state, ppid, pgrp, session, ...
+        if int(fields[3]) == sid and fields[0] != "Z":
+            found.add(int(entry.name))
+    return found
+
+
+def alive(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return False
+    return state[state.rindex(")") + 2] != "Z"
+
+
+# --------------------------------------------------------------------------- the driver killed
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc")
+@pytest.mark.parametrize("signum,code", [(signal.SIGTERM, 143), (signal.SIGINT, 130), (signal.SIGKILL, None)],
+                         ids=["SIGTERM", "SIGINT", "SIGKILL"])
+def test_a_killed_driver_leaves_no_process_and_resume_finishes_every_job(tmp_path, ball, signum, code):
+    path = manifest(tmp_path, {"water.rays": [300, 301, 302]})
+    out = tmp_path / "out"
+    env = dict(os.environ, **{PAUSE_ENV: "ball=600"})  # every job stays in its worker
+    driver = subprocess.Popen([str(ICEFARM), "sweep", str(path), "-o", str(out), "--workers", "2",
+                               "--until", "drips"], env=env, cwd=tmp_path, start_new_session=True,
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        running = out / "t" / ".farm" / "running"
+        markers = wait_for(lambda: len(list(running.glob("*.pid"))) >= 2 and list(running.glob("*.pid")),
+                           "two jobs in their workers")
+        workers = {int(m.read_text().split()[0]) for m in markers}
+        assert len(workers) == 2 and driver.pid not in workers
+        os.kill(driver.pid, signum)
+        stdout, stderr = driver.communicate(timeout=120)
+        if code is not None:
+            assert driver.returncode == code, stderr
+            assert f"interrupted by {signal.Signals(signum).name}" in stderr and "--resume" in stderr
+            assert "Traceback" not in stderr
+        else:
+            assert driver.returncode == -signal.SIGKILL
+        # Ended by the driver, or by themselves once it is gone: nothing of the sweep is left.
+        wait_for(lambda: not session_processes(driver.pid), "every process of the sweep to end", timeout=30)
+        assert not any(alive(pid) for pid in workers)
+    finally:
+        for pid in session_processes(driver.pid):
+            os.kill(pid, signal.SIGKILL)
+        driver.wait(timeout=30)
+    assert not any((out / "t" / "jobs" / "ball").glob("*/done.json"))
+    again = run_sweep(path, out, workers=1, until="drips", resume=True)
+    assert again.ok and again.done == 3 and again.resumed == 0
+
+
+def test_a_worker_ignores_ctrl_c_and_dies_with_its_driver(tmp_path):
+    """The worker side on its own: a process that ran the initializer dies when its parent does."""
+    script = tmp_path / "driver.py"
+    flag = tmp_path / "child.pid"
+    script.write_text(
+        "import multiprocessing, os, sys, time\n"
+        "from icefarm.farm.backends import _worker_init\n"
+        "def child(flag, driver):\n"
+        "    _worker_init(driver)\n"
+        "    open(flag, 'w').write(str(os.getpid()))\n"
+        "    time.sleep(600)\n"
+        "if __name__ == '__main__':\n"
+        "    ctx = multiprocessing.get_context('spawn')\n"
+        "    p = ctx.Process(target=child, args=(sys.argv[1], os.getpid()))\n"
+        "    p.start()\n"
+        "    time.sleep(600)\n")
+    driver = subprocess.Popen([sys.executable, str(script), str(flag)], start_new_session=True)
+    try:
+        pid = int(wait_for(lambda: flag.is_file() and flag.read_text(), "the worker to start"))
+        os.kill(pid, signal.SIGINT)  # ignored: Ctrl-C is the driver's
+        os.kill(driver.pid, signal.SIGKILL)
+        driver.wait(timeout=30)
+        wait_for(lambda: not alive(pid), "the orphaned worker to end", timeout=30)
+        assert not session_processes(driver.pid)
+    finally:
+        for pid in session_processes(driver.pid):
+            os.kill(pid, signal.SIGKILL)
+
+
+# --------------------------------------------------------------------------- the stage cache
+
+def job(tmp_path: Path, ball: Path, **values) -> JobSpec:
+    p = params.resolve({"water.rays": 300, "drips.count": 4, "proxy.mode": "never", **values})
+    return JobSpec("ball", str(ball), 0.3, p, seed=3)
+
+
+def test_a_damaged_cache_entry_is_recomputed_with_a_warning(tmp_path, ball):
+    cache = tmp_path / "cache"
+    first = run_job(job(tmp_path, ball), tmp_path / "a", cache, until=Stage.TRAJECTORIES)
+    assert first.status == "done" and first.reused == ()
+    entries = sorted(cache.glob("*/*.pkl"))
+    assert {e.parent.name for e in entries} == {"water", "drips", "trajectories"}
+    assert all(e.read_bytes().startswith(b"icefarm-cache 1 ") for e in entries)
+    damaged = next(e for e in entries if e.parent.name == "drips")
+    data = bytearray(damaged.read_bytes())
+    data[-20] ^= 0xFF  # one flipped byte deep in the pickle: it may still unpickle
+    damaged.write_bytes(bytes(data))
+    with pytest.warns(CacheWarning, match="drips.*damaged.*recomputed"):
+        second = run_job(job(tmp_path, ball, **{"trajectories.curve_angle": 20}), tmp_path / "b", cache,
+                         until=Stage.TRAJECTORIES)
+    assert second.status == "done" and set(second.reused) == {"water"}
+    assert (tmp_path / "a" / "drips.json").read_text() == (tmp_path / "b" / "drips.json").read_text()
+    assert "damaged" in json.loads((tmp_path / "b" / "done.json").read_text())["cache_warnings"][0]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # the entry was written again, intact
+        third = run_job(job(tmp_path, ball), tmp_path / "c", cache, until=Stage.TRAJECTORIES)
+    assert set(third.reused) == {"water", "drips", "trajectories"}
+
+
+def test_cache_entries_of_other_code_are_not_read(tmp_path, ball, monkeypatch):
+    cache = tmp_path / "cache"
+    assert run_job(job(tmp_path, ball), tmp_path / "a", cache, until=Stage.DRIPS).status == "done"
+    code = _Cache.code_version()
+    assert all(f".{code}." in e.name for e in cache.glob("*/*.pkl"))
+    monkeypatch.setattr(_Cache, "_code", "0123456789ab")  # the code changed
+    again = run_job(job(tmp_path, ball), tmp_path / "b", cache, until=Stage.DRIPS)
+    assert again.status == "done" and again.reused == ()
+
+
+def test_a_sweep_caches_only_what_another_job_can_reuse(tmp_path, ball):
+    path = manifest(tmp_path, {"trajectories.curve_angle": [1, 5, 9]})
+    summary = run_sweep(path, tmp_path / "out", workers=1, until="trajectories")
+    assert summary.ok and summary.done == 3
+    cache = tmp_path / "out" / "t" / "cache"
+    assert set(json.loads((cache / "policy.json").read_text())["private"]) == {"trajectories", "surface"}
+    assert list((cache / "water").glob("*.pkl")) and list((cache / "drips").glob("*.pkl"))
+    assert not list(cache.glob("trajectories/*.pkl")), "no other job reads a job's own trajectories"
+    assert all(set(r.reused) == {"water", "drips"} for r in summary.jobs[1:])
+
+
+# --------------------------------------------------------------------------- resume checks
+
+def test_resume_redoes_jobs_whose_artifacts_or_done_json_were_damaged(tmp_path, ball):
+    path = manifest(tmp_path, {"drips.count": [2, 3, 4, 5]})
+    out = tmp_path / "out"
+    first = run_sweep(path, out, workers=1, until="drips")
+    assert first.done == 4
+    deleted, truncated, flipped, intact = (r.job_dir for r in first.jobs)
+    done = json.loads((intact / "done.json").read_text())
+    assert {"params.yaml", "water.ply", "drips.json", "timings.json"} <= set(done["artifacts"])
+    assert all(e["size"] > 0 and len(e["sha256"]) == 64 for e in done["artifacts"].values())
+    (deleted / "drips.json").unlink()
+    text = (truncated / "done.json").read_text()
+    (truncated / "done.json").write_text(text[:len(text) // 2])
+    data = bytearray((flipped / "water.ply").read_bytes())
+    data[-5] ^= 0x01  # same size, other bytes
+    (flipped / "water.ply").write_bytes(bytes(data))
+    notes: list[str] = []
+    plan = run_sweep(path, out, until="drips", resume=True, dry_run=True, note=notes.append)
+    assert plan.resumed == 1
+    again = run_sweep(path, out, workers=1, until="drips", resume=True, note=notes.append)
+    assert again.ok and again.resumed == 1
+    assert {r.job_dir for r in again.jobs if not r.resumed} == {deleted, truncated, flipped}
+    text = "\n".join(notes)
+    assert "drips.json is missing" in text and "done.json is damaged" in text and "water.ply changed" in text
+    assert all((d / "drips.json").is_file() for d in (deleted, truncated, flipped))
+
+
+def test_resume_on_an_edited_manifest_names_the_stale_job_folders(tmp_path, ball):
+    out = tmp_path / "out"
+    first = run_sweep(manifest(tmp_path, {"drips.count": [2, 3]}), out, workers=1, until="drips")
+    assert first.done == 2
+    edited = manifest(tmp_path, {"drips.count": [3, 5]})  # 2 is gone, 5 is new
+    notes: list[str] = []
+    again = run_sweep(edited, out, workers=1, until="drips", resume=True, note=notes.append)
+    assert again.ok and again.resumed == 1
+    stale = first.jobs[0].job_dir
+    assert again.stale == (stale,)
+    assert any("stale" in n and str(stale.relative_to(out / "t")) in n for n in notes)
+    from icefarm.farm.commands import format_summary
+
+    assert "1 stale job folder(s)" in format_summary(again)
+
+
+# --------------------------------------------------------------------------- file modes
+
+@pytest.mark.parametrize("umask,mode", [(0o022, 0o644), (0o002, 0o664), (0o077, 0o600)])
+def test_atomically_written_files_follow_the_umask(tmp_path, umask, mode):
+    old = os.umask(umask)
+    try:
+        atomic_write(tmp_path / "f.txt", "x")
+    finally:
+        os.umask(old)
+    assert (tmp_path / "f.txt").stat().st_mode & 0o777 == mode
+
+
+def test_a_sweep_folder_is_readable_by_the_group_under_umask_002(tmp_path, ball):
+    old = os.umask(0o002)
+    try:
+        summary = run_sweep(manifest(tmp_path, {"drips.count": [2]}), tmp_path / "out", workers=1, until="water")
+    finally:
+        os.umask(old)
+    root = tmp_path / "out" / "t"
+    files = [root / "jobs.csv", root / "manifest.resolved.yaml", summary.jobs[0].job_dir / "done.json",
+             summary.jobs[0].job_dir / "water.ply", *root.glob("cache/*/*.pkl")]
+    assert all(f.stat().st_mode & 0o777 == 0o664 for f in files), {str(f): oct(f.stat().st_mode) for f in files}
