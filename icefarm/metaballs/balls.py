@@ -1,20 +1,14 @@
 """Gaussian metaballs and their calibration: chains that make tubes, sheets that make coats.
 
-The metaballs are Gaussian (Blinn's blobby model): the one kernel that is both radial
-and separable. Separability turns the field of a block of ``B^3`` samples into a matrix
-product over the balls touching that block, so evaluation runs in BLAS, and only in the
-blocks that balls reach (a sparse block grid: memory and time follow the ice, not its
-bounding box). Each sample is computed once, by the block that owns it; a block marches
-its cells with its upper neighbours' first samples as a halo, so blocks can never
-disagree on a shared sample and the mesh closes across seams. Calibration (module
-constants below):
+Gaussian balls (Blinn's blobby model; why Gaussian: `icefarm.metaballs.field`).
+Calibration (module constants below):
 
 * chain of balls of radius R: width ``s = KAPPA * R``, spacing ``SPACING * s``; the
   line integral ``(sqrt(pi) s / h) exp(-rho^2 / s^2)`` of a dense chain equals
   ``LEVEL`` at ``rho = R`` exactly, so a straight chain's surface sits at R
   (bumps between balls stay below 0.1 % of R); the last ball of a branch weighs
   ``TIP_WEIGHT`` so the end of the chain is a hemisphere of radius R(L) (within 2 %);
-* base and glaze balls of radius r, one per area A of the surface: width
+* sheet balls (the glaze's ``metaballs`` mode) of radius r, one per area A: width
   ``max(SHEET_KAPPA * r, SHEET_OVERLAP * sqrt(A))`` and a weight that makes the sheet
   they form r thick on each side of the surface (a plane of balls integrates to
   ``pi s^2 / A exp(-z^2 / s^2)``), so Equations 2 and 3 give ice thickness.

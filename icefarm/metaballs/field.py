@@ -6,7 +6,7 @@ product over the balls touching that block, so evaluation runs in BLAS, and only
 blocks that balls reach (a sparse block grid: memory and time follow the ice, not its
 bounding box). Each sample is computed once, by the block that owns it; a block marches
 its cells with its upper neighbours' first samples as a halo, so blocks can never
-disagree on a shared sample and the mesh closes across seams. Calibration (module
+disagree on a shared sample and the mesh closes across seams.
 """
 
 from __future__ import annotations
