@@ -138,6 +138,13 @@ PARAMS: tuple[Param, ...] = (
     _p("drips", "spacing", "-", "m", _F, 0.025,
        "drip points never lie closer than this (icicles on eaves and wires settle 2.3-2.5 cm apart)",
        low=0.0),
+    _p("drips", "min_fall", "-", "m", _F, 0.05,
+       "no icicle where a drop lands this soon below its drip point (on the object or the ground "
+       "of a grounded object): there is no room to hang, the water lands there; 0 keeps all",
+       low=0.0),
+    _p("drips", "min_length", "-", "m", _F, 0.02,
+       "no icicle where the water would grow one shorter than this (kL x water): the drop "
+       "freezes in place as glaze; 0 keeps all", low=0.0),
     _p("drips", "distribution", "-", "-", Kind.CHOICE, "water",
        "where drip points go: water (weighted by water, towards the lowest rim of each drip region: "
        "lips, eaves, spouts) or area (the paper: uniform over the drip region)",

@@ -347,7 +347,7 @@ def _run_stages(spec: JobSpec, job_dir: Path, run: _Run, cache: _Cache, until: S
     if _stops(until, Stage.WATER):
         return stats
 
-    drips_key = _digest(water_key, p["drips"], spec.exclude,
+    drips_key = _digest(water_key, p["drips"], spec.exclude, spec.placement, p["trajectories"]["length_scale"],
                         _file_digest(overrides["drips"]) if "drips" in overrides else None)
 
     def drips_stage() -> DripResult:
@@ -359,7 +359,9 @@ def _run_stages(spec: JobSpec, job_dir: Path, run: _Run, cache: _Cache, until: S
                            _rng(spec.seed, Stage.DRIPS), exclude_boxes=spec.exclude,
                            exclude_vertices=grounded if p["drips"]["ground_clearance"] > 0 else None,
                            caster=caster(flow), spacing=p["drips"]["spacing"],
-                           distribution=p["drips"]["distribution"])
+                           distribution=p["drips"]["distribution"], min_fall=p["drips"]["min_fall"],
+                           floor=_ground_level(spec.placement, obj, gravity),
+                           min_water=p["drips"]["min_length"] / p["trajectories"]["length_scale"])
         if flow is obj:
             return found
         from .proxy import snap_to_surface

@@ -216,3 +216,30 @@ def test_low_poly_table_gets_icicles_along_its_tops_rim(tmp_path, loose):
     trunks = [np.asarray(b["points"]) for ic in icicles for b in ic["branches"] if b["parent"] == -1]
     lengths = [np.linalg.norm(np.diff(t, axis=0), axis=1).sum() for t in trunks]
     assert np.median(lengths) >= 0.02
+
+
+@pytest.mark.parametrize("distribution", ["water", "area"])
+def test_no_drip_point_without_room_to_hang(wet_umbrella, distribution):
+    """drips.min_fall: the umbrella's rim is 0.30 above its foot, so a floor 0.25 below the
+    rim leaves room and one 0.02 below it none; every kept point has the room asked."""
+    mesh, water = wet_umbrella
+    rng = lambda: np.random.default_rng(4)  # noqa: E731
+    kwargs = dict(spacing=0.025, distribution=distribution, exclude_vertices=off_the_ground(mesh))
+    free = find_drips(mesh, water, G, 20, 75.0, rng(), **kwargs)
+    room = find_drips(mesh, water, G, 20, 75.0, rng(), min_fall=0.1, floor=0.05, **kwargs)
+    none = find_drips(mesh, water, G, 20, 75.0, rng(), min_fall=0.1, floor=0.28, **kwargs)
+    assert len(free.positions) > 5 and len(room.positions) > 5
+    assert (room.positions[:, 1] - 0.05 >= 0.1).all()
+    assert len(none.positions) == 0
+
+
+def test_dry_drip_points_grow_no_icicle(wet_umbrella):
+    """drips.min_length (as min_water): points whose water would grow an icicle shorter than
+    asked are dropped; the rest keep at least that much water."""
+    mesh, water = wet_umbrella
+    every = umbrella_drips(mesh, water, "water")
+    threshold = float(np.quantile(every.water, 0.5))
+    wet = find_drips(mesh, water, G, 40, 75.0, np.random.default_rng(3), spacing=0.025,
+                     distribution="water", exclude_vertices=off_the_ground(mesh), min_water=threshold)
+    assert 0 < len(wet.positions) < len(every.positions)
+    assert (wet.water >= threshold).all()

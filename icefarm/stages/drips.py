@@ -124,6 +124,9 @@ LEVEL = 0.1
 # Deterministic samples of the shed water per spacing along the rim, for the catchments.
 SAMPLES_PER_SPACING = 4
 MAX_FLUX_SAMPLES = 200_000
+# Dropping the dry drip points gives their rim to the rest; these many rounds of dropping and
+# re-draining settle every case seen (then whatever is still dry goes too).
+MAX_DRY_PASSES = 4
 # An icicle's water grows with the stretch of rim it drains raised to this power: the order
 # stays (more water, longer icicle) while the spread shows. Along an evenly wet rim (a
 # fountain's lip) the stretches vary only with the gaps between icicles (32 on a 1.9 m lip
@@ -264,6 +267,20 @@ def _rim_points(mesh, flux, region, gravity, count, rng):
     return face[pick], _edge_bary(cv[pick], cu[pick], 0.5 * rng.random(count))
 
 
+def free_fall(cast, points: np.ndarray, normals: np.ndarray, gravity, floor: float | None = None) -> np.ndarray:
+    """``(k,)`` meters a drop falls from each of ``points`` (k, 3) before it lands: on the
+    surface that ``cast`` (a `icefarm.geometry.ray_caster`) sees straight below, lifted a
+    tenth of a millimetre along ``normals`` (k, 3) off its own face, or on the ground at
+    height ``floor`` along -gravity (inf without either)."""
+    g = unit(np.asarray(gravity, dtype=np.float64))
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    distance, _ = cast(points + 1e-4 * unit(np.asarray(normals, dtype=np.float64).reshape(-1, 3)),
+                       np.tile(g, (len(points), 1)))
+    if floor is not None:
+        distance = np.minimum(distance, np.maximum(points @ -g - floor, 0.0))
+    return distance
+
+
 def _spaced(points: np.ndarray, spacing: float, count: int) -> np.ndarray:
     """Indices of the first points, in order, that lie ``spacing`` or more from every one kept
     before them (dart throwing), at most ``count``."""
@@ -340,7 +357,8 @@ def catchment_water(mesh: trimesh.Trimesh, water: np.ndarray, flux: np.ndarray, 
 def find_drips(mesh: trimesh.Trimesh, water: np.ndarray, gravity, count: int, drip_limit: float,
                rng: np.random.Generator, exclude_boxes=(),
                exclude_vertices: np.ndarray | None = None, caster=None,
-               spacing: float = 0.0, distribution: str = "area") -> DripResult:
+               spacing: float = 0.0, distribution: str = "area", min_fall: float = 0.0,
+               floor: float | None = None, min_water: float = 0.0) -> DripResult:
     """Stage 2: the drip region and up to ``count`` drip points on it.
 
     ``distribution="area"`` spreads the points area-weighted over the region's faces (the
@@ -377,6 +395,17 @@ def find_drips(mesh: trimesh.Trimesh, water: np.ndarray, gravity, count: int, dr
         Least distance between two drip points, in meters (``drips.spacing``).
     distribution : {"water", "area"}
         ``drips.distribution``.
+    min_fall : float
+        Least free fall below a drip point, in meters (``drips.min_fall``): to the first
+        surface of ``mesh`` straight below it or to ``floor``. Where the drop lands sooner
+        there is no room for an icicle (it would be a stub cut by what is below); the water
+        lands there instead. 0 keeps every point.
+    floor : float, optional
+        Height of the ground along -gravity (a grounded object), meters.
+    min_water : float
+        Least water coefficient of a drip point (meters): where less drips, the drop freezes
+        in place as part of the glaze instead of growing an icicle. The pipeline sets it
+        from ``drips.min_length`` over the length scale kL. 0 keeps every point.
     """
     water = np.asarray(water, dtype=np.float64)
     if water.shape != (len(mesh.vertices),):
@@ -387,6 +416,12 @@ def find_drips(mesh: trimesh.Trimesh, water: np.ndarray, gravity, count: int, dr
         raise ValueError(f"spacing must be a non-negative number of meters, got {spacing}")
     if distribution not in DISTRIBUTIONS:
         raise ValueError(f"distribution must be one of {', '.join(DISTRIBUTIONS)}, got {distribution!r}")
+    if not (np.isfinite(min_water) and min_water >= 0):
+        raise ValueError(f"min_water must be a non-negative water coefficient, got {min_water}")
+    if not (np.isfinite(min_fall) and min_fall >= 0):
+        raise ValueError(f"min_fall must be a non-negative number of meters, got {min_fall}")
+    if min_fall > 0:
+        caster = caster or ray_caster(mesh)
     excluded = excluded_vertices(mesh.vertices, exclude_boxes)
     if exclude_vertices is not None:
         excluded |= np.asarray(exclude_vertices, dtype=bool)
@@ -404,6 +439,9 @@ def find_drips(mesh: trimesh.Trimesh, water: np.ndarray, gravity, count: int, dr
         lifted = points + 1e-4 * float(np.linalg.norm(mesh.extents)) * mesh.face_normals[face]
         free = ~inside(caster or ray_caster(mesh), lifted)
         face, bary, points = face[free], bary[free], points[free]
+    if min_fall > 0:
+        room = free_fall(caster, points, mesh.face_normals[face], gravity, floor) >= min_fall
+        face, bary, points = face[room], bary[room], points[room]
     keep = _spaced(points, spacing, count)
     face, bary = face[keep], bary[keep]
     corners = mesh.faces[face]
@@ -411,6 +449,11 @@ def find_drips(mesh: trimesh.Trimesh, water: np.ndarray, gravity, count: int, dr
         by_water = False
         ok = drip_criterion(mesh.vertex_normals, gravity, drip_limit) & ~excluded
         corners, bary = _transition_points(mesh, water, ok, count if spacing == 0 else pool, rng)
+        if min_fall > 0:
+            at = np.einsum("ij,ijk->ik", bary, mesh.vertices[corners])
+            room = free_fall(caster, at, np.einsum("ij,ijk->ik", bary, mesh.vertex_normals[corners]),
+                             gravity, floor) >= min_fall
+            corners, bary = corners[room], bary[room]
         keep = _spaced(np.einsum("ij,ijk->ik", bary, mesh.vertices[corners]), spacing, count)
         corners, bary = corners[keep], bary[keep]
         face = mesh.vertex_faces[corners[:, 0], 0]
@@ -420,5 +463,14 @@ def find_drips(mesh: trimesh.Trimesh, water: np.ndarray, gravity, count: int, dr
     if by_water:
         step = (spacing or float(np.median(mesh.edges_unique_length))) / SAMPLES_PER_SPACING
         coefficients = catchment_water(mesh, water, flux, region, gravity, positions, step)
+    for _ in range(MAX_DRY_PASSES):  # the rest drain the dry points' stretches of rim too
+        wet = coefficients >= min_water
+        if wet.all():
+            break
+        positions, normals, face, coefficients = positions[wet], normals[wet], face[wet], coefficients[wet]
+        if by_water and len(positions):
+            coefficients = catchment_water(mesh, water, flux, region, gravity, positions, step)
+    wet = coefficients >= min_water
+    positions, normals, face, coefficients = positions[wet], normals[wet], face[wet], coefficients[wet]
     return DripResult(region_faces=region, positions=positions, normals=normals,
                       water=coefficients, faces=face)
