@@ -205,6 +205,7 @@ def drips_from_json(path: Path) -> DripResult:
 def trajectories_to_json(traj: TrajectoryResult) -> dict:
     icicles: dict[int, dict] = {}
     first_branch: dict[int, int] = {}
+    cut = traj.cut
     for b in range(traj.n_branches):
         i = int(traj.branch_icicle[b])
         entry = icicles.setdefault(i, {"id": len(icicles), "drip_point": i, "branches": []})
@@ -214,13 +215,15 @@ def trajectories_to_json(traj: TrajectoryResult) -> dict:
             "parent": -1 if parent < 0 else parent - first_branch[i],
             "points": np.round(traj.branch(b), 6).tolist(),
         })
+        if cut[b] > 0:  # the ground stopped it: meters it would have grown on
+            entry["branches"][-1]["cut"] = round(float(cut[b]), 6)
     return {"icicles": list(icicles.values())}
 
 
 def trajectories_from_json(path: Path) -> TrajectoryResult:
     try:
         data = json.loads(Path(path).read_text())
-        points, offsets, icicle, parent = [], [0], [], []
+        points, offsets, icicle, parent, cut = [], [0], [], [], []
         for entry in data["icicles"]:
             base = len(icicle)
             for branch in entry["branches"]:
@@ -229,11 +232,13 @@ def trajectories_from_json(path: Path) -> TrajectoryResult:
                 offsets.append(offsets[-1] + len(pts))
                 icicle.append(int(entry["drip_point"]))
                 parent.append(-1 if branch["parent"] < 0 else base + int(branch["parent"]))
+                cut.append(float(branch.get("cut", 0.0)))
         return TrajectoryResult(
             points=np.concatenate(points) if points else np.zeros((0, 3)),
             branch_offsets=np.asarray(offsets, dtype=np.int64),
             branch_icicle=np.asarray(icicle, dtype=np.int64),
             branch_parent=np.asarray(parent, dtype=np.int64),
+            branch_cut=np.asarray(cut, dtype=np.float64) if any(cut) else None,
         )
     except (OSError, ValueError, KeyError, TypeError) as exc:
         raise InputError(f"{path}: not a trajectories.json ({exc})") from None

@@ -164,6 +164,10 @@ def _print_plausibility(timings: dict) -> None:
         click.echo(f"  glaze: covers {100 * coverage:.1f} % of the wet surface, "
                    + ("-" if p50 is None else f"{p10:.1f} / {p50:.1f} / {p90:.1f} mm thick (p10/p50/p90)")
                    + ("" if ratio is None else f", top/bottom {ratio:.2f}"))
+    gap = timings.get("ground_gap_mm")
+    if gap is not None:
+        click.echo(f"  ground: the object's lowest point {gap:.1f} mm above the ground plane"
+                   + (" (stands on it)" if timings.get("placement") == "ground" else " (hanging)"))
     for key, what, real, fmt in (("taper", "taper (radius near the base / tip)", "a carrot: 3 and more", ".1f"),
                                  ("growth_ratio", "growth ratio (base - tip diameter) / length",
                                   "1/32-1/8, 0.03-0.13", ".3f"),

@@ -452,6 +452,8 @@ def _surface_and_render(spec, job_dir, run, cache, until, obj, flow, water, drip
                              frame_points=_frame(obj, ice_mesh), defer_povray=True,
                              impurity=p["surface"]["impurity"],  # impure water: a cloudy core
                              ground_level=_ground_level(spec.placement, obj, gravity))
+        if files.ground_height is not None:  # 0 for a grounded object; a hanging one floats
+            stats["ground_gap_mm"] = _finite((ground_height(obj.vertices, gravity) - files.ground_height) * 1000)
         return render_job(job_dir, config, files, progress=run.progress)  # POV-Ray files written meanwhile
 
     result = run.timed("render", render)

@@ -41,7 +41,9 @@ def stop_at_ground(traj: TrajectoryResult, gravity, floor: float, margin: float)
 
     Each branch keeps its points down to the last one above ``floor + margin`` (the drop at
     the tip then just touches the ground), and ends exactly there; a branch that starts
-    below it is left empty (no points), so branch indices keep their meaning.
+    below it is left empty (no points), so branch indices keep their meaning. The length
+    each branch lost is its ``branch_cut``: the water that would have lengthened it
+    thickens it instead (a column foot on the ground, not a straw).
 
     Parameters
     ----------
@@ -59,6 +61,7 @@ def stop_at_ground(traj: TrajectoryResult, gravity, floor: float, margin: float)
     if len(pts) == 0 or height.min() >= limit:
         return traj
     kept, counts = [], []
+    cut = traj.cut.copy()
     for b in range(len(off) - 1):
         branch, h = pts[off[b]:off[b + 1]], height[off[b]:off[b + 1]]
         low = np.flatnonzero(h < limit)
@@ -70,7 +73,13 @@ def stop_at_ground(traj: TrajectoryResult, gravity, floor: float, margin: float)
             i = low[0]
             t = (h[i - 1] - limit) / max(h[i - 1] - h[i], 1e-300)
             kept.append(np.vstack([branch[:i], branch[i - 1] + t * (branch[i] - branch[i - 1])]))
+        cut[b] += _polyline_length(branch) - _polyline_length(kept[-1])
         counts.append(len(kept[-1]))
     return TrajectoryResult(points=np.concatenate(kept) if kept else np.zeros((0, 3)),
                             branch_offsets=np.r_[0, np.cumsum(counts)].astype(np.int64),
-                            branch_icicle=traj.branch_icicle, branch_parent=traj.branch_parent)
+                            branch_icicle=traj.branch_icicle, branch_parent=traj.branch_parent,
+                            branch_cut=cut)
+
+
+def _polyline_length(points: np.ndarray) -> float:
+    return float(np.linalg.norm(np.diff(points, axis=0), axis=1).sum()) if len(points) > 1 else 0.0

@@ -26,6 +26,7 @@ def test_an_icicle_that_would_reach_the_ground_stops_at_it():
     assert cut.n_branches == 2
     assert cut.branch(0)[:, 1].min() == pytest.approx(-0.05)  # ends exactly at floor + margin
     assert np.array_equal(cut.branch(1), short)  # clear of the ground: untouched
+    assert cut.cut == pytest.approx([0.05, 0.0])  # what the ground took, for the profile
     branch = TrajectoryResult(trunk[6:], np.array([0, 5]), np.array([0]), np.array([-1]))
     assert len(stop_at_ground(branch, G, floor=-0.055, margin=0.005).branch(0)) == 0
     assert stop_at_ground(traj, G, floor=-1.0, margin=0.005) is traj
@@ -100,5 +101,8 @@ def test_a_grounded_object_rests_on_the_ground_plane_of_its_scene(tmp_path, plac
         assert abs(lowest - ground) <= 0.001  # the object stands on it
         assert ice_lowest >= ground - 1e-6     # no ice below the ground
         assert json.loads((job / "done.json").read_text())["placement"] == "ground"
+        assert abs(json.loads((job / "timings.json").read_text())["ground_gap_mm"]) <= 1.0
     else:
         assert ground < min(lowest, ice_lowest)  # the ground below the lowest ice
+        gap = json.loads((job / "timings.json").read_text())["ground_gap_mm"]
+        assert gap == pytest.approx((lowest - ground) * 1000, abs=0.01)

@@ -642,7 +642,7 @@ def test_impurity_clouds_the_ice_and_impurity_zero_is_clear(tmp_path):
     points = np.vstack([box.vertices, ice.vertices])  # same camera for every picture
     look = {"resolution": [80, 60], "spp": 32,
             "environment": {"sun_elevation": 10, "sun_azimuth": 35}}  # a low sun lights the icicles
-    config = tiny_config(**look)
+    config = tiny_config(**look, ice={"scattering": 60.0})  # cloudier than the default: a clear signal
     images = {}
     for name, impurity, cfg in (("pure", 0.0, config), ("tap", 0.6, config),
                                 ("unscattering", 0.6, tiny_config(**look, ice={"scattering": 0.0}))):

@@ -346,3 +346,27 @@ def test_real_meshes_through_stages_1_to_4_are_watertight(name):
     ice = S.build_ice(mesh, mesh, water, drips, traj, p["surface"], p["glaze"], G, rng)
     _closed_and_clean(ice)
     assert np.isfinite(ice.icicles.tip_radius_mm)
+
+
+def test_a_cut_icicle_thickens_as_if_longer_and_rests_on_its_foot():
+    """An icicle the ground stopped keeps its water: its profile follows a longer icicle
+    (at most GROUND_THICKENING times its own length), so it tapers more than a free one of
+    the same length, and its foot stands on the ground, not in it."""
+    from icefarm.placement import stop_at_ground
+    from icefarm.stages.surface.profile import GROUND_THICKENING, grown_lengths
+
+    assert grown_lengths(np.array([0.1, 0.1]), np.array([0.0, 1.0])) == pytest.approx([0.1, 0.1 * (1 + GROUND_THICKENING)])
+    obj = trimesh.creation.box([0.2, 0.01, 0.2])
+    start = [0.0, -0.005, 0.0]
+    floor = -0.005 - 0.08 - 0.00244
+    free, long = _straight([start], [0.08]), _straight([start], [0.16])
+    cut = stop_at_ground(long, G, floor=floor, margin=0.00244)
+    assert cut.cut[0] == pytest.approx(0.08) and cut.branch(0)[-1] == pytest.approx(free.branch(0)[-1])
+    p = params.resolve({"surface.impurity": 0.0, "surface.base_balls": 0, "glaze.mode": "none"})
+    free_ice = S.build_ice(obj, obj, _dry(obj), _drips(obj, [start]), free, p["surface"], p["glaze"], G,
+                           np.random.default_rng(0))
+    cut_ice = S.build_ice(obj, obj, _dry(obj), _drips(obj, [start]), cut, p["surface"], p["glaze"], G,
+                          np.random.default_rng(0))
+    assert cut_ice.icicles.taper[0] > 1.2 * free_ice.icicles.taper[0]
+    assert cut_ice.vertices[:, 1].min() >= floor - 1e-6  # on the ground, not in it
+    assert np.isnan(cut_ice.icicles.tip_radius_mm)  # a foot, not a drop: no tip to measure

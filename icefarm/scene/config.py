@@ -66,7 +66,7 @@ ABSORPTION_PER_M = (8.0, 2.5, 1.75)
 # = 1): bubbles and brine inclusions cloud an impure icicle's core. Bubbly ice measures
 # about 1-8 /m on average; the core of a tap-water icicle, where the inclusions gather,
 # is far cloudier. A job's scattering is this times its impurity (0: clear).
-SCATTERING_PER_M = 60.0
+SCATTERING_PER_M = 15.0
 
 
 @dataclass(frozen=True)

@@ -216,6 +216,8 @@ class SceneFiles:
     icicle_px : tuple of (float or None)
         Per view, how wide (pixels) the densest icicles are in it; None where not
         measured (no ice view configured, or no icicles).
+    ground_height : float or None
+        Height of the ground plane along -gravity, meters (None: no ground).
     seconds : float
         Time taken to write everything written before `write_scenes` returned.
     povray_writer : callable or None
@@ -233,6 +235,7 @@ class SceneFiles:
     seconds: float
     povray_writer: Callable[..., None] | None = None
     icicle_px: tuple[float | None, ...] = ()
+    ground_height: float | None = None
 
 
 def _check_mesh(mesh: trimesh.Trimesh, what: str) -> None:
@@ -399,7 +402,8 @@ def write_scenes(job_dir: str | Path, object_mesh: trimesh.Trimesh, ice_mesh: tr
         for i, v in enumerate(config.views)], indent=1) + "\n")
     return SceneFiles(xml=xml, pov=pov_file, object_ply=object_ply, ice_ply=ice_ply, sky=sky,
                       cameras=cameras, seconds=time.perf_counter() - start,
-                      povray_writer=write_pov if defer_povray else None, icicle_px=tuple(icicle_px))
+                      povray_writer=write_pov if defer_povray else None, icicle_px=tuple(icicle_px),
+                      ground_height=ground_height)
 
 
 def _write_povray(job_dir: Path, pov_file: Path, object_geometry: tuple[np.ndarray, ...],

@@ -32,16 +32,28 @@ class TrajectoryResult:
         Icicle (= drip point index) of each branch.
     branch_parent : (b,) int
         Index of the parent branch, -1 for an icicle's trunk.
+    branch_cut : (b,) float or None
+        Meters of each branch that something below took away (`icefarm.placement.
+        stop_at_ground`): the icicle reached the ground and stopped lengthening, but its
+        water kept thickening it as if it were that much longer. None: nothing was cut.
     """
 
     points: np.ndarray
     branch_offsets: np.ndarray
     branch_icicle: np.ndarray
     branch_parent: np.ndarray
+    branch_cut: np.ndarray | None = None
 
     @property
     def n_branches(self) -> int:
         return len(self.branch_icicle)
+
+    @property
+    def cut(self) -> np.ndarray:
+        """``(b,)`` meters cut from each branch (`branch_cut`, zeros when None)."""
+        if self.branch_cut is None:
+            return np.zeros(self.n_branches)
+        return np.asarray(self.branch_cut, dtype=np.float64)
 
     def branch(self, i: int) -> np.ndarray:
         """``(k, 3)`` points of branch ``i``."""

@@ -15,7 +15,11 @@ from ..drips import DripResult
 # balls blend into one smooth swelling rather than a cluster of beads.
 BASE_KAPPA = 1.0
 # Most a base ball's radius may be, in radii of its icicle where it leaves the object.
-BASE_SWELL = 1.0
+BASE_SWELL = 0.7
+# Base balls sit this many of their radii inside the object: what shows is a low lens
+# hugging the surface (a fillet, as ice at real icicle roots), not a ball on it; a
+# surface-centred cluster read as a milky snowball at lookdev.
+BASE_SINK = 0.5
 # Candidate points drawn per drip point (at least; more for nmb over 60).
 BASE_POOL = 256
 
@@ -33,7 +37,8 @@ def base_balls(object_mesh: trimesh.Trimesh, drips: DripResult, surface: dict,
 
     ``icicle_radius`` (k,), meters: each icicle's radius where it leaves the object. A
     ball's radius is held to ``BASE_SWELL`` times it, so a drip with much water but a short
-    icicle (one the ground stopped) grows a fillet, not a boulder.
+    icicle (one the ground stopped) grows a fillet, not a boulder. Balls sink
+    ``BASE_SINK`` of their radius into the object along its face normal.
     """
     eb, nmb, kb = surface["base_extent"], surface["base_balls"], surface["base_scale"]
     k = len(drips.positions)
@@ -64,18 +69,20 @@ def base_balls(object_mesh: trimesh.Trimesh, drips: DripResult, surface: dict,
     pick = np.searchsorted(cum, start[sd] + rng.random(len(sd)) * total[sd], side="right")
     pick = np.clip(pick, first[sd], last[sd] - 1)
     pts = _sample_in_triangles(tris[face[pick]], rng)
+    normals = object_mesh.face_normals[face[pick]]
     d = np.linalg.norm(pts - pos[sd], axis=1)
     inside = d < eb
-    sd, pts, d = sd[inside], pts[inside], d[inside]
+    sd, pts, d, normals = sd[inside], pts[inside], d[inside], normals[inside]
     rank = np.arange(len(sd)) - np.searchsorted(sd, sd)  # sd is sorted
     take = rank < nmb
-    sd, pts, d = sd[take], pts[take], d[take]
+    sd, pts, d, normals = sd[take], pts[take], d[take], normals[take]
     radius = (eb - d) ** 2 / eb**2 * np.asarray(drips.water, dtype=np.float64)[sd] * kb
     if icicle_radius is not None:
         radius = np.minimum(radius, BASE_SWELL * np.asarray(icicle_radius, dtype=np.float64)[sd])
     keep = radius > 0
     if not keep.any():
         return NO_BALLS
+    pts = pts - (BASE_SINK * radius)[:, None] * normals
     widths = BASE_KAPPA * radius[keep]
     return Balls(pts[keep], widths, np.full(len(widths), LEVEL * math.exp(1.0 / BASE_KAPPA**2)))
 

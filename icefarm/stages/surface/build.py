@@ -16,7 +16,7 @@ from .bases import base_balls
 from .glaze import glaze_field
 from .icicles import icicle_balls
 from .measure import IcicleStats, measure_icicles
-from .profile import _branch_lengths, profile_args, smooth_radius
+from .profile import _branch_lengths, grown_lengths, profile_args, smooth_radius
 from .ripples import carve_ripples
 from .tubes import tube_mesh
 
@@ -137,5 +137,5 @@ def _root_radius(traj: TrajectoryResult, k: int, surface: dict) -> np.ndarray:
     _, lengths = _branch_lengths(traj)
     trunk_length = np.zeros(k)
     trunks = np.flatnonzero(np.asarray(traj.branch_parent) < 0)
-    trunk_length[np.asarray(traj.branch_icicle)[trunks]] = lengths[trunks]
+    trunk_length[np.asarray(traj.branch_icicle)[trunks]] = grown_lengths(lengths[trunks], traj.cut[trunks])
     return smooth_radius(0.0, trunk_length, **profile_args(surface))

@@ -8,7 +8,12 @@ import numpy as np
 
 from ...metaballs.balls import KAPPA, LEVEL, NO_BALLS, SPACING, TIP_WEIGHT, Balls
 from ..trajectories import TrajectoryResult
-from .profile import TIP_CALM, _branch_lengths, _points_along, profile_args, smooth_radius
+from .profile import TIP_CALM, _branch_lengths, _points_along, grown_lengths, profile_args, smooth_radius
+
+
+# The blended end of a wide chain bulges a little past its last ball's radius (0.15 mm on
+# a 0.3 m sphere's icicles): the foot's chain stops this many tip radii shorter still.
+FOOT_CLEARANCE = 0.1
 
 
 def icicle_balls(traj: TrajectoryResult, surface: dict, rng: np.random.Generator) -> Balls:
@@ -30,7 +35,11 @@ def icicle_balls(traj: TrajectoryResult, surface: dict, rng: np.random.Generator
     if len(branches) == 0:
         return NO_BALLS
     x_pt, all_lengths = _branch_lengths(traj)
-    lengths = all_lengths[branches]
+    grown = grown_lengths(all_lengths[branches], traj.cut[branches])
+    # A cut branch ends on the ground in a foot wider than the tip's drop: its chain stops
+    # short by the difference, so the foot rests on the ground instead of sinking into it.
+    foot = smooth_radius(all_lengths[branches], grown, **prof) - tip + FOOT_CLEARANCE * tip
+    lengths = np.where(traj.cut[branches] > 0, np.maximum(all_lengths[branches] - foot, 0.0), all_lengths[branches])
     nb = len(branches)
 
     # Fine samples of each branch to integrate u(x) = int dx / h(x): balls sit at equal steps of u.
@@ -40,7 +49,7 @@ def icicle_balls(traj: TrajectoryResult, surface: dict, rng: np.random.Generator
     fstart = np.cumsum(nfine) - nfine
     fj = np.arange(nfine.sum()) - np.repeat(fstart, nfine)
     fx = fj * (lengths / (nfine - 1))[fb]
-    fr = smooth_radius(fx, lengths[fb], **prof)
+    fr = smooth_radius(fx, grown[fb], **prof)
     inv_h = 1.0 / (SPACING * KAPPA * fr)
     du = np.zeros_like(fx)
     du[1:] = 0.5 * (inv_h[1:] + inv_h[:-1]) * np.diff(fx)
@@ -57,14 +66,14 @@ def icicle_balls(traj: TrajectoryResult, surface: dict, rng: np.random.Generator
     target = (u[fstart] + gap)[bb] + bk * np.where(nint > 0, u_len / np.maximum(nint, 1), 0.0)[bb]
     bx = np.interp(target, ug, fx)
     bx[bk == nint[bb]] = lengths[bb][bk == nint[bb]]  # the last ball exactly at the tip
-    radius = smooth_radius(bx, lengths[bb], **prof)
+    radius = smooth_radius(bx, grown[bb], **prof)
 
     pos, tangent = _points_along(traj, x_pt, all_lengths, branches[bb], bx)
 
     noise = surface["noise"]
     if noise > 0:
         e1, e2 = _perpendicular_frame(tangent)
-        calm = np.clip((lengths[bb] - bx) / (TIP_CALM * tip), 0.0, 1.0)
+        calm = np.clip((grown[bb] - bx) / (TIP_CALM * tip), 0.0, 1.0)
         rad = noise * np.sqrt(rng.random(len(bx))) * calm
         ang = rng.random(len(bx)) * (2 * math.pi)
         pos = pos + rad[:, None] * (np.cos(ang)[:, None] * e1 + np.sin(ang)[:, None] * e2)

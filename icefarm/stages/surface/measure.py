@@ -10,7 +10,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ..trajectories import TrajectoryResult
-from .profile import _branch_lengths, _points_along
+from .profile import _branch_lengths, _points_along, grown_lengths
 
 # Radius samples along a trunk: from TAPER_AT of its length below its base to FIT_END; the
 # profile is fitted between FIT_START and FIT_END of the distance from the tip, clear of the
@@ -35,7 +35,8 @@ class IcicleStats:
     Attributes
     ----------
     tip_radius_mm : float
-        Median over trunks of the drop's radius at the tip (real: 2.44 mm).
+        Median over trunks of the drop's radius at the tip (real: 2.44 mm); trunks the
+        ground cut (`TrajectoryResult.branch_cut`) end in a foot, not a drop, and are left out.
     taper : (i,) float
         Radius at 10 % of the trunk's length below its base over the tip radius (a carrot:
         3 and more; a straw: 1).
@@ -97,6 +98,9 @@ def measure_icicles(vertices: np.ndarray, faces: np.ndarray, traj: TrajectoryRes
     direction = tips - pts[np.maximum(off[trunks + 1] - 2, off[trunks])]
     direction /= np.maximum(np.linalg.norm(direction, axis=1, keepdims=True), 1e-300)
     tip_d = _tip_radius(tips, direction, vertices, tree)
+    cut = traj.cut[trunks]
+    grown_all = grown_lengths(lengths[trunks], cut)
+    tip_d[cut > 0] = np.nan  # its end stands on the ground: a column's foot, not a drop
     tip_mm = float(np.nanmedian(tip_d) * 1000) if np.isfinite(tip_d).any() else nan
 
     # Radius samples along every trunk, all queried at once.
@@ -121,13 +125,14 @@ def measure_icicles(vertices: np.ndarray, faces: np.ndarray, traj: TrajectoryRes
         sel = owner == j
         xj, rj = x[sel], r[sel]
         taper[j] = rj[0] / tip
-        d = L[j] - xj
+        grown = grown_all[j]  # the profile of a cut icicle runs on below the ground
+        d = grown - xj
         # Clear of the base ice too, which swells the first centimetres below the drip point.
-        fit = (d >= FIT_START * L[j]) & (d <= FIT_END * L[j]) & (xj >= 0.5 * surface["base_extent"])
+        fit = (d >= FIT_START * grown) & (d <= FIT_END * grown) & (xj >= 0.5 * surface["base_extent"])
         if fit.sum() >= 4:
             n_j, k_j = _power_fit(d[fit], rj[fit] - tip)
             exponent[j] = n_j
-            growth[j] = 2 * k_j * L[j] ** n_j / L[j]
+            growth[j] = 2 * k_j * grown ** n_j / grown
         if len(xj) >= 8:
             u = (xj - xj.mean()) / max(np.ptp(xj), 1e-300)
             trend = np.polyval(np.polyfit(u, rj, 3), u)

@@ -13,11 +13,15 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ..trajectories import TrajectoryResult
-from .profile import _branch_lengths, _points_along, ripple, smooth_radius
+from .profile import _branch_lengths, _points_along, grown_lengths, ripple, smooth_radius
 
 # Vertices farther from a branch's axis than this times its radius there (plus the ripple)
 # belong to something else: a neighbour, the base ice, the glaze.
 REACH = 1.3
+# Ripples come in as the icicle widens: full once its radius exceeds the tip's by this
+# many tip radii. A thin young icicle is smooth; a 0.7 mm ripple on a 3 mm straw reads as a
+# string of beads (seen at lookdev), while on real icicles ripples run on the wide part.
+RIPPLE_WIDENING = 1.0
 # Axis samples per ripple wavelength (and at least one per tip radius).
 SAMPLES_PER_WAVE = 16
 
@@ -26,8 +30,9 @@ def carve_ripples(vertices: np.ndarray, traj: TrajectoryResult, prof: dict) -> n
     """Move the ice mesh's vertices around each branch radially by the profile's ripple.
 
     Each vertex follows the nearest sample of the branch axes: at arc length x of a branch,
-    it moves by ``as sin(x fs)`` (faded at the tip as in `profile_radius`, and in over the
-    first base radius of the branch, where it meets the object) away from the axis.
+    it moves by ``as sin(x fs)`` (faded at the tip as in `profile_radius`, in over the
+    first base radius of the branch, where it meets the object, and in as the radius widens
+    past the tip's, `RIPPLE_WIDENING`) away from the axis.
 
     Parameters
     ----------
@@ -48,14 +53,16 @@ def carve_ripples(vertices: np.ndarray, traj: TrajectoryResult, prof: dict) -> n
         return vertices
     x_pt, lengths = _branch_lengths(traj)
     L = lengths[branches]
+    grown = grown_lengths(L, traj.cut[branches])
     step = min(2 * np.pi / frequency / SAMPLES_PER_WAVE, tip)
     n = np.ceil(L / step).astype(np.int64) + 1
     owner = np.repeat(np.arange(len(branches)), n)
     k = np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)
     x = k * (L / np.maximum(n - 1, 1))[owner]
     axis, tangent = _points_along(traj, x_pt, lengths, branches[owner], x)
-    radius = smooth_radius(x, L[owner], **prof)
-    wave = ripple(x, L[owner], tip, amplitude, frequency) * np.clip(x / smooth_radius(0.0, L[owner], **prof), 0, 1)
+    radius = smooth_radius(x, grown[owner], **prof)
+    wave = ripple(x, grown[owner], tip, amplitude, frequency) * np.clip(x / smooth_radius(0.0, grown[owner], **prof), 0, 1)
+    wave *= np.clip((radius - tip) / (RIPPLE_WIDENING * tip), 0, 1)
 
     reach = REACH * radius.max() + amplitude
     d, i = cKDTree(axis).query(vertices, distance_upper_bound=reach)

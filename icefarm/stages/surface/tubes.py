@@ -8,7 +8,7 @@ import numpy as np
 
 from ..trajectories import TrajectoryResult
 from .icicles import _perpendicular_frame
-from .profile import _branch_lengths, _points_along, profile_args, profile_radius
+from .profile import _branch_lengths, _points_along, grown_lengths, profile_args, profile_radius
 
 def tube_mesh(traj: TrajectoryResult, surface: dict, gravity=(0.0, -1.0, 0.0), ring: int = 12,
               cap_rings: int = 4):
@@ -51,7 +51,7 @@ def tube_mesh(traj: TrajectoryResult, surface: dict, gravity=(0.0, -1.0, 0.0), r
     rk = np.arange(n.sum()) - first[rb]
     xr = rk * (L / (n - 1))[rb]
     centre, _ = _points_along(traj, x_pt, lengths, branches[rb], xr)
-    radius = profile_radius(xr, L[rb], **prof)
+    radius = profile_radius(xr, grown_lengths(L, traj.cut[branches])[rb], **prof)
     # Tangents by central differences within each tube (one-sided at its ends).
     last = first + n - 1
     ahead = centre[np.minimum(np.arange(len(rb)) + 1, last[rb])]
