@@ -61,9 +61,9 @@ def file_digest(path: Path, chunk: int = 1 << 20) -> str:
 
 
 # Files of a job folder that done.json does not list: itself, a failure's report, and
-# what `icefarm render` adds later (renders/).
+# what `icefarm render` and `icefarm export` add later (renders/, export/).
 _UNLISTED = ("done.json", "error.json")
-_LATER = ("renders",)
+_LATER = ("renders", "export")
 
 
 def list_artifacts(job_dir: Path) -> dict[str, dict]:

@@ -144,6 +144,31 @@ def render_command(job_dir, render, out):
     click.echo(f"done: {out / result.files[0].name if result.files else out}")
 
 
+@main.command(name="export")
+@click.argument("job_dir", type=click.Path(file_okay=False, exists=True))
+@click.option("--format", "fmt", type=click.Choice(["glb", "usdz"]), default="glb", show_default=True,
+              help="glb: binary glTF 2.0 for viewers and game engines; usdz: the job's scene.usda, "
+                   "meshes and sky packed in one USD file.")
+@click.option("-o", "--out", type=click.Path(dir_okay=False),
+              help="The file to write (default: JOB_DIR/export/scene.<format>).")
+def export_command(job_dir, fmt, out):
+    """Export a job that rendered as one file: the object and the ice with their materials.
+
+    Every such job already holds scene.usda (with object.usdc, ice.usdc): open it in usdview,
+    Houdini, Maya, Omniverse, or Blender (File > Import > Universal Scene Description) for
+    the cameras, the sun, the sky and the materials. This command writes a single file
+    instead. In the GLB the ice refracts through the glTF extensions KHR_materials_transmission,
+    KHR_materials_ior (1.31) and KHR_materials_volume (its absorption); glTF is +Y up, so
+    the scene is turned to put minus gravity up. The USDZ keeps cameras and lights.
+    """
+    out = Path(out) if out else Path(job_dir) / "export" / f"scene.{fmt}"
+    if fmt == "glb":
+        from .gltf import write_glb as write
+    else:
+        from .usd import write_usdz as write
+    click.echo(f"done: {write(Path(job_dir), out)}")
+
+
 def _print_plausibility(timings: dict) -> None:
     if "upward_share" in timings:
         share, spread, cv = (timings.get(k) for k in ("upward_share", "branch_spread_mm", "length_cv"))

@@ -463,6 +463,10 @@ def _surface_and_render(spec, job_dir, run, cache, until, obj, flow, water, drip
                  scene_write_seconds=result.write_seconds, scene_load_seconds=result.load_seconds,
                  scene_wait_seconds=result.wait_seconds,
                  povray_write_cpu_seconds=result.povray_write_cpu_seconds)
+    from .usd import write_job_usd
+
+    # scene.usda (object.usdc, ice.usdc) for DCCs: the render's cameras, sun, sky, materials.
+    run.timed("usd", lambda: write_job_usd(job_dir, material=material, ice_mesh=ice_mesh))
     return stats
 
 

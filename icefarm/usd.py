@@ -1,0 +1,319 @@
+"""A rendered job as an OpenUSD scene: ``scene.usda`` beside the renders, for any DCC.
+
+``scene.usda`` is a small text layer with what an artist edits (cameras, lights, materials)
+and references the heavy meshes, binary ``object.usdc`` and ``ice.usdc``, by relative paths:
+the job folder moves as a whole. Everything is in meters (``metersPerUnit`` 1) in the job's
+own frame, the points exactly those of ``object.ply`` and ``ice.ply``; the cameras, sun and
+sky are the ones Mitsuba rendered (`rendered.read_rendered`).
+
+Written with Pixar's ``usd-core`` (``pxr``), never by hand. Measured once for 3.5 M ice faces
+(the roof at 1 m, 20 icicles; 2 cores): 1.1 s, of which 0.4 s are the normals and 0.55 s the
+crate writer compressing the 10.5 M face indices (to a quarter of their size); as the job's
+``usd`` step 1.7-2.9 s, where the process first touches that much memory. Scaled: about
+0.65 s for 2 M faces.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+import uuid
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import trimesh
+from pxr import Gf, Sdf, Tf, Usd, UsdGeom, UsdLux, UsdShade, UsdUtils, Vt
+
+from .errors import InputError
+from .rendered import (Rendered, Surface, ice_surface, object_surface, pbr, read_ice, read_rendered, require,
+                       water_at)
+
+SCENE_FILE, OBJECT_FILE, ICE_FILE = "scene.usda", "object.usdc", "ice.usdc"
+# Film back of the cameras: 36 mm wide (full frame), in USD's tenths of a scene unit. Only
+# its ratio to the focal length (the field of view) matters for the picture.
+FILM_WIDTH = 0.36
+# The sun's apparent diameter, degrees: Mitsuba's sun is a point, most DCCs soften shadows.
+SUN_ANGLE = 0.53
+# UsdPreviewSurface has no transmission: ice is a low opacity, which in "transparent"
+# mode fades only the diffuse part and keeps the reflections. Not 0: importers that read
+# opacity as plain alpha (some DCCs) would lose the ice altogether.
+ICE_OPACITY = 0.1
+
+
+@dataclass(frozen=True)
+class UsdScene:
+    """What `write_job_usd` wrote.
+
+    Attributes
+    ----------
+    scene : Path
+        ``scene.usda``.
+    layers : tuple of Path
+        The binary mesh layers it references (``object.usdc``, ``ice.usdc`` with ice).
+    up_axis : str
+        ``Y`` or ``Z`` (see `up_axis`).
+    seconds : float
+        Wall time of the writing.
+    """
+
+    scene: Path
+    layers: tuple[Path, ...]
+    up_axis: str
+    seconds: float
+
+
+def up_axis(gravity) -> str:
+    """USD's up axis for a job with ``gravity`` ``(3,)``: ``"Y"`` or ``"Z"``.
+
+    Gravity along -Y gives Y, along -Z gives Z. USD knows no other up axis, so any other
+    gravity gets the nearer of the two (the larger of ``|g_y|`` and ``|g_z|``, Y on a tie):
+    the points are never rotated, so such a scene opens tilted, as it was modelled.
+    """
+    g = np.abs(np.asarray(gravity, dtype=np.float64).reshape(3))
+    return "Z" if g[2] > g[1] else "Y"
+
+
+def write_job_usd(job_dir: str | Path, *, material: dict | None = None,
+                  ice_mesh: trimesh.Trimesh | None = None, out_dir: str | Path | None = None) -> UsdScene:
+    """Write ``scene.usda``, ``object.usdc`` and ``ice.usdc`` for a job that rendered.
+
+    Parameters
+    ----------
+    job_dir : path
+        The job folder: ``scene.xml``, ``views.json``, ``params.yaml``, ``object.ply``,
+        ``ice.ply``, ``water.ply`` and the sky image.
+    material : dict, optional
+        The object's material; default ``done.json``'s.
+    ice_mesh : trimesh.Trimesh, optional
+        The ice already in memory (the pipeline's): saves reading ``ice.ply`` again.
+    out_dir : path, optional
+        Where to write; default ``job_dir``. Elsewhere, the sky is named by its absolute path.
+
+    Returns
+    -------
+    UsdScene
+
+    Raises
+    ------
+    InputError
+        Not a job that rendered (a file missing).
+    """
+    start = time.perf_counter()
+    job_dir = Path(job_dir)
+    out_dir = job_dir if out_dir is None else Path(out_dir)
+    require(job_dir, "ice.ply", "object.ply")
+    rendered = read_rendered(job_dir, material)
+    axis = up_axis(rendered.gravity)
+    obj = object_surface(job_dir)
+    layers = [out_dir / OBJECT_FILE]
+    _write_mesh_layer(layers[0], "Object", obj, axis, _object_primvars(job_dir, obj))
+    if rendered.ice is not None:
+        ice = (read_ice(job_dir, rendered.ice.flip) if ice_mesh is None
+               else ice_surface(ice_mesh.vertices, ice_mesh.faces, rendered.ice.flip))
+        layers.append(out_dir / ICE_FILE)
+        _write_mesh_layer(layers[1], "Ice", ice, axis, {})
+    else:  # no ice: no layer of an earlier run's ice beside the scene
+        (out_dir / ICE_FILE).unlink(missing_ok=True)
+    sky = f"./{rendered.sky.name}" if out_dir.resolve() == job_dir.resolve() else str(rendered.sky.resolve())
+    with _authored(out_dir / SCENE_FILE) as stage:
+        _scene(stage, rendered, axis, sky, has_ice=len(layers) > 1)
+    return UsdScene(out_dir / SCENE_FILE, tuple(layers), axis, time.perf_counter() - start)
+
+
+def write_usdz(job_dir: str | Path, out: str | Path) -> Path:
+    """One ``.usdz`` file (scene, meshes and sky) of a job that rendered, at ``out``.
+
+    Packs the job's ``scene.usda`` with `UsdUtils.CreateNewUsdzPackage`; a job written
+    before icefarm wrote USD gets one first, in a temporary folder (the job is left as is).
+
+    Raises
+    ------
+    InputError
+        Not a job that rendered, or the packaging failed.
+    """
+    import tempfile
+
+    job_dir, out = Path(job_dir), Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(dir=out.parent, prefix=".usdz.") as tmp:
+        scene = job_dir / SCENE_FILE
+        if not scene.is_file():
+            scene = write_job_usd(job_dir, out_dir=tmp).scene
+        packed = Path(tmp) / out.name
+        # The packager resolves references and the sky and stores them uncompressed, aligned.
+        if not UsdUtils.CreateNewUsdzPackage(Sdf.AssetPath(str(scene)), str(packed)) or not packed.is_file():
+            raise InputError(f"{job_dir}: packing {scene.name} into a usdz failed")
+        os.replace(packed, out)
+    return out
+
+
+@contextmanager
+def _authored(path: Path) -> Iterator[Usd.Stage]:
+    """A new stage saved to ``path`` whole or not at all.
+
+    The stage is made at a hidden unique name in the same folder (so relative references
+    resolve, and a layer of the same name open in this process is not reused), saved, then
+    renamed over ``path``.
+    """
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.stem}.{uuid.uuid4().hex[:12]}{path.suffix}")
+    try:
+        stage = Usd.Stage.CreateNew(str(tmp))
+        yield stage
+        stage.GetRootLayer().Save()
+        del stage
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def _stage_metadata(stage: Usd.Stage, axis: str, default: Usd.Prim) -> None:
+    UsdGeom.SetStageMetersPerUnit(stage, UsdGeom.LinearUnits.meters)
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.z if axis == "Z" else UsdGeom.Tokens.y)
+    stage.SetDefaultPrim(default)
+
+
+def _write_mesh_layer(path: Path, name: str, surface: Surface, axis: str, primvars: dict) -> None:
+    """One mesh as the default prim of a binary layer (it opens on its own too).
+
+    ``primvars``: name to ``(values, type name)``, one value per vertex.
+    """
+    with _authored(path) as stage:
+        mesh = UsdGeom.Mesh.Define(stage, f"/{name}")
+        _stage_metadata(stage, axis, mesh.GetPrim())
+        points = np.ascontiguousarray(surface.vertices, dtype=np.float32)
+        mesh.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(points))
+        mesh.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(np.full(len(surface.faces), 3, dtype=np.int32)))
+        indices = np.ascontiguousarray(surface.faces, dtype=np.int32).ravel()
+        mesh.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(indices))
+        mesh.CreateNormalsAttr(Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(surface.normals, dtype=np.float32)))
+        mesh.SetNormalsInterpolation(UsdGeom.Tokens.vertex)
+        # Triangles as they are: the default, Catmull-Clark, would smooth them and ignore the normals.
+        mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
+        lo, hi = (points.min(axis=0), points.max(axis=0)) if len(points) else (np.zeros(3), np.zeros(3))
+        mesh.CreateExtentAttr(Vt.Vec3fArray([Gf.Vec3f(*map(float, lo)), Gf.Vec3f(*map(float, hi))]))
+        api = UsdGeom.PrimvarsAPI(mesh)
+        for key, (values, type_name) in primvars.items():
+            array = Vt.FloatArray.FromNumpy(values) if type_name == Sdf.ValueTypeNames.FloatArray \
+                else Vt.IntArray.FromNumpy(values)
+            api.CreatePrimvar(key, type_name, UsdGeom.Tokens.vertex).Set(array)
+
+
+def _object_primvars(job_dir: Path, obj: Surface) -> dict:
+    """Stage 1's ``water`` (float) and ``supply`` (int, 0 or 1) per object vertex, to shade
+    by wetness; nothing for a job without ``water.ply``."""
+    found = water_at(job_dir, obj.vertices)
+    if found is None:
+        return {}
+    water, supply = found
+    return {"water": (water.astype(np.float32), Sdf.ValueTypeNames.FloatArray),
+            "supply": (supply.astype(np.int32), Sdf.ValueTypeNames.IntArray)}
+
+
+def _scene(stage: Usd.Stage, rendered: Rendered, axis: str, sky: str, has_ice: bool) -> None:
+    """The contents of ``scene.usda``: /World with Object, Ice, Looks, Cameras and Lights."""
+    world = UsdGeom.Xform.Define(stage, "/World")
+    _stage_metadata(stage, axis, world.GetPrim())
+    stage.GetRootLayer().documentation = "icefarm job: object and ice as rendered (meters)"
+    looks = UsdGeom.Scope.Define(stage, "/World/Looks").GetPath()
+    meshes = [("Object", OBJECT_FILE, _object_material(stage, looks, rendered))]
+    if has_ice:
+        meshes.append(("Ice", ICE_FILE, _ice_material(stage, looks, rendered)))
+    for name, layer, material in meshes:
+        prim = stage.DefinePrim(f"/World/{name}")  # a Mesh, by its reference
+        prim.GetReferences().AddReference(f"./{layer}")
+        UsdShade.MaterialBindingAPI.Apply(prim).Bind(material)
+    UsdGeom.Scope.Define(stage, "/World/Cameras")
+    for camera, view in zip(rendered.cameras, rendered.view_names):
+        _camera(stage, f"/World/Cameras/{Tf.MakeValidIdentifier(view)}", camera, rendered.width / rendered.height)
+    UsdGeom.Scope.Define(stage, "/World/Lights")
+    if rendered.sun is not None:
+        _sun(stage, rendered)
+    # DomeLight (not DomeLight_1): its pole is +Y whatever the stage's up axis, and its
+    # latlong layout (OpenEXR's: u = 0 at -Z, 1/4 at +X, the top row at +Y) is Mitsuba's
+    # envmap's, so the sky's own to_world turns it the same way.
+    dome = UsdLux.DomeLight.Define(stage, "/World/Lights/Sky")
+    dome.CreateTextureFileAttr(Sdf.AssetPath(sky))
+    dome.CreateTextureFormatAttr(UsdLux.Tokens.latlong)
+    dome.CreateIntensityAttr(float(rendered.sky_scale))
+    dome.AddTransformOp().Set(_rows(rendered.sky_frame, np.zeros(3)))
+
+
+def _rows(axes: np.ndarray, origin: np.ndarray) -> Gf.Matrix4d:
+    """USD's matrix (row vectors) taking local X, Y, Z to the rows of ``axes`` ``(3, 3)``, then
+    moving by ``origin`` ``(3,)``."""
+    m = np.eye(4)
+    m[:3, :3], m[3, :3] = axes, origin
+    return Gf.Matrix4d(m.tolist())
+
+
+def _camera(stage: Usd.Stage, path: str, camera, aspect: float) -> None:
+    """A USD camera (looking down its local -Z, +Y up) where Mitsuba's ``lookat`` put it."""
+    forward = camera.forward
+    right = np.cross(forward, camera.up)
+    right /= np.linalg.norm(right)
+    cam = UsdGeom.Camera.Define(stage, path)
+    cam.AddTransformOp().Set(_rows(np.stack([right, np.cross(right, forward), -forward]), camera.origin))
+    cam.CreateProjectionAttr(UsdGeom.Tokens.perspective)
+    cam.CreateHorizontalApertureAttr(FILM_WIDTH)
+    cam.CreateVerticalApertureAttr(FILM_WIDTH / aspect)
+    cam.CreateFocalLengthAttr(float(FILM_WIDTH / 2 / np.tan(np.radians(camera.fov_x) / 2)))
+    cam.CreateClippingRangeAttr(Gf.Vec2f(float(camera.near), float(camera.far)))
+
+
+def _sun(stage: Usd.Stage, rendered: Rendered) -> None:
+    """The sun: a distant light shining along its local -Z, so local +Z points at the sun;
+    its intensity is Mitsuba's irradiance (W/m^2), its colour the irradiance's hue."""
+    z = rendered.sun / np.linalg.norm(rendered.sun)
+    x = np.cross((0.0, 1.0, 0.0) if abs(z[1]) < 0.9 else (1.0, 0.0, 0.0), z)
+    x /= np.linalg.norm(x)
+    sun = UsdLux.DistantLight.Define(stage, "/World/Lights/Sun")
+    sun.AddTransformOp().Set(_rows(np.stack([x, np.cross(z, x), z]), np.zeros(3)))
+    strength = float(rendered.sun_irradiance.max())
+    sun.CreateIntensityAttr(strength)
+    sun.CreateColorAttr(Gf.Vec3f(*(rendered.sun_irradiance / strength).tolist()))
+    sun.CreateAngleAttr(SUN_ANGLE)
+
+
+def _preview_surface(stage: Usd.Stage, path: Sdf.Path, inputs: dict) -> UsdShade.Material:
+    """A Material with one UsdPreviewSurface shader; ``inputs``: name to ``(value, type)``."""
+    material = UsdShade.Material.Define(stage, path)
+    shader = UsdShade.Shader.Define(stage, path.AppendChild("PreviewSurface"))
+    shader.CreateIdAttr("UsdPreviewSurface")
+    for name, (value, type_name) in inputs.items():
+        shader.CreateInput(name, type_name).Set(value)
+    material.CreateSurfaceOutput().ConnectToSource(shader.ConnectableAPI(), "surface")
+    return material
+
+
+def _object_material(stage: Usd.Stage, looks: Sdf.Path, rendered: Rendered) -> UsdShade.Material:
+    """The manifest material: diffuse (no highlight: specular workflow, black specular),
+    plastic, or metal (its F0 as base colour)."""
+    look = pbr(rendered.material)
+    color = Gf.Vec3f(*map(float, look.base_color))
+    inputs = {"diffuseColor": (color, Sdf.ValueTypeNames.Color3f),
+              "roughness": (look.roughness, Sdf.ValueTypeNames.Float),
+              "metallic": (look.metallic, Sdf.ValueTypeNames.Float)}
+    if not look.specular:
+        inputs.update(useSpecularWorkflow=(1, Sdf.ValueTypeNames.Int),
+                      specularColor=(Gf.Vec3f(0.0, 0.0, 0.0), Sdf.ValueTypeNames.Color3f))
+    return _preview_surface(stage, looks.AppendChild("ObjectMaterial"), inputs)
+
+
+def _ice_material(stage: Usd.Stage, looks: Sdf.Path, rendered: Rendered) -> UsdShade.Material:
+    """Ice: ior 1.31, low opacity, its roughness, and as diffuse colour the tint of thick ice
+    (`IceShading.color_at`): UsdPreviewSurface has no absorbing medium."""
+    ice = rendered.ice
+    return _preview_surface(stage, looks.AppendChild("IceMaterial"), {
+        "diffuseColor": (Gf.Vec3f(*map(float, ice.color_at())), Sdf.ValueTypeNames.Color3f),
+        "roughness": (ice.roughness, Sdf.ValueTypeNames.Float),
+        "metallic": (0.0, Sdf.ValueTypeNames.Float),
+        "ior": (ice.ior, Sdf.ValueTypeNames.Float),
+        "opacity": (ICE_OPACITY, Sdf.ValueTypeNames.Float),
+        # UsdPreviewSurface 2.5 (USD 23.11): "transparent" keeps the reflections at low
+        # opacity. Older readers ignore an input they do not know.
+        "opacityMode": ("transparent", Sdf.ValueTypeNames.Token),
+    })

@@ -1,0 +1,310 @@
+"""Export for DCCs: scene.usda read back by pxr in a fresh process, GLB and USDZ from the CLI.
+
+One small rendered job (an icosphere with a proxy flow mesh, two views, a plastic object)
+runs once for the module; the USD is read in a separate Python process, as a DCC would,
+and compared with ice.ply, water.ply and the cameras Mitsuba loads from scene.xml.
+"""
+
+from __future__ import annotations
+
+import json
+import struct
+import subprocess
+import sys
+import textwrap
+import xml.etree.ElementTree as ET
+
+import numpy as np
+import pytest
+import trimesh
+import yaml
+from click.testing import CliRunner
+
+from icefarm import params
+from icefarm.artifacts import check_done
+from icefarm.cli import main
+from icefarm.pipeline import JobSpec, run_job
+from icefarm.scene.config import ABSORPTION_PER_M, render_config_from_dict
+from icefarm.scene.render import write_scenes
+from icefarm.usd import up_axis, write_job_usd, write_usdz
+
+PLASTIC = (("type", "plastic"), ("color", (0.6, 0.1, 0.1)), ("roughness", 0.09))
+
+# Run in a fresh interpreter: everything a DCC sees of scene.usda, as JSON and .npy files.
+READ_USD = textwrap.dedent("""
+    import json, sys
+    import numpy as np
+    from pxr import Usd, UsdGeom, UsdShade, UsdLux
+    stage = Usd.Stage.Open(sys.argv[1])
+    out = sys.argv[2]
+    facts = {"meters": UsdGeom.GetStageMetersPerUnit(stage), "up": UsdGeom.GetStageUpAxis(stage),
+             "default": str(stage.GetDefaultPrim().GetPath()),
+             "errors": [str(e) for e in stage.GetCompositionErrors()],
+             "types": {str(p.GetPath()): str(p.GetTypeName()) for p in stage.Traverse()},
+             "meshes": {}, "cameras": {}, "lights": {}}
+    matrix = lambda prim: np.array(UsdGeom.Xformable(prim).ComputeLocalToWorldTransform(0)).tolist()
+    for prim in stage.Traverse():
+        name = prim.GetName()
+        if prim.IsA(UsdGeom.Mesh):
+            mesh = UsdGeom.Mesh(prim)
+            np.save(f"{out}/{name}_points.npy", np.array(mesh.GetPointsAttr().Get()))
+            np.save(f"{out}/{name}_normals.npy", np.array(mesh.GetNormalsAttr().Get()))
+            primvars = {}
+            for pv in UsdGeom.PrimvarsAPI(prim).GetPrimvars():
+                if pv.GetPrimvarName() in ("water", "supply"):
+                    np.save(f"{out}/{name}_{pv.GetPrimvarName()}.npy", np.array(pv.Get()))
+                    primvars[str(pv.GetPrimvarName())] = str(pv.GetInterpolation())
+            material = UsdShade.MaterialBindingAPI(prim).ComputeBoundMaterial()[0]
+            shader = material.ComputeSurfaceSource()[0]
+            facts["meshes"][name] = {
+                "extent": np.array(mesh.GetExtentAttr().Get()).tolist(),
+                "faces": len(mesh.GetFaceVertexCountsAttr().Get()),
+                "indices": np.array(mesh.GetFaceVertexIndicesAttr().Get()).reshape(-1, 3).tolist()[:1],
+                "subdivision": str(mesh.GetSubdivisionSchemeAttr().Get()), "primvars": primvars,
+                "material": str(material.GetPath()), "shader": str(shader.GetIdAttr().Get()),
+                "inputs": {i.GetBaseName(): (list(i.Get()) if hasattr(i.Get(), "__len__") and not
+                           isinstance(i.Get(), str) else i.Get()) for i in shader.GetInputs()}}
+        elif prim.IsA(UsdGeom.Camera):
+            camera = UsdGeom.Camera(prim)
+            facts["cameras"][name] = {
+                "matrix": matrix(prim), "focal": camera.GetFocalLengthAttr().Get(),
+                "aperture": [camera.GetHorizontalApertureAttr().Get(), camera.GetVerticalApertureAttr().Get()],
+                "clipping": list(camera.GetClippingRangeAttr().Get())}
+        elif prim.IsA(UsdLux.DistantLight) or prim.IsA(UsdLux.DomeLight):
+            light = UsdLux.LightAPI(prim)
+            entry = {"matrix": matrix(prim), "intensity": light.GetIntensityAttr().Get()}
+            if prim.IsA(UsdLux.DomeLight):
+                entry["texture"] = UsdLux.DomeLight(prim).GetTextureFileAttr().Get().resolvedPath
+            facts["lights"][name] = entry
+    with open(f"{out}/facts.json", "w") as f:
+        json.dump(facts, f)
+""")
+
+
+def read_usd(scene, out):
+    """What a fresh Python process reads from ``scene`` with pxr: facts and arrays in ``out``."""
+    out.mkdir(exist_ok=True)
+    done = subprocess.run([sys.executable, "-c", READ_USD, str(scene), str(out)], capture_output=True,
+                          text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    return {**json.loads((out / "facts.json").read_text()), "dir": out}
+
+
+def glb_json(path):
+    """The JSON chunk of a GLB file (header, then chunk length and type, then the chunk)."""
+    data = path.read_bytes()
+    assert data[:4] == b"glTF"
+    length, kind = struct.unpack("<I4s", data[12:20])
+    assert kind == b"JSON"
+    return json.loads(data[20:20 + length])
+
+
+def mitsuba_sensors(xml):
+    """``(to_world 4x4, x fov in degrees)`` of each sensor Mitsuba loads from ``xml``."""
+    import mitsuba as mi
+
+    from icefarm.scene.render import pick_variant
+
+    mi.set_variant(pick_variant("scalar_rgb"))
+    scene = mi.load_file(str(xml))
+    return [(np.array(s.world_transform().matrix), float(mi.traverse(s)["x_fov"][0])
+             if hasattr(mi.traverse(s)["x_fov"], "__len__") else float(mi.traverse(s)["x_fov"]))
+            for s in scene.sensors()]
+
+
+def assert_camera_is_mitsubas(usd_camera, to_world, fov_x):
+    """USD cameras look down local -Z with +X right; Mitsuba's down +Z with +X left."""
+    usd = np.array(usd_camera["matrix"]).T  # USD's row vectors to column vectors
+    np.testing.assert_allclose(usd[:3, 3], to_world[:3, 3], atol=1e-5)
+    np.testing.assert_allclose(usd[:3, :3], to_world[:3, :3] @ np.diag([-1.0, 1.0, -1.0]), atol=1e-5)
+    h, v = usd_camera["aperture"]
+    assert np.degrees(2 * np.arctan(h / 2 / usd_camera["focal"])) == pytest.approx(fov_x, abs=1e-3)
+
+
+@pytest.fixture(scope="module")
+def job(tmp_path_factory):
+    """A rendered icosphere job: proxy flow mesh (its vertices are not the object's), glaze,
+    eight icicles, a rough-ice config with the main and the ice view, a plastic object."""
+    root = tmp_path_factory.mktemp("export")
+    trimesh.creation.icosphere(subdivisions=4, radius=0.15).export(root / "sphere.ply")
+    config = root / "tiny.yaml"
+    config.write_text("resolution: [40, 30]\nspp: 2\nmax_depth: 4\nviews: [three_quarter, ice]\n"
+                      "ice: {roughness: 0.04}\n")
+    p = params.resolve({"water.rays": 2000, "drips.count": 8, "drips.drip_limit": 80, "proxy.mode": "always"})
+    spec = JobSpec("sphere", str(root / "sphere.ply"), 0.3, p, seed=3, render=str(config), material=PLASTIC)
+    outcome = run_job(spec, root / "job")
+    assert outcome.status == "done", outcome.error
+    return root / "job"
+
+
+@pytest.fixture(scope="module")
+def usd(job, tmp_path_factory):
+    return read_usd(job / "scene.usda", tmp_path_factory.mktemp("usd"))
+
+
+def test_up_axis_follows_gravity_to_the_nearest_of_y_and_z():
+    assert up_axis((0, -1, 0)) == "Y" and up_axis((0, 0, -1)) == "Z"
+    assert up_axis((0.2, -0.9, 0.3)) == "Y" and up_axis((0.3, 0.2, -0.9)) == "Z"
+    assert up_axis((0, 1, 0)) == "Y" and up_axis((-1, 0, 0)) == "Y"
+
+
+def test_job_writes_scene_usda_as_a_timed_step_listed_in_done_json(job):
+    done = json.loads((job / "done.json").read_text())
+    assert {"scene.usda", "object.usdc", "ice.usdc"} <= set(done["artifacts"])
+    assert "usd" in done["seconds"] and check_done(job) is None
+    assert (job / "ice.usdc").read_bytes()[:8] == b"PXR-USDC"  # binary crate layers
+    assert not list(job.glob(".*.usd*")), "no temporary layer is left behind"
+
+
+def test_stage_is_in_meters_y_up_with_the_expected_prims(usd):
+    assert usd["meters"] == 1.0 and usd["up"] == "Y" and usd["default"] == "/World"
+    assert usd["errors"] == []
+    types = usd["types"]
+    assert types["/World/Object"] == types["/World/Ice"] == "Mesh"
+    assert types["/World/Cameras/three_quarter"] == types["/World/Cameras/ice"] == "Camera"
+    assert types["/World/Lights/Sun"] == "DistantLight" and types["/World/Lights/Sky"] == "DomeLight"
+    assert types["/World/Looks/IceMaterial"] == "Material"
+    assert types["/World/Looks/IceMaterial/PreviewSurface"] == "Shader"
+
+
+def test_meshes_hold_the_plys_points_with_extents_and_normals(job, usd):
+    out = usd["dir"]
+    for name, ply in (("Ice", "ice.ply"), ("Object", "object.ply")):
+        mesh = trimesh.load(job / ply, process=False)
+        points = np.load(out / f"{name}_points.npy")
+        np.testing.assert_allclose(points, np.asarray(mesh.vertices, dtype=np.float32), rtol=0, atol=1e-7)
+        facts = usd["meshes"][name]
+        assert facts["faces"] == len(mesh.faces) and facts["subdivision"] == "none"
+        np.testing.assert_allclose(facts["extent"], [points.min(axis=0), points.max(axis=0)], atol=1e-7)
+        normals = np.load(out / f"{name}_normals.npy")
+        assert normals.shape == points.shape
+        np.testing.assert_allclose(np.linalg.norm(normals, axis=1), 1.0, atol=1e-4)
+    # Outward: the ice's lowest point (an icicle's tip) has a normal pointing down.
+    ice_points, ice_normals = np.load(out / "Ice_points.npy"), np.load(out / "Ice_normals.npy")
+    assert ice_normals[np.argmin(ice_points[:, 1]), 1] < -0.5
+
+
+def test_ice_material_is_bound_with_ior_transmission_roughness_and_tint(usd):
+    ice = usd["meshes"]["Ice"]
+    assert ice["material"] == "/World/Looks/IceMaterial" and ice["shader"] == "UsdPreviewSurface"
+    inputs = ice["inputs"]
+    assert inputs["ior"] == pytest.approx(1.31)
+    assert inputs["opacity"] <= 0.2 and inputs["opacityMode"] == "transparent"
+    assert inputs["roughness"] == pytest.approx(0.2)  # sqrt of the config's GGX alpha 0.04
+    absorption = np.asarray(ABSORPTION_PER_M)  # tiny.yaml keeps the built-in absorption
+    np.testing.assert_allclose(inputs["diffuseColor"], np.exp(-absorption * 0.1), atol=1e-4)
+
+
+def test_object_has_its_manifest_material_and_the_water_of_stage_1(job, usd):
+    obj = usd["meshes"]["Object"]
+    assert obj["material"] == "/World/Looks/ObjectMaterial"
+    np.testing.assert_allclose(obj["inputs"]["diffuseColor"], [0.6, 0.1, 0.1], atol=1e-6)
+    assert obj["inputs"]["roughness"] == pytest.approx(0.3)
+    assert obj["primvars"] == {"water": "vertex", "supply": "vertex"}
+    out = usd["dir"]
+    points = np.load(out / "Object_points.npy")
+    water, supply = np.load(out / "Object_water.npy"), np.load(out / "Object_supply.npy")
+    # The proxy's vertices are not the object's: each takes its nearest flow vertex's values
+    # (brute force here, a KD-tree in icefarm).
+    flow = trimesh.load(job / "water.ply", process=False)
+    data = flow.metadata["_ply_raw"]["vertex"]["data"]
+    assert len(flow.vertices) != len(points)
+    nearest = np.argmin(((points[:, None, :] - np.asarray(flow.vertices)[None]) ** 2).sum(axis=2), axis=1)
+    np.testing.assert_allclose(water, data["water"][nearest], rtol=1e-6)
+    np.testing.assert_array_equal(supply, data["supply"][nearest].astype(int))
+    assert water.max() > 0 and supply.any()
+
+
+def test_cameras_are_the_ones_mitsuba_rendered(job, usd):
+    sensors = mitsuba_sensors(job / "scene.xml")
+    names = [v["name"] for v in json.loads((job / "views.json").read_text())]
+    assert names == ["three_quarter", "ice"] and len(sensors) == 2
+    for name, (to_world, fov_x) in zip(names, sensors):
+        camera = usd["cameras"][name]
+        assert_camera_is_mitsubas(camera, to_world, fov_x)
+        assert camera["aperture"][0] / camera["aperture"][1] == pytest.approx(40 / 30)
+
+
+def test_sun_and_sky_are_the_renders(job, usd):
+    root = ET.parse(job / "scene.xml").getroot()
+    emitters = {e.get("type"): e for e in root.iter("emitter")}
+    direction = np.array(emitters["directional"].find("vector").get("value").split(","), dtype=float)
+    sun = np.array(usd["lights"]["Sun"]["matrix"])
+    np.testing.assert_allclose(-sun[2, :3], direction, atol=1e-6)  # a distant light shines along -Z
+    assert usd["lights"]["Sun"]["intensity"] == pytest.approx(3.0)
+    sky = usd["lights"]["Sky"]
+    assert sky["texture"] == str(job / emitters["envmap"].find("string").get("value"))
+    frame = np.array(emitters["envmap"].find("transform/matrix").get("value").split(), dtype=float)
+    np.testing.assert_allclose(np.array(sky["matrix"]).T, frame.reshape(4, 4), atol=1e-9)
+
+
+def test_glb_export_has_the_ice_with_transmission_and_ior(job):
+    out = job.parent / "scene.glb"
+    result = CliRunner().invoke(main, ["export", str(job), "--format", "glb", "-o", str(out)])
+    assert result.exit_code == 0, result.output
+    loaded = trimesh.load(out)
+    assert len(loaded.geometry["ice"].faces) == len(trimesh.load(job / "ice.ply", process=False).faces)
+    assert len(loaded.geometry["object"].faces) == len(trimesh.load(job / "object.ply", process=False).faces)
+    tree = glb_json(out)
+    ice = next(m for m in tree["materials"] if m["name"] == "ice")
+    assert ice["extensions"]["KHR_materials_transmission"]["transmissionFactor"] == 1.0
+    assert ice["extensions"]["KHR_materials_ior"]["ior"] == pytest.approx(1.31)
+    assert ice["pbrMetallicRoughness"]["roughnessFactor"] == pytest.approx(0.2)
+    assert ice["extensions"]["KHR_materials_volume"]["attenuationDistance"] > 0
+    assert {"KHR_materials_transmission", "KHR_materials_ior"} <= set(tree["extensionsUsed"])
+    obj = next(m for m in tree["materials"] if m["name"] == "object")
+    assert obj["pbrMetallicRoughness"]["baseColorFactor"] == pytest.approx([0.6, 0.1, 0.1, 1.0])
+
+
+def test_usdz_export_packs_scene_meshes_and_sky(job, tmp_path):
+    import zipfile
+
+    out = tmp_path / "scene.usdz"
+    result = CliRunner().invoke(main, ["export", str(job), "--format", "usdz", "-o", str(out)])
+    assert result.exit_code == 0, result.output
+    names = zipfile.ZipFile(out).namelist()
+    assert names[0] == "scene.usda" and {"object.usdc", "ice.usdc"} <= set(names)
+    assert any(n.endswith(".exr") for n in names)
+    assert read_usd(out, tmp_path / "facts")["types"]["/World/Ice"] == "Mesh"
+
+
+@pytest.mark.parametrize("fmt", ["glb", "usdz"])
+def test_export_of_a_folder_that_never_rendered_is_one_clear_line(tmp_path, fmt):
+    result = CliRunner().invoke(main, ["export", str(tmp_path), "--format", fmt])
+    assert result.exit_code == 2
+    message = result.output.strip()
+    assert "\n" not in message and "ice.ply" in message and "run" in message
+    assert "Traceback" not in result.output
+
+
+def test_z_up_gravity_gives_a_z_up_stage_and_a_y_up_glb(tmp_path):
+    """A job folder written by `write_scenes` with gravity along -Z, exported without a
+    done.json: the material is passed in, and the usdz is made from a fresh scene.usda."""
+    box = trimesh.creation.box(extents=(0.3, 0.2, 0.1))
+    ice = trimesh.creation.cone(radius=0.01, height=0.08, sections=16)
+    ice.apply_translation((0.0, 0.0, -0.13))
+    ice.invert()  # inward winding: exported wound outwards
+    config = render_config_from_dict({"resolution": [40, 30], "spp": 2, "max_depth": 4})
+    job = tmp_path / "job"
+    write_scenes(job, box, ice, config, gravity=(0.0, 0.0, -1.0))
+    (job / "params.yaml").write_text(yaml.safe_dump({"water": {"gravity": [0.0, 0.0, -1.0]}}))
+    written = write_job_usd(job, material=dict(PLASTIC))
+    assert written.up_axis == "Z"
+    usd = read_usd(written.scene, tmp_path / "facts")
+    assert usd["up"] == "Z" and usd["meters"] == 1.0
+    (to_world, fov_x), = mitsuba_sensors(job / "scene.xml")
+    assert_camera_is_mitsubas(usd["cameras"]["three_quarter"], to_world, fov_x)
+    points, normals = np.load(usd["dir"] / "Ice_points.npy"), np.load(usd["dir"] / "Ice_normals.npy")
+    assert normals[np.argmin(points[:, 2]), 2] < -0.5  # the tip's normal points down, the way gravity does
+    # glTF is +Y up: the root turns minus gravity (+Z here) to +Y.
+    from icefarm.gltf import write_glb
+
+    (job / "done.json").write_text(json.dumps({"object_material": dict(PLASTIC)}))
+    tree = glb_json(write_glb(job, tmp_path / "z.glb"))
+    node = next(n for n in tree["nodes"] if n.get("name") == "ice")
+    turn = np.array(node["matrix"]).reshape(4, 4).T  # glTF matrices are column-major
+    np.testing.assert_allclose(turn[:3, :3] @ [0.0, 0.0, 1.0], [0.0, 1.0, 0.0], atol=1e-12)
+    (job / "scene.usda").unlink()
+    packed = write_usdz(job, tmp_path / "z.usdz")
+    assert read_usd(packed, tmp_path / "facts_z")["up"] == "Z"
+    assert not (job / "scene.usda").exists(), "a usdz of an older job leaves the job as it was"
