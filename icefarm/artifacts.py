@@ -242,3 +242,21 @@ def trajectories_from_json(path: Path) -> TrajectoryResult:
         )
     except (OSError, ValueError, KeyError, TypeError) as exc:
         raise InputError(f"{path}: not a trajectories.json ({exc})") from None
+
+
+def landing_to_json(landing, heights=None, columns=None) -> dict:
+    """landing.json: where the water dripping off the tips lands (`icefarm.stages.landing`),
+    with each point's stalagmite height (meters; 0: a mound only) and whether it is a column
+    when ``heights`` and ``columns`` (k,) are given."""
+    points = []
+    for i in range(len(landing.water)):
+        entry = {"position": np.round(landing.positions[i], 6).tolist(),
+                 "normal": np.round(landing.normals[i], 6).tolist(),
+                 "water": round(float(landing.water[i]), 6), "tip": np.round(landing.tips[i], 6).tolist(),
+                 "gap": round(float(landing.gaps[i]), 6), "icicle": int(landing.icicles[i]),
+                 "on_ground": bool(landing.on_ground[i])}
+        if heights is not None:
+            entry["stalagmite_height"] = round(float(heights[i]), 6)
+            entry["column"] = bool(columns[i])
+        points.append(entry)
+    return {"landing_points": points, "branch_landing": np.asarray(landing.branch_landing).tolist()}

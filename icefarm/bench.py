@@ -162,3 +162,50 @@ def render_timings(mesh: str, size_m: float, p: dict, render_config: str, repeat
                       write=column("scene_write_seconds"),
                       load=column("scene_load_seconds"), wait=column("scene_wait_seconds"),
                       povray_cpu=column("povray_write_cpu_seconds"))
+
+
+@dataclass(frozen=True)
+class GrowthRuns:
+    """Seconds of a job with growth frames (`growth_timings`).
+
+    Attributes
+    ----------
+    ice_faces : int
+        Of the full growth.
+    surface, render : float
+        The job's own stage 4 and render step, seconds.
+    frame_surface, frame_render : tuple of float
+        Each frame's stage 4 (with writing its PLY) and render (scene, load, render, PNG).
+    growth : float
+        The whole growth step: frames, movie, USD, measures.
+    """
+
+    ice_faces: int
+    surface: float
+    render: float
+    frame_surface: tuple
+    frame_render: tuple
+    growth: float
+
+
+def growth_timings(mesh: str, size_m: float, p: dict, render_config: str | None, frames: int,
+                   seed: int = 0) -> GrowthRuns:
+    """Run one job with ``frames`` growth frames in a scratch folder and time its frames
+    against the job's own stage 4 and render (``p`` is `icefarm.params.resolve` output)."""
+    from .growth import read_frames
+    from .pipeline import GENERATOR_PREFIX, JobSpec, run_job
+
+    if not mesh.startswith(GENERATOR_PREFIX):
+        mesh = str(Path(mesh).resolve())
+    p = {**p, "growth": {**p["growth"], "frames": frames}}
+    spec = JobSpec(object_id=Path(mesh).stem, mesh=mesh, size_m=size_m, params=p, seed=seed, render=render_config)
+    with tempfile.TemporaryDirectory(prefix="icefarm-bench-") as tmp:
+        outcome = run_job(spec, Path(tmp))
+        if outcome.status != "done":
+            raise RuntimeError(f"benchmark job failed in stage {outcome.failed_stage}: {outcome.error}")
+        rows = read_frames(Path(tmp) / "growth")
+        stats = json.loads((Path(tmp) / "timings.json").read_text())
+    return GrowthRuns(ice_faces=int(stats.get("ice_faces", 0)), surface=outcome.seconds["surface"],
+                      render=outcome.seconds.get("render", 0.0),
+                      frame_surface=tuple(r["surface_seconds"] for r in rows),
+                      frame_render=tuple(r["render_seconds"] for r in rows), growth=outcome.seconds["growth"])

@@ -89,7 +89,13 @@ def _box(text: str) -> tuple:
               help="Keep icicles out of this box (meters, object centred on the origin); repeatable.")
 @click.option("--cache", type=click.Path(file_okay=False),
               help="Stage cache folder to reuse results across runs (default: none).")
-def run(mesh, size_m, assignments, seed, out, until, render, no_render, placement, exclude, cache):
+@click.option("--growth-frames", type=int, metavar="N",
+              help="Also grow the ice over time: N frames (1-240) from the first drip to full growth, "
+                   "each containing the one before (icicles lengthen, branches appear, bases and glaze "
+                   "thicken), into OUT/growth/: ice_0001.ply..., frame_0001.png... (the job's render "
+                   "config and camera), growth.mp4, growth.usda (time-sampled for DCCs) and frames.json. "
+                   "Same as --set growth.frames=N.")
+def run(mesh, size_m, assignments, seed, out, until, render, no_render, placement, exclude, cache, growth_frames):
     """Run one job on MESH (any format trimesh reads, or generator:NAME) into OUT.
 
     Writes params.yaml, water.ply (vertex colours: supply red, water blue), drips.json,
@@ -97,7 +103,16 @@ def run(mesh, size_m, assignments, seed, out, until, render, no_render, placemen
     """
     from .pipeline import GENERATOR_PREFIX, JobSpec, Stage, run_job
 
-    resolved = params.resolve(_assignments(assignments))
+    values = _assignments(assignments)
+    if growth_frames is not None:
+        from .growth import MAX_FRAMES
+
+        if not 1 <= growth_frames <= MAX_FRAMES:
+            raise InputError(f"--growth-frames {growth_frames}: expected 1 to {MAX_FRAMES} frames")
+        if until:
+            raise InputError("--growth-frames needs the whole job: leave out --until")
+        values["growth.frames"] = growth_frames
+    resolved = params.resolve(values)
     if not mesh.startswith(GENERATOR_PREFIX):
         if not Path(mesh).is_file():
             raise InputError(f"mesh file not found: {mesh}")
@@ -118,6 +133,9 @@ def run(mesh, size_m, assignments, seed, out, until, render, no_render, placemen
     for stage, seconds in outcome.seconds.items():
         click.echo(f"  {stage:<13} {seconds:8.3f} s")
     _print_plausibility(timings)
+    if timings.get("growth_frames"):
+        click.echo(f"  growth: {timings['growth_frames']} frames, {timings['growth_seconds_per_frame']:.2f} s "
+                   f"per frame (surface and render): {Path(out) / 'growth'}")
     click.echo(f"done: {out}")
 
 
@@ -178,6 +196,13 @@ def _print_plausibility(timings: dict) -> None:
     if "ice_faces" not in timings:
         return
     click.echo(f"  ice: {timings['ice_faces']} faces, {timings.get('icicles', 0)} icicles")
+    if "landing_points" in timings:
+        median, top = timings.get("stalagmite_median_mm"), timings.get("stalagmite_max_mm")
+        click.echo(f"  ground ice: {timings['landing_points']} landing points, {timings.get('stalagmites', 0)} "
+                   f"stalagmites ({timings.get('columns', 0)} columns)"
+                   + ("" if median is None else f", {median:.0f} mm high (median), {top:.0f} mm at most"))
+    if "curtain_area_m2" in timings:
+        click.echo(f"  curtains: {1e4 * timings['curtain_area_m2']:.0f} cm^2 of sheet between close icicles")
     tip, amplitude, ripple = (timings.get(k) for k in ("tip_radius_mm", "ripple_amplitude_mm", "ripple_wavelength_cm"))
     click.echo(f"  tip radius {'-' if tip is None else f'{tip:.2f}'} mm (real: 2.44 mm); ripples "
                + ("none" if amplitude is None else f"{amplitude:.2f} mm deep, {ripple:.2f} cm apart")
@@ -322,6 +347,37 @@ def bench_render(mesh, size_m, drips, render, repeat, assignments):
     click.echo(f"  scene / render alone: {med(scene):.1f}% (target under 10%)")
     click.echo(f"  whole step beyond the render alone (scenes, images, the POV-Ray writer's share of the "
                f"CPU): {med(step):.1f}%")
+
+
+@bench.command(name="growth")
+@click.argument("mesh", type=click.Path(dir_okay=False))
+@click.option("--size-m", type=float, default=0.4, show_default=True, help="Object height in meters.")
+@click.option("--drips", type=int, default=8, show_default=True, help="Drip points (drips.count).")
+@click.option("--frames", type=click.IntRange(1, 240), default=4, show_default=True, help="Growth frames.")
+@click.option("--render", "render", default="preview", show_default=True, metavar="CONFIG",
+              help="Render config: a name in render_configs/ or a YAML path; none for no render.")
+@click.option("--set", "assignments", multiple=True, metavar="GROUP.PARAM=VALUE", help="Override a parameter.")
+def bench_growth(mesh, size_m, drips, frames, render, assignments):
+    """Seconds per growth frame against one full job's stage 4 and render, on MESH.
+
+    Runs one job with FRAMES growth frames (stages 1-3 once; stage 4 and a render per
+    frame) and prints the median frame's stage 4 and render next to the job's own.
+    """
+    from .bench import growth_timings
+    from .pipeline import GENERATOR_PREFIX
+
+    if not mesh.startswith(GENERATOR_PREFIX) and not Path(mesh).is_file():
+        raise InputError(f"mesh file not found: {mesh}")
+    p = params.resolve({"drips.count": drips, **_assignments(assignments)})
+    runs = growth_timings(mesh, size_m, p, None if render == "none" else render, frames)
+    med = statistics.median
+    per_frame = [s + r for s, r in zip(runs.frame_surface, runs.frame_render)]
+    click.echo(f"{mesh}: {runs.ice_faces} ice faces at full growth, {frames} frames, render {render} (median, max)")
+    click.echo(f"  full job      surface {runs.surface:8.3f} s  render {runs.render:8.3f} s")
+    click.echo(f"  per frame     surface {med(runs.frame_surface):8.3f} s  render {med(runs.frame_render):8.3f} s"
+               f"  ({max(runs.frame_surface):.3f} s, {max(runs.frame_render):.3f} s at most)")
+    click.echo(f"  seconds per frame: {med(per_frame):.3f} (whole growth step {runs.growth:.3f} s: "
+               f"{runs.growth / frames:.3f} s per frame with measures, movie and USD)")
 
 
 @main.command()

@@ -208,6 +208,11 @@ PARAMS: tuple[Param, ...] = (
        "the icicle's own base is t kL wc wide, so kb above t kL makes a swelling", low=0.0),
     _p("surface", "voxel_size", "-", "m", _F, 0.001,
        "edge of a marching-cubes voxel; must resolve the tip radius", low=0.0, low_open=True),
+    _p("surface", "curtain", "-", "m", _F, 0.0,
+       "icicles whose trunks hang closer than this are joined by a sheet of ice, thick near their "
+       "bases, draped between them, down to the shorter one's tip (as along eaves); 0: none; "
+       "metaballs surface only",
+       low=0.0),
     # Glaze ice (paper 4.4.4)
     _p("glaze", "mode", "-", "-", Kind.CHOICE, "coat",
        "glaze ice over the wet surface: coat (one continuous clear coat, Equation 3 thick), "
@@ -235,6 +240,30 @@ PARAMS: tuple[Param, ...] = (
        "edge of a marching-cubes voxel for the glaze (the coat's thickness does not depend on it; "
        "parts thinner than two voxels, wet on one side only, need a finer one); coarser than "
        "surface.voxel_size keeps the mesh light", low=0.0, low_open=True),
+    # Ice where the water dripping off the tips lands (beyond the paper)
+    _p("ground_ice", "mode", "-", "-", Kind.CHOICE, "none",
+       "ice where the drops from the tips land (on the ground or a lower part of the object): "
+       "none, mounds (a low cap around each landing point) or stalagmites (a mound and a blunt "
+       "stalagmite rising towards the tip; one that reaches it fuses into a column); metaballs surface only",
+       choices=("none", "mounds", "stalagmites")),
+    _p("ground_ice", "runoff", "-", "-", _F, 0.5,
+       "share of an icicle's water coefficient that drips off its tips instead of freezing on it",
+       low=0.0, high=1.0),
+    _p("ground_ice", "merge", "-", "m", _F, 0.02,
+       "landing points closer than this merge into one (their water adds up); below the 2.5 cm "
+       "between icicles, so a branch's drops join its trunk's, a neighbour's stay apart", low=0.0),
+    _p("ground_ice", "spread", "-", "m/m", _F, 0.6,
+       "mound radius per meter of landed water; the mound is a quarter as high", low=0.0),
+    _p("ground_ice", "height_scale", "-", "m/m", _F, 1.0,
+       "stalagmite height per meter of landed water, never past the tip above it", low=0.0),
+    _p("ground_ice", "width", "-", "m/m", _F, 0.35,
+       "base radius a stalagmite adds per meter of its length (icicles: surface.growth_ratio); "
+       "its top is twice the icicle's tip radius", low=0.0),
+    # Growth over time (beyond the paper; icefarm.growth)
+    _p("growth", "frames", "-", "-", _I, 0,
+       "also render the ice at this many moments from the first drip to full growth, into "
+       "growth/ (meshes, frames, an MP4, a time-sampled USD); 0: only the full growth",
+       low=0, high=240),
     # Approximate surface for problem meshes (paper 5.1)
     _p("proxy", "mode", "-", "-", Kind.CHOICE, "auto",
        "build an approximate surface for the water: auto (for problem meshes), always or never",
@@ -250,7 +279,7 @@ PARAMS: tuple[Param, ...] = (
        low=0.0, low_open=True),
 )
 
-GROUPS: tuple[str, ...] = ("water", "drips", "trajectories", "surface", "glaze", "proxy")
+GROUPS: tuple[str, ...] = ("water", "drips", "trajectories", "surface", "glaze", "ground_ice", "growth", "proxy")
 
 
 def param_index() -> dict[str, Param]:

@@ -405,24 +405,61 @@ def _run_stages(spec: JobSpec, job_dir: Path, run: _Run, cache: _Cache, until: S
                  branch_spread_mm=_finite(t.branch_spread_mm), length_cv=_finite(t.length_cv),
                  trunk_lengths_m=_finite_list(t.trunk_lengths, 4))
     if not _stops(until, Stage.TRAJECTORIES):
+        ground, ground_key = _ground_ice(spec, job_dir, run, cache, obj, drips, traj, gravity, traj_key,
+                                         caster(obj), stats)
         stats.update(_surface_and_render(spec, job_dir, run, cache, until, obj, flow, water, drips, traj,
-                                         gravity, _digest(traj_key, p["surface"], p["glaze"]), caster(flow)))
+                                         gravity, _digest(traj_key, p["surface"], p["glaze"], ground_key),
+                                         caster(flow), extra_balls=ground))
+        if p["growth"]["frames"] and until is None:  # growth/: stages 1-3 as they are, stage 4 per frame
+            stats.update(run.timed("growth", lambda: _growth(spec, job_dir, run, obj, flow, water, drips, traj,
+                                                             gravity, caster(flow), ground)))
     return stats
 
 
+def _ground_ice(spec, job_dir, run, cache, obj, drips, traj, gravity, traj_key, cast, stats):
+    """Landing points of the water off the tips and the mounds or stalagmites on them
+    (``ground_ice.mode``); writes landing.json. Nothing at all with mode none.
+
+    Returns
+    -------
+    balls : Balls or None
+        For the icicles' field.
+    key : str or None
+        What the surface's cache key must add.
+    """
+    from .stages.landing import find_landings
+    from .stages.surface.ground_ice import ground_ice_balls
+
+    p = spec.params
+    gi = p["ground_ice"]
+    if gi["mode"] == "none":
+        return None, None
+    floor = _ground_level(spec.placement, obj, gravity)
+    key = _digest(traj_key, gi["runoff"], gi["merge"])
+    landing = run.timed("landing", lambda: cache.get("landing", key, lambda: find_landings(
+        traj, drips.water, gravity, runoff=gi["runoff"], merge=gi["merge"], cast=cast,
+        face_normals=obj.face_normals, floor=floor)))
+    # Its own stream: the icicles, bases and glaze draw what they drew without it.
+    rng = np.random.default_rng([spec.seed, STAGE_ORDER.index(Stage.SURFACE), 1])
+    ground = run.timed("ground_ice", lambda: ground_ice_balls(landing, gi, p["surface"], gravity, rng,
+                                                               cast=cast, floor=floor))
+    artifacts.write_json(job_dir / "landing.json", artifacts.landing_to_json(landing, ground.heights, ground.columns))
+    grown = ground.heights[ground.heights > 0] * 1000
+    stats.update(landing_points=len(landing), stalagmites=len(grown), columns=int(ground.columns.sum()),
+                 stalagmite_median_mm=_finite(np.median(grown)) if len(grown) else None,
+                 stalagmite_max_mm=_finite(grown.max()) if len(grown) else None)
+    return ground.balls, _digest(key, gi, p["surface"])
+
+
 def _surface_and_render(spec, job_dir, run, cache, until, obj, flow, water, drips, traj, gravity, key,
-                        cast) -> dict:
-    from .stages.surface import build_ice
+                        cast, extra_balls=None) -> dict:
     from .stages.surface.glaze import measure_glaze
     from .stages.surface.measure import measure_icicles
 
     p = spec.params
-    clearance = p["drips"]["ground_clearance"]
-    sole = (sole_vertices(flow.vertices, gravity, clearance)
-            if spec.placement == Placement.GROUND.value and clearance > 0 else None)
-    ice = run.timed("surface", lambda: cache.get("surface", key, lambda: build_ice(
-        obj, flow, water, drips, traj, p["surface"], p["glaze"], gravity, _rng(spec.seed, Stage.SURFACE),
-        exclude=sole, cast=cast, measure=False)))
+    sole = _sole(spec, flow, gravity)
+    ice = run.timed("surface", lambda: cache.get("surface", key, lambda: _build_ice(
+        spec, obj, flow, water, drips, traj, gravity, cast, extra_balls)))
     ice_mesh = trimesh.Trimesh(ice.vertices, ice.faces, process=False)
     artifacts.write_mesh(job_dir / "ice.ply", ice_mesh)
     # Plausibility, measured on the mesh: timed apart from the modelling (Table 2 times that).
@@ -439,6 +476,8 @@ def _surface_and_render(spec, job_dir, run, cache, until, obj, flow, water, drip
         "profile_exponent": _finite_list(m.profile_exponent),
         "ripple_amplitude_mm": _finite(m.ripple_amplitude_mm), "ripple_wavelength_cm": _finite(m.ripple_wavelength_cm),
     }
+    if p["surface"]["curtain"] > 0:
+        stats["curtain_area_m2"] = round(ice.curtain_area, 6)
     if spec.render is None or _stops(until, Stage.SURFACE):
         return stats
     from .scene.config import load_render_config, material_from_dict
@@ -468,6 +507,44 @@ def _surface_and_render(spec, job_dir, run, cache, until, obj, flow, water, drip
     # scene.usda (object.usdc, ice.usdc) for DCCs: the render's cameras, sun, sky, materials.
     run.timed("usd", lambda: write_job_usd(job_dir, material=material, ice_mesh=ice_mesh))
     return stats
+
+
+def _sole(spec: JobSpec, flow: trimesh.Trimesh, gravity: np.ndarray) -> np.ndarray | None:
+    """Flow-mesh vertices a grounded object stands on (no ice there); None when hanging."""
+    clearance = spec.params["drips"]["ground_clearance"]
+    return (sole_vertices(flow.vertices, gravity, clearance)
+            if spec.placement == Placement.GROUND.value and clearance > 0 else None)
+
+
+def _build_ice(spec, obj, flow, water, drips, traj, gravity, cast, extra_balls, glaze=None, rng=None):
+    """Stage 4 as the job runs it; growth frames pass their own drips, glaze and stream."""
+    from .stages.surface import build_ice
+
+    p = spec.params
+    return build_ice(obj, flow, water, drips, traj, p["surface"], p["glaze"] if glaze is None else glaze, gravity,
+                     _rng(spec.seed, Stage.SURFACE) if rng is None else rng, exclude=_sole(spec, flow, gravity),
+                     cast=cast, measure=False, extra_balls=extra_balls)
+
+
+def _growth(spec, job_dir, run, obj, flow, water, drips, traj, gravity, cast, extra_balls) -> dict:
+    """``growth/``: the ice at ``growth.frames`` moments of its growth (`icefarm.growth`),
+    rendered with the job's camera: the one framed on the full-grown ice."""
+    from .growth import FrameView, grow_frames
+
+    p = spec.params
+    view = None
+    if spec.render is not None:
+        from .scene.config import load_render_config, material_from_dict
+
+        full = trimesh.load(job_dir / "ice.ply", process=False, force="mesh")
+        view = FrameView(obj, load_render_config(spec.render), gravity, material_from_dict(dict(spec.material)),
+                         _frame(obj, full), p["surface"]["impurity"], _ground_level(spec.placement, obj, gravity))
+    result = grow_frames(
+        job_dir / "growth", traj, drips, p["surface"], p["glaze"], frames=p["growth"]["frames"],
+        build=lambda t, d, g, rng: _build_ice(spec, obj, flow, water, d, t, gravity, cast, extra_balls, g, rng),
+        new_rng=lambda: _rng(spec.seed, Stage.SURFACE), gravity=gravity, view=view, progress=run.progress,
+        object_usd=job_dir / "object.usdc")
+    return {"growth_frames": len(result.frames), "growth_seconds_per_frame": round(result.seconds_per_frame, 3)}
 
 
 def render_again(job_dir: Path, render: str, out_dir: Path, progress: bool = False):

@@ -16,6 +16,7 @@ parameters in the shape of a W&B sweep config::
         overrides: {drips: edited_drips.json}
         material: {color: [0.8, 0.8, 0.8]}
         placement: ground          # or hanging (a sign, a branch, a lamp)
+        growth: {frames: 24}       # also the ice at 24 moments of its growth (growth.frames)
     sweep:
       method: grid                  # grid | zip | random
       count: 8                      # random only
@@ -47,7 +48,7 @@ from ..placement import PLACEMENTS
 GENERATOR_PREFIX = "generator:"
 OVERRIDE_STAGES = {"water": (".ply",), "drips": (".json",), "trajectories": (".json",)}
 TOP_KEYS = ("name", "seed", "render", "defaults", "objects", "sweep")
-OBJECT_KEYS = ("id", "mesh", "size_m", "placement", "params", "exclude", "overrides", "material")
+OBJECT_KEYS = ("id", "mesh", "size_m", "placement", "params", "exclude", "overrides", "material", "growth")
 SWEEP_KEYS = ("method", "count", "parameters")
 AXIS_KEYS = ("values", "value", "min", "max", "distribution")
 _ID = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
@@ -409,12 +410,24 @@ def _objects(value: Any, path: Path, errors: list[str]) -> list[ObjectSpec]:
             placement = "ground"
         out.append(ObjectSpec(
             id=str(obj_id), mesh=mesh, size_m=float(size), placement=placement,
-            params=_params(item.get("params"), f"{where}.params", errors),
+            # `growth: {frames: N}` is the parameter growth.frames (as in defaults), for this object
+            params={**_params(item.get("params"), f"{where}.params", errors),
+                    **_growth(item.get("growth"), where, errors)},
             exclude=_exclude(item.get("exclude"), f"{where}.exclude", errors),
             overrides=_overrides(item.get("overrides"), path, f"{where}.overrides", errors),
             material=_material(item.get("material"), f"{where}.material", errors),
         ))
     return out
+
+
+def _growth(value: Any, where: str, errors: list[str]) -> dict[str, Any]:
+    """An object's ``growth: {frames: N}`` as flat parameters (``growth.frames``)."""
+    if value is None:
+        return {}
+    if not isinstance(value, Mapping):
+        errors.append(f"{where}.growth: expected a mapping like {{frames: 24}}, got {_kind(value)}")
+        return {}
+    return _params({"growth": value}, where, errors)
 
 
 def _mesh(value: Any, path: Path, where: str, errors: list[str]) -> str:

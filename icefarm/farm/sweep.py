@@ -55,7 +55,7 @@ MAX_JOBS = 10_000  # a sweep of more jobs is refused unless --max-jobs raises th
 # them, and more). A stage that no two jobs of a sweep can share is not stored in its cache.
 STAGE_GROUPS = (("proxy", ()), ("water", ("water",)), ("drips", ("water", "drips")),
                 ("trajectories", ("water", "drips", "trajectories")),
-                ("surface", ("water", "drips", "trajectories", "surface", "glaze")))
+                ("surface", ("water", "drips", "trajectories", "surface", "glaze", "ground_ice")))
 
 
 class Status(enum.Enum):

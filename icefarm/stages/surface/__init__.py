@@ -2,14 +2,17 @@
 
 Every icicle branch becomes a chain of metaballs whose radii follow the smooth profile
 (`profile`: ``physical`` r = tip + t L^1/4 d^3/4, or the paper's Equation 1 cone); balls
-around each drip point swell its base (`bases`, Equation 2). They add into one field at
-``surface.voxel_size``, so branches fuse with their trunk and touching icicles fuse. The
-glaze (`glaze`, Equation 3) is a continuous coat (`coat`: a signed-distance field over the
-wet surface) or the paper's balls, on the coarser ``glaze.voxel_size`` lattice; the two
-are joined where they meet by `icefarm.metaballs.fuse_fields`. Ripples are then carved
-into the mesh (`ripples`: a chain of balls blurs them away), slivers are cleaned
-(`icefarm.metaballs.clean`) and the icicles measured (`measure`). The mesher itself
-(field, marching cubes, fusion, calibration) is `icefarm.metaballs`.
+around each drip point swell its base (`bases`, Equation 2); sheets join close trunks
+(`curtains`) and mounds and stalagmites grow where the water off the tips lands
+(`ground_ice`, beyond the paper). They add into one field at ``surface.voxel_size``, so
+branches fuse with their trunk, touching icicles fuse and a stalagmite that meets its
+icicle becomes a column. The glaze (`glaze`, Equation 3) is a continuous coat (`coat`: a
+signed-distance field over the wet surface) or the paper's balls, on the coarser
+``glaze.voxel_size`` lattice; the two are joined where they meet by
+`icefarm.metaballs.fuse_fields`. Ripples are then carved into the mesh (`ripples`: a chain
+of balls blurs them away), slivers are cleaned (`icefarm.metaballs.clean`) and the icicles
+measured (`measure`). The mesher itself (field, marching cubes, fusion, calibration) is
+`icefarm.metaballs`.
 
 ``surface.mode == "tubes"`` (the paper's future work, 6.1) sweeps each branch as a
 closed tube with the same profile instead: instant, no fusion, no base, no glaze.

@@ -7,12 +7,13 @@ from dataclasses import dataclass
 import numpy as np
 import trimesh
 
-from ...metaballs import concat_balls, fuse_fields, sample_field
+from ...metaballs import Balls, concat_balls, fuse_fields, sample_field
 from ...metaballs.clean import collapse_slivers, flip_needles
 from ..drips import DripResult
 from ..trajectories import TrajectoryResult
 from ..water import WaterResult
 from .bases import base_balls
+from .curtains import curtain_balls
 from .glaze import glaze_field
 from .icicles import icicle_balls
 from .measure import IcicleStats, measure_icicles
@@ -40,26 +41,33 @@ class IceResult:
         The icicles' tip radius, taper, growth ratio, profile exponent and ripples, measured
         on the mesh (None when ``build_ice`` was asked not to measure).
     balls : int
-        Metaballs of the icicles and bases (0 in tubes mode; the coat has none).
+        Metaballs of the icicles, bases, curtains and ``extra_balls`` (0 in tubes mode;
+        the coat has none).
+    curtain_area : float
+        Area of the curtains between close trunks (`curtain_balls`), square meters.
     """
 
     vertices: np.ndarray
     faces: np.ndarray
     icicles: IcicleStats | None
     balls: int
+    curtain_area: float = 0.0
 
 
 def build_ice(object_mesh: trimesh.Trimesh, flow_mesh: trimesh.Trimesh, water: WaterResult,
               drips: DripResult, trajectories: TrajectoryResult, surface: dict, glaze: dict,
               gravity: np.ndarray, rng: np.random.Generator, exclude: np.ndarray | None = None,
-              cast=None, measure: bool = True) -> IceResult:
+              cast=None, measure: bool = True, extra_balls: Balls | None = None) -> IceResult:
     """Stage 4: icicles, their bases and glaze ice as one mesh (paper 4.4).
 
     ``surface["mode"] == "metaballs"``: one watertight mesh of the icicle chains and the
     bases (one field at ``surface.voxel_size``) and the glaze (`glaze_field`, on its own
     coarser lattice), joined by a boolean union where they meet (`fuse_fields`); the
-    ripples are then carved in and slivers cleaned. ``"tubes"``: each branch as its own
-    closed tube (`tube_mesh`), without bases or glaze: an instant preview.
+    ripples are then carved in and slivers cleaned. ``surface["curtain"]`` above 0 joins
+    close trunks with sheets (`curtain_balls`); ``extra_balls`` (the mounds and stalagmites
+    of `icefarm.stages.surface.ground_ice`) join the same field. ``"tubes"``: each branch as
+    its own closed tube (`tube_mesh`), without bases, glaze, curtains or extra balls: an
+    instant preview.
 
     Parameters
     ----------
@@ -86,6 +94,9 @@ def build_ice(object_mesh: trimesh.Trimesh, flow_mesh: trimesh.Trimesh, water: W
     measure : bool
         Measure the icicles on the mesh (`measure_icicles`); False leaves
         ``IceResult.icicles`` None (a caller that times the modelling alone measures apart).
+    extra_balls : Balls, optional
+        More metaballs for the icicles' field, in meters. None (or no curtain) leaves the
+        mesh exactly as without them.
 
     Returns
     -------
@@ -116,19 +127,23 @@ def build_ice(object_mesh: trimesh.Trimesh, flow_mesh: trimesh.Trimesh, water: W
         raise ValueError("trajectories.branch_offsets must have n_branches + 1 entries ending at len(points)")
     if surface["mode"] == "tubes":
         verts, faces = tube_mesh(trajectories, surface, g)
-        n_balls = 0
+        n_balls, curtain_area = 0, 0.0
     else:
         voxel = surface["voxel_size"]
         ice = concat_balls(icicle_balls(trajectories, surface, rng),
                            base_balls(object_mesh, drips, surface, rng, _root_radius(trajectories, k, surface)))
+        curtains = curtain_balls(trajectories, surface, g)
+        more = [b for b in (curtains.balls, extra_balls) if b is not None and len(b)]
+        if more:  # nothing appended otherwise: the field's sums stay bit for bit
+            ice = concat_balls(ice, *more)
         coat = glaze_field(flow_mesh, water, glaze, rng, exclude=exclude, cast=cast)
         verts, faces = fuse_fields(sample_field(ice, voxel), coat)
         verts = carve_ripples(verts, trajectories, profile_args(surface))
         verts, faces = collapse_slivers(verts, faces, SLIVER * voxel)
         faces = flip_needles(verts, faces, SLIVER * voxel)
-        n_balls = len(ice)
+        n_balls, curtain_area = len(ice), curtains.area
     return IceResult(verts, faces, measure_icicles(verts, faces, trajectories, surface) if measure else None,
-                     n_balls)
+                     n_balls, curtain_area)
 
 
 def _root_radius(traj: TrajectoryResult, k: int, surface: dict) -> np.ndarray:

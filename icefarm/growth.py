@@ -1,0 +1,432 @@
+"""Growth over time: a job's ice at N moments from the first drip to full growth.
+
+Stages 1-3 run once, at full growth; each frame is a prefix of that growth, so every
+frame's trajectories are prefixes of the next frame's and its ice grows out of the one
+before. Stage 4 runs once per frame on three things scaled to the fraction ``f`` of the
+growth:
+
+* the trajectories (`trajectories_at`): each branch grows in proportion to time from the
+  moment its parent reaches the point it leaves from; a trunk keeps its first ``f L``.
+  The width follows from the profile of the *current* length (``r = tip + t L^1/4
+  d^3/4``), so the base radius grows as ``t L`` and length grows ``1 / 2t`` (8 at the
+  default ``t``) times faster than diameter at every moment, as in nature (8-32);
+* the water of each drip point, which sizes the base balls (Equation 2): radii ``∝ f``;
+* the glaze (Equation 3): ``minGI`` and ``s`` times ``f``, so its thickness is ``∝ f``.
+
+Every size grows with ``f`` and the bases and glaze draw what the full job draws
+(`_noise_draws`), so the ice of a frame lies inside the next one's and frame N is the
+job's own ``ice.ply``, bit for bit. Inside up to ``surface.noise``: the icicles' balls are
+re-spaced each frame and draw their noise anew (measured: 0.43 mm out at the default
+0.4 mm noise, 0.02 mm with none, on a 0.6 m roof at 1.5 mm voxels).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import shutil
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+from . import artifacts
+from .stages.drips import DripResult
+from .stages.trajectories import TrajectoryResult
+
+MAX_FRAMES = 240
+# The movie lasts about this long, at 1 to 24 frames per second.
+MOVIE_SECONDS = 3.0
+GROWTH_DIR, FRAMES_FILE, MOVIE_FILE, USD_FILE, USD_ICE_FILE = (
+    "growth", "frames.json", "growth.mp4", "growth.usda", "growth_ice.usdc")
+
+
+@dataclass(frozen=True)
+class FrameView:
+    """How every frame is rendered: the job's scene, one camera for all frames.
+
+    Attributes
+    ----------
+    object_mesh : trimesh.Trimesh
+        The object, in meters.
+    config : icefarm.scene.config.RenderConfig
+        The job's render config; frames use its main view only, framed on the whole scene.
+    gravity : (3,) float
+    material : dict
+        The object's material (`icefarm.scene.config.material_from_dict`).
+    frame_points : (n, 3) float
+        What the camera frames: the object and the fully grown ice, so nothing jumps.
+    impurity : float
+        The job's ``surface.impurity``.
+    ground_level : float or None
+        As `icefarm.scene.render.write_scenes` takes it.
+    """
+
+    object_mesh: trimesh.Trimesh
+    config: object
+    gravity: np.ndarray
+    material: dict
+    frame_points: np.ndarray
+    impurity: float = 0.0
+    ground_level: float | None = None
+
+
+@dataclass(frozen=True)
+class GrowthFrame:
+    """One frame's ice and its plausibility figures (a row of ``frames.json``).
+
+    Lengths in meters, radii in millimeters; medians over the trunks measured (None where
+    none could be: trunks shorter than about 7 mm). ``length_per_width``: per trunk, the
+    length it gained since the frame before (the first frame: since the drop) over the
+    diameter it gained 10 % of its length below its base (real icicles: 8-32).
+    """
+
+    index: int
+    fraction: float
+    ice_faces: int
+    volume_m3: float
+    trunk_length_m: float | None
+    tip_radius_mm: float | None
+    taper: float | None
+    growth_ratio: float | None
+    length_per_width: float | None
+    surface_seconds: float
+    render_seconds: float
+
+
+@dataclass(frozen=True)
+class GrowthResult:
+    """What `grow_frames` wrote into ``folder``: ``ice_####.ply``, ``frame_####.png`` (with a
+    view), ``growth.mp4`` (with a view), ``growth.usda`` (+ ``growth_ice.usdc``), ``frames.json``."""
+
+    folder: Path
+    frames: tuple[GrowthFrame, ...]
+    movie: Path | None
+    usd: Path
+
+    @property
+    def seconds_per_frame(self) -> float:
+        """Median seconds of a frame's stage 4 and render."""
+        return float(np.median([f.surface_seconds + f.render_seconds for f in self.frames]))
+
+
+def trajectories_at(traj: TrajectoryResult, fraction: float) -> TrajectoryResult:
+    """The trajectories as they stood at ``fraction`` of their growth.
+
+    A trunk keeps its first ``fraction * L`` meters (L its full length, plus what the ground
+    cut from it: an icicle stops at the ground when its growth reaches it, and only then
+    gathers ``branch_cut``). A branch is born when its parent's prefix reaches the point it
+    leaves from, at fraction ``b``, and then grows in proportion to the time left:
+    ``(fraction - b) / (1 - b)`` of its length, so it grows in from nothing instead of
+    popping in part-grown, and generations appear in the order the L-system made them.
+    A prefix ends on an interpolated point at exactly its length.
+
+    Parameters
+    ----------
+    traj : TrajectoryResult
+        The full growth (stage 3), polylines in meters.
+    fraction : float
+        In [0, 1]: 0 has no points, 1 returns ``traj`` itself.
+
+    Returns
+    -------
+    TrajectoryResult
+        The same branches (index, icicle, parent), each a prefix of its polyline (empty if
+        not yet born); ``branch_cut`` (meters) is what the ground took so far, None when
+        ``traj`` has none.
+    """
+    fraction = float(fraction)
+    if not 0.0 <= fraction <= 1.0:
+        raise ValueError(f"fraction must lie in [0, 1], got {fraction}")
+    if fraction == 1.0:
+        return traj
+    pts = np.asarray(traj.points, dtype=np.float64)
+    off = np.asarray(traj.branch_offsets, dtype=np.int64)
+    counts = np.diff(off)
+    x, lengths = _arc_lengths(pts, off)
+    full = lengths + traj.cut
+    birth = _births(traj, x, full)
+    span = 1.0 - birth
+    progress = np.clip(np.divide(fraction - birth, span, out=np.zeros_like(span), where=span > 0), 0.0, 1.0)
+    grown = full * progress
+    kept = np.minimum(grown, lengths)
+    alive = (fraction > birth) & (counts > 0)
+    owner = np.repeat(np.arange(len(counts)), counts)
+    keep = alive[owner] & (x <= kept[owner])
+    n_keep = np.bincount(owner[keep], minlength=len(counts))
+    # a prefix that ends between two points ends on the point between them
+    partial = alive & (kept < lengths) & (n_keep > 0)
+    last = off[:-1][partial] + n_keep[partial] - 1
+    t = (kept[partial] - x[last]) / (x[last + 1] - x[last])
+    new_off = np.r_[0, np.cumsum(n_keep + partial)].astype(np.int64)
+    out = np.empty((new_off[-1], 3))
+    src = np.flatnonzero(keep)
+    out[new_off[:-1][owner[src]] + src - off[:-1][owner[src]]] = pts[src]
+    out[new_off[1:][partial] - 1] = pts[last] + t[:, None] * (pts[last + 1] - pts[last])
+    cut = None if traj.branch_cut is None else np.where(alive, grown - kept, 0.0)
+    return TrajectoryResult(points=out, branch_offsets=new_off, branch_icicle=traj.branch_icicle,
+                            branch_parent=traj.branch_parent, branch_cut=cut)
+
+
+def stage4_inputs_at(drips: DripResult, glaze: dict, fraction: float) -> tuple[DripResult, dict]:
+    """The water-driven sizes of stage 4 at ``fraction`` of the growth.
+
+    Returns ``drips`` with ``water`` times ``fraction`` (base ball radii, Equation 2, are
+    proportional to it; they stay capped by the current icicle's root) and ``glaze`` with
+    ``min_radius`` and ``scale`` times ``fraction`` (Equation 3's thickness, meters, is
+    then proportional to it). Positions, counts and the wet area do not change, so every
+    random draw lands where the full growth's does. ``fraction`` 1 returns the inputs.
+    """
+    if fraction == 1.0:
+        return drips, glaze
+    scaled = {**glaze, "min_radius": glaze["min_radius"] * fraction, "scale": glaze["scale"] * fraction}
+    return dataclasses.replace(drips, water=np.asarray(drips.water, dtype=np.float64) * fraction), scaled
+
+
+def frame_fractions(frames: int) -> np.ndarray:
+    """``(frames,)`` fractions of the growth, ``1/frames`` to exactly 1."""
+    if not 1 <= frames <= MAX_FRAMES:
+        raise ValueError(f"frames must lie in [1, {MAX_FRAMES}], got {frames}")
+    return np.arange(1, frames + 1) / frames
+
+
+def grow_frames(folder: str | Path, traj: TrajectoryResult, drips: DripResult, surface: dict, glaze: dict, *,
+                frames: int, build: Callable, new_rng: Callable[[], np.random.Generator], gravity,
+                view: FrameView | None = None, progress: bool = False,
+                object_usd: str | Path | None = None) -> GrowthResult:
+    """Stage 4 (and a render) at each of ``frames`` fractions of the growth, into ``folder``.
+
+    Parameters
+    ----------
+    folder : path
+        Emptied first: ``ice_0001.ply`` ... (meters), ``frame_0001.png`` ... and
+        ``growth.mp4`` with a ``view``, ``growth.usda``, ``frames.json``.
+    traj, drips : TrajectoryResult, DripResult
+        The job's stages 2-3 at full growth.
+    surface, glaze : dict
+        The resolved ``surface`` and ``glaze`` groups.
+    frames : int
+        In [1, `MAX_FRAMES`].
+    build : callable
+        ``build(traj, drips, glaze, rng) -> IceResult``: stage 4 exactly as the job runs it.
+    new_rng : callable
+        A fresh generator of the job's stage 4 stream (PCG64, `numpy.random.default_rng`).
+    gravity : (3,) float
+    view : FrameView, optional
+        Render each frame (and the movie); None: meshes and figures only.
+    progress : bool
+        A progress bar over the frames.
+    object_usd : path, optional
+        The job's ``object.usdc``, referenced by ``growth.usda`` when it exists.
+    """
+    from tqdm import tqdm
+
+    from .stages.surface.measure import measure_icicles
+
+    folder = Path(folder)
+    shutil.rmtree(folder, ignore_errors=True)
+    folder.mkdir(parents=True)
+    full_draws = _noise_draws(traj, surface)
+    rows, plies, pngs = [], [], []
+    trunks = (np.asarray(traj.branch_parent) < 0) & (np.diff(traj.branch_offsets) > 0)  # as measure_icicles's
+    was_long, was_wide = 0.0, 2 * surface["tip_radius"]  # before the first frame: the drop
+    for i, f in enumerate(tqdm(frame_fractions(frames), desc="growth", unit="frame", disable=not progress), 1):
+        start = time.perf_counter()
+        traj_f = trajectories_at(traj, f)
+        drips_f, glaze_f = stage4_inputs_at(drips, glaze, f)
+        rng = new_rng()
+        # modulo the period: a frame with more balls than the full growth steps back
+        rng.bit_generator.advance((full_draws - _noise_draws(traj_f, surface)) % 2**128)
+        ice = build(traj_f, drips_f, glaze_f, rng)
+        mesh = trimesh.Trimesh(ice.vertices, ice.faces, process=False)
+        plies.append(folder / f"ice_{i:04d}.ply")
+        artifacts.write_mesh(plies[-1], mesh)  # as the job writes ice.ply: the last frame is that file
+        surface_seconds = time.perf_counter() - start
+        render_seconds = 0.0
+        if view is not None:
+            start = time.perf_counter()
+            pngs.append(render_frame(view, mesh, folder / ".scene", folder / f"frame_{i:04d}.png"))
+            render_seconds = time.perf_counter() - start
+        m = measure_icicles(ice.vertices, ice.faces, traj_f, surface)
+        long = _arc_lengths(traj_f.points, np.asarray(traj_f.branch_offsets))[1][trunks]
+        wide = 2 * m.taper * surface["tip_radius"]
+        gained = np.divide(long - was_long, wide - was_wide, out=np.full(len(long), np.nan),
+                           where=wide - was_wide > 0)
+        measured = np.isfinite(wide)  # a trunk too short to measure is compared later, with more growth
+        was_long, was_wide = np.where(measured, long, was_long), np.where(measured, wide, was_wide)
+        rows.append(GrowthFrame(
+            index=i, fraction=round(float(f), 6), ice_faces=len(ice.faces),
+            volume_m3=float(abs(mesh.volume)) if len(ice.faces) else 0.0,
+            trunk_length_m=_median(long), tip_radius_mm=_median([m.tip_radius_mm]),
+            taper=_median(m.taper), growth_ratio=_median(m.growth_ratio), length_per_width=_median(gained),
+            surface_seconds=round(surface_seconds, 4), render_seconds=round(render_seconds, 4)))
+    shutil.rmtree(folder / ".scene", ignore_errors=True)
+    fps = float(np.clip(frames / MOVIE_SECONDS, 1.0, 24.0))
+    movie = write_movie(pngs, folder / MOVIE_FILE, fps) if pngs else None
+    usd = write_growth_usd(folder / USD_FILE, plies, gravity, fps, object_usd)
+    artifacts.write_json(folder / FRAMES_FILE, {"fps": fps, "frames": [dataclasses.asdict(r) for r in rows]})
+    return GrowthResult(folder, tuple(rows), movie, usd)
+
+
+def render_frame(view: FrameView, ice: trimesh.Trimesh, scratch: Path, png: Path) -> Path:
+    """Render ``ice`` with ``view`` in ``scratch`` (rewritten each frame) and move its image to ``png``.
+
+    Only the main view renders, framed on the whole scene (an ``ice`` view zooms on the
+    densest icicles of each frame: its camera would move), with Mitsuba when the config
+    uses it (POV-Ray otherwise), at the config's resolution and samples.
+    """
+    from .scene.render import render_job, write_scenes
+
+    config = view.config
+    main = dataclasses.replace(config.views[0], frame="all")
+    config = dataclasses.replace(config, views=(main,), renderer="mitsuba" if config.uses_mitsuba else "povray")
+    scratch.mkdir(parents=True, exist_ok=True)
+    (scratch / "ice.ply").unlink(missing_ok=True)  # write_scenes keeps an ice.ply it finds
+    files = write_scenes(scratch, view.object_mesh, ice if len(ice.faces) else None, config, view.gravity,
+                         view.material, frame_points=view.frame_points, defer_povray=config.uses_mitsuba,
+                         impurity=view.impurity, ground_level=view.ground_level)
+    render_job(scratch, config, dataclasses.replace(files, povray_writer=None))  # no scene.pov per frame
+    shutil.move(scratch / "render.png", png)
+    return png
+
+
+def write_movie(pngs: Sequence[Path], path: Path, fps: float) -> Path:
+    """An H.264 MP4 of ``pngs`` (one frame each, same size) through imageio-ffmpeg's own ffmpeg."""
+    import imageio_ffmpeg
+    import OpenImageIO as oiio
+
+    def rgb(png: Path) -> np.ndarray:
+        pixels = np.asarray(oiio.ImageBuf(str(png)).get_pixels(oiio.UINT8))
+        pixels = np.repeat(pixels, 3, axis=2) if pixels.shape[2] == 1 else pixels[..., :3]
+        # yuv420p needs even sides: repeat the last row or column
+        return np.pad(pixels, ((0, pixels.shape[0] % 2), (0, pixels.shape[1] % 2), (0, 0)), mode="edge")
+
+    first = rgb(pngs[0])
+    tmp = path.with_name(f".{path.name}")
+    writer = imageio_ffmpeg.write_frames(str(tmp), (first.shape[1], first.shape[0]), fps=fps, codec="libx264",
+                                         macro_block_size=1, ffmpeg_log_level="error",
+                                         output_params=["-movflags", "+faststart"])
+    writer.send(None)  # start ffmpeg
+    try:
+        writer.send(np.ascontiguousarray(first))
+        for png in pngs[1:]:
+            writer.send(np.ascontiguousarray(rgb(png)))
+    finally:
+        writer.close()
+    tmp.replace(path)
+    return path
+
+
+def write_growth_usd(path: Path, plies: Sequence[Path], gravity, fps: float,
+                     object_usd: str | Path | None = None) -> Path:
+    """``growth.usda``: the ice as one mesh with a time sample per frame (time codes 1..N).
+
+    The samples (points, faceVertexCounts, faceVertexIndices, extent) live in the binary
+    ``growth_ice.usdc`` beside it, which the small text layer references; the job's
+    ``object.usdc`` is referenced too when it exists. Meters, up axis from gravity
+    (`icefarm.usd.up_axis`), ``timeCodesPerSecond`` = the movie's fps.
+    """
+    from pxr import Gf, Usd, UsdGeom, Vt
+
+    from .usd import up_axis
+
+    axis = UsdGeom.Tokens.z if up_axis(gravity) == "Z" else UsdGeom.Tokens.y
+
+    def metadata(stage: Usd.Stage, default: Usd.Prim) -> None:
+        UsdGeom.SetStageMetersPerUnit(stage, UsdGeom.LinearUnits.meters)
+        UsdGeom.SetStageUpAxis(stage, axis)
+        stage.SetStartTimeCode(1)
+        stage.SetEndTimeCode(max(len(plies), 1))
+        stage.SetTimeCodesPerSecond(fps)
+        stage.SetFramesPerSecond(fps)
+        stage.SetDefaultPrim(default)
+
+    layer = path.with_name(USD_ICE_FILE)
+    for old in (path, layer):
+        old.unlink(missing_ok=True)
+    stage = Usd.Stage.CreateNew(str(layer))
+    mesh = UsdGeom.Mesh.Define(stage, "/Ice")
+    metadata(stage, mesh.GetPrim())
+    mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)  # triangles as they are, not Catmull-Clark
+    attrs = (mesh.CreatePointsAttr(), mesh.CreateFaceVertexCountsAttr(), mesh.CreateFaceVertexIndicesAttr(),
+             mesh.CreateExtentAttr())
+    for time_code, ply in enumerate(plies, 1):
+        ice = trimesh.load(ply, process=False, force="mesh")
+        points = np.ascontiguousarray(ice.vertices, dtype=np.float32).reshape(-1, 3)
+        faces = np.ascontiguousarray(ice.faces, dtype=np.int32).reshape(-1, 3)
+        lo, hi = (points.min(axis=0), points.max(axis=0)) if len(points) else (np.zeros(3), np.zeros(3))
+        values = (Vt.Vec3fArray.FromNumpy(points), Vt.IntArray.FromNumpy(np.full(len(faces), 3, dtype=np.int32)),
+                  Vt.IntArray.FromNumpy(faces.ravel()),
+                  Vt.Vec3fArray([Gf.Vec3f(*map(float, lo)), Gf.Vec3f(*map(float, hi))]))
+        for attr, value in zip(attrs, values):
+            attr.Set(value, Usd.TimeCode(time_code))
+    stage.GetRootLayer().Save()
+    del stage
+
+    stage = Usd.Stage.CreateNew(str(path))
+    root = UsdGeom.Xform.Define(stage, "/Growth")
+    metadata(stage, root.GetPrim())
+    stage.DefinePrim("/Growth/Ice").GetReferences().AddReference(f"./{layer.name}")
+    if object_usd is not None and Path(object_usd).is_file():
+        relative = os.path.relpath(Path(object_usd).resolve(), path.parent.resolve())
+        stage.DefinePrim("/Growth/Object").GetReferences().AddReference(Path(relative).as_posix())
+    stage.GetRootLayer().Save()
+    return path
+
+
+def read_frames(folder: str | Path) -> list[dict]:
+    """The rows of a growth folder's ``frames.json``."""
+    return json.loads((Path(folder) / FRAMES_FILE).read_text())["frames"]
+
+
+def _arc_lengths(pts: np.ndarray, off: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(p,)`` arc length of each point from its branch's base and ``(b,)`` branch lengths, meters."""
+    seg = np.zeros(len(pts))
+    if len(pts) > 1:
+        seg[1:] = np.linalg.norm(np.diff(pts, axis=0), axis=1)
+    counts = np.diff(off)
+    seg[off[:-1][counts > 0]] = 0.0  # no segment across a branch start
+    cum = np.cumsum(seg)
+    x = cum - np.repeat(cum[off[:-1][counts > 0]], counts[counts > 0])
+    lengths = np.zeros(len(counts))
+    lengths[counts > 0] = x[off[1:][counts > 0] - 1]
+    return x, lengths
+
+
+def _births(traj: TrajectoryResult, x: np.ndarray, full: np.ndarray) -> np.ndarray:
+    """``(b,)`` fraction of the growth at which each branch starts: 0 for trunks; for a branch,
+    when its parent's prefix reaches the parent point it leaves from (its nearest)."""
+    pts, off = np.asarray(traj.points, dtype=np.float64), np.asarray(traj.branch_offsets, dtype=np.int64)
+    parent = np.asarray(traj.branch_parent, dtype=np.int64)
+    birth = np.zeros(traj.n_branches)
+    for b in np.flatnonzero(parent >= 0):  # parents come before their branches (stage 3 appends them)
+        q = parent[b]
+        if off[b + 1] == off[b] or off[q + 1] == off[q] or full[q] <= 0:
+            birth[b] = 1.0 if off[b + 1] == off[b] else birth[q]
+            continue
+        at = off[q] + np.argmin(np.linalg.norm(pts[off[q]:off[q + 1]] - pts[off[b]], axis=1))
+        birth[b] = birth[q] + (1.0 - birth[q]) * min(x[at] / full[q], 1.0)
+    return birth
+
+
+def _noise_draws(traj: TrajectoryResult, surface: dict) -> int:
+    """How many doubles stage 4 draws for the icicles' noise before the bases' and glaze's
+    draws: `icefarm.stages.surface.icicles.icicle_balls` takes two per ball (radius and
+    angle) when ``surface.noise`` is on. Every frame's stream is advanced by the full
+    growth's count less its own, so its bases and glaze draw what the full growth's do
+    (PCG64 turns one 64-bit step into one double)."""
+    if surface["mode"] == "tubes" or surface["noise"] <= 0:
+        return 0
+    from .stages.surface.icicles import icicle_balls
+
+    return 2 * len(icicle_balls(traj, surface, np.random.default_rng(0)))
+
+
+def _median(values) -> float | None:
+    values = np.asarray(values, dtype=np.float64)
+    values = values[np.isfinite(values)]
+    return round(float(np.median(values)), 6) if len(values) else None
