@@ -72,11 +72,12 @@ def smooth_radius(x, length, tip, growth, amplitude=0.0, frequency=0.0, min_radi
     return tip + _widening(np.maximum(length - x, 0.0), length, growth, shape)
 
 
-def ripple(x, length, tip, amplitude, frequency):
-    """The ripple term of `profile_radius`, faded near the tip (meters)."""
+def ripple(x, length, tip, amplitude, frequency, phase=0.0):
+    """The ripple term of `profile_radius`, faded near the tip (meters); ``phase`` (radians,
+    scalar or per sample) shifts the wave along the branch."""
     x = np.asarray(x, dtype=np.float64)
     calm = np.clip(np.maximum(np.asarray(length, dtype=np.float64) - x, 0.0) / (TIP_CALM * tip), 0.0, 1.0)
-    return amplitude * np.sin(x * frequency) * calm
+    return amplitude * np.sin(x * frequency + phase) * calm
 
 
 def _widening(d, length, growth, shape):

@@ -22,6 +22,7 @@ REACH = 1.3
 # many tip radii. A thin young icicle is smooth; a 0.7 mm ripple on a 3 mm straw reads as a
 # string of beads (seen at lookdev), while on real icicles ripples run on the wide part.
 RIPPLE_WIDENING = 1.0
+GOLDEN_ANGLE = np.pi * (3 - np.sqrt(5))
 # Axis samples per ripple wavelength (and at least one per tip radius).
 SAMPLES_PER_WAVE = 16
 
@@ -61,7 +62,11 @@ def carve_ripples(vertices: np.ndarray, traj: TrajectoryResult, prof: dict) -> n
     x = k * (L / np.maximum(n - 1, 1))[owner]
     axis, tangent = _points_along(traj, x_pt, lengths, branches[owner], x)
     radius = smooth_radius(x, grown[owner], **prof)
-    wave = ripple(x, grown[owner], tip, amplitude, frequency) * np.clip(x / smooth_radius(0.0, grown[owner], **prof), 0, 1)
+    # Each branch's rings start at their own phase (the golden angle apart: no draw from the
+    # stage's stream): neighbours in phase stacked into a column of glass plates at lookdev.
+    phase = (branches * GOLDEN_ANGLE) % (2 * np.pi)
+    wave = ripple(x, grown[owner], tip, amplitude, frequency, phase[owner]) \
+        * np.clip(x / smooth_radius(0.0, grown[owner], **prof), 0, 1)
     wave *= np.clip((radius - tip) / (RIPPLE_WIDENING * tip), 0, 1)
 
     reach = REACH * radius.max() + amplitude
