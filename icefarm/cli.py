@@ -117,6 +117,12 @@ def run(mesh, size_m, assignments, seed, out, until, render, no_render, placemen
         if not Path(mesh).is_file():
             raise InputError(f"mesh file not found: {mesh}")
         mesh = str(Path(mesh).resolve())
+    if not no_render:  # a bad config name fails now, in one line, not after the stages
+        from .scene.config import load_render_config
+
+        load_render_config(render)
+        if Path(render).expanduser().is_file():
+            render = str(Path(render).expanduser().resolve())
     spec = JobSpec(object_id=Path(mesh).stem, mesh=mesh, size_m=size_m, params=resolved, seed=seed,
                    render=None if no_render else render, exclude=tuple(_box(b) for b in exclude),
                    placement=placement)

@@ -1,6 +1,7 @@
 """The command line: runs, artifacts, and one clean line for every kind of bad input."""
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -59,7 +60,7 @@ def test_run_until_trajectories_writes_artifacts(sphere_file, tmp_path):
     assert {"water", "drips", "trajectories"} <= set(timings["seconds"])
 
 
-@pytest.mark.parametrize("case", ["missing", "empty", "nan", "garbage", "domain", "typo", "size"])
+@pytest.mark.parametrize("case", ["missing", "empty", "nan", "garbage", "domain", "typo", "size", "config"])
 def test_bad_input_is_one_clean_line(tmp_path, sphere, case):
     mesh = tmp_path / "m.ply"
     args = ["run", mesh, "--size-m", 0.3, "-o", tmp_path / "out", "--no-render"]
@@ -79,6 +80,8 @@ def test_bad_input_is_one_clean_line(tmp_path, sphere, case):
         args += ["--set", "trajectories.curve_angel=3"]
     if case == "size":
         args[3] = -1
+    if case == "config":  # refused before any stage runs, naming the configs there are
+        args = [a for a in args if a != "--no-render"] + ["--render", "lookdevv"]
     result = run(*args)
     assert result.exit_code != 0
     lines = [line for line in result.stderr.splitlines() if line.strip()]
@@ -86,8 +89,18 @@ def test_bad_input_is_one_clean_line(tmp_path, sphere, case):
     assert "Traceback" not in result.output
     expected = {"missing": "not found", "empty": "no triangles", "nan": "NaN", "garbage": "m.ply",
                 "domain": "drips.drip_limit", "typo": "did you mean trajectories.curve_angle",
-                "size": "size"}[case]
+                "size": "size", "config": "did you mean 'lookdev'"}[case]
     assert expected in lines[0]
+    assert not (tmp_path / "out" / "water.ply").exists()
+
+
+def test_render_configs_ship_inside_the_package():
+    """A plain (wheel) install finds them: package data, not the source tree."""
+    import icefarm
+    from icefarm.scene.config import CONFIG_DIR, config_names
+
+    assert CONFIG_DIR.parent == Path(icefarm.__file__).parent
+    assert {"preview", "lookdev", "final"} <= set(config_names())
 
 
 def test_bench_render_compares_overhead_with_render_time(sphere_file, tmp_path):

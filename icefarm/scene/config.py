@@ -10,6 +10,7 @@ a wrong value with the key, the value and what was expected.
 from __future__ import annotations
 
 import difflib
+import importlib.resources
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, field, replace
@@ -23,7 +24,9 @@ from ..errors import InputError
 RENDERERS = ("mitsuba", "povray", "both")
 VARIANTS = ("auto", "scalar_rgb", "llvm_ad_rgb", "cuda_ad_rgb")
 GROUNDS = ("checker", "plain", "none")
-CONFIG_DIR = Path(__file__).resolve().parents[2] / "render_configs"
+# Shipped inside the package (package data), so a plain `pip install` renders; the repo's
+# top-level render_configs/ is a link to it, where users look.
+CONFIG_DIR = Path(str(importlib.resources.files("icefarm") / "render_configs"))
 
 FRAMES = ("all", "ice")
 # Named views: (azimuth, elevation) in degrees around "up" (minus gravity). Azimuth 0
