@@ -69,6 +69,7 @@ def unprivileged(command: list[str]) -> list[str]:
 
 # --------------------------------------------------------------------------- output folders
 
+@pytest.mark.slow
 @pytest.mark.parametrize("command", ["sweep", "run"])
 def test_an_unwritable_output_folder_is_one_line(tmp_path, ball, command):
     path = write_manifest(tmp_path)
@@ -89,6 +90,7 @@ def test_an_unwritable_output_folder_is_one_line(tmp_path, ball, command):
     assert not any(readonly.iterdir())
 
 
+@pytest.mark.slow
 def test_overwrite_of_a_symlinked_sweep_folder_is_refused_in_one_line(tmp_path, ball):
     path = write_manifest(tmp_path)
     out = tmp_path / "out"
@@ -109,6 +111,7 @@ def test_a_bad_scheduler_address_is_one_line_and_makes_nothing(tmp_path, ball):
     assert not out.exists()
 
 
+@pytest.mark.slow
 def test_an_unreachable_scheduler_is_one_line_and_leaves_nothing_behind(tmp_path, ball):
     pytest.importorskip("distributed")
     with socket.socket() as s:  # a port nobody listens on
@@ -124,6 +127,7 @@ def test_an_unreachable_scheduler_is_one_line_and_leaves_nothing_behind(tmp_path
 
 # --------------------------------------------------------------------------- manifests
 
+@pytest.mark.slow
 def test_jobs_are_counted_before_a_sweep_is_expanded(tmp_path, ball):
     huge = {"method": "grid", "parameters": {key: {"values": values} for key, values in (
         ("water.rays", list(range(100, 200))), ("drips.count", list(range(1, 101))),
@@ -230,6 +234,7 @@ FLAT = {
 }
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", list(FLAT))
 def test_flat_meshes_run_with_the_default_proxy_mode(tmp_path, name):
     path = tmp_path / "flat.ply"

@@ -103,6 +103,7 @@ def test_render_configs_ship_inside_the_package():
     assert {"preview", "lookdev", "final"} <= set(config_names())
 
 
+@pytest.mark.slow
 def test_bench_render_compares_overhead_with_render_time(sphere_file, tmp_path):
     config = tmp_path / "tiny.yaml"
     config.write_text("resolution: [40, 30]\nspp: 2\nmax_depth: 4\n")
@@ -114,6 +115,7 @@ def test_bench_render_compares_overhead_with_render_time(sphere_file, tmp_path):
         assert word in result.output, word
 
 
+@pytest.mark.slow
 def test_render_again_makes_new_frames_and_leaves_the_job_as_it_was(sphere_file, tmp_path):
     small = tmp_path / "small.yaml"
     small.write_text("resolution: [40, 30]\nspp: 2\nmax_depth: 4\n")

@@ -28,6 +28,8 @@ from icefarm.scene.config import ABSORPTION_PER_M, render_config_from_dict
 from icefarm.scene.render import write_scenes
 from icefarm.usd import up_axis, write_job_usd, write_usdz
 
+pytestmark = pytest.mark.slow  # real processes, clusters and renders: `pytest -m "not slow"` skips them
+
 PLASTIC = (("type", "plastic"), ("color", (0.6, 0.1, 0.1)), ("roughness", 0.09))
 
 # Run in a fresh interpreter: everything a DCC sees of scene.usda, as JSON and .npy files.

@@ -14,9 +14,11 @@ import pytest
 import trimesh
 import yaml
 
-from icefarm.farm.backends import PAUSE_ENV
+from icefarm.farm.backends import PAUSE_ENV, PAUSED_ENV
 from icefarm.farm.manifest import load_manifest
 from icefarm.farm.sweep import Status, plan_jobs, run_sweep
+
+pytestmark = pytest.mark.slow  # real processes, clusters and renders: `pytest -m "not slow"` skips them
 
 pytest.importorskip("distributed")
 
@@ -36,13 +38,19 @@ def _wait_for(predicate, timeout: float, what: str):
 
 
 @pytest.fixture(scope="module")
-def cluster(tmp_path_factory):
+def paused(tmp_path_factory):
+    """Where the cluster's workers say (a file named by their pid) that a job reached its pause."""
+    return tmp_path_factory.mktemp("paused")
+
+
+@pytest.fixture(scope="module")
+def cluster(tmp_path_factory, paused):
     """Address of a scheduler with two single-threaded workers; everything stopped afterwards."""
     if not DASK.exists():
         pytest.skip(f"no dask command at {DASK}")
     folder = tmp_path_factory.mktemp("dask")
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")])),
-               DASK_DISTRIBUTED__SCHEDULER__ALLOWED_FAILURES="1", **{PAUSE_ENV: "victim=2"})
+               DASK_DISTRIBUTED__SCHEDULER__ALLOWED_FAILURES="1", **{PAUSE_ENV: "victim=2", PAUSED_ENV: str(paused)})
     procs = []
 
     def start(*args, log):
@@ -105,7 +113,7 @@ def test_sweep_on_a_dask_cluster(tmp_path, cluster):
     assert resumed.resumed == 8 and resumed.ok
 
 
-def test_dask_reschedules_the_job_of_a_killed_worker(tmp_path, cluster):
+def test_dask_reschedules_the_job_of_a_killed_worker(tmp_path, cluster, paused):
     path = _manifest(tmp_path, [{"id": "victim", "mesh": "ball.ply", "size_m": 0.3},
                                 {"id": "ball", "mesh": "ball.ply", "size_m": 0.4}],
                      {"drips.count": {"values": [2, 3]}})
@@ -115,7 +123,7 @@ def test_dask_reschedules_the_job_of_a_killed_worker(tmp_path, cluster):
 
     def kill_once():
         pid = _wait_for(lambda: marker.is_file() and marker.read_text().split(), 60, "the victim job")[0]
-        time.sleep(0.3)
+        _wait_for(lambda: (paused / pid).exists(), 60, "the victim job to reach its pause")
         os.kill(int(pid), signal.SIGKILL)
         killed.append(pid)
 

@@ -14,11 +14,13 @@ import yaml
 from click.testing import CliRunner
 
 from icefarm.errors import InputError
-from icefarm.farm.backends import PAUSE_ENV
+from icefarm.farm.backends import PAUSE_ENV, PAUSED_ENV
 from icefarm.farm.commands import sweep as sweep_command
 from icefarm.farm.commands import validate as validate_command
 from icefarm.farm.manifest import load_manifest
 from icefarm.farm.sweep import Status, plan_jobs, run_sweep
+
+pytestmark = pytest.mark.slow  # real processes, clusters and renders: `pytest -m "not slow"` skips them
 
 FAST = {"water": {"rays": 300}, "drips": {"count": 4}, "proxy": {"mode": "never"}}
 
@@ -150,8 +152,10 @@ def test_cli_dry_run_and_bad_set(tmp_path, ball):
     assert bad.exit_code == 2 and "did you mean drips.count" in bad.output
 
 
-def _kill_when_started(running: Path, job_ids: set[str], kills: int, killed: list, timeout: float = 60) -> None:
-    """Kill (SIGKILL) the worker of each new attempt of ``job_ids``, ``kills`` times in all."""
+def _kill_when_started(running: Path, job_ids: set[str], kills: int, killed: list, paused: Path,
+                       timeout: float = 60) -> None:
+    """Kill (SIGKILL) the worker of each new attempt of ``job_ids``, ``kills`` times in all, once
+    it says (a file named by its pid in ``paused``) that it is inside its pause."""
     deadline = time.monotonic() + timeout
     seen: set[str] = set()
     while len(killed) < kills and time.monotonic() < deadline:
@@ -162,7 +166,8 @@ def _kill_when_started(running: Path, job_ids: set[str], kills: int, killed: lis
                 continue
             if marker.stem in job_ids and pids and pids[-1] not in seen:
                 seen.add(pids[-1])
-                time.sleep(0.3)  # well inside the job (it pauses for PAUSE_ENV seconds)
+                while not (paused / pids[-1]).exists() and time.monotonic() < deadline:
+                    time.sleep(0.01)
                 os.kill(int(pids[-1]), signal.SIGKILL)
                 killed.append(marker.stem)
         time.sleep(0.02)
@@ -175,9 +180,12 @@ def test_a_killed_worker_is_noticed_its_job_retried_once(tmp_path, ball, monkeyp
                           grid(drips__count=[2, 3]))
     victim = next(j.job_id for j in plan_jobs(load_manifest(path), render=False)[0] if j.object_id == "victim")
     monkeypatch.setenv(PAUSE_ENV, "victim=1.5")
+    paused = tmp_path / "paused"
+    paused.mkdir()
+    monkeypatch.setenv(PAUSED_ENV, str(paused))
     killed: list = []
     killer = threading.Thread(target=_kill_when_started,
-                              args=(tmp_path / "out" / "t" / ".farm" / "running", {victim}, kills, killed))
+                              args=(tmp_path / "out" / "t" / ".farm" / "running", {victim}, kills, killed, paused))
     killer.start()
     summary = run_sweep(path, tmp_path / "out", workers=2, until="drips")
     killer.join()

@@ -22,6 +22,8 @@ from icefarm.farm.backends import PAUSE_ENV
 from icefarm.farm.sweep import run_sweep
 from icefarm.pipeline import JobSpec, Stage, _Cache, run_job
 
+pytestmark = pytest.mark.slow  # real processes, clusters and renders: `pytest -m "not slow"` skips them
+
 ICEFARM = Path(sys.executable).parent / "icefarm"
 FAST = {"water": {"rays": 300}, "drips": {"count": 4}, "proxy": {"mode": "never"}}
 

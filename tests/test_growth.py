@@ -19,6 +19,8 @@ from icefarm.stages.drips import DripResult
 from icefarm.stages.surface.icicles import icicle_balls
 from icefarm.stages.trajectories import TrajectoryResult
 
+pytestmark = pytest.mark.slow  # real processes, clusters and renders: `pytest -m "not slow"` skips them
+
 FRAMES = 3
 VOXEL = 0.003
 

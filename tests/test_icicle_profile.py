@@ -96,6 +96,7 @@ def test_bases_show_at_the_defaults():
     assert _base_volume() > 3.0
 
 
+@pytest.mark.slow
 def test_base_balls_and_extent_each_add_ice_monotonically():
     by_count = [_base_volume(surface__base_balls=n) for n in (10, 20, 40)]
     by_extent = [_base_volume(surface__base_extent=eb) for eb in (0.01, 0.02, 0.03)]

@@ -79,6 +79,7 @@ def test_manifest_placement_defaults_to_ground_and_refuses_others(tmp_path):
         load_manifest(tmp_path / "c.yaml")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("placement", ["ground", "hanging"])
 def test_a_grounded_object_rests_on_the_ground_plane_of_its_scene(tmp_path, placement, sphere):
     import xml.etree.ElementTree as ET

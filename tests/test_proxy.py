@@ -14,6 +14,8 @@ from icefarm.pipeline import JobSpec, Stage, run_job
 from icefarm.proxy import (ProxyMethod, boundary_loops, build_proxy, drop_voids, proxy_reason,
                            snap_to_surface)
 
+pytestmark = pytest.mark.slow  # real processes, clusters and renders: `pytest -m "not slow"` skips them
+
 SHARED_MESHES = Path(__file__).resolve().parents[1].parent / "shared" / "meshes"
 SIZE_M = 0.3
 DEFAULTS = params.resolve()["proxy"]

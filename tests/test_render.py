@@ -162,6 +162,7 @@ def test_choose_variant_order_and_refusals():
         choose_variant("cuda_ad_rgb", cuda=False, llvm=True)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("fake", [None, "libLLVM.so.19.1"])
 def test_pick_variant_falls_back_to_scalar_without_good_llvm(tmp_path, fake):
     """A fresh process (Dr.Jit reads the path at import): no libLLVM, or a fake one, gives scalar."""
@@ -255,6 +256,7 @@ def test_inward_ice_gets_flipped_normals(tmp_path):
     assert flag is not None and flag.get("value") == "true"
 
 
+@pytest.mark.slow
 def test_mitsuba_command_line_renders_the_scene(tmp_path):
     """scene.xml loads in a separate process with the wheel's `mitsuba` renderer."""
     if not MITSUBA_CLI.is_file():
@@ -273,6 +275,7 @@ def test_mitsuba_command_line_renders_the_scene(tmp_path):
         assert_not_blank(pixels)
 
 
+@pytest.mark.slow
 def test_povray_renders_the_scene(tmp_path):
     if shutil.which("povray") is None:
         pytest.skip("povray is not installed (apt-get install povray)")
@@ -316,6 +319,7 @@ def test_render_job_writes_linear_exr_and_srgb_png(tmp_path):
     assert (display[mid] >= linear[mid] - 0.02).all() and display[mid].mean() > linear[mid].mean()
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not hasattr(os, "sched_setaffinity"), reason="needs CPU affinity (Linux)")
 def test_a_process_pinned_to_one_core_renders(tmp_path):
     """Mitsuba reads EXRs (the sky) with Dr.Jit's pool, which waited forever at one thread."""
@@ -543,6 +547,7 @@ def cone_widths(camera, cones, width, height):
     return out
 
 
+@pytest.mark.slow
 def test_lookdev_has_an_ice_view_that_frames_the_icicles(tmp_path):
     import json
 
@@ -567,6 +572,7 @@ def test_lookdev_has_an_ice_view_that_frames_the_icicles(tmp_path):
     assert f"{zoomed.fov_x:.9g}" in files.xml.read_text() and f"angle {zoomed.fov_x:.9g}" in files.pov.read_text()
 
 
+@pytest.mark.slow
 def test_ice_view_without_ice_or_icicles_still_renders_a_view(tmp_path):
     import json
 
@@ -662,6 +668,7 @@ def test_impurity_clouds_the_ice_and_impurity_zero_is_clear(tmp_path):
     assert tap.min() / tap.max() > pure.min() / pure.max()
 
 
+@pytest.mark.slow
 def test_povray_scene_has_the_fade_and_the_cloudy_medium(tmp_path):
     box, ice = box_with_icicles()
     config = tiny_config(renderer="povray", resolution=[40, 30])

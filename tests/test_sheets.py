@@ -240,6 +240,7 @@ def test_gallery_references_every_job_with_relative_links(run_dir):
     assert "<details>" in text and "curve_angle" in text
 
 
+@pytest.mark.slow
 def test_gallery_loads_in_headless_chromium_without_missing_images(run_dir, tmp_path):
     chromium = shutil.which("chromium") or shutil.which("chromium-browser")
     if chromium is None:

@@ -170,6 +170,7 @@ def test_icicles_closer_than_their_radii_fuse_into_one_component():
         assert len(_mesh(ice).split(only_watertight=False)) == components
 
 
+@pytest.mark.slow
 def test_glaze_lifetime_moves_the_thickness_between_top_and_bottom():
     obj = _sphere()
     water = _water(obj, np.ones(len(obj.vertices), bool))  # wet all over: dUp, dDown span 0.3 m
@@ -198,6 +199,7 @@ def test_glaze_thickness_is_the_equation_3_radius():
     assert np.median(out[out > 0]) == pytest.approx(0.002, rel=0.2)
 
 
+@pytest.mark.slow
 def test_glaze_on_its_coarser_lattice_cuts_the_faces_and_keeps_mesh_and_tips(monkeypatch):
     obj = _sphere()
     water = _water(obj, obj.vertices[:, 1] < -0.1)  # a wet cap where the icicles hang
@@ -326,6 +328,7 @@ def test_inconsistent_inputs_are_refused():
         _ice(obj, water, _drips(obj, np.zeros((0, 3))), _no_icicles(), *_groups())
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["cow.obj", "teapot.obj"])
 def test_real_meshes_through_stages_1_to_4_are_watertight(name):
     path = MESHES / name

@@ -158,6 +158,7 @@ def bunny_setup(shared_mesh):
     return mesh, drips.positions, mesh.face_normals[drips.faces], drips.water
 
 
+@pytest.mark.slow
 def test_branches_spread_more_with_d_on_the_bunny(shared_mesh):
     setup = bunny_setup(shared_mesh)
     count, spread = {}, {}

@@ -37,8 +37,10 @@ from pathlib import Path
 from typing import Any
 
 # Test hook: "OBJECT_ID=SECONDS" makes that object's jobs sleep after they started (so a test
-# can kill the worker mid-job).
+# can kill the worker mid-job). With PAUSED_ENV naming a folder, a paused worker first touches
+# PID there: the test kills on that event instead of sleeping into the pause and hoping.
 PAUSE_ENV = "ICEFARM_FARM_TEST_PAUSE"
+PAUSED_ENV = "ICEFARM_FARM_TEST_PAUSED_DIR"
 _BLAS_ENV = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 
 
@@ -146,6 +148,8 @@ def _test_pause(task: Task) -> None:
     spec = os.environ.get(PAUSE_ENV, "")
     target, _, seconds = spec.partition("=")
     if target and target == task.object_id:
+        if os.environ.get(PAUSED_ENV):
+            (Path(os.environ[PAUSED_ENV]) / str(os.getpid())).touch()
         time.sleep(float(seconds or 0))
 
 
