@@ -9,10 +9,6 @@ last and atomically, ``error.json`` names the failed stage.
 from __future__ import annotations
 
 import enum
-import functools
-import hashlib
-import json
-import pickle
 import time
 import traceback
 from collections.abc import Callable
@@ -22,13 +18,14 @@ from typing import Any
 
 import numpy as np
 import trimesh
-import yaml
 
 from . import artifacts
 from .errors import InputError
 from .geometry import ray_caster
 from .mesh import PreparedMesh, prepare
-from .placement import Placement, ground_height, sole_vertices, stop_at_ground
+from .placement import Placement, ground_height, ground_level, sole_vertices, stop_at_ground
+from .scene.camera import frame_boxes
+from .stage_cache import StageCache, digest as _digest, file_digest as _file_digest
 from .stages.drips import DripResult, find_drips
 from .stages.trajectories import TrajectoryResult, grow_trajectories, measure_trajectories
 from .stages.water import WaterResult, compute_water
@@ -79,31 +76,6 @@ class JobOutcome:
     error: str | None = None
 
 
-def _digest(*parts: Any) -> str:
-    h = hashlib.sha256()
-    for part in parts:
-        h.update(part if isinstance(part, bytes) else json.dumps(part, sort_keys=True, default=str).encode())
-        h.update(b"\0")
-    return h.hexdigest()
-
-
-def _file_digest(path: str | Path) -> str:
-    try:
-        stat = Path(path).stat()
-    except OSError:
-        return f"missing:{path}"
-    return _content_digest(str(Path(path).resolve()), stat.st_mtime_ns, stat.st_size)
-
-
-@functools.lru_cache(maxsize=256)
-def _content_digest(path: str, mtime_ns: int, size: int) -> str:
-    """sha256 of a file, read once per (path, mtime, size): a sweep hashes each mesh once."""
-    try:
-        return hashlib.sha256(Path(path).read_bytes()).hexdigest()
-    except OSError:
-        return f"missing:{path}"
-
-
 def mesh_digest(mesh: str) -> str:
     """Content hash of a mesh file (or of a generator's name)."""
     return _digest(mesh) if mesh.startswith(GENERATOR_PREFIX) else _file_digest(mesh)
@@ -135,94 +107,6 @@ def load_object(spec: JobSpec) -> PreparedMesh:
 
         return prepare(generate(spec.mesh[len(GENERATOR_PREFIX):]), spec.size_m, gravity)
     return prepare(spec.mesh, spec.size_m, gravity)
-
-
-class _Cache:
-    """Pickled stage results under ``root/<stage>/<key>.<code>.pkl``; no root, no cache.
-
-    ``<code>`` is `code_version` (a hash of icefarm's source): results of other code are
-    never read. Each entry starts with a line ``icefarm-cache 1 <sha256 of the pickle>``: an
-    entry whose bytes no longer match (a bad disk, a copy cut short, a hand edit) is deleted
-    and recomputed with a `CacheWarning`, never trusted. The entries are pickles: whoever
-    can write the cache folder can run code in the jobs that read it.
-
-    ``root/policy.json`` (a sweep writes it) may name ``private`` stages: their results
-    are used by one job only, so they are not stored (they are still read when there).
-    """
-
-    MAGIC = b"icefarm-cache 1"
-    POLICY = "policy.json"
-    _code: str | None = None
-
-    def __init__(self, root: Path | None):
-        self.root = root
-        self.reused: list[str] = []
-        self.warnings: list[str] = []
-        self.private: set[str] = set()
-        if root is not None:
-            try:
-                self.private = {str(s) for s in json.loads((root / self.POLICY).read_text()).get("private", ())}
-            except (OSError, ValueError, AttributeError, TypeError):
-                pass
-
-    @classmethod
-    def code_version(cls) -> str:
-        """Hash of icefarm's version and of every source file of the package (12 hex digits)."""
-        if cls._code is None:
-            from . import __version__
-
-            h = hashlib.sha256(__version__.encode())
-            package = Path(__file__).resolve().parent
-            for path in sorted(package.rglob("*.py")):
-                h.update(path.relative_to(package).as_posix().encode() + b"\0")
-                h.update(path.read_bytes() + b"\0")
-            cls._code = h.hexdigest()[:12]
-        return cls._code
-
-    def path(self, stage: str, key: str) -> Path | None:
-        return self.root / stage / f"{key}.{self.code_version()}.pkl" if self.root else None
-
-    def get(self, stage: str, key: str, compute: Callable[[], Any]) -> Any:
-        path = self.path(stage, key)
-        if path is not None and path.is_file():
-            found, value = self._load(path)
-            if found:
-                self.reused.append(stage)
-                return value
-        value = compute()
-        if path is not None and stage not in self.private:
-            payload = pickle.dumps(value, protocol=pickle.HIGHEST_PROTOCOL)
-            header = self.MAGIC + b" " + hashlib.sha256(payload).hexdigest().encode() + b"\n"
-            artifacts.atomic_write(path, header + payload)
-        return value
-
-    def _load(self, path: Path) -> tuple[bool, Any]:
-        """``(True, value)`` for an intact entry; a damaged one is deleted: ``(False, None)``."""
-        import warnings
-
-        from .errors import CacheWarning
-
-        try:
-            data = path.read_bytes()
-        except OSError:
-            return False, None
-        header, _, payload = data.partition(b"\n")
-        magic, _, digest = header.rpartition(b" ")
-        problem = None
-        if magic != self.MAGIC:
-            problem = "it is not an icefarm cache entry of this format"
-        elif hashlib.sha256(payload).hexdigest().encode() != digest:
-            problem = "its bytes do not match the digest written with it"
-        else:
-            try:
-                return True, pickle.loads(payload)
-            except Exception as exc:  # intact bytes that do not unpickle: another library version
-                problem = f"it does not load ({type(exc).__name__}: {exc})"
-        message = f"stage cache entry {path} is damaged ({problem}): recomputed"
-        self.warnings.append(message)
-        warnings.warn(message, CacheWarning, stacklevel=2)
-        path.unlink(missing_ok=True)
-        return False, None
 
 
 def _rng(seed: int, stage: Stage) -> np.random.Generator:
@@ -273,7 +157,7 @@ def run_job(spec: JobSpec, job_dir: Path, cache_dir: Path | None = None,
     job_dir.mkdir(parents=True, exist_ok=True)
     for stale in ("done.json", "error.json"):
         (job_dir / stale).unlink(missing_ok=True)
-    run, cache = _Run(progress=progress), _Cache(Path(cache_dir) if cache_dir else None)
+    run, cache = _Run(progress=progress), StageCache(Path(cache_dir) if cache_dir else None)
     try:
         summary = _run_stages(spec, job_dir, run, cache, until)
     except Exception as exc:
@@ -297,7 +181,7 @@ def _stops(until: Stage | None, stage: Stage) -> bool:
     return until is not None and STAGE_ORDER.index(stage) >= STAGE_ORDER.index(until)
 
 
-def _run_stages(spec: JobSpec, job_dir: Path, run: _Run, cache: _Cache, until: Stage | None) -> dict:
+def _run_stages(spec: JobSpec, job_dir: Path, run: _Run, cache: StageCache, until: Stage | None) -> dict:
     p = spec.params
     gravity = np.asarray(p["water"]["gravity"], dtype=np.float64)
     gravity = gravity / np.linalg.norm(gravity)
@@ -360,7 +244,7 @@ def _run_stages(spec: JobSpec, job_dir: Path, run: _Run, cache: _Cache, until: S
                            exclude_vertices=grounded if p["drips"]["ground_clearance"] > 0 else None,
                            caster=caster(flow), spacing=p["drips"]["spacing"],
                            distribution=p["drips"]["distribution"], min_fall=p["drips"]["min_fall"],
-                           floor=_ground_level(spec.placement, obj, gravity),
+                           floor=ground_level(spec.placement, obj, gravity),
                            min_water=p["drips"]["min_length"] / p["trajectories"]["length_scale"])
         if flow is obj:
             return found
@@ -434,7 +318,7 @@ def _ground_ice(spec, job_dir, run, cache, obj, drips, traj, gravity, traj_key, 
     gi = p["ground_ice"]
     if gi["mode"] == "none":
         return None, None
-    floor = _ground_level(spec.placement, obj, gravity)
+    floor = ground_level(spec.placement, obj, gravity)
     key = _digest(traj_key, gi["runoff"], gi["merge"])
     landing = run.timed("landing", lambda: cache.get("landing", key, lambda: find_landings(
         traj, drips.water, gravity, runoff=gi["runoff"], merge=gi["merge"], cast=cast,
@@ -488,9 +372,9 @@ def _surface_and_render(spec, job_dir, run, cache, until, obj, flow, water, drip
 
     def render() -> Any:
         files = write_scenes(job_dir, obj, ice_mesh if len(ice.faces) else None, config, gravity, material,
-                             frame_points=_frame(obj, ice_mesh), defer_povray=True,
+                             frame_points=frame_boxes(obj, ice_mesh), defer_povray=True,
                              impurity=p["surface"]["impurity"],  # impure water: a cloudy core
-                             ground_level=_ground_level(spec.placement, obj, gravity))
+                             ground_level=ground_level(spec.placement, obj, gravity))
         if files.ground_height is not None:  # 0 for a grounded object; a hanging one floats
             stats["ground_gap_mm"] = _finite((ground_height(obj.vertices, gravity) - files.ground_height) * 1000)
         return render_job(job_dir, config, files, progress=run.progress)  # POV-Ray files written meanwhile
@@ -538,83 +422,13 @@ def _growth(spec, job_dir, run, obj, flow, water, drips, traj, gravity, cast, ex
 
         full = trimesh.load(job_dir / "ice.ply", process=False, force="mesh")
         view = FrameView(obj, load_render_config(spec.render), gravity, material_from_dict(dict(spec.material)),
-                         _frame(obj, full), p["surface"]["impurity"], _ground_level(spec.placement, obj, gravity))
+                         frame_boxes(obj, full), p["surface"]["impurity"], ground_level(spec.placement, obj, gravity))
     result = grow_frames(
         job_dir / "growth", traj, drips, p["surface"], p["glaze"], frames=p["growth"]["frames"],
         build=lambda t, d, g, rng: _build_ice(spec, obj, flow, water, d, t, gravity, cast, extra_balls, g, rng),
         new_rng=lambda: _rng(spec.seed, Stage.SURFACE), gravity=gravity, view=view, progress=run.progress,
         object_usd=job_dir / "object.usdc")
     return {"growth_frames": len(result.frames), "growth_seconds_per_frame": round(result.seconds_per_frame, 3)}
-
-
-def render_again(job_dir: Path, render: str, out_dir: Path, progress: bool = False):
-    """Render a finished job's object and ice again with another render config, into ``out_dir``.
-
-    For a contact-sheet cell worth a final frame: nothing is recomputed and the job folder
-    is left as it is; ``out_dir`` gets its own scenes (``scene.xml``, ``scene.pov`` and
-    their meshes) and renders. Needs a job that rendered (its ``object.ply`` is the object
-    in meters); the object's material is the job's.
-
-    Parameters
-    ----------
-    job_dir : Path
-        A job folder with ``done.json``, ``params.yaml``, ``ice.ply`` and ``object.ply``.
-    render : str
-        Render config name or YAML path.
-    out_dir : Path
-    progress : bool
-        Progress bar over long renders.
-
-    Returns
-    -------
-    icefarm.scene.render.RenderResult
-
-    Raises
-    ------
-    InputError
-        Not a finished job, a job that never rendered, or a bad render config.
-    """
-    from .scene.config import load_render_config, material_from_dict
-    from .scene.render import render_job, write_scenes
-
-    job_dir, out_dir = Path(job_dir), Path(out_dir)
-    if not (job_dir / "done.json").is_file():
-        raise InputError(f"{job_dir} is not a finished job (no done.json): run it first")
-    for name in ("params.yaml", "ice.ply", "object.ply"):
-        if not (job_dir / name).is_file():
-            raise InputError(f"{job_dir} has no {name}: only jobs that rendered can be rendered again "
-                             "(run the job without --no-render)")
-    if out_dir.resolve() == job_dir.resolve():
-        raise InputError("render into a folder of its own, not the job folder: its files belong to the job")
-    config = load_render_config(render)
-    done = json.loads((job_dir / "done.json").read_text())
-    gravity = yaml.safe_load((job_dir / "params.yaml").read_text())["water"]["gravity"]
-    obj = trimesh.load(job_dir / "object.ply", process=False)
-    obj.merge_vertices(merge_norm=True)  # object.ply splits vertices along creases
-    ice = trimesh.load(job_dir / "ice.ply", process=False)
-    has_ice = isinstance(ice, trimesh.Trimesh) and len(ice.faces) > 0
-    ice_mesh = ice if has_ice else trimesh.Trimesh()
-    files = write_scenes(out_dir, obj, ice_mesh if has_ice else None, config, gravity,
-                         material_from_dict(done.get("object_material")),
-                         frame_points=_frame(obj, ice_mesh), defer_povray=True,
-                         impurity=float((yaml.safe_load((job_dir / "params.yaml").read_text()).get("surface")
-                                         or {}).get("impurity", 0.0)),  # 0 for jobs older than it
-                         ground_level=_ground_level(done.get("placement", Placement.HANGING.value), obj, gravity))
-    return render_job(out_dir, config, files, progress=progress)
-
-
-def _frame(obj: trimesh.Trimesh, ice: trimesh.Trimesh) -> np.ndarray:
-    """Points the camera frames and the ground lies under: the boxes of object and ice."""
-    corners = [trimesh.bounds.corners(obj.bounds)]
-    if len(ice.faces):
-        corners.append(trimesh.bounds.corners(ice.bounds))
-    return np.vstack(corners)
-
-
-def _ground_level(placement: str, obj: trimesh.Trimesh, gravity) -> float | None:
-    """Height of the ground plane: under the object's lowest point for a grounded object;
-    None (below the lowest ice, the scene's own choice) for a hanging one."""
-    return ground_height(obj.vertices, gravity) if placement == Placement.GROUND.value else None
 
 
 def _not_glaze(flow: trimesh.Trimesh, drips: DripResult, sole: np.ndarray | None, surface: dict) -> np.ndarray:

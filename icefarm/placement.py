@@ -10,6 +10,7 @@ from __future__ import annotations
 import enum
 
 import numpy as np
+import trimesh
 
 from .stages.trajectories import TrajectoryResult
 
@@ -83,3 +84,9 @@ def stop_at_ground(traj: TrajectoryResult, gravity, floor: float, margin: float)
 
 def _polyline_length(points: np.ndarray) -> float:
     return float(np.linalg.norm(np.diff(points, axis=0), axis=1).sum()) if len(points) > 1 else 0.0
+
+
+def ground_level(placement: str, obj: trimesh.Trimesh, gravity) -> float | None:
+    """Height of the ground plane: under the object's lowest point for a grounded object;
+    None (below the lowest ice, the scene's own choice) for a hanging one."""
+    return ground_height(obj.vertices, gravity) if placement == Placement.GROUND.value else None

@@ -20,7 +20,8 @@ from icefarm.artifacts import atomic_write
 from icefarm.errors import CacheWarning
 from icefarm.farm.backends import PAUSE_ENV
 from icefarm.farm.sweep import run_sweep
-from icefarm.pipeline import JobSpec, Stage, _Cache, run_job
+from icefarm.pipeline import JobSpec, Stage, run_job
+from icefarm.stage_cache import StageCache
 
 pytestmark = pytest.mark.slow  # real processes, clusters and renders: `pytest -m "not slow"` skips them
 
@@ -180,9 +181,9 @@ def test_a_damaged_cache_entry_is_recomputed_with_a_warning(tmp_path, ball):
 def test_cache_entries_of_other_code_are_not_read(tmp_path, ball, monkeypatch):
     cache = tmp_path / "cache"
     assert run_job(job(tmp_path, ball), tmp_path / "a", cache, until=Stage.DRIPS).status == "done"
-    code = _Cache.code_version()
+    code = StageCache.code_version()
     assert all(f".{code}." in e.name for e in cache.glob("*/*.pkl"))
-    monkeypatch.setattr(_Cache, "_code", "0123456789ab")  # the code changed
+    monkeypatch.setattr(StageCache, "_code", "0123456789ab")  # the code changed
     again = run_job(job(tmp_path, ball), tmp_path / "b", cache, until=Stage.DRIPS)
     assert again.status == "done" and again.reused == ()
 

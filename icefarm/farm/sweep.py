@@ -758,9 +758,9 @@ def run_sweep(manifest: Manifest | str | Path, out: str | Path = "out", *, worke
             running.mkdir(parents=True, exist_ok=True)
             if cache_dir is not None:
                 cache_dir.mkdir(exist_ok=True)
-                from ..pipeline import _Cache
+                from ..stage_cache import StageCache
 
-                atomic_write(cache_dir / _Cache.POLICY, json.dumps({"private": private_stages(jobs)}) + "\n")
+                atomic_write(cache_dir / StageCache.POLICY, json.dumps({"private": private_stages(jobs)}) + "\n")
             atomic_write(sweep_dir / "manifest.resolved.yaml", _resolved_yaml(manifest, jobs, sweep_dir, until))
             atomic_write(csv_path, jobs_csv_text(list(records.values()), swept))
         except OSError as exc:

@@ -11,6 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import trimesh
 from scipy.spatial import ConvexHull, QhullError
 
 
@@ -177,3 +178,11 @@ def frame_view(points: np.ndarray, gravity, azimuth: float, elevation: float, as
     near = max(float(depth.min()) * 0.5, 1e-4)
     return Camera(origin=origin, target=target, up=up, fov_x=fov_x, fov_y=float(fov_y),
                   near=near, far=max(1000.0 * dist, 100.0 * size))
+
+
+def frame_boxes(obj: trimesh.Trimesh, ice: trimesh.Trimesh) -> np.ndarray:
+    """Points the camera frames and the ground lies under: the boxes of object and ice."""
+    corners = [trimesh.bounds.corners(obj.bounds)]
+    if len(ice.faces):
+        corners.append(trimesh.bounds.corners(ice.bounds))
+    return np.vstack(corners)

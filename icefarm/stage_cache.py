@@ -1,0 +1,133 @@
+"""The stage cache: pickled stage results under keys hashed from their inputs.
+
+A job's stage results are stored under a digest of everything the stage reads (inputs,
+parameters, upstream keys) and of icefarm's source (`StageCache.code_version`), so a sweep
+over surface parameters reuses stages 1-3 and a code change never reads stale results.
+"""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+import json
+import pickle
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from . import artifacts
+
+
+def digest(*parts: Any) -> str:
+    """sha256 (hex) of ``parts``: bytes as they are, anything else as sorted JSON."""
+    h = hashlib.sha256()
+    for part in parts:
+        h.update(part if isinstance(part, bytes) else json.dumps(part, sort_keys=True, default=str).encode())
+        h.update(b"\0")
+    return h.hexdigest()
+
+
+def file_digest(path: str | Path) -> str:
+    """sha256 (hex) of a file's bytes (``missing:PATH`` when it cannot be read)."""
+    try:
+        stat = Path(path).stat()
+    except OSError:
+        return f"missing:{path}"
+    return _content_digest(str(Path(path).resolve()), stat.st_mtime_ns, stat.st_size)
+
+
+@functools.lru_cache(maxsize=256)
+def _content_digest(path: str, mtime_ns: int, size: int) -> str:
+    """sha256 of a file, read once per (path, mtime, size): a sweep hashes each mesh once."""
+    try:
+        return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+    except OSError:
+        return f"missing:{path}"
+
+
+class StageCache:
+    """Pickled stage results under ``root/<stage>/<key>.<code>.pkl``; no root, no cache.
+
+    ``<code>`` is `code_version` (a hash of icefarm's source): results of other code are
+    never read. Each entry starts with a line ``icefarm-cache 1 <sha256 of the pickle>``: an
+    entry whose bytes no longer match (a bad disk, a copy cut short, a hand edit) is deleted
+    and recomputed with a `CacheWarning`, never trusted. The entries are pickles: whoever
+    can write the cache folder can run code in the jobs that read it.
+
+    ``root/policy.json`` (a sweep writes it) may name ``private`` stages: their results
+    are used by one job only, so they are not stored (they are still read when there).
+    """
+
+    MAGIC = b"icefarm-cache 1"
+    POLICY = "policy.json"
+    _code: str | None = None
+
+    def __init__(self, root: Path | None):
+        self.root = root
+        self.reused: list[str] = []
+        self.warnings: list[str] = []
+        self.private: set[str] = set()
+        if root is not None:
+            try:
+                self.private = {str(s) for s in json.loads((root / self.POLICY).read_text()).get("private", ())}
+            except (OSError, ValueError, AttributeError, TypeError):
+                pass
+
+    @classmethod
+    def code_version(cls) -> str:
+        """Hash of icefarm's version and of every source file of the package (12 hex digits)."""
+        if cls._code is None:
+            from . import __version__
+
+            h = hashlib.sha256(__version__.encode())
+            package = Path(__file__).resolve().parent
+            for path in sorted(package.rglob("*.py")):
+                h.update(path.relative_to(package).as_posix().encode() + b"\0")
+                h.update(path.read_bytes() + b"\0")
+            cls._code = h.hexdigest()[:12]
+        return cls._code
+
+    def path(self, stage: str, key: str) -> Path | None:
+        return self.root / stage / f"{key}.{self.code_version()}.pkl" if self.root else None
+
+    def get(self, stage: str, key: str, compute: Callable[[], Any]) -> Any:
+        path = self.path(stage, key)
+        if path is not None and path.is_file():
+            found, value = self._load(path)
+            if found:
+                self.reused.append(stage)
+                return value
+        value = compute()
+        if path is not None and stage not in self.private:
+            payload = pickle.dumps(value, protocol=pickle.HIGHEST_PROTOCOL)
+            header = self.MAGIC + b" " + hashlib.sha256(payload).hexdigest().encode() + b"\n"
+            artifacts.atomic_write(path, header + payload)
+        return value
+
+    def _load(self, path: Path) -> tuple[bool, Any]:
+        """``(True, value)`` for an intact entry; a damaged one is deleted: ``(False, None)``."""
+        import warnings
+
+        from .errors import CacheWarning
+
+        try:
+            data = path.read_bytes()
+        except OSError:
+            return False, None
+        header, _, payload = data.partition(b"\n")
+        magic, _, digest = header.rpartition(b" ")
+        problem = None
+        if magic != self.MAGIC:
+            problem = "it is not an icefarm cache entry of this format"
+        elif hashlib.sha256(payload).hexdigest().encode() != digest:
+            problem = "its bytes do not match the digest written with it"
+        else:
+            try:
+                return True, pickle.loads(payload)
+            except Exception as exc:  # intact bytes that do not unpickle: another library version
+                problem = f"it does not load ({type(exc).__name__}: {exc})"
+        message = f"stage cache entry {path} is damaged ({problem}): recomputed"
+        self.warnings.append(message)
+        warnings.warn(message, CacheWarning, stacklevel=2)
+        path.unlink(missing_ok=True)
+        return False, None
