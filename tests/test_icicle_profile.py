@@ -101,3 +101,23 @@ def test_base_balls_and_extent_each_add_ice_monotonically():
     by_count = [_base_volume(surface__base_balls=n) for n in (10, 20, 40)]
     by_extent = [_base_volume(surface__base_extent=eb) for eb in (0.01, 0.02, 0.03)]
     assert np.all(np.diff(by_count) > 0) and np.all(np.diff(by_extent) > 0)
+
+
+@pytest.mark.slow
+def test_the_bunny_at_the_defaults_grows_carrots_not_straws(shared_mesh, tmp_path):
+    """Issue 13's figure on a real job: the 0.3 m bunny, every default, grounded. Half its
+    drip rims sit a few cm over the ground; without room to hang (drips.min_fall) and the
+    thickening of cut icicles its median taper was 2.5."""
+    import json
+
+    from icefarm import params
+    from icefarm.pipeline import JobSpec, Stage, run_job
+
+    spec = JobSpec("bunny", str(shared_mesh("stanford-bunny.obj")), 0.3, params.resolve({}), seed=0)
+    outcome = run_job(spec, tmp_path / "job", until=Stage.SURFACE)
+    assert outcome.status == "done", outcome.error
+    t = json.loads((tmp_path / "job" / "timings.json").read_text())
+    taper = [v for v in t["taper"] if v is not None]
+    assert len(taper) >= 10 and np.median(taper) >= 3.0
+    assert 0.6 <= np.median([v for v in t["profile_exponent"] if v is not None]) <= 0.9
+    assert t["ripple_amplitude_mm"] >= 0.4 and t["upward_share"] == 0.0
