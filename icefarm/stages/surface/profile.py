@@ -13,9 +13,9 @@ TIP_CALM = 2.0
 # similarity solution of a growing icicle (Short, Baygents & Goldstein, Phys. Fluids 18,
 # 083101, 2006), confirmed on 93 lab icicles (Chen & Morris, Phys. Rev. E 83, 026307, 2011).
 PHYSICAL_EXPONENT = 0.75
-# An icicle the ground stopped goes on thickening as if it were longer, by at most this
-# many times its own length: the water of a 50 cm icicle on a 10 cm stub made 6 cm thick
-# milky pillars (seen at lookdev); at 1 a stub ends in a foot about twice the tip's width.
+# An icicle the ground stopped goes on thickening as if it were longer by at most this
+# many times its own length. Unlimited, the water of a 50 cm icicle on a 10 cm stub made
+# 6 cm milky pillars at lookdev; at 1, the bunny's chin icicles merged into one block.
 GROUND_THICKENING = 0.5
 
 
