@@ -14,6 +14,7 @@ import trimesh
 import yaml
 
 from .errors import InputError
+from .jobdir import DONE, ERROR
 from .stages.drips import DripResult
 from .stages.trajectories import TrajectoryResult
 
@@ -62,7 +63,7 @@ def file_digest(path: Path, chunk: int = 1 << 20) -> str:
 
 # Files of a job folder that done.json does not list: itself, a failure's report, and
 # what `icefarm render` and `icefarm export` add later (renders/, export/).
-_UNLISTED = ("done.json", "error.json")
+_UNLISTED = (DONE, ERROR)
 _LATER = ("renders", "export")
 
 
@@ -89,7 +90,7 @@ def check_done(job_dir: Path, digests: bool = True) -> str | None:
     """
     job_dir = Path(job_dir)
     try:
-        text = (job_dir / "done.json").read_text()
+        text = (job_dir / DONE).read_text()
     except FileNotFoundError:
         return "no done.json"
     except (OSError, UnicodeDecodeError) as exc:

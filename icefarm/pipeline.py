@@ -22,6 +22,7 @@ import trimesh
 from . import artifacts
 from .errors import InputError
 from .geometry import ray_caster
+from .jobdir import DONE, ERROR, PARAMS, TIMINGS
 from .mesh import PreparedMesh, prepare
 from .placement import Placement, ground_height, ground_level, sole_vertices, stop_at_ground
 from .scene.camera import frame_boxes
@@ -155,21 +156,21 @@ def run_job(spec: JobSpec, job_dir: Path, cache_dir: Path | None = None,
     """
     job_dir = Path(job_dir)
     job_dir.mkdir(parents=True, exist_ok=True)
-    for stale in ("done.json", "error.json"):
+    for stale in (DONE, ERROR):
         (job_dir / stale).unlink(missing_ok=True)
     run, cache = _Run(progress=progress), StageCache(Path(cache_dir) if cache_dir else None)
     try:
         summary = _run_stages(spec, job_dir, run, cache, until)
     except Exception as exc:
         message = str(exc) if isinstance(exc, InputError) else f"{type(exc).__name__}: {exc}"
-        artifacts.write_json(job_dir / "error.json", {
+        artifacts.write_json(job_dir / ERROR, {
             "stage": run.stage, "message": message, "traceback": traceback.format_exc(),
             "seconds": run.seconds,
         })
         return JobOutcome("failed", dict(run.seconds), tuple(cache.reused), run.stage, message)
-    artifacts.write_json(job_dir / "timings.json", {"seconds": run.seconds, **summary, "reused": cache.reused})
+    artifacts.write_json(job_dir / TIMINGS, {"seconds": run.seconds, **summary, "reused": cache.reused})
     # Last, and listing every artifact with its size and digest: `--resume` checks them.
-    artifacts.write_json(job_dir / "done.json", {
+    artifacts.write_json(job_dir / DONE, {
         "job": spec.object_id, "seconds": run.seconds, "reused": cache.reused, **summary,
         **({"cache_warnings": cache.warnings} if cache.warnings else {}),
         "artifacts": artifacts.list_artifacts(job_dir),
@@ -186,7 +187,7 @@ def _run_stages(spec: JobSpec, job_dir: Path, run: _Run, cache: StageCache, unti
     gravity = np.asarray(p["water"]["gravity"], dtype=np.float64)
     gravity = gravity / np.linalg.norm(gravity)
     overrides = dict(spec.overrides)
-    artifacts.write_yaml(job_dir / "params.yaml", p)
+    artifacts.write_yaml(job_dir / PARAMS, p)
     prepared = run.timed("prepare", lambda: load_object(spec))
     obj = prepared.mesh
     mesh_key = _digest(mesh_digest(spec.mesh), spec.size_m, p["water"]["gravity"])

@@ -25,6 +25,7 @@ from typing import Any
 import yaml
 
 from .errors import InputError
+from .jobdir import DONE, ERROR, PARAMS, TIMINGS, error_line, total_seconds
 
 #: The stages of the paper's Table 2, in its order; their sum is its "Total time".
 TABLE2_STAGES: tuple[str, ...] = ("water", "drips", "trajectories", "surface")
@@ -121,7 +122,7 @@ def _flatten(values: Any, prefix: str = "") -> dict:
 
 
 def _is_job_dir(path: Path) -> bool:
-    return any((path / name).is_file() for name in ("done.json", "error.json", "timings.json", "params.yaml"))
+    return any((path / name).is_file() for name in (DONE, ERROR, TIMINGS, PARAMS))
 
 
 def find_job_dirs(run_dir: Path) -> list[Path]:
@@ -136,7 +137,7 @@ def find_job_dirs(run_dir: Path) -> list[Path]:
     elif _is_job_dir(run_dir):
         return [run_dir]
     else:
-        found = sorted({p.parent for name in ("done.json", "error.json", "timings.json", "params.yaml")
+        found = sorted({p.parent for name in (DONE, ERROR, TIMINGS, PARAMS)
                         for p in run_dir.rglob(name)})
     order = _manifest_order(run_dir)
     if order:
@@ -161,19 +162,19 @@ def read_job(job_dir: Path) -> JobTimes:
     job_dir = Path(job_dir)
     object_id = job_dir.parent.name or "-"
     try:
-        params = _flatten(yaml.safe_load((job_dir / "params.yaml").read_text()))
+        params = _flatten(yaml.safe_load((job_dir / PARAMS).read_text()))
     except (OSError, yaml.YAMLError):
         params = {}
-    timings = _read_json(job_dir / "timings.json")
-    if (job_dir / "done.json").is_file():
+    timings = _read_json(job_dir / TIMINGS)
+    if (job_dir / DONE).is_file():
         if not timings:  # a done job always has timings.json; fall back to done.json's copy
-            timings = _read_json(job_dir / "done.json")
+            timings = _read_json(job_dir / DONE)
         stats = {k: v for k, v in timings.items() if k not in ("seconds", "reused", "job")}
         seconds = timings.get("seconds") if isinstance(timings.get("seconds"), dict) else {}
         reused = tuple(str(s) for s in timings.get("reused") or ())
         return JobTimes(object_id, job_dir.name, "done", dict(seconds), reused, stats, params)
-    error = _read_json(job_dir / "error.json")
-    if (job_dir / "error.json").is_file():
+    error = _read_json(job_dir / ERROR)
+    if (job_dir / ERROR).is_file():
         seconds = error.get("seconds") if isinstance(error.get("seconds"), dict) else {}
         message = str(error.get("message") or "unreadable error.json")
         return JobTimes(object_id, job_dir.name, "failed", dict(seconds), (), {}, params,
@@ -266,7 +267,7 @@ def _md_escape(text: str) -> str:
 
 def _job_seconds(job: JobTimes) -> float:
     """Everything the job spent: preparation, proxy, stages (cache loads included), render."""
-    return sum(float(v) for v in job.seconds.values() if _is_number(v))
+    return total_seconds(job.seconds) or 0.0
 
 
 _MD_JOB_HEADER = ("object", "job", "varied", "input polys", "icicles", "ice polys", "water s", "drips s",
@@ -334,8 +335,7 @@ def _number(value: Any) -> float | None:
 
 
 def _first_line(message: str | None) -> str:
-    lines = [line for line in (message or "").strip().splitlines() if line.strip()]
-    return lines[0] if lines else "-"
+    return error_line(message)
 
 
 def _stat(job: JobTimes, key: str) -> float | None:

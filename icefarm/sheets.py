@@ -60,6 +60,7 @@ import yaml
 from . import params as P
 from .artifacts import atomic_write
 from .errors import InputError
+from .jobdir import DONE, ERROR, PARAMS, TIMINGS, error_line, total_seconds
 
 # Layout, in pixels.
 MARGIN = 16
@@ -243,9 +244,9 @@ def _read_jobs_csv(path: Path) -> tuple[list[dict], tuple[str, ...]]:
 
 
 def _job_state(path: Path) -> JobState:
-    if (path / "done.json").is_file():
+    if (path / DONE).is_file():
         return JobState.DONE
-    if (path / "error.json").is_file():
+    if (path / ERROR).is_file():
         return JobState.FAILED
     return JobState.UNFINISHED
 
@@ -281,11 +282,11 @@ def scan_run(run_dir: Path, sweep_name: str | None = None) -> RunInfo:
     objects: dict[str, dict[str, JobInfo]] = {}
     for obj_dir in sorted(p for p in jobs_root.iterdir() if p.is_dir()):
         for job_dir in sorted(p for p in obj_dir.iterdir() if p.is_dir() and not p.name.startswith(".")):
-            values = _read_params(job_dir / "params.yaml")
+            values = _read_params(job_dir / PARAMS)
             objects.setdefault(obj_dir.name, {})[job_dir.name] = JobInfo(
                 object_id=obj_dir.name, job_id=job_dir.name, path=job_dir, state=_job_state(job_dir),
                 values=values or {}, has_params=values is not None,
-                error=_read_json(job_dir / "error.json"), timings=_read_json(job_dir / "timings.json"))
+                error=_read_json(job_dir / ERROR), timings=_read_json(job_dir / TIMINGS))
     csv_order: dict[str, list[str]] = {}
     for row in csv_rows:
         obj, job = row.get("object") or "", row["job_id"]
@@ -659,11 +660,7 @@ def cell_render(job: JobInfo, cell_width: int) -> tuple[Path | None, str | None]
 
 def _seconds(job: JobInfo) -> float | None:
     data = job.timings if job.timings is not None else (job.error or {})
-    seconds = data.get("seconds")
-    if isinstance(seconds, Mapping):
-        nums = [v for v in seconds.values() if isinstance(v, (int, float)) and not isinstance(v, bool)]
-        return float(sum(nums)) if nums else None
-    return None
+    return total_seconds(data.get("seconds"))
 
 
 def _placeholder(buf, x: int, y: int, w: int, h: int, srgb, title: str, lines: Sequence[str]) -> None:
@@ -687,10 +684,10 @@ def _draw_cell(buf, job: JobInfo, x: int, y: int, cw: int, ch: int, label_keys: 
     drawn = "render"
     if job.state is JobState.FAILED:
         err = job.error or {}
-        message = str(err.get("message") or "no error.json message").strip().splitlines() or [""]
+        message = error_line(err.get("message"), "no error.json message")
         _placeholder(buf, x, y, cw, ch, FAILED_SRGB, "FAILED",
                      [_clip(f"stage: {err.get('stage', '?')}", inner, 12)]
-                     + _wrap(message[-1].split(), inner, 12, 3, sep=" "))
+                     + _wrap(message.split(), inner, 12, 3, sep=" "))
         drawn = "failed"
     elif exr is None:
         reason = ("done, but no render (no render config, or --until)" if job.state is JobState.DONE

@@ -102,8 +102,9 @@ def failed_outcome(message: str, stage: str | None = None, trace: str = ""):
 def write_error(job_dir: str | Path, message: str, stage: str | None = None, trace: str = "") -> None:
     """error.json as the pipeline writes it, for failures outside the pipeline."""
     from ..artifacts import write_json
+    from ..jobdir import ERROR
 
-    write_json(Path(job_dir) / "error.json", {"stage": stage, "message": message, "traceback": trace})
+    write_json(Path(job_dir) / ERROR, {"stage": stage, "message": message, "traceback": trace})
 
 
 def execute(task: Task) -> tuple[Any, int]:

@@ -16,6 +16,7 @@ from pathlib import Path
 import click
 
 from ..errors import InputError, Interrupted, one_line_each
+from ..jobdir import error_line
 from .manifest import Manifest, load_manifest
 from .sweep import (MAX_JOBS, JobRecord, Status, SweepSummary, apply_sets, check_job_count, count_points,
                     run_sweep)
@@ -52,7 +53,8 @@ class LineProgress:
         self.count += 1
         self.failed += record.status is Status.FAILED
         values = " ".join(f"{k.split('.')[-1]}={_short(v)}" for k, v in record.values)
-        detail = f"{record.seconds:.1f} s" if record.status is Status.DONE else f"FAILED: {_last_line(record.error)}"
+        failed = f"FAILED: {error_line(record.error, 'unknown error')}"
+        detail = f"{record.seconds:.1f} s" if record.status is Status.DONE else failed
         reused = f", reused {'+'.join(record.reused)}" if record.reused else ""
         retried = f", attempt {record.attempts}" if record.attempts > 1 else ""
         self.echo(f"[{self.count}/{self.total}] {record.object_id}/{record.job_id} {values} "
@@ -103,11 +105,6 @@ def default_progress():
 
 def _short(value) -> str:
     return f"{value:g}" if isinstance(value, float) else str(value)
-
-
-def _last_line(text: str | None) -> str:
-    lines = (text or "").strip().splitlines()
-    return lines[0] if lines else "unknown error"
 
 
 # --------------------------------------------------------------------------- validate
@@ -176,7 +173,7 @@ def format_summary(summary: SweepSummary) -> str:
     for r in summary.jobs:
         if r.status is Status.FAILED:
             stage = f" in stage {r.failed_stage}" if r.failed_stage else ""
-            lines.append(f"  FAILED {r.object_id}/{r.job_id}{stage}: {_last_line(r.error)}")
+            lines.append(f"  FAILED {r.object_id}/{r.job_id}{stage}: {error_line(r.error, 'unknown error')}")
     lines.append(f"results: {summary.sweep_dir}  (jobs.csv, jobs/<object>/<job>/)")
     return "\n".join(lines)
 

@@ -43,6 +43,7 @@ import yaml
 from .. import params as P
 from ..artifacts import atomic_write, check_done
 from ..errors import InputError, Interrupted, short_repr
+from ..jobdir import TIMINGS, error_line, total_seconds
 from .manifest import (SOURCE_KEY, Axis, Distribution, Manifest, Sweep, SweepMethod, load_manifest,
                        manifest_to_dict, source_problems)
 
@@ -474,10 +475,9 @@ def jobs_csv_text(records: Sequence[JobRecord], swept: Sequence[str]) -> str:
                      "failed_stage", "error"])
     for r in records:
         values = dict(r.values)
-        error = (r.error or "").strip().splitlines()
         writer.writerow([r.job_id, r.object_id, *(_format(values.get(k, "")) for k in swept), r.status.value,
                          f"{r.seconds:.3f}", " ".join(r.reused), r.attempts, r.failed_stage or "",
-                         error[-1] if error else ""])
+                         error_line(r.error, "")])
     return buf.getvalue()
 
 
@@ -493,13 +493,10 @@ def _resolved_yaml(manifest: Manifest, jobs: Sequence[PlannedJob], sweep_dir: Pa
 def _previous_seconds(path: Path) -> float:
     """Seconds recorded by a finished job (timings.json), for resumed rows of jobs.csv."""
     try:
-        data = json.loads((path / "timings.json").read_text())
+        data = json.loads((path / TIMINGS).read_text())
     except (OSError, ValueError):
         return 0.0
-    seconds = data.get("seconds", data) if isinstance(data, Mapping) else {}
-    if not isinstance(seconds, Mapping):
-        return 0.0
-    return float(sum(v for v in seconds.values() if isinstance(v, (int, float)) and not isinstance(v, bool)))
+    return total_seconds(data.get("seconds", data) if isinstance(data, Mapping) else None) or 0.0
 
 
 def check_folder(sweep_dir: Path, resume: bool, overwrite: bool) -> bool:
