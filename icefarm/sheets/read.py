@@ -1,0 +1,144 @@
+"""Reading a sweep folder into a `RunInfo`: its jobs, their parameters, states and order."""
+
+from __future__ import annotations
+
+import csv
+import json
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+import yaml
+
+from .. import params as P
+from ..errors import InputError
+from ..jobdir import DONE, ERROR, PARAMS, TIMINGS
+from .model import JobInfo, JobState, RunInfo
+from .labels import varying_keys, _sort_key
+
+# reading
+
+def _read_json(path: Path) -> dict | None:
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+    return data if isinstance(data, dict) else None
+
+
+def _read_params(path: Path) -> dict | None:
+    try:
+        data = yaml.safe_load(path.read_text())
+    except (OSError, yaml.YAMLError):
+        return None
+    return P.flatten(data) if isinstance(data, Mapping) else None
+
+
+def _read_jobs_csv(path: Path) -> tuple[list[dict], tuple[str, ...]]:
+    """Rows of jobs.csv and its swept columns (those between ``object`` and ``status``)."""
+    try:
+        with open(path, newline="") as f:
+            reader = csv.DictReader(f)
+            rows = [r for r in reader if r.get("job_id")]
+            fields = reader.fieldnames or []
+    except OSError:
+        return [], ()
+    if "job_id" not in fields:
+        return [], ()
+    swept = ()
+    if "object" in fields and "status" in fields:
+        swept = tuple(fields[fields.index("object") + 1:fields.index("status")])
+    return rows, swept
+
+
+def _job_state(path: Path) -> JobState:
+    if (path / DONE).is_file():
+        return JobState.DONE
+    if (path / ERROR).is_file():
+        return JobState.FAILED
+    return JobState.UNFINISHED
+
+
+def scan_run(run_dir: Path, sweep_name: str | None = None) -> RunInfo:
+    """Read a sweep folder: every job of every object, in job order.
+
+    Job order is the order of ``jobs.csv`` when it exists (jobs it does not list follow,
+    sorted by their varying values); otherwise the jobs sorted by their varying values.
+
+    Raises
+    ------
+    InputError
+        ``run_dir`` has no ``jobs/`` folder.
+    """
+    run_dir = Path(run_dir)
+    jobs_root = run_dir / "jobs"
+    if not jobs_root.is_dir():
+        raise InputError(f"{run_dir} is not a sweep folder: it has no jobs/ folder "
+                         f"(give the folder `icefarm sweep` wrote, <out>/<sweep name>)")
+    manifest = {}
+    if (run_dir / "manifest.resolved.yaml").is_file():
+        try:
+            loaded = yaml.safe_load((run_dir / "manifest.resolved.yaml").read_text())
+            manifest = loaded if isinstance(loaded, Mapping) else {}
+        except (OSError, yaml.YAMLError):
+            manifest = {}
+    name = sweep_name or str(manifest.get("name") or run_dir.name)
+    sweep = manifest.get("sweep") if isinstance(manifest.get("sweep"), Mapping) else {}
+    method = sweep.get("method") if isinstance(sweep.get("method"), str) else None
+    csv_rows, swept = _read_jobs_csv(run_dir / "jobs.csv")
+
+    objects: dict[str, dict[str, JobInfo]] = {}
+    for obj_dir in sorted(p for p in jobs_root.iterdir() if p.is_dir()):
+        for job_dir in sorted(p for p in obj_dir.iterdir() if p.is_dir() and not p.name.startswith(".")):
+            values = _read_params(job_dir / PARAMS)
+            objects.setdefault(obj_dir.name, {})[job_dir.name] = JobInfo(
+                object_id=obj_dir.name, job_id=job_dir.name, path=job_dir, state=_job_state(job_dir),
+                values=values or {}, has_params=values is not None,
+                error=_read_json(job_dir / ERROR), timings=_read_json(job_dir / TIMINGS))
+    csv_order: dict[str, list[str]] = {}
+    for row in csv_rows:
+        obj, job = row.get("object") or "", row["job_id"]
+        csv_order.setdefault(obj, []).append(job)
+        known = objects.setdefault(obj, {})
+        if job in known:
+            if not known[job].has_params:  # fall back on the swept values jobs.csv lists
+                known[job] = _with_values(known[job], _csv_values(row, swept))
+        elif obj:
+            known[job] = JobInfo(object_id=obj, job_id=job, path=None, state=JobState.UNFINISHED,
+                                 values=_csv_values(row, swept), has_params=False, error=None, timings=None)
+
+    ordered: dict[str, list[JobInfo]] = {}
+    for obj, jobs in objects.items():
+        if not jobs:
+            continue
+        vary = varying_keys(list(jobs.values()), swept)
+        first = [jobs[j] for j in dict.fromkeys(csv_order.get(obj, [])) if j in jobs]
+        listed = {j.job_id for j in first}
+        rest = sorted((j for j in jobs.values() if j.job_id not in listed),
+                      key=lambda j: (tuple(_sort_key(j.values.get(k)) for k in vary), j.job_id))
+        ordered[obj] = first + rest
+    return RunInfo(run_dir=run_dir, name=name, method=method, swept=swept, objects=ordered)
+
+
+def _with_values(job: JobInfo, values: dict) -> JobInfo:
+    return JobInfo(job.object_id, job.job_id, job.path, job.state, values, False, job.error, job.timings)
+
+
+def _csv_values(row: Mapping[str, str], swept: Sequence[str]) -> dict:
+    out = {}
+    for key in swept:
+        raw = row.get(key, "")
+        if raw:
+            value = P.parse_value(raw)
+            # jobs.csv writes vectors as "0 -1 0"
+            if isinstance(value, str) and all(_is_number(t) for t in value.split()):
+                value = [float(t) for t in value.split()]
+            out[key] = value
+    return out
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
