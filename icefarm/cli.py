@@ -11,6 +11,7 @@ import click
 
 from . import __version__, params
 from .errors import InputError, Interrupted, one_line_each
+from .jobdir import stage_phrase
 from .placement import PLACEMENTS
 
 
@@ -132,7 +133,7 @@ def run(mesh, size_m, assignments, seed, out, until, render, no_render, placemen
     outcome = run_job(spec, Path(out), Path(cache) if cache else None, Stage(until) if until else None,
                       progress=sys.stderr.isatty())
     if outcome.status != "done":
-        click.echo(f"error: job failed in stage {outcome.failed_stage}: {outcome.error} "
+        click.echo(f"error: job failed {stage_phrase(outcome.failed_stage)}: {outcome.error} "
                    f"(details in {Path(out) / 'error.json'})", err=True)
         sys.exit(1)
     timings = json.loads((Path(out) / "timings.json").read_text())

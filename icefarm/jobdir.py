@@ -26,6 +26,14 @@ def total_seconds(seconds: Any) -> float | None:
     return sum(values) if values else None
 
 
+def stage_phrase(stage: str | None) -> str:
+    """Where a job failed, for a sentence: ``in stage surface``, or ``after stage
+    trajectories`` for a failure between steps (the pipeline records ``after <step>``)."""
+    if not stage:
+        return "in an unknown stage"
+    return f"after stage {stage[6:]}" if stage.startswith("after ") else f"in stage {stage}"
+
+
 def error_line(message: Any, default: str = "-") -> str:
     """The line that stands for a failure in tables and cells: the first non-empty line of
     its message, which names the exception (``ValueError: ...``) where the pipeline wrote

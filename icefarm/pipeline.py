@@ -143,6 +143,9 @@ class _Run:
         start = time.perf_counter()
         value = work()
         self.seconds[stage] = round(time.perf_counter() - start, 6)
+        # What fails before the next step starts (glue, imports, a config read) is not this
+        # step's fault: error.json says "after <step>", not "<step>".
+        self.stage = f"after {stage}"
         return value
 
 

@@ -11,3 +11,19 @@ def test_the_line_that_stands_for_a_failure_names_the_exception():
 def test_a_jobs_total_seconds_sums_its_steps_and_nothing_else():
     assert total_seconds({"water": 0.5, "render": 2.0, "cached": True, "note": "x"}) == 2.5
     assert total_seconds({}) is None and total_seconds(None) is None and total_seconds([1, 2]) is None
+
+
+def test_a_failure_between_steps_is_not_blamed_on_the_step_before(tmp_path, monkeypatch):
+    """A bad render config found after stage 4 (a manifest edited since) used to read
+    "failed in stage measure"; the pipeline now records the gap between steps."""
+    from icefarm import params
+    from icefarm.jobdir import stage_phrase
+    from icefarm.pipeline import JobSpec, run_job
+
+    assert stage_phrase("surface") == "in stage surface"
+    assert stage_phrase("after measure") == "after stage measure"
+    spec = JobSpec("roof", "generator:roof", 0.3, params.resolve({"drips.count": 2, "glaze.mode": "none"}),
+                   seed=0, render="no-such-config")
+    outcome = run_job(spec, tmp_path / "job")
+    assert outcome.status == "failed" and outcome.failed_stage == "after measure"
+    assert "no-such-config" in outcome.error

@@ -16,7 +16,7 @@ from pathlib import Path
 import click
 
 from ..errors import InputError, Interrupted, one_line_each
-from ..jobdir import error_line
+from ..jobdir import error_line, stage_phrase
 from .manifest import Manifest, load_manifest
 from .sweep import (MAX_JOBS, JobRecord, Status, SweepSummary, apply_sets, check_job_count, count_points,
                     run_sweep)
@@ -172,7 +172,7 @@ def format_summary(summary: SweepSummary) -> str:
                      + (" ..." if len(summary.stale) > 10 else ""))
     for r in summary.jobs:
         if r.status is Status.FAILED:
-            stage = f" in stage {r.failed_stage}" if r.failed_stage else ""
+            stage = f" {stage_phrase(r.failed_stage)}" if r.failed_stage else ""
             lines.append(f"  FAILED {r.object_id}/{r.job_id}{stage}: {error_line(r.error, 'unknown error')}")
     lines.append(f"results: {summary.sweep_dir}  (jobs.csv, jobs/<object>/<job>/)")
     return "\n".join(lines)
