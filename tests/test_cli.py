@@ -133,7 +133,7 @@ def test_render_again_makes_new_frames_and_leaves_the_job_as_it_was(sphere_file,
     out = job / "renders" / "wide"
     for name in ("scene.xml", "scene.pov", "ice.ply", "object.ply", "render.exr", "render.png", "render_view1.png"):
         assert (out / name).is_file(), name
-    from icefarm.scene.render import read_image
+    from icefarm.scene.images import read_image
 
     assert read_image(out / "render.png").shape[:2] == (32, 64)
     assert {p.name: p.read_bytes() for p in job.iterdir() if p.is_file()} == before

@@ -105,7 +105,7 @@ def mitsuba_sensors(xml):
     """``(to_world 4x4, x fov in degrees)`` of each sensor Mitsuba loads from ``xml``."""
     import mitsuba as mi
 
-    from icefarm.scene.render import pick_variant
+    from icefarm.scene.variants import pick_variant
 
     mi.set_variant(pick_variant("scalar_rgb"))
     scene = mi.load_file(str(xml))

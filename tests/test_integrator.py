@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from icefarm.scene.config import IceLook
-from icefarm.scene.render import pick_variant
+from icefarm.scene.variants import pick_variant
 
 TINT = IceLook.tint
 IOR = IceLook.ior

@@ -19,8 +19,9 @@ from icefarm.scene.camera import frame_view, world_frame
 from icefarm.scene.config import (RenderConfig, View, config_names, load_render_config,
                                   material_from_dict, parse_view, render_config_from_dict,
                                   render_config_to_dict)
-from icefarm.scene.render import (choose_variant, find_libllvm, llvm_version, read_image,
-                                  render_job, write_scenes)
+from icefarm.scene.images import read_image
+from icefarm.scene.render import render_job, write_scenes
+from icefarm.scene.variants import choose_variant, find_libllvm, llvm_version
 
 ROOT = Path(__file__).resolve().parents[1]
 MITSUBA_CLI = Path(sys.executable).parent / "mitsuba"
@@ -171,7 +172,7 @@ def test_pick_variant_falls_back_to_scalar_without_good_llvm(tmp_path, fake):
     env = {k: v for k, v in os.environ.items() if k != "DRJIT_LIBLLVM_PATH"}
     env.update(CUDA_VISIBLE_DEVICES="", DRJIT_LIBCUDA_PATH=str(tmp_path / "no-libcuda.so"),
                PYTHONPATH=str(ROOT))
-    code = ("import os; from icefarm.scene.render import pick_variant; "
+    code = ("import os; from icefarm.scene.variants import pick_variant; "
             f"print(pick_variant('auto', search_dirs=[{str(tmp_path)!r}])); "
             "print(os.environ['DRJIT_LIBLLVM_PATH'])")
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
@@ -224,7 +225,7 @@ def test_scene_files_follow_the_contract(tmp_path):
 
 
 def test_custom_sky_image_is_copied_next_to_the_scene(tmp_path):
-    from icefarm.scene.render import write_exr
+    from icefarm.scene.images import write_exr
 
     write_exr(tmp_path / "studio.exr", np.full((8, 16, 3), 0.5, np.float32))
     (tmp_path / "look.yaml").write_text("environment: {sky: studio.exr}\n")  # relative to the YAML
@@ -425,7 +426,8 @@ def test_smooth_normals_are_the_ones_mitsuba_computes(tmp_path):
     import mitsuba as mi
 
     from icefarm.scene.geometry import smooth_normals, write_ply
-    from icefarm.scene.render import _vertex_normals, pick_variant
+    from icefarm.scene.render import _vertex_normals
+    from icefarm.scene.variants import pick_variant
 
     mesh = trimesh.creation.icosphere(3, 0.1)
     mesh.vertices += np.random.default_rng(5).normal(scale=0.004, size=mesh.vertices.shape)
@@ -618,7 +620,7 @@ def test_scene_xml_with_the_medium_loads_and_gives_icepath_its_coefficients(tmp_
     import mitsuba as mi
 
     from icefarm.scene.integrator import medium_coefficients
-    from icefarm.scene.render import pick_variant
+    from icefarm.scene.variants import pick_variant
 
     box, ice = box_with_icicles()
     config = tiny_config()
@@ -640,7 +642,7 @@ def _ice_mask(camera, ice, width, height):
 
 
 def test_impurity_clouds_the_ice_and_impurity_zero_is_clear(tmp_path):
-    from icefarm.scene.render import pick_variant
+    from icefarm.scene.variants import pick_variant
 
     if pick_variant("auto") == "scalar_rgb":
         pytest.skip("icepath (a JIT variant) renders the medium's scattering cheaply; volpath is too noisy here")

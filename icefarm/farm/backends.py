@@ -130,7 +130,7 @@ def execute(task: Task) -> tuple[Any, int]:
         from .. import pipeline
 
         if task.spec.render is not None and task.threads:
-            from ..scene.render import set_thread_count
+            from ..scene.variants import set_thread_count
 
             set_thread_count(task.threads)
         run = task.job_fn or pipeline.run_job

@@ -1,11 +1,12 @@
 """Scenes and rendering: Mitsuba 3 XML and POV-Ray files for a job, and their renders.
 
-Importing this package imports neither mitsuba nor drjit: `render.pick_variant` (or
-`render.prepare_llvm`) must run before they are, to choose Dr.Jit's libLLVM.
+Importing this package imports neither mitsuba nor drjit: `variants.pick_variant` (or
+`variants.prepare_llvm`) must run before they are, to choose Dr.Jit's libLLVM.
 """
 
 from .config import RenderConfig, load_render_config, material_from_dict, render_config_to_dict
-from .render import RenderResult, SceneFiles, pick_variant, prepare_llvm, render_job, write_scenes
+from .render import RenderResult, SceneFiles, render_job, write_scenes
+from .variants import pick_variant, prepare_llvm
 
 __all__ = ["RenderConfig", "RenderResult", "SceneFiles", "load_render_config", "material_from_dict",
            "pick_variant", "prepare_llvm", "render_config_to_dict", "render_job", "write_scenes"]

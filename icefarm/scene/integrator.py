@@ -386,7 +386,7 @@ def integrator_class(variant: str) -> type:
     methods = {k: v for k, v in vars(_IcePathMethods).items()
                if k in ("__init__", "__doc__") or not k.startswith("__")}
     # @dr.syntax rewrites their while loops into Dr.Jit symbolic loops; it is applied
-    # here because drjit must not be imported before `render.pick_variant` ran.
+    # here because drjit must not be imported before `variants.pick_variant` ran.
     methods["_shadow"] = dr.syntax(_IcePathMethods._shadow)
     methods["sample"] = dr.syntax(_IcePathMethods.sample)
     cls = type("IcePathIntegrator", (mi.SamplingIntegrator,), methods)
