@@ -8,7 +8,7 @@ import yaml
 
 from icefarm.errors import InputError
 from icefarm.farm.manifest import Distribution, SweepMethod, load_manifest
-from icefarm.farm.sweep import apply_sets, expand, parse_set, split_values, swept_keys
+from icefarm.farm.points import apply_sets, expand, parse_set, split_values, swept_keys
 
 SCENES = Path(__file__).resolve().parents[1] / "scenes"
 

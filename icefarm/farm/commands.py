@@ -18,8 +18,8 @@ import click
 from ..errors import InputError, Interrupted, one_line_each
 from ..jobdir import error_line, stage_phrase
 from .manifest import Manifest, load_manifest
-from .sweep import (MAX_JOBS, JobRecord, Status, SweepSummary, apply_sets, check_job_count, count_points,
-                    run_sweep)
+from .points import MAX_JOBS, apply_sets, check_job_count, count_points
+from .sweep import JobRecord, Status, SweepSummary, run_sweep
 
 
 class BadInput(click.ClickException):
