@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -20,11 +22,13 @@ from icefarm.stages.landing import find_landings
 from icefarm.stages.surface.curtains import curtain_balls
 from icefarm.stages.surface.ground_ice import STALAGMITE_TOP, ground_ice_balls
 from icefarm.stages.trajectories import TrajectoryResult
-from icefarm.stages.water import WaterResult
 
 G = np.array([0.0, -1.0, 0.0])
 UP = -G
 TIP = 0.00244
+
+sys.path.insert(0, str(Path(__file__).parent))
+from test_surface import _dry, _straight  # noqa: E402
 
 
 def _p(**changes):
@@ -39,27 +43,10 @@ def _step():
     return trimesh.util.concatenate([eave, ledge])
 
 
-def _straight(starts, lengths, step=0.004):
-    """One straight trunk per start, hanging along gravity."""
-    pts, off = [], [0]
-    for s, length in zip(np.asarray(starts, float).reshape(-1, 3), lengths):
-        n = max(int(np.ceil(length / step)), 1)
-        pts.append(s + np.linspace(0.0, length, n + 1)[:, None] * G)
-        off.append(off[-1] + n + 1)
-    k = len(off) - 1
-    return TrajectoryResult(np.concatenate(pts), np.array(off), np.arange(k), np.full(k, -1))
-
-
 def _drips(mesh, traj, water):
     points = traj.points[traj.branch_offsets[:-1]]
     closest, _, face = trimesh.proximity.closest_point(mesh, points)
     return DripResult(np.zeros(0, int), closest, mesh.face_normals[face], np.asarray(water, float), face)
-
-
-def _dry(mesh):
-    n = len(mesh.vertices)
-    z = np.zeros(n)
-    return WaterResult(np.zeros(n, bool), z, z.astype(int), z, z.astype(int), z, np.zeros((0, 3)))
 
 
 def _eave_icicles():
