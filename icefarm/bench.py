@@ -2,22 +2,20 @@
 
 from __future__ import annotations
 
-import json
+import dataclasses
 import shutil
 import tempfile
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
-import numpy as np
 import trimesh
 
-from .geometry import ray_caster
+from .chain import Stage, run_stages
+from .jobdir import JobState, read_job
 from .mesh import prepare
-from .stages.drips import find_drips
-from .stages.trajectories import grow_trajectories
-from .stages.water import compute_water
 
 
 @dataclass(frozen=True)
@@ -25,52 +23,40 @@ class StageRuns:
     faces: int
     icicles: int
     ice_faces: int  # of the last run
-    seconds: dict  # stage -> list of seconds, one per run
+    seconds: dict  # step -> list of seconds, one per run
     ice_faces_runs: tuple = ()  # ice faces of each run (surface timed only)
 
 
 def stage_timings(mesh_path: str | Path | trimesh.Trimesh, size_m: float, p: dict, repeat: int,
                   surface: bool = False, on_run: Callable[[], None] | None = None,
-                  exclude: tuple = ()) -> StageRuns:
-    """Time stages 1-3 (and 4) ``repeat`` times on a fresh copy of the mesh each run.
+                  exclude: tuple = (), placement: str = "ground") -> StageRuns:
+    """Time the stages as a job runs them (`icefarm.chain.run_stages`), ``repeat`` times.
 
-    ``mesh_path`` is a mesh file or a mesh already in memory (see `icefarm.mesh.prepare`).
-    Mesh loading is excluded; everything else counts, the ray-tracing BVH included
-    (built in stage 1 and shared by stages 2-3, as in the pipeline). ``on_run`` is
-    called after each run (a progress bar's tick); ``exclude`` holds boxes ``((lo), (hi))``
-    in meters, in the prepared mesh's frame, where no icicle may hang (as a job's ``exclude``).
+    Each run starts from a fresh copy of the prepared mesh (no cached normals, edges or
+    BVH: the stages pay for them) and uses seed ``run``. Mesh loading is excluded;
+    everything else counts, the ray-tracing BVH included (built in stage 1 and shared by
+    stages 2-3, as in a job), and so do the proxy of a problem mesh and the ground ice
+    when the parameters ask for them. ``mesh_path`` is a mesh file or a mesh already in
+    memory (see `icefarm.mesh.prepare`); ``on_run`` is called after each run (a progress
+    bar's tick); ``exclude`` and ``placement`` are a job's.
     """
     prepared = prepare(mesh_path, size_m, p["water"]["gravity"])
-    g = np.asarray(p["water"]["gravity"], dtype=np.float64)
-    g /= np.linalg.norm(g)
-    names = ["water", "drips", "trajectories"] + (["surface"] if surface else [])
-    seconds: dict[str, list[float]] = {name: [] for name in names}
+    seconds: dict[str, list[float]] = {}
     icicles = ice_faces = 0
     ice_faces_runs: list[int] = []
     for run in range(repeat):
-        mesh = prepared.mesh.copy()  # no cached normals, edges or BVH: the stages pay for them
-        rng = np.random.default_rng(run)
-        t0 = time.perf_counter()
-        caster = ray_caster(mesh)
-        water = compute_water(mesh, g, p["water"]["rays"], p["water"]["influence_radius"], rng, caster=caster,
-                              pools=p["water"]["pools"])
-        t1 = time.perf_counter()
-        drips = find_drips(mesh, water.water, g, p["drips"]["count"], p["drips"]["drip_limit"], rng,
-                           exclude_boxes=exclude, caster=caster)
-        t2 = time.perf_counter()
-        traj = grow_trajectories(mesh, drips.positions, mesh.face_normals[drips.faces], drips.water, g, rng,
-                                 drip_limit=p["drips"]["drip_limit"], caster=caster, **p["trajectories"])
-        t3 = time.perf_counter()
-        for name, dt in zip(names, (t1 - t0, t2 - t1, t3 - t2)):
-            seconds[name].append(dt)
-        icicles = len(drips.positions)
-        if surface:
-            from .stages.surface import build_ice
+        def timed(name: str, key: str | None, work: Callable[[], Any]) -> Any:
+            start = time.perf_counter()
+            value = work()
+            seconds.setdefault(name, []).append(time.perf_counter() - start)
+            return value
 
-            t4 = time.perf_counter()
-            ice = build_ice(mesh, mesh, water, drips, traj, p["surface"], p["glaze"], g, rng, measure=False)
-            seconds["surface"].append(time.perf_counter() - t4)
-            ice_faces = len(ice.faces)
+        fresh = dataclasses.replace(prepared, mesh=prepared.mesh.copy())
+        result = run_stages(fresh, p, run, placement=placement, exclude=exclude,
+                            until=None if surface else Stage.TRAJECTORIES, step=timed)
+        icicles = len(result.drips.positions)
+        if surface:
+            ice_faces = len(result.ice.faces)
             ice_faces_runs.append(ice_faces)
         if on_run is not None:
             on_run()
@@ -147,9 +133,9 @@ def render_timings(mesh: str, size_m: float, p: dict, render_config: str, repeat
         for run in range(repeat + 1):
             job_dir = Path(tmp) / f"job{run}"
             outcome = run_job(spec, job_dir, Path(tmp) / "cache")
-            if outcome.status != "done":
+            if outcome.status is not JobState.DONE:
                 raise RuntimeError(f"benchmark job failed in stage {outcome.failed_stage}: {outcome.error}")
-            stats = json.loads((job_dir / "timings.json").read_text())
+            stats = read_job(job_dir).stats
             if run > 0:
                 alone = render_job(job_dir, config)
                 runs.append({**stats, "step": outcome.seconds["render"], "alone": alone.seconds})
@@ -201,10 +187,10 @@ def growth_timings(mesh: str, size_m: float, p: dict, render_config: str | None,
     spec = JobSpec(object_id=Path(mesh).stem, mesh=mesh, size_m=size_m, params=p, seed=seed, render=render_config)
     with tempfile.TemporaryDirectory(prefix="icefarm-bench-") as tmp:
         outcome = run_job(spec, Path(tmp))
-        if outcome.status != "done":
+        if outcome.status is not JobState.DONE:
             raise RuntimeError(f"benchmark job failed in stage {outcome.failed_stage}: {outcome.error}")
         rows = read_frames(Path(tmp) / "growth")
-        stats = json.loads((Path(tmp) / "timings.json").read_text())
+        stats = read_job(Path(tmp)).stats
     return GrowthRuns(ice_faces=int(stats.get("ice_faces", 0)), surface=outcome.seconds["surface"],
                       render=outcome.seconds.get("render", 0.0),
                       frame_surface=tuple(r["surface_seconds"] for r in rows),

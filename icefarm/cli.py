@@ -11,7 +11,7 @@ import click
 
 from . import __version__, params
 from .errors import InputError, Interrupted, one_line_each
-from .jobdir import stage_phrase
+from .jobdir import JobState, read_job, stage_phrase
 from .placement import PLACEMENTS
 
 
@@ -59,14 +59,17 @@ def _assignments(values: tuple[str, ...]) -> dict:
     return dict(params.parse_assignment(v) for v in values)
 
 
-def _box(text: str) -> tuple:
+def _box(text: str):
+    """``--exclude``'s six numbers as a `icefarm.stages.drips.Box`."""
+    from .stages.drips import Box
+
     try:
         v = [float(x) for x in text.split(",")]
     except ValueError:
         v = []
     if len(v) != 6:
         raise InputError(f"--exclude takes xmin,ymin,zmin,xmax,ymax,zmax in meters, got {text!r}")
-    return (tuple(v[:3]), tuple(v[3:]))
+    return Box(tuple(v[:3]), tuple(v[3:]))
 
 
 @main.command()
@@ -132,11 +135,11 @@ def run(mesh, size_m, assignments, seed, out, until, render, no_render, placemen
         _writable_folder(cache)
     outcome = run_job(spec, Path(out), Path(cache) if cache else None, Stage(until) if until else None,
                       progress=sys.stderr.isatty())
-    if outcome.status != "done":
+    if outcome.status is not JobState.DONE:
         click.echo(f"error: job failed {stage_phrase(outcome.failed_stage)}: {outcome.error} "
                    f"(details in {Path(out) / 'error.json'})", err=True)
         sys.exit(1)
-    timings = json.loads((Path(out) / "timings.json").read_text())
+    timings = read_job(Path(out)).stats
     for stage, seconds in outcome.seconds.items():
         click.echo(f"  {stage:<13} {seconds:8.3f} s")
     _print_plausibility(timings)

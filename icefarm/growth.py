@@ -27,7 +27,7 @@ import json
 import os
 import shutil
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -35,6 +35,8 @@ import numpy as np
 import trimesh
 
 from . import artifacts
+from .params import GlazeParams, SurfaceParams, typed
+from .scene.material import Material
 from .stages.drips import DripResult
 from .stages.trajectories import TrajectoryResult
 
@@ -56,8 +58,8 @@ class FrameView:
     config : icefarm.scene.config.RenderConfig
         The job's render config; frames use its main view only, framed on the whole scene.
     gravity : (3,) float
-    material : dict
-        The object's material (`icefarm.scene.config.material_from_dict`).
+    material : Material
+        The object's material (`icefarm.scene.material.material_from_dict`).
     frame_points : (n, 3) float
         What the camera frames: the object and the fully grown ice, so nothing jumps.
     impurity : float
@@ -69,7 +71,7 @@ class FrameView:
     object_mesh: trimesh.Trimesh
     config: object
     gravity: np.ndarray
-    material: dict
+    material: Material
     frame_points: np.ndarray
     impurity: float = 0.0
     ground_level: float | None = None
@@ -172,7 +174,8 @@ def trajectories_at(traj: TrajectoryResult, fraction: float) -> TrajectoryResult
                             branch_parent=traj.branch_parent, branch_cut=cut)
 
 
-def stage4_inputs_at(drips: DripResult, glaze: dict, fraction: float) -> tuple[DripResult, dict]:
+def stage4_inputs_at(drips: DripResult, glaze: GlazeParams | Mapping,
+                     fraction: float) -> tuple[DripResult, GlazeParams]:
     """The water-driven sizes of stage 4 at ``fraction`` of the growth.
 
     Returns ``drips`` with ``water`` times ``fraction`` (base ball radii, Equation 2, are
@@ -181,9 +184,10 @@ def stage4_inputs_at(drips: DripResult, glaze: dict, fraction: float) -> tuple[D
     then proportional to it). Positions, counts and the wet area do not change, so every
     random draw lands where the full growth's does. ``fraction`` 1 returns the inputs.
     """
+    glaze = typed("glaze", glaze)
     if fraction == 1.0:
         return drips, glaze
-    scaled = {**glaze, "min_radius": glaze["min_radius"] * fraction, "scale": glaze["scale"] * fraction}
+    scaled = dataclasses.replace(glaze, min_radius=glaze.min_radius * fraction, scale=glaze.scale * fraction)
     return dataclasses.replace(drips, water=np.asarray(drips.water, dtype=np.float64) * fraction), scaled
 
 
@@ -194,7 +198,8 @@ def frame_fractions(frames: int) -> np.ndarray:
     return np.arange(1, frames + 1) / frames
 
 
-def grow_frames(folder: str | Path, traj: TrajectoryResult, drips: DripResult, surface: dict, glaze: dict, *,
+def grow_frames(folder: str | Path, traj: TrajectoryResult, drips: DripResult, surface: SurfaceParams | Mapping,
+                glaze: GlazeParams | Mapping, *,
                 frames: int, build: Callable, new_rng: Callable[[], np.random.Generator], gravity,
                 view: FrameView | None = None, progress: bool = False,
                 object_usd: str | Path | None = None) -> GrowthResult:
@@ -207,7 +212,7 @@ def grow_frames(folder: str | Path, traj: TrajectoryResult, drips: DripResult, s
         ``growth.mp4`` with a ``view``, ``growth.usda``, ``frames.json``.
     traj, drips : TrajectoryResult, DripResult
         The job's stages 2-3 at full growth.
-    surface, glaze : dict
+    surface, glaze : SurfaceParams, GlazeParams or mapping
         The resolved ``surface`` and ``glaze`` groups.
     frames : int
         In [1, `MAX_FRAMES`].
@@ -223,6 +228,8 @@ def grow_frames(folder: str | Path, traj: TrajectoryResult, drips: DripResult, s
     object_usd : path, optional
         The job's ``object.usdc``, referenced by ``growth.usda`` when it exists.
     """
+    surface = typed("surface", surface)
+    glaze = typed("glaze", glaze)
     from tqdm import tqdm
 
     from .stages.surface.measure import measure_icicles
@@ -233,7 +240,7 @@ def grow_frames(folder: str | Path, traj: TrajectoryResult, drips: DripResult, s
     full_draws = _noise_draws(traj, surface)
     rows, plies, pngs = [], [], []
     trunks = (np.asarray(traj.branch_parent) < 0) & (np.diff(traj.branch_offsets) > 0)  # as measure_icicles's
-    was_long, was_wide = 0.0, 2 * surface["tip_radius"]  # before the first frame: the drop
+    was_long, was_wide = 0.0, 2 * surface.tip_radius  # before the first frame: the drop
     for i, f in enumerate(tqdm(frame_fractions(frames), desc="growth", unit="frame", disable=not progress), 1):
         start = time.perf_counter()
         traj_f = trajectories_at(traj, f)
@@ -253,7 +260,7 @@ def grow_frames(folder: str | Path, traj: TrajectoryResult, drips: DripResult, s
             render_seconds = time.perf_counter() - start
         m = measure_icicles(ice.vertices, ice.faces, traj_f, surface)
         long = _arc_lengths(traj_f.points, np.asarray(traj_f.branch_offsets))[1][trunks]
-        wide = 2 * m.taper * surface["tip_radius"]
+        wide = 2 * m.taper * surface.tip_radius
         gained = np.divide(long - was_long, wide - was_wide, out=np.full(len(long), np.nan),
                            where=wide - was_wide > 0)
         measured = np.isfinite(wide)  # a trunk too short to measure is compared later, with more growth
@@ -413,13 +420,13 @@ def _births(traj: TrajectoryResult, x: np.ndarray, full: np.ndarray) -> np.ndarr
     return birth
 
 
-def _noise_draws(traj: TrajectoryResult, surface: dict) -> int:
+def _noise_draws(traj: TrajectoryResult, surface: SurfaceParams) -> int:
     """How many doubles stage 4 draws for the icicles' noise before the bases' and glaze's
     draws: `icefarm.stages.surface.icicles.icicle_balls` takes two per ball (radius and
     angle) when ``surface.noise`` is on. Every frame's stream is advanced by the full
     growth's count less its own, so its bases and glaze draw what the full growth's do
     (PCG64 turns one 64-bit step into one double)."""
-    if surface["mode"] == "tubes" or surface["noise"] <= 0:
+    if surface.mode == "tubes" or surface.noise <= 0:
         return 0
     from .stages.surface.icicles import icicle_balls
 

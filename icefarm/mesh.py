@@ -117,8 +117,7 @@ def detect_problems(mesh: trimesh.Trimesh, self_intersections: bool = True) -> M
     if faces == 0:
         return MeshProblems(faces=0, components=0, boundary_edges=0, nonmanifold_edges=0,
                             self_intersections=0 if self_intersections else -1)
-    edges = np.sort(mesh.edges, axis=1)
-    _, counts = np.unique(edges, axis=0, return_counts=True)
+    counts = np.bincount(mesh.edges_unique_inverse)  # faces on each edge
     labels = trimesh.graph.connected_component_labels(mesh.face_adjacency, node_count=faces)
     crossings = count_self_intersections(mesh) if self_intersections else -1
     diagonal = float(np.linalg.norm(np.ptp(mesh.vertices[mesh.faces.ravel()], axis=0)))
@@ -140,11 +139,9 @@ def count_self_intersections(mesh: trimesh.Trimesh) -> int:
     """
     if len(mesh.faces) == 0:
         return 0
-    import pymeshlab
+    from .meshlab import meshset
 
-    ms = pymeshlab.MeshSet()
-    ms.add_mesh(pymeshlab.Mesh(np.asarray(mesh.vertices, dtype=np.float64),
-                               np.asarray(mesh.faces, dtype=np.int32)))
+    ms = meshset(mesh)
     ms.compute_selection_by_self_intersections_per_face()
     return int(ms.current_mesh().selected_face_number())
 

@@ -7,8 +7,10 @@ and hash stably. Lengths are in meters, angles in degrees.
 
 from __future__ import annotations
 
+import dataclasses
 import difflib
 import enum
+import functools
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -362,6 +364,72 @@ def resolve(*layers: Mapping[str, Any] | None) -> dict[str, dict[str, Any]]:
         out[p.group][p.name] = p.validate(out[p.group][p.name])
     del out["glaze"]["balls"]  # stood for glaze.mode (above)
     return out
+
+
+_PYTHON_TYPES = {Kind.INT: int, Kind.FLOAT: float, Kind.CHOICE: str, Kind.VECTOR: tuple, Kind.TEXT: str}
+_RETIRED = {"glaze.balls"}  # stands for glaze.mode in `resolve`, absent from its result
+
+
+@functools.cache
+def group_type(group: str) -> type:
+    """The frozen dataclass of ``group``'s parameters, generated from the registry.
+
+    ``group_type("surface")`` is ``SurfaceParams`` with one typed field per parameter
+    (vectors are tuples): what stage 4 reads as ``surface.tip_radius``. Build instances
+    with `typed`, which validates.
+    """
+    if group not in GROUPS:
+        raise ValueError(f"no parameter group {group!r}; one of {', '.join(GROUPS)}")
+    fields = [(p.name, _PYTHON_TYPES[p.kind]) for p in PARAMS if p.group == group and p.key not in _RETIRED]
+    name = "".join(part.title() for part in group.split("_")) + "Params"
+    cls = dataclasses.make_dataclass(name, fields, frozen=True)
+    cls.__module__ = __name__
+    return cls
+
+
+WaterParams = group_type("water")
+DripsParams = group_type("drips")
+TrajectoriesParams = group_type("trajectories")
+SurfaceParams = group_type("surface")
+GlazeParams = group_type("glaze")
+GroundIceParams = group_type("ground_ice")
+GrowthParams = group_type("growth")
+ProxyParams = group_type("proxy")
+
+
+def typed(group: str, values: Any) -> Any:
+    """One group's values as its frozen dataclass (`group_type`), validated once, here.
+
+    Parameters
+    ----------
+    group : str
+        ``surface``, ``glaze``, ``proxy``, ...
+    values : mapping or group_type(group)
+        ``resolve()[group]``, or a partial mapping laid over the defaults; an instance of
+        the group's dataclass passes through unchecked (it was checked when built).
+
+    Raises
+    ------
+    InputError
+        An unknown name or a value outside its domain.
+    """
+    cls = group_type(group)
+    if isinstance(values, cls):
+        return values
+    if not isinstance(values, Mapping):
+        raise TypeError(f"{group} parameters must be a mapping or {cls.__name__}, not {type(values).__name__}")
+    fields = {f.name for f in dataclasses.fields(cls)}
+    for name in values:
+        if name not in fields:
+            lookup(f"{group}.{name}")  # the nearest valid name
+            raise InputError(f"{group}.{name} is a legacy parameter: resolve the parameters first "
+                             "(`icefarm.params.resolve`)")
+    out = {}
+    for p in PARAMS:
+        if p.group == group and p.name in fields:
+            value = p.validate(values[p.name] if p.name in values else p.default)
+            out[p.name] = tuple(value) if isinstance(value, list) else value
+    return cls(**out)
 
 
 def parse_value(text: str) -> Any:

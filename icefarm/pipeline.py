@@ -8,7 +8,6 @@ last and atomically, ``error.json`` names the failed stage.
 
 from __future__ import annotations
 
-import enum
 import time
 import traceback
 from collections.abc import Callable
@@ -22,27 +21,17 @@ import trimesh
 from . import artifacts
 from .errors import InputError
 from .geometry import ray_caster
-from .jobdir import DONE, ERROR, PARAMS, TIMINGS
+from .jobdir import DONE, ERROR, PARAMS, TIMINGS, JobState
+from .chain import Stage, StageResults, build_surface, run_stages, sole, stage_rng, stops, unit_gravity
 from .mesh import PreparedMesh, prepare
-from .placement import Placement, ground_height, ground_level, sole_vertices, stop_at_ground
+from .placement import ground_height, ground_level
 from .scene.camera import frame_boxes
 from .stage_cache import StageCache, digest as _digest, file_digest as _file_digest
-from .stages.drips import DripResult, find_drips
-from .stages.trajectories import TrajectoryResult, grow_trajectories, measure_trajectories
-from .stages.water import WaterResult, compute_water
+from .scene.material import Material
+from .stages.drips import Box, DripResult
+from .stages.trajectory_stats import measure_trajectories
 
 GENERATOR_PREFIX = "generator:"
-
-
-class Stage(enum.Enum):
-    WATER = "water"
-    DRIPS = "drips"
-    TRAJECTORIES = "trajectories"
-    SURFACE = "surface"
-    RENDER = "render"
-
-
-STAGE_ORDER = tuple(Stage)
 
 
 @dataclass(frozen=True)
@@ -50,10 +39,11 @@ class JobSpec:
     """Everything that defines one job; its hash is the job id.
 
     ``mesh`` is an absolute path or ``generator:NAME``; ``params`` is
-    `icefarm.params.resolve` output; ``exclude`` holds boxes ``((lo), (hi))`` in meters in
-    the object's frame; ``overrides`` pairs a stage name with a file that replaces its
-    result; ``render`` is a render config name or path, None for no render; ``placement``
-    is ``ground`` (the object stands on the ground plane) or ``hanging``.
+    `icefarm.params.resolve` output; ``exclude`` holds `Box` es (meters, the object's
+    frame) where no icicle hangs; ``overrides`` pairs a stage name with a file that
+    replaces its result; ``render`` is a render config name or path, None for no render;
+    ``material`` the object's (None: the default); ``placement`` is ``ground`` (the object
+    stands on the ground plane) or ``hanging``.
     """
 
     object_id: str
@@ -62,15 +52,15 @@ class JobSpec:
     params: dict
     seed: int = 0
     render: str | None = None
-    exclude: tuple = ()
+    exclude: tuple[Box, ...] = ()
     overrides: tuple = ()
-    material: tuple = ()
+    material: Material | None = None
     placement: str = "ground"
 
 
 @dataclass(frozen=True)
 class JobOutcome:
-    status: str
+    status: JobState
     seconds: dict = field(default_factory=dict)
     reused: tuple = ()
     failed_stage: str | None = None
@@ -95,7 +85,8 @@ def job_id(spec: JobSpec) -> str:
     """Short stable hash of mesh content, size, params, render config, seed and extras."""
     return _digest(
         mesh_digest(spec.mesh), spec.size_m, spec.params, render_digest(spec.render), spec.seed,
-        spec.exclude, [(stage, _file_digest(path)) for stage, path in spec.overrides], spec.material,
+        spec.exclude, [(stage, _file_digest(path)) for stage, path in spec.overrides],
+        spec.material.to_dict() if spec.material else (),
         spec.placement,
     )[:12]
 
@@ -108,11 +99,6 @@ def load_object(spec: JobSpec) -> PreparedMesh:
 
         return prepare(generate(spec.mesh[len(GENERATOR_PREFIX):]), spec.size_m, gravity)
     return prepare(spec.mesh, spec.size_m, gravity)
-
-
-def _rng(seed: int, stage: Stage) -> np.random.Generator:
-    """Each stage has its own stream, so a cached upstream stage changes nothing downstream."""
-    return np.random.default_rng([seed, STAGE_ORDER.index(stage)])
 
 
 def _load_source(spec: JobSpec, prepared: PreparedMesh) -> trimesh.Trimesh | None:
@@ -170,7 +156,7 @@ def run_job(spec: JobSpec, job_dir: Path, cache_dir: Path | None = None,
             "stage": run.stage, "message": message, "traceback": traceback.format_exc(),
             "seconds": run.seconds,
         })
-        return JobOutcome("failed", dict(run.seconds), tuple(cache.reused), run.stage, message)
+        return JobOutcome(JobState.FAILED, dict(run.seconds), tuple(cache.reused), run.stage, message)
     artifacts.write_json(job_dir / TIMINGS, {"seconds": run.seconds, **summary, "reused": cache.reused})
     # Last, and listing every artifact with its size and digest: `--resume` checks them.
     artifacts.write_json(job_dir / DONE, {
@@ -178,183 +164,72 @@ def run_job(spec: JobSpec, job_dir: Path, cache_dir: Path | None = None,
         **({"cache_warnings": cache.warnings} if cache.warnings else {}),
         "artifacts": artifacts.list_artifacts(job_dir),
     })
-    return JobOutcome("done", dict(run.seconds), tuple(cache.reused))
-
-
-def _stops(until: Stage | None, stage: Stage) -> bool:
-    return until is not None and STAGE_ORDER.index(stage) >= STAGE_ORDER.index(until)
+    return JobOutcome(JobState.DONE, dict(run.seconds), tuple(cache.reused))
 
 
 def _run_stages(spec: JobSpec, job_dir: Path, run: _Run, cache: StageCache, until: Stage | None) -> dict:
     p = spec.params
-    gravity = np.asarray(p["water"]["gravity"], dtype=np.float64)
-    gravity = gravity / np.linalg.norm(gravity)
-    overrides = dict(spec.overrides)
+    gravity = unit_gravity(p)
     artifacts.write_yaml(job_dir / PARAMS, p)
     prepared = run.timed("prepare", lambda: load_object(spec))
-    obj = prepared.mesh
-    mesh_key = _digest(mesh_digest(spec.mesh), spec.size_m, p["water"]["gravity"])
     stats: dict[str, Any] = {"input_faces": prepared.problems.faces, "problems": vars(prepared.problems),
                              "placement": spec.placement}
 
-    flow, proxy_key = obj, "none"
-    if p["proxy"]["mode"] != "never":
-        from .proxy import build_proxy, proxy_reason
+    def step(name: str, key: str | None, work: Callable[[], Any]) -> Any:
+        return run.timed(name, (lambda: cache.get(name, key, work)) if key else work)
 
-        reason = proxy_reason(prepared.problems, p["proxy"]["mode"], p["proxy"]["face_budget"])
-        if reason:
-            proxy_key = _digest(mesh_key, p["proxy"])
-            proxy = run.timed("proxy", lambda: cache.get("proxy", proxy_key, lambda: build_proxy(obj, p["proxy"], prepared.problems)))
-            flow = proxy.mesh
-            artifacts.write_mesh(job_dir / "proxy.ply", flow)
-            stats.update(proxy_reason=reason, proxy_faces=proxy.faces, proxy_components=proxy.components,
-                         proxy_build_seconds=proxy.seconds)
-    stats["flow_faces"] = len(flow.faces)
-    casters: dict[int, Callable] = {}
+    def on_stage(name: str, r: StageResults) -> None:
+        """Each result's file and figures, as soon as it is there."""
+        if name == "proxy":
+            artifacts.write_mesh(job_dir / "proxy.ply", r.flow)
+            stats.update(proxy_reason=r.proxy_reason, proxy_faces=r.proxy.faces,
+                         proxy_components=r.proxy.components, proxy_build_seconds=r.proxy.seconds)
+        elif name == "water":
+            stats["flow_faces"] = len(r.flow.faces)
+            artifacts.write_water_ply(job_dir / "water.ply", r.flow, r.water.supply, r.water.water)
+        elif name == "drips":
+            artifacts.write_json(job_dir / "drips.json", artifacts.drips_to_json(r.drips))
+            stats["icicles"] = len(r.drips.positions)
+        elif name == "trajectories":
+            artifacts.write_json(job_dir / "trajectories.json", artifacts.trajectories_to_json(r.trajectories))
+            t = measure_trajectories(r.trajectories, gravity)
+            stats.update(branches=r.trajectories.n_branches, upward_share=_finite(t.upward_share),
+                         branch_spread_mm=_finite(t.branch_spread_mm), length_cv=_finite(t.length_cv),
+                         trunk_lengths_m=_finite_list(t.trunk_lengths, 4))
+        elif name == "ground_ice":
+            ground = r.ground
+            artifacts.write_json(job_dir / "landing.json",
+                                 artifacts.landing_to_json(r.landing, ground.heights, ground.columns))
+            grown = ground.heights[ground.heights > 0] * 1000
+            stats.update(landing_points=len(r.landing), stalagmites=len(grown), columns=int(ground.columns.sum()),
+                         stalagmite_median_mm=_finite(np.median(grown)) if len(grown) else None,
+                         stalagmite_max_mm=_finite(grown.max()) if len(grown) else None)
 
-    def caster(mesh: trimesh.Trimesh) -> Callable:
-        """One ray-tracing BVH per mesh, shared by the stages that cast rays on it."""
-        if id(mesh) not in casters:
-            casters[id(mesh)] = ray_caster(mesh)
-        return casters[id(mesh)]
-
-    water_key = _digest(mesh_key, proxy_key, p["water"], spec.seed,
-                        _file_digest(overrides["water"]) if "water" in overrides else None)
-
-    def water_stage() -> WaterResult:
-        source = _load_source(spec, prepared)
-        result = compute_water(flow, gravity, p["water"]["rays"], p["water"]["influence_radius"],
-                               _rng(spec.seed, Stage.WATER), source, caster(flow), pools=p["water"]["pools"])
-        if "water" in overrides:  # painted water replaces the coefficients, keeps the walks
-            supply, water = artifacts.read_water_ply(Path(overrides["water"]), len(flow.vertices))
-            result = WaterResult(supply, water, result.top, result.d_up, result.bottom, result.d_down, result.hits)
-        return result
-
-    water = run.timed("water", lambda: cache.get("water", water_key, water_stage))
-    artifacts.write_water_ply(job_dir / "water.ply", flow, water.supply, water.water)
-    if _stops(until, Stage.WATER):
-        return stats
-
-    drips_key = _digest(water_key, p["drips"], spec.exclude, spec.placement, p["trajectories"]["length_scale"],
-                        _file_digest(overrides["drips"]) if "drips" in overrides else None)
-
-    def drips_stage() -> DripResult:
-        if "drips" in overrides:
-            return artifacts.drips_from_json(Path(overrides["drips"]))
-        heights = flow.vertices @ -gravity
-        grounded = heights < heights.min() + p["drips"]["ground_clearance"] * np.ptp(heights)
-        found = find_drips(flow, water.water, gravity, p["drips"]["count"], p["drips"]["drip_limit"],
-                           _rng(spec.seed, Stage.DRIPS), exclude_boxes=spec.exclude,
-                           exclude_vertices=grounded if p["drips"]["ground_clearance"] > 0 else None,
-                           caster=caster(flow), spacing=p["drips"]["spacing"],
-                           distribution=p["drips"]["distribution"], min_fall=p["drips"]["min_fall"],
-                           floor=ground_level(spec.placement, obj, gravity),
-                           min_water=p["drips"]["min_length"] / p["trajectories"]["length_scale"])
-        if flow is obj:
-            return found
-        from .proxy import snap_to_surface
-
-        # Icicles hang from the real object: move each drip point onto it.
-        points, normals, faces = snap_to_surface(found.positions, obj)
-        return DripResult(found.region_faces, points, normals, found.water, faces)
-
-    drips = run.timed("drips", lambda: cache.get("drips", drips_key, drips_stage))
-    artifacts.write_json(job_dir / "drips.json", artifacts.drips_to_json(drips))
-    stats["icicles"] = len(drips.positions)
-    if _stops(until, Stage.DRIPS):
-        return stats
-
-    traj_key = _digest(drips_key, p["trajectories"], p["drips"]["drip_limit"], spec.placement,
-                       p["surface"]["tip_radius"] if spec.placement == Placement.GROUND.value else None,
-                       _file_digest(overrides["trajectories"]) if "trajectories" in overrides else None)
-
-    def trajectory_stage() -> TrajectoryResult:
-        result = grown_trajectories()
-        if spec.placement == Placement.GROUND.value:  # an icicle that reaches the ground stops at it
-            result = stop_at_ground(result, gravity, ground_height(obj.vertices, gravity), p["surface"]["tip_radius"])
-        return result
-
-    def grown_trajectories() -> TrajectoryResult:
-        if "trajectories" in overrides:
-            return artifacts.trajectories_from_json(Path(overrides["trajectories"]))
-        # Lift each start off the surface along its face normal; on a proxy run the snap
-        # already turned normals towards the outside, which the face winding may not be.
-        faces = np.clip(drips.faces, 0, len(obj.faces) - 1)
-        lift = drips.normals if flow is not obj else np.where(
-            (drips.faces >= 0)[:, None], obj.face_normals[faces], drips.normals)
-        return grow_trajectories(obj, drips.positions, lift, drips.water, gravity,
-                                 _rng(spec.seed, Stage.TRAJECTORIES), drip_limit=p["drips"]["drip_limit"],
-                                 caster=caster(obj), **p["trajectories"])
-
-    traj = run.timed("trajectories", lambda: cache.get("trajectories", traj_key, trajectory_stage))
-    artifacts.write_json(job_dir / "trajectories.json", artifacts.trajectories_to_json(traj))
-    t = measure_trajectories(traj, gravity)
-    stats.update(branches=traj.n_branches, upward_share=_finite(t.upward_share),
-                 branch_spread_mm=_finite(t.branch_spread_mm), length_cv=_finite(t.length_cv),
-                 trunk_lengths_m=_finite_list(t.trunk_lengths, 4))
-    if not _stops(until, Stage.TRAJECTORIES):
-        ground, ground_key = _ground_ice(spec, job_dir, run, cache, obj, drips, traj, gravity, traj_key,
-                                         caster(obj), stats)
-        stats.update(_surface_and_render(spec, job_dir, run, cache, until, obj, flow, water, drips, traj,
-                                         gravity, _digest(traj_key, p["surface"], p["glaze"], ground_key),
-                                         caster(flow), extra_balls=ground))
+    results = run_stages(prepared, p, spec.seed, placement=spec.placement, exclude=spec.exclude,
+                         overrides=dict(spec.overrides), source=lambda: _load_source(spec, prepared), until=until,
+                         mesh_key=_digest(mesh_digest(spec.mesh), spec.size_m, p["water"]["gravity"]),
+                         step=step, on_stage=on_stage)
+    if results.ice is not None:
+        stats.update(_surface_and_render(spec, job_dir, run, until, results, gravity))
         if p["growth"]["frames"] and until is None:  # growth/: stages 1-3 as they are, stage 4 per frame
-            stats.update(run.timed("growth", lambda: _growth(spec, job_dir, run, obj, flow, water, drips, traj,
-                                                             gravity, caster(flow), ground)))
+            stats.update(run.timed("growth", lambda: _growth(spec, job_dir, run, results, gravity)))
     return stats
 
 
-def _ground_ice(spec, job_dir, run, cache, obj, drips, traj, gravity, traj_key, cast, stats):
-    """Landing points of the water off the tips and the mounds or stalagmites on them
-    (``ground_ice.mode``); writes landing.json. Nothing at all with mode none.
-
-    Returns
-    -------
-    balls : Balls or None
-        For the icicles' field.
-    key : str or None
-        What the surface's cache key must add.
-    """
-    from .stages.landing import find_landings
-    from .stages.surface.ground_ice import ground_ice_balls
-
-    p = spec.params
-    gi = p["ground_ice"]
-    if gi["mode"] == "none":
-        return None, None
-    floor = ground_level(spec.placement, obj, gravity)
-    key = _digest(traj_key, gi["runoff"], gi["merge"])
-    landing = run.timed("landing", lambda: cache.get("landing", key, lambda: find_landings(
-        traj, drips.water, gravity, runoff=gi["runoff"], merge=gi["merge"], cast=cast,
-        face_normals=obj.face_normals, floor=floor)))
-    # Its own stream: the icicles, bases and glaze draw what they drew without it.
-    rng = np.random.default_rng([spec.seed, STAGE_ORDER.index(Stage.SURFACE), 1])
-    ground = run.timed("ground_ice", lambda: ground_ice_balls(landing, gi, p["surface"], gravity, rng,
-                                                               cast=cast, floor=floor))
-    artifacts.write_json(job_dir / "landing.json", artifacts.landing_to_json(landing, ground.heights, ground.columns))
-    grown = ground.heights[ground.heights > 0] * 1000
-    stats.update(landing_points=len(landing), stalagmites=len(grown), columns=int(ground.columns.sum()),
-                 stalagmite_median_mm=_finite(np.median(grown)) if len(grown) else None,
-                 stalagmite_max_mm=_finite(grown.max()) if len(grown) else None)
-    return ground.balls, _digest(key, gi, p["surface"])
-
-
-def _surface_and_render(spec, job_dir, run, cache, until, obj, flow, water, drips, traj, gravity, key,
-                        cast, extra_balls=None) -> dict:
+def _surface_and_render(spec: JobSpec, job_dir: Path, run: _Run, until: Stage | None, r: StageResults,
+                        gravity: np.ndarray) -> dict:
     from .stages.surface.glaze import measure_glaze
     from .stages.surface.measure import measure_icicles
 
     p = spec.params
-    sole = _sole(spec, flow, gravity)
-    ice = run.timed("surface", lambda: cache.get("surface", key, lambda: _build_ice(
-        spec, obj, flow, water, drips, traj, gravity, cast, extra_balls)))
+    obj, ice = r.mesh, r.ice
     ice_mesh = trimesh.Trimesh(ice.vertices, ice.faces, process=False)
     artifacts.write_mesh(job_dir / "ice.ply", ice_mesh)
     # Plausibility, measured on the mesh: timed apart from the modelling (Table 2 times that).
     m, glaze = run.timed("measure", lambda: (
-        measure_icicles(ice.vertices, ice.faces, traj, p["surface"]),
-        measure_glaze(ice.vertices, ice.faces, flow, water, gravity,
-                      exclude=_not_glaze(flow, drips, sole, p["surface"]))))
+        measure_icicles(ice.vertices, ice.faces, r.trajectories, p["surface"]),
+        measure_glaze(ice.vertices, ice.faces, r.flow, r.water, gravity,
+                      exclude=_not_glaze(r.flow, r.drips, sole(r.flow, p, gravity, spec.placement), p["surface"]))))
     stats = {
         "glaze_coverage": _finite(glaze.coverage), "glaze_p10_mm": _finite(glaze.p10_mm),
         "glaze_p50_mm": _finite(glaze.p50_mm), "glaze_p90_mm": _finite(glaze.p90_mm),
@@ -366,13 +241,14 @@ def _surface_and_render(spec, job_dir, run, cache, until, obj, flow, water, drip
     }
     if p["surface"]["curtain"] > 0:
         stats["curtain_area_m2"] = round(ice.curtain_area, 6)
-    if spec.render is None or _stops(until, Stage.SURFACE):
+    if spec.render is None or stops(until, Stage.SURFACE):
         return stats
-    from .scene.config import load_render_config, material_from_dict
+    from .scene.config import load_render_config
+    from .scene.material import material_from_dict
     from .scene.render import render_job, write_scenes
 
     config = load_render_config(spec.render)
-    material = material_from_dict(dict(spec.material))
+    material = material_from_dict(spec.material)
 
     def render() -> Any:
         files = write_scenes(job_dir, obj, ice_mesh if len(ice.faces) else None, config, gravity, material,
@@ -384,7 +260,7 @@ def _surface_and_render(spec, job_dir, run, cache, until, obj, flow, water, drip
         return render_job(job_dir, config, files, progress=run.progress)  # POV-Ray files written meanwhile
 
     result = run.timed("render", render)
-    stats.update(object_material=material, render_variant=result.variant, render_integrator=result.integrator,
+    stats.update(object_material=material.to_dict(), render_variant=result.variant, render_integrator=result.integrator,
                  renderer=result.renderer,
                  render_seconds=result.seconds, scene_seconds=result.scene_seconds,
                  scene_write_seconds=result.write_seconds, scene_load_seconds=result.load_seconds,
@@ -397,40 +273,28 @@ def _surface_and_render(spec, job_dir, run, cache, until, obj, flow, water, drip
     return stats
 
 
-def _sole(spec: JobSpec, flow: trimesh.Trimesh, gravity: np.ndarray) -> np.ndarray | None:
-    """Flow-mesh vertices a grounded object stands on (no ice there); None when hanging."""
-    clearance = spec.params["drips"]["ground_clearance"]
-    return (sole_vertices(flow.vertices, gravity, clearance)
-            if spec.placement == Placement.GROUND.value and clearance > 0 else None)
-
-
-def _build_ice(spec, obj, flow, water, drips, traj, gravity, cast, extra_balls, glaze=None, rng=None):
-    """Stage 4 as the job runs it; growth frames pass their own drips, glaze and stream."""
-    from .stages.surface import build_ice
-
-    p = spec.params
-    return build_ice(obj, flow, water, drips, traj, p["surface"], p["glaze"] if glaze is None else glaze, gravity,
-                     _rng(spec.seed, Stage.SURFACE) if rng is None else rng, exclude=_sole(spec, flow, gravity),
-                     cast=cast, measure=False, extra_balls=extra_balls)
-
-
-def _growth(spec, job_dir, run, obj, flow, water, drips, traj, gravity, cast, extra_balls) -> dict:
+def _growth(spec: JobSpec, job_dir: Path, run: _Run, r: StageResults, gravity: np.ndarray) -> dict:
     """``growth/``: the ice at ``growth.frames`` moments of its growth (`icefarm.growth`),
     rendered with the job's camera: the one framed on the full-grown ice."""
     from .growth import FrameView, grow_frames
 
-    p = spec.params
+    p, obj = spec.params, r.mesh
     view = None
     if spec.render is not None:
-        from .scene.config import load_render_config, material_from_dict
+        from .scene.config import load_render_config
+        from .scene.material import material_from_dict
 
         full = trimesh.load(job_dir / "ice.ply", process=False, force="mesh")
-        view = FrameView(obj, load_render_config(spec.render), gravity, material_from_dict(dict(spec.material)),
+        view = FrameView(obj, load_render_config(spec.render), gravity, material_from_dict(spec.material),
                          frame_boxes(obj, full), p["surface"]["impurity"], ground_level(spec.placement, obj, gravity))
+    cast = ray_caster(r.flow)
+    extra_balls = r.ground.balls if r.ground is not None else None
     result = grow_frames(
-        job_dir / "growth", traj, drips, p["surface"], p["glaze"], frames=p["growth"]["frames"],
-        build=lambda t, d, g, rng: _build_ice(spec, obj, flow, water, d, t, gravity, cast, extra_balls, g, rng),
-        new_rng=lambda: _rng(spec.seed, Stage.SURFACE), gravity=gravity, view=view, progress=run.progress,
+        job_dir / "growth", r.trajectories, r.drips, p["surface"], p["glaze"], frames=p["growth"]["frames"],
+        build=lambda t, d, g, rng: build_surface(obj, r.flow, r.water, d, t, p, gravity, rng,
+                                                 placement=spec.placement, glaze=g, cast=cast,
+                                                 extra_balls=extra_balls),
+        new_rng=lambda: stage_rng(spec.seed, Stage.SURFACE), gravity=gravity, view=view, progress=run.progress,
         object_usd=job_dir / "object.usdc")
     return {"growth_frames": len(result.frames), "growth_seconds_per_frame": round(result.seconds_per_frame, 3)}
 

@@ -40,7 +40,10 @@ import numpy as np
 import trimesh
 
 from .errors import InputError
+from .geometry import signed_volume
 from .mesh import MeshProblems, detect_problems
+from .meshlab import current, meshset
+from .params import ProxyParams, typed
 
 MODES = ("auto", "always", "never")
 
@@ -175,44 +178,12 @@ def proxy_reason(problems: MeshProblems, mode: str, face_budget: int) -> str | N
     return "proxy.mode is always" if mode == "always" else None
 
 
-def _settings(proxy: Mapping[str, Any]) -> tuple[int, float, float, float]:
-    """``face_budget, alpha, offset, edge_length`` from the ``proxy`` group, checked."""
-    values = []
-    for name in ("face_budget", "alpha", "offset", "edge_length"):
-        if name not in proxy:
-            raise InputError(f"proxy.{name} is missing from the proxy parameters")
-        value = proxy[name]
-        if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) \
-                or not np.isfinite(value) or value <= 0:
-            raise InputError(f"proxy.{name} must be a positive number, got {value!r}")
-        values.append(value)
-    budget, alpha, offset, edge = values
-    if budget < 4:
-        raise InputError(f"proxy.face_budget must be at least 4 faces, got {budget!r}")
-    return int(budget), float(alpha), float(offset), float(edge)
-
-
 def _thickness(vertices: np.ndarray) -> float:
     """Extent of ``vertices`` ``(n, 3)`` along their least principal axis, in their units."""
     centred = vertices - vertices.mean(axis=0)
     _, _, axes = np.linalg.svd(centred, full_matrices=False)
     along = centred @ axes[-1]
     return float(along.max() - along.min())
-
-
-def _to_trimesh(ms) -> trimesh.Trimesh:
-    current = ms.current_mesh()
-    return trimesh.Trimesh(np.asarray(current.vertex_matrix(), dtype=np.float64),
-                           np.asarray(current.face_matrix(), dtype=np.int64), process=False)
-
-
-def _meshset(mesh: trimesh.Trimesh):
-    import pymeshlab
-
-    ms = pymeshlab.MeshSet()
-    ms.add_mesh(pymeshlab.Mesh(np.asarray(mesh.vertices, dtype=np.float64),
-                               np.asarray(mesh.faces, dtype=np.int32)))
-    return ms
 
 
 def _component_labels(mesh: trimesh.Trimesh) -> np.ndarray:
@@ -227,10 +198,7 @@ def drop_voids(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
     inside the object, where no rain reaches, so they only add faces.
     """
     labels = _component_labels(mesh)
-    tri = mesh.triangles
-    signed = np.einsum("ij,ij->i", tri[:, 0], np.cross(tri[:, 1], tri[:, 2])) / 6.0
-    volume = np.bincount(labels, weights=signed)
-    keep = volume[labels] > 0
+    keep = signed_volume(mesh.vertices, mesh.faces, labels=labels)[labels] > 0
     if keep.all():
         return mesh
     out = mesh.copy()
@@ -254,11 +222,11 @@ def _remesh(mesh: trimesh.Trimesh, edge: float, tolerance: float,
     """Isotropic remesh to edges of ``edge`` m, staying within ``tolerance`` m of ``mesh``."""
     import pymeshlab
 
-    ms = _meshset(mesh)
+    ms = meshset(mesh)
     _run_filter(ms, "meshing_isotropic_explicit_remeshing", iterations=int(iterations),
                 targetlen=pymeshlab.PureValue(edge), featuredeg=30.0, checksurfdist=True,
                 maxsurfdist=pymeshlab.PureValue(tolerance))
-    return _to_trimesh(ms)
+    return current(ms)
 
 
 def _refine(mesh: trimesh.Trimesh, edge: float, tolerance: float) -> trimesh.Trimesh | None:
@@ -275,18 +243,18 @@ def _refine(mesh: trimesh.Trimesh, edge: float, tolerance: float) -> trimesh.Tri
 
 def _decimate(mesh: trimesh.Trimesh, faces: int) -> trimesh.Trimesh:
     """Quadric edge collapse down to ``faces`` faces, keeping the topology."""
-    ms = _meshset(mesh)
+    ms = meshset(mesh)
     _run_filter(ms, "meshing_decimation_quadric_edge_collapse", targetfacenum=int(faces),
                 preservetopology=True, preserveboundary=True, optimalplacement=True,
                 planarquadric=True, autoclean=True)
-    return _to_trimesh(ms)
+    return current(ms)
 
 
 def _wrap(mesh: trimesh.Trimesh, alpha: float, offset: float) -> trimesh.Trimesh:
     """Alpha wrap with ``alpha`` and ``offset`` in meters, sealed cavities removed."""
     import pymeshlab
 
-    ms = _meshset(mesh)
+    ms = meshset(mesh)
     # Welding vertices closer than a quarter of the offset drops slivers the wrap cannot
     # resolve anyway: chair_model.obj loses 11 % of its faces and 14 % of the wrap's time
     # (half the offset saves 23 % but lets the proxy stray 1.0 % of the diagonal).
@@ -295,7 +263,7 @@ def _wrap(mesh: trimesh.Trimesh, alpha: float, offset: float) -> trimesh.Trimesh
     # PureValue: absolute lengths; PercentageValue would be percent of pymeshlab's own bbox.
     _run_filter(ms, "generate_alpha_wrap", alpha=pymeshlab.PureValue(alpha),
                 offset=pymeshlab.PureValue(offset))
-    return drop_voids(_to_trimesh(ms))
+    return drop_voids(current(ms))
 
 
 def _edge_for_budget(area: float, edge: float, budget: int) -> float:
@@ -319,18 +287,13 @@ def boundary_loops(mesh: trimesh.Trimesh) -> tuple[np.ndarray, np.ndarray]:
     loops : (b,) int
         Loop label of each, ``0 .. n_loops - 1`` (loops touching at a vertex count as one).
     """
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
-    edges, counts = np.unique(np.sort(mesh.edges, axis=1), axis=0, return_counts=True)
-    boundary = edges[counts == 1]
+    edges = mesh.edges_sorted
+    boundary = edges[trimesh.grouping.group_rows(edges, require_count=1)]
     vertices = np.unique(boundary)
     if len(vertices) == 0:
         return vertices, vertices.copy()
     local = np.searchsorted(vertices, boundary)
-    graph = coo_matrix((np.ones(len(local)), (local[:, 0], local[:, 1])), shape=(len(vertices),) * 2)
-    _, loops = connected_components(graph, directed=False)
-    return vertices, loops
+    return vertices, trimesh.graph.connected_component_labels(local, node_count=len(vertices))
 
 
 def _fill_small_holes(mesh: trimesh.Trimesh, diag: float) -> trimesh.Trimesh | None:
@@ -342,15 +305,15 @@ def _fill_small_holes(mesh: trimesh.Trimesh, diag: float) -> trimesh.Trimesh | N
     spans = np.linalg.norm(np.maximum.reduceat(points, starts) - np.minimum.reduceat(points, starts), axis=1)
     if spans.max() > HOLE_FRACTION * diag:
         return None
-    ms = _meshset(mesh)
+    ms = meshset(mesh)
     sizes = np.diff(np.r_[starts, len(order)])
     _run_filter(ms, "meshing_close_holes", maxholesize=int(sizes.max()) + 1, newfaceselected=False,
                 selfintersection=False)
-    filled = _to_trimesh(ms)
+    filled = current(ms)
     return None if _problem_phrases(detect_problems(filled, self_intersections=True)) else filled
 
 
-def build_proxy(mesh: trimesh.Trimesh, proxy: Mapping[str, Any],
+def build_proxy(mesh: trimesh.Trimesh, proxy: ProxyParams | Mapping[str, Any],
                 problems: MeshProblems | None = None) -> ProxyResult:
     """Build the approximate surface stages 1-2 run on.
 
@@ -358,8 +321,8 @@ def build_proxy(mesh: trimesh.Trimesh, proxy: Mapping[str, Any],
     ----------
     mesh : trimesh.Trimesh
         The prepared object, in meters.
-    proxy : mapping
-        ``params.resolve()["proxy"]``: ``face_budget`` (faces), ``alpha``, ``offset`` and
+    proxy : ProxyParams or mapping
+        The ``proxy`` group (`icefarm.params.typed`; a mapping is validated here): ``face_budget`` (faces), ``alpha``, ``offset`` and
         ``edge_length`` (fractions of the bounding-box diagonal). Whether to build one at
         all is the caller's call (`proxy_reason`); ``mode: always`` wraps even a clean mesh.
     problems : MeshProblems, optional
@@ -378,7 +341,8 @@ def build_proxy(mesh: trimesh.Trimesh, proxy: Mapping[str, Any],
         over `MAX_ALPHA` of the diagonal to stay within the face budget.
     """
     start = time.perf_counter()
-    budget, alpha, offset, edge = _settings(proxy)
+    proxy = typed("proxy", proxy)
+    budget, alpha, offset, edge = proxy.face_budget, proxy.alpha, proxy.offset, proxy.edge_length
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
         raise InputError("the mesh has no faces to build an approximate surface from")
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
@@ -395,7 +359,7 @@ def build_proxy(mesh: trimesh.Trimesh, proxy: Mapping[str, Any],
     if problems is None:
         problems = detect_problems(mesh, self_intersections=True)
     notes, alpha_m, out = [], 0.0, None
-    force = proxy.get("mode", "auto") == "always"
+    force = proxy.mode == "always"
     if not force and _only_holes(problems):
         out, method = _fill_small_holes(mesh, diag), ProxyMethod.FILL
     # A coarse mesh's flow needs edges no finer than its own features (`FEATURE_PERCENTILE`).

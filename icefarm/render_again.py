@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import trimesh
-import yaml
 
 from .errors import InputError
+from .jobdir import JobState, read_job
 from .placement import Placement, ground_level
 from .scene.camera import frame_boxes
 
@@ -40,11 +39,13 @@ def render_again(job_dir: Path, render: str, out_dir: Path, progress: bool = Fal
     InputError
         Not a finished job, a job that never rendered, or a bad render config.
     """
-    from .scene.config import load_render_config, material_from_dict
+    from .scene.config import load_render_config
+    from .scene.material import material_from_dict
     from .scene.render import render_job, write_scenes
 
     job_dir, out_dir = Path(job_dir), Path(out_dir)
-    if not (job_dir / "done.json").is_file():
+    job = read_job(job_dir)
+    if job.state is not JobState.DONE:
         raise InputError(f"{job_dir} is not a finished job (no done.json): run it first")
     for name in ("params.yaml", "ice.ply", "object.ply"):
         if not (job_dir / name).is_file():
@@ -53,17 +54,16 @@ def render_again(job_dir: Path, render: str, out_dir: Path, progress: bool = Fal
     if out_dir.resolve() == job_dir.resolve():
         raise InputError("render into a folder of its own, not the job folder: its files belong to the job")
     config = load_render_config(render)
-    done = json.loads((job_dir / "done.json").read_text())
-    gravity = yaml.safe_load((job_dir / "params.yaml").read_text())["water"]["gravity"]
+    values = job.params or {}
+    gravity = values["water.gravity"]
     obj = trimesh.load(job_dir / "object.ply", process=False)
     obj.merge_vertices(merge_norm=True)  # object.ply splits vertices along creases
     ice = trimesh.load(job_dir / "ice.ply", process=False)
     has_ice = isinstance(ice, trimesh.Trimesh) and len(ice.faces) > 0
     ice_mesh = ice if has_ice else trimesh.Trimesh()
     files = write_scenes(out_dir, obj, ice_mesh if has_ice else None, config, gravity,
-                         material_from_dict(done.get("object_material")),
+                         material_from_dict(job.stats.get("object_material")),
                          frame_points=frame_boxes(obj, ice_mesh), defer_povray=True,
-                         impurity=float((yaml.safe_load((job_dir / "params.yaml").read_text()).get("surface")
-                                         or {}).get("impurity", 0.0)),  # 0 for jobs older than it
-                         ground_level=ground_level(done.get("placement", Placement.HANGING.value), obj, gravity))
+                         impurity=float(values.get("surface.impurity", 0.0)),  # 0 for jobs older than it
+                         ground_level=ground_level(job.stats.get("placement", Placement.HANGING.value), obj, gravity))
     return render_job(out_dir, config, files, progress=progress)

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import xml.etree.ElementTree as ET
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -20,9 +21,10 @@ import trimesh
 import yaml
 
 from .errors import InputError
+from .jobdir import read_job
 from .scene import geometry as geo
 from .scene.camera import Camera
-from .scene.config import material_from_dict
+from .scene.material import Material, material_from_dict
 from .scene.mitsuba import WATER_ICE_IOR
 
 # Normal-incidence reflectance (linear RGB) of Mitsuba's conductors, as a PBR metal's base
@@ -90,13 +92,13 @@ class Pbr:
     specular: bool
 
 
-def pbr(material: dict) -> Pbr:
-    """`Pbr` of a validated object material (`scene.config.material_from_dict`)."""
-    if material["type"] == "metal":
-        return Pbr(METAL_F0[material["metal"]], 1.0, float(np.sqrt(material["roughness"])), True)
-    if material["type"] == "plastic":
-        return Pbr(tuple(material["color"]), 0.0, float(np.sqrt(material["roughness"])), True)
-    return Pbr(tuple(material["color"]), 0.0, 1.0, False)
+def pbr(material: Material) -> Pbr:
+    """`Pbr` of a validated object material (`scene.material.material_from_dict`)."""
+    if material.type == "metal":
+        return Pbr(METAL_F0[material.metal], 1.0, float(np.sqrt(material.roughness)), True)
+    if material.type == "plastic":
+        return Pbr(tuple(material.color), 0.0, float(np.sqrt(material.roughness)), True)
+    return Pbr(tuple(material.color), 0.0, 1.0, False)
 
 
 @dataclass(frozen=True)
@@ -125,7 +127,7 @@ class Rendered:
         None when the job has no ice.
     gravity : (3,) float
         Unit gravity direction (``params.yaml``).
-    material : dict
+    material : Material
         The object's validated material.
     """
 
@@ -140,7 +142,7 @@ class Rendered:
     sun_irradiance: np.ndarray
     ice: IceShading | None
     gravity: np.ndarray
-    material: dict
+    material: Material
 
 
 def require(job_dir: Path, *names: str) -> None:
@@ -151,14 +153,14 @@ def require(job_dir: Path, *names: str) -> None:
                              "(run it first with `icefarm run`, without --no-render)")
 
 
-def read_rendered(job_dir: str | Path, material: dict | None = None) -> Rendered:
+def read_rendered(job_dir: str | Path, material: Material | Mapping | None = None) -> Rendered:
     """What the job in ``job_dir`` rendered (see `Rendered`).
 
     Parameters
     ----------
     job_dir : path
         A job folder with ``scene.xml`` and ``params.yaml``; ``views.json`` names the views.
-    material : dict, optional
+    material : Material or mapping, optional
         The object's material; default ``done.json``'s ``object_material``.
 
     Raises
@@ -182,8 +184,7 @@ def read_rendered(job_dir: str | Path, material: dict | None = None) -> Rendered
     gravity = np.asarray((yaml.safe_load((job_dir / "params.yaml").read_text()).get("water") or {})
                          .get("gravity", (0.0, -1.0, 0.0)), dtype=np.float64)
     if material is None:
-        done = job_dir / "done.json"
-        material = json.loads(done.read_text()).get("object_material") if done.is_file() else None
+        material = read_job(job_dir).stats.get("object_material")
     return Rendered(
         cameras=cameras, view_names=_view_names(job_dir, len(cameras)), width=width, height=height,
         sky=job_dir / _named(envmap, "string", "filename"),

@@ -17,61 +17,31 @@ import io
 import json
 import math
 import statistics
-from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import yaml
 
 from .errors import InputError
-from .jobdir import DONE, ERROR, PARAMS, TIMINGS, error_line, total_seconds
+from .jobdir import DONE, ERROR, PARAMS, TIMINGS, JobFolder, JobState, error_line, read_job
 
 #: The stages of the paper's Table 2, in its order; their sum is its "Total time".
 TABLE2_STAGES: tuple[str, ...] = ("water", "drips", "trajectories", "surface")
 CACHED = "cached"
 
 
-@dataclass(frozen=True)
-class JobTimes:
-    """One job folder as the report sees it.
+def stage_seconds(job: JobFolder, stage: str) -> float | None:
+    """Seconds the stage computed for, None when it did not run or came from the cache."""
+    value = job.seconds.get(stage)
+    if stage in job.reused or not _is_number(value):
+        return None
+    return float(value)
 
-    Attributes
-    ----------
-    object_id, job_id : str
-    status : str
-        ``done``, ``failed`` or ``pending`` (neither done.json nor error.json).
-    seconds : dict
-        Stage name to seconds as timings.json (or error.json) recorded them.
-    reused : tuple of str
-        Stages taken from the stage cache.
-    stats : dict
-        The rest of timings.json (input_faces, icicles, ice_faces, render_variant, ...).
-    params : dict
-        Flat ``{"group.name": value}`` from params.yaml (empty when missing).
-    failed_stage, message : str or None
-        From error.json.
-    """
 
-    object_id: str
-    job_id: str
-    status: str
-    seconds: dict = field(default_factory=dict)
-    reused: tuple = ()
-    stats: dict = field(default_factory=dict)
-    params: dict = field(default_factory=dict)
-    failed_stage: str | None = None
-    message: str | None = None
-
-    def stage_seconds(self, stage: str) -> float | None:
-        """Seconds the stage computed for, None when it did not run or came from the cache."""
-        value = self.seconds.get(stage)
-        if stage in self.reused or not _is_number(value):
-            return None
-        return float(value)
-
-    def cached_stages(self) -> tuple[str, ...]:
-        return tuple(s for s in TABLE2_STAGES if s in self.reused and s in self.seconds)
+def cached_stages(job: JobFolder) -> tuple[str, ...]:
+    return tuple(s for s in TABLE2_STAGES if s in job.reused and s in job.seconds)
 
 
 @dataclass(frozen=True)
@@ -98,27 +68,6 @@ class ObjectSummary:
 
 def _is_number(value: Any) -> bool:
     return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
-
-
-def _read_json(path: Path) -> dict:
-    try:
-        value = json.loads(path.read_text())
-    except (OSError, ValueError):
-        return {}
-    return value if isinstance(value, dict) else {}
-
-
-def _flatten(values: Any, prefix: str = "") -> dict:
-    if not isinstance(values, Mapping):
-        return {}
-    out: dict[str, Any] = {}
-    for key, value in values.items():
-        name = f"{prefix}{key}"
-        if isinstance(value, Mapping):
-            out.update(_flatten(value, name + "."))
-        else:
-            out[name] = value
-    return out
 
 
 def _is_job_dir(path: Path) -> bool:
@@ -157,41 +106,16 @@ def _manifest_order(run_dir: Path) -> list[str]:
     return [str(j["dir"]) for j in jobs if isinstance(j, dict) and "dir" in j]
 
 
-def read_job(job_dir: Path) -> JobTimes:
-    """The report's view of one job folder (missing or damaged files read as empty)."""
-    job_dir = Path(job_dir)
-    object_id = job_dir.parent.name or "-"
-    try:
-        params = _flatten(yaml.safe_load((job_dir / PARAMS).read_text()))
-    except (OSError, yaml.YAMLError):
-        params = {}
-    timings = _read_json(job_dir / TIMINGS)
-    if (job_dir / DONE).is_file():
-        if not timings:  # a done job always has timings.json; fall back to done.json's copy
-            timings = _read_json(job_dir / DONE)
-        stats = {k: v for k, v in timings.items() if k not in ("seconds", "reused", "job")}
-        seconds = timings.get("seconds") if isinstance(timings.get("seconds"), dict) else {}
-        reused = tuple(str(s) for s in timings.get("reused") or ())
-        return JobTimes(object_id, job_dir.name, "done", dict(seconds), reused, stats, params)
-    error = _read_json(job_dir / ERROR)
-    if (job_dir / ERROR).is_file():
-        seconds = error.get("seconds") if isinstance(error.get("seconds"), dict) else {}
-        message = str(error.get("message") or "unreadable error.json")
-        return JobTimes(object_id, job_dir.name, "failed", dict(seconds), (), {}, params,
-                        str(error.get("stage") or "-"), message)
-    return JobTimes(object_id, job_dir.name, "pending", {}, (), {}, params)
-
-
-def summarize(jobs: Sequence[JobTimes]) -> list[ObjectSummary]:
+def summarize(jobs: Sequence[JobFolder]) -> list[ObjectSummary]:
     """Per-object medians, objects in the order they first appear in ``jobs``."""
     objects = list(dict.fromkeys(j.object_id for j in jobs))
     out = []
     for obj in objects:
         mine = [j for j in jobs if j.object_id == obj]
-        done = [j for j in mine if j.status == "done"]
+        done = [j for j in mine if j.state is JobState.DONE]
         seconds: dict[str, float | None] = {}
         for stage in ("prepare", "proxy", *TABLE2_STAGES, "render"):
-            samples = [s for j in done if (s := j.stage_seconds(stage)) is not None]
+            samples = [s for j in done if (s := stage_seconds(j, stage)) is not None]
             seconds[stage] = statistics.median(samples) if samples else None
         ran = [s for s in TABLE2_STAGES if any(s in j.seconds for j in done)]
         cached_only = tuple(s for s in ran if seconds[s] is None)
@@ -199,8 +123,8 @@ def summarize(jobs: Sequence[JobTimes]) -> list[ObjectSummary]:
         out.append(ObjectSummary(
             object_id=obj,
             done=len(done),
-            failed=sum(j.status == "failed" for j in mine),
-            pending=sum(j.status == "pending" for j in mine),
+            failed=sum(j.state is JobState.FAILED for j in mine),
+            pending=sum(j.state is JobState.PENDING for j in mine),
             input_faces=_median_stat(done, "input_faces"),
             icicles=_median_stat(done, "icicles"),
             ice_faces=_median_stat(done, "ice_faces"),
@@ -213,14 +137,14 @@ def summarize(jobs: Sequence[JobTimes]) -> list[ObjectSummary]:
     return out
 
 
-def _median_stat(jobs: Sequence[JobTimes], key: str) -> float | None:
+def _median_stat(jobs: Sequence[JobFolder], key: str) -> float | None:
     values = [float(j.stats[key]) for j in jobs if _is_number(j.stats.get(key))]
     return statistics.median(values) if values else None
 
 
-def varied_params(jobs: Sequence[JobTimes]) -> list[str]:
+def varied_params(jobs: Sequence[JobFolder]) -> list[str]:
     """Parameter keys whose values differ between the jobs (the swept ones), sorted."""
-    keys = sorted({k for j in jobs for k in j.params})
+    keys = sorted({k for j in jobs for k in j.params or {}})
     return [k for k in keys
             if len({json.dumps(j.params.get(k), sort_keys=True, default=str) for j in jobs if j.params}) > 1]
 
@@ -240,17 +164,17 @@ def fmt_count(value: float | None) -> str:
     return f"{value:,.0f}" if float(value).is_integer() else f"{value:,.1f}"
 
 
-def _stage_cell(job: JobTimes, stage: str) -> str:
+def _stage_cell(job: JobFolder, stage: str) -> str:
     if stage in job.reused and stage in job.seconds:
         return CACHED
-    return fmt_seconds(job.stage_seconds(stage))
+    return fmt_seconds(stage_seconds(job, stage))
 
 
-def _total_cell(job: JobTimes) -> str:
+def _total_cell(job: JobFolder) -> str:
     if not any(s in job.seconds for s in TABLE2_STAGES):
         return "-"
-    computed = sum(job.stage_seconds(s) or 0.0 for s in TABLE2_STAGES)
-    return fmt_seconds(computed) + (f" + {CACHED}" if job.cached_stages() else "")
+    computed = sum(stage_seconds(job, s) or 0.0 for s in TABLE2_STAGES)
+    return fmt_seconds(computed) + (f" + {CACHED}" if cached_stages(job) else "")
 
 
 def _value_text(value: Any) -> str:
@@ -265,9 +189,9 @@ def _md_escape(text: str) -> str:
     return " ".join(str(text).split()).replace("|", "\\|")
 
 
-def _job_seconds(job: JobTimes) -> float:
+def _job_seconds(job: JobFolder) -> float:
     """Everything the job spent: preparation, proxy, stages (cache loads included), render."""
-    return total_seconds(job.seconds) or 0.0
+    return job.total_seconds or 0.0
 
 
 _MD_JOB_HEADER = ("object", "job", "varied", "input polys", "icicles", "ice polys", "water s", "drips s",
@@ -291,12 +215,12 @@ def _md_table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> list[str]
     return lines
 
 
-def report_markdown(run_dir: Path, jobs: Sequence[JobTimes], summaries: Sequence[ObjectSummary]) -> str:
+def report_markdown(run_dir: Path, jobs: Sequence[JobFolder], summaries: Sequence[ObjectSummary]) -> str:
     """The Markdown report: per-object medians, per-job rows, failures."""
     varied = varied_params(jobs)
-    done = [j for j in jobs if j.status == "done"]
-    failed = [j for j in jobs if j.status == "failed"]
-    pending = [j for j in jobs if j.status == "pending"]
+    done = [j for j in jobs if j.state is JobState.DONE]
+    failed = [j for j in jobs if j.state is JobState.FAILED]
+    pending = [j for j in jobs if j.state is JobState.PENDING]
     lines = [f"# Timing report: {Path(run_dir).name}", "",
              f"{len(jobs)} jobs: {len(done)} done, {len(failed)} failed, {len(pending)} not finished. "
              "Columns follow the paper's Table 2 (seconds per stage; total = water + drips + trajectories "
@@ -338,13 +262,14 @@ def _first_line(message: str | None) -> str:
     return error_line(message)
 
 
-def _stat(job: JobTimes, key: str) -> float | None:
+def _stat(job: JobFolder, key: str) -> float | None:
     value = job.stats.get(key)
     return float(value) if _is_number(value) else None
 
 
-def _varied_text(job: JobTimes, varied: Sequence[str]) -> str:
-    return ", ".join(f"{k}={_value_text(job.params[k])}" for k in varied if k in job.params) or "-"
+def _varied_text(job: JobFolder, varied: Sequence[str]) -> str:
+    values = job.params or {}
+    return ", ".join(f"{k}={_value_text(values[k])}" for k in varied if k in values) or "-"
 
 
 def _summary_cells(s: ObjectSummary) -> list[str]:
@@ -359,7 +284,7 @@ def _summary_cells(s: ObjectSummary) -> list[str]:
             ", ".join(s.render_variants) or "-"]
 
 
-def report_csv(jobs: Sequence[JobTimes], summaries: Sequence[ObjectSummary]) -> str:
+def report_csv(jobs: Sequence[JobFolder], summaries: Sequence[ObjectSummary]) -> str:
     """report.csv: one ``job`` row per job (failed and pending included), one ``object`` row per object.
 
     Stage cells hold seconds, or ``cached`` for a stage reused from the cache; ``total_s`` of
@@ -387,15 +312,15 @@ def report_csv(jobs: Sequence[JobTimes], summaries: Sequence[ObjectSummary]) -> 
             "cached": " ".join(s.cached_only), "jobs": s.done, "failed": s.failed,
         })
     for j in jobs:
-        row: dict[str, Any] = {"kind": "job", "object": j.object_id, "job": j.job_id, "status": j.status,
+        row: dict[str, Any] = {"kind": "job", "object": j.object_id, "job": j.job_id, "status": j.state.value,
                                "varied": _varied_text(j, varied)}
         for key in ("input_faces", "flow_faces", "icicles", "branches", "ice_faces"):
             row[key] = csv_count(_stat(j, key))
         for stage in ("prepare", "proxy", *TABLE2_STAGES, "render"):
             row[f"{stage}_s"] = (CACHED if stage in j.reused and stage in j.seconds
-                                 else csv_seconds(j.stage_seconds(stage)))
-        if j.status == "done":
-            row["total_s"] = csv_seconds(sum(j.stage_seconds(s) or 0.0 for s in TABLE2_STAGES))
+                                 else csv_seconds(stage_seconds(j, stage)))
+        if j.state is JobState.DONE:
+            row["total_s"] = csv_seconds(sum(stage_seconds(j, s) or 0.0 for s in TABLE2_STAGES))
             row["job_s"] = csv_seconds(_job_seconds(j))
         row.update(mitsuba_s=csv_seconds(_number(j.stats.get("render_seconds"))),
                    scene_s=csv_seconds(_number(j.stats.get("scene_seconds"))),

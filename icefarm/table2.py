@@ -16,8 +16,10 @@ g    generator:roof      the project's house with overhanging eaves: room for 40
 
 Sizes are chosen per row (`RowObject.size_m`); glaze ice, which covers every wet surface
 and so sets the polygon count, is off where the paper's count is low for its icicles
-(all rows but c and e). No icicle hangs from the bottom `GROUND_SLAB` of an object (it stands on the
-ground). The ice polygon count is then steered towards the paper's by the voxel size
+(all rows but c and e). The stages run as a job runs them (`icefarm.chain.run_stages`: no icicle
+hangs from the bottom ``drips.ground_clearance`` of a grounded object, icicles stop at the ground),
+with the paper's drip points (`PAPER_STAGES`: area-weighted, no spacing, none removed for want of
+room or water) and no proxy (the rows are clean meshes). The ice polygon count is then steered towards the paper's by the voxel size
 (marching-cubes faces grow as 1 / voxel**2): a coarse calibration run at the tip radius,
 then rescaled runs until the count is within `CALIBRATION_TOLERANCE`. Stage times are
 medians over repeated runs of the stage functions themselves (`icefarm.bench.stage_timings`:
@@ -26,12 +28,7 @@ mesh loading excluded; the ray-tracing BVH build counts, in stage 1).
 
 from __future__ import annotations
 
-import csv
-import datetime
-import io
 import math
-import os
-import platform
 import statistics
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -51,7 +48,10 @@ CALIBRATION_TOLERANCE = 1.15  # stop calibrating once ice faces are within this 
 CALIBRATION_RUNS = 5  # voxel sizes tried at most, the first one coarse
 CALIBRATION_SEEDS = 3  # runs (seeds) per voxel size tried, at most the repeat count
 MIN_VOXEL_M = 0.00012  # the finest voxel calibration may choose; the coarsest resolves the tip radius
-GROUND_SLAB = 0.02  # no icicle hangs from the bottom 2 % of an object's height: it stands on the ground
+# The paper's stage 2: drip points uniform over the drip region, however close or short; its
+# Table 2 timed the stages on the models themselves (no approximate surface).
+PAPER_STAGES = {"drips.distribution": "area", "drips.spacing": 0.0, "drips.min_fall": 0.0,
+                "drips.min_length": 0.0, "proxy.mode": "never"}
 MIN_SCALED_POLYGONS = 1000  # a reduced run keeps meshes fine enough for the water to find its way
 TARGET_SPEEDUP = 20.0
 TARGET_ICE_FACTOR = 1.5
@@ -230,14 +230,12 @@ def decimate(mesh: trimesh.Trimesh, faces: int) -> trimesh.Trimesh:
         raise ValueError(f"decimate: target of {faces} faces is too small")
     if len(mesh.faces) <= faces:
         return mesh
-    import pymeshlab
+    from .meshlab import current, meshset
 
-    ms = pymeshlab.MeshSet()
-    ms.add_mesh(pymeshlab.Mesh(np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.faces, dtype=np.int32)))
+    ms = meshset(mesh)
     ms.meshing_decimation_quadric_edge_collapse(targetfacenum=int(faces), preservenormal=True,
                                                 preservetopology=True)
-    out = ms.current_mesh()
-    return trimesh.Trimesh(out.vertex_matrix(), out.face_matrix(), process=False)
+    return current(ms)
 
 
 def generated_mesh(name: str, faces: int) -> trimesh.Trimesh:
@@ -284,20 +282,11 @@ def row_mesh(key: str, meshes_dir: Path | None, faces: int) -> trimesh.Trimesh:
 
 # --------------------------------------------------------------------------- measuring
 
-def ground_box(size_m: float, slab: float = GROUND_SLAB) -> tuple:
-    """An exclusion box over the bottom ``slab`` of a prepared, Y-up object ``size_m`` tall.
-
-    `icefarm.mesh.prepare` centres the object on the origin, so its base is at
-    ``y = -size_m / 2``; the box reaches far beyond the object sideways and below.
-    """
-    far = 1e3 * size_m
-    return ((-far, -far, -far), (far, -0.5 * size_m + slab * size_m, far))
-
-
 def _row_params(obj: RowObject, icicles: int, voxel_size: float) -> dict:
     # The glaze keeps the defaults' 3:1 voxel ratio, so calibration steers glaze rows too.
-    return params_mod.resolve(dict(obj.settings), {"drips.count": icicles, "surface.voxel_size": voxel_size,
-                                                   "glaze.voxel_size": 3 * voxel_size})
+    return params_mod.resolve({**PAPER_STAGES, **dict(obj.settings)},
+                              {"drips.count": icicles, "surface.voxel_size": voxel_size,
+                               "glaze.voxel_size": 3 * voxel_size})
 
 
 def calibrate_voxel(measure: Callable[[float], int], target: int, bounds: tuple[float, float],
@@ -370,147 +359,20 @@ def measure_row(key: str, meshes_dir: Path | None, repeat: int, scale: float = 1
     target = max(200, round(paper.ice_polygons * scale))
     mesh = row_mesh(key, meshes_dir, faces)
 
-    exclude = (ground_box(obj.size_m),)
-
     def ice_faces(voxel: float) -> int:
         # The median over a few seeds: with few icicles one run's count varies by half.
         runs = stage_timings(mesh, obj.size_m, _row_params(obj, icicles, voxel), min(repeat, CALIBRATION_SEEDS),
-                             surface=True, exclude=exclude)
+                             surface=True)
         return round(statistics.median(runs.ice_faces_runs))
 
     coarsest = params_mod.defaults()["surface"]["tip_radius"]
     voxel, _ = calibrate_voxel(ice_faces, target, (MIN_VOXEL_M, coarsest))
     runs = stage_timings(mesh, obj.size_m, _row_params(obj, icicles, voxel), repeat, surface=True,
-                         on_run=on_run, exclude=exclude)
+                         on_run=on_run)
     seconds = {stage: list(runs.seconds[stage]) for stage in STAGES}
     seconds["total"] = [sum(parts) for parts in zip(*(seconds[s] for s in STAGES))]
     ice = round(statistics.median(runs.ice_faces_runs))
     return Table2Row(paper, obj, runs.faces, runs.icicles, ice, target, voxel, seconds)
-
-
-def machine_info() -> dict:
-    """CPU model, cores, load averages and versions, to read the timings against."""
-    cpu = platform.processor() or platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    try:
-        load = tuple(round(x, 2) for x in os.getloadavg())
-    except OSError:
-        load = ()
-    return {"cpu": cpu, "cores": os.cpu_count(), "load_average": load, "python": platform.python_version(),
-            "numpy": np.__version__, "date": datetime.datetime.now().isoformat(timespec="seconds")}
-
-
-# --------------------------------------------------------------------------- the table
-
-def _fmt_s(x: float) -> str:
-    if x >= 10:
-        return f"{x:.1f}"
-    return f"{x:.3f}" if x >= 0.001 else f"{x:.1e}"
-
-
-def _fmt_x(x: float) -> str:
-    if not math.isfinite(x):
-        return "inf"
-    return f"{x:,.0f}x" if x >= 10 else f"{x:.1f}x"
-
-
-def table2_markdown(rows: Sequence[Table2Row], skipped: Sequence[tuple[str, str]], repeat: int, scale: float,
-                    machine: dict, machine_after: dict) -> str:
-    """Table 2 in the paper's orientation (one column per Figure 16 object), ours beside it."""
-    lines = ["# Table 2 reproduced", "",
-             f"Median of {repeat} run{'s' * (repeat != 1)} per stage (mesh loading excluded; the ray-tracing "
-             "BVH build counts in the water stage), on " f"{machine.get('cpu')} ({machine.get('cores')} cores), "
-             f"{machine.get('date')}; load average {machine.get('load_average')} before, "
-             f"{machine_after.get('load_average')} after (1, 5, 15 min): a load above the core count means "
-             "other work shared the machine and these times are upper bounds. The paper: Intel Xeon "
-             "3.4 GHz dual-core."
-             + (f" Reduced size: polygon, icicle and ice-polygon counts scaled by {scale:g}." if scale != 1 else ""),
-             ""]
-    if rows:
-        head = ["Figure 16", *(f"({r.paper.key})" for r in rows)]
-        body: list[list[str]] = [
-            ["Object (ours)", *(r.object.label for r in rows)],
-            ["Size (m)", *(f"{r.object.size_m:g}" for r in rows)],
-            ["Settings", *(r.object.settings_text() for r in rows)],
-            ["Input polygons: paper", *(f"{r.paper.polygons:,}" for r in rows)],
-            ["Input polygons: ours", *(f"{r.input_faces:,}" for r in rows)],
-            ["Number of icicles: paper", *(f"{r.paper.icicles:,}" for r in rows)],
-            ["Number of icicles: ours", *(f"{r.icicles:,}" for r in rows)],
-            ["Icicles polygons: paper", *(f"{r.paper.ice_polygons:,}" for r in rows)],
-            ["Icicles polygons: ours", *(f"{r.ice_faces:,} ({r.ice_ratio:.2f} of target)" for r in rows)],
-            ["Voxel size (mm)", *(f"{r.voxel_size * 1000:.3f}" for r in rows)],
-        ]
-        for stage in (*STAGES, "total"):
-            title = STAGE_TITLES[stage]
-            body += [[f"{title} (s): paper", *(f"{r.paper.seconds[stage]:g}" for r in rows)],
-                     [f"{title} (s): ours", *(_fmt_s(r.median(stage)) for r in rows)],
-                     [f"{title}: speed-up", *(_fmt_x(r.speedup(stage)) for r in rows)]]
-        body.append([f"Total >= {TARGET_SPEEDUP:g}x faster, ice within {TARGET_ICE_FACTOR:g}x",
-                     *("yes" if r.meets_target else "no" for r in rows)])
-        lines += ["| " + " | ".join(head) + " |", "|---|" + "---:|" * len(rows)]
-        lines += ["| " + " | ".join(row) + " |" for row in body]
-        paper_total = sum(r.paper.seconds["total"] for r in rows)
-        ours_total = sum(r.median("total") for r in rows)
-        lines += ["", f"All rows run: paper {paper_total:g} s, ours {_fmt_s(ours_total)} s "
-                      f"({_fmt_x(paper_total / ours_total if ours_total else math.inf)} faster)."]
-    else:
-        lines.append("No row ran.")
-    if skipped:
-        lines += ["", "Skipped rows:", ""] + [f"- ({key}): {reason}" for key, reason in skipped]
-    lines += ["", "Objects: the paper names none but says 16(c)-(f) are Stanford models; (a) cow, "
-                  "(b) the project's generated fountain (after Kim et al.'s, as in the paper), (c) dragon, "
-                  "(d) bunny, (e) armadillo, (f) bunny at more polygons, (g) the project's generated house "
-                  "with eaves. Each mesh is decimated (quadric edge collapse) to the paper's polygon count; "
-                  f"no icicle hangs from the bottom {GROUND_SLAB:.0%} of an object's height (it stands on the "
-                  "ground: an exclusion box, as a manifest's `exclude`); "
-                  "the voxel size is calibrated per row (at most the tip radius, so the tips stay resolved) "
-                  "so the ice polygon count comes near the paper's; `Settings` lists the parameters set "
-                  "apart from the defaults, the icicle count and the voxel size."]
-    return "\n".join(lines) + "\n"
-
-
-CSV_COLUMNS = ("row", "object", "source", "size_m", "settings", "status", "reason", "paper_polygons", "polygons",
-               "paper_icicles", "icicles", "paper_ice_polygons", "target_ice_polygons", "ice_polygons",
-               "ice_ratio", "voxel_size_m", "repeat",
-               *(f"{prefix}{s}_s" for s in (*STAGES, "total") for prefix in ("paper_", "")),
-               *(f"{s}_min_s" for s in (*STAGES, "total")),
-               *(f"{s}_speedup" for s in (*STAGES, "total")), "meets_target")
-
-
-def table2_csv(rows: Sequence[Table2Row], skipped: Sequence[tuple[str, str]], repeat: int) -> str:
-    """One line per Figure 16 row: paper and ours side by side; skipped rows with their reason."""
-    buf = io.StringIO()
-    writer = csv.DictWriter(buf, CSV_COLUMNS, lineterminator="\n")
-    writer.writeheader()
-    done = {r.paper.key: r for r in rows}
-    reasons = dict(skipped)
-    for paper in PAPER_TABLE2:
-        if paper.key not in done and paper.key not in reasons:
-            continue
-        obj = ROW_OBJECTS[paper.key]
-        line: dict = {"row": paper.key, "object": obj.label, "source": obj.source, "size_m": obj.size_m,
-                      "settings": obj.settings_text(),
-                      "paper_polygons": paper.polygons, "paper_icicles": paper.icicles,
-                      "paper_ice_polygons": paper.ice_polygons,
-                      **{f"paper_{s}_s": paper.seconds[s] for s in (*STAGES, "total")}}
-        r = done.get(paper.key)
-        if r is None:
-            line.update(status="skipped", reason=reasons[paper.key])
-        else:
-            line.update(status="done", polygons=r.input_faces, icicles=r.icicles, target_ice_polygons=r.target_ice_faces,
-                        ice_polygons=r.ice_faces, ice_ratio=f"{r.ice_ratio:.3f}", voxel_size_m=f"{r.voxel_size:.6g}",
-                        repeat=repeat, meets_target=r.meets_target,
-                        **{f"{s}_s": f"{r.median(s):.6g}" for s in (*STAGES, "total")},
-                        **{f"{s}_min_s": f"{min(r.seconds[s]):.6g}" for s in (*STAGES, "total")},
-                        **{f"{s}_speedup": f"{r.speedup(s):.4g}" for s in (*STAGES, "total")})
-        writer.writerow(line)
-    return buf.getvalue()
 
 
 def run_table2(meshes_dir: Path | None, out_dir: Path, repeat: int = 3, rows: Sequence[str] | None = None,
@@ -554,6 +416,8 @@ def run_table2(meshes_dir: Path | None, out_dir: Path, repeat: int = 3, rows: Se
     import sys
 
     from tqdm import tqdm
+
+    from .table2_write import machine_info, table2_csv, table2_markdown
 
     bar = tqdm(total=len(keys) * repeat, unit="run", desc="table2", dynamic_ncols=True,
                disable=not (progress and sys.stderr.isatty()))

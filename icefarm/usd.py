@@ -28,6 +28,7 @@ import trimesh
 from pxr import Gf, Sdf, Tf, Usd, UsdGeom, UsdLux, UsdShade, UsdUtils, Vt
 
 from .errors import InputError
+from .scene.material import Material
 from .rendered import (Rendered, Surface, ice_surface, object_surface, pbr, read_ice, read_rendered, require,
                        water_at)
 
@@ -76,7 +77,7 @@ def up_axis(gravity) -> str:
     return "Z" if g[2] > g[1] else "Y"
 
 
-def write_job_usd(job_dir: str | Path, *, material: dict | None = None,
+def write_job_usd(job_dir: str | Path, *, material: Material | None = None,
                   ice_mesh: trimesh.Trimesh | None = None, out_dir: str | Path | None = None) -> UsdScene:
     """Write ``scene.usda``, ``object.usdc`` and ``ice.usdc`` for a job that rendered.
 
@@ -85,7 +86,7 @@ def write_job_usd(job_dir: str | Path, *, material: dict | None = None,
     job_dir : path
         The job folder: ``scene.xml``, ``views.json``, ``params.yaml``, ``object.ply``,
         ``ice.ply``, ``water.ply`` and the sky image.
-    material : dict, optional
+    material : Material, optional
         The object's material; default ``done.json``'s.
     ice_mesh : trimesh.Trimesh, optional
         The ice already in memory (the pipeline's): saves reading ``ice.ply`` again.

@@ -10,7 +10,8 @@ import trimesh
 from scipy.spatial.distance import pdist
 
 from icefarm import params
-from icefarm.generators import generate, lathe, resample_polyline
+from icefarm.generators import generate
+from icefarm.generators.fountain import lathe, resample_polyline
 from icefarm.geometry import sample_faces
 from icefarm.mesh import detect_problems, prepare
 from icefarm.pipeline import JobSpec, Stage, run_job

@@ -25,12 +25,13 @@ from icefarm.artifacts import check_done
 from icefarm.cli import main
 from icefarm.pipeline import JobSpec, run_job
 from icefarm.scene.config import ABSORPTION_PER_M, render_config_from_dict
+from icefarm.scene.material import material_from_dict
 from icefarm.scene.render import write_scenes
 from icefarm.usd import up_axis, write_job_usd, write_usdz
 
 pytestmark = pytest.mark.slow  # real processes, clusters and renders: `pytest -m "not slow"` skips them
 
-PLASTIC = (("type", "plastic"), ("color", (0.6, 0.1, 0.1)), ("roughness", 0.09))
+PLASTIC = material_from_dict({"type": "plastic", "color": (0.6, 0.1, 0.1), "roughness": 0.09})
 
 # Run in a fresh interpreter: everything a DCC sees of scene.usda, as JSON and .npy files.
 READ_USD = textwrap.dedent("""
@@ -290,7 +291,7 @@ def test_z_up_gravity_gives_a_z_up_stage_and_a_y_up_glb(tmp_path):
     job = tmp_path / "job"
     write_scenes(job, box, ice, config, gravity=(0.0, 0.0, -1.0))
     (job / "params.yaml").write_text(yaml.safe_dump({"water": {"gravity": [0.0, 0.0, -1.0]}}))
-    written = write_job_usd(job, material=dict(PLASTIC))
+    written = write_job_usd(job, material=PLASTIC)
     assert written.up_axis == "Z"
     usd = read_usd(written.scene, tmp_path / "facts")
     assert usd["up"] == "Z" and usd["meters"] == 1.0
@@ -301,7 +302,7 @@ def test_z_up_gravity_gives_a_z_up_stage_and_a_y_up_glb(tmp_path):
     # glTF is +Y up: the root turns minus gravity (+Z here) to +Y.
     from icefarm.gltf import write_glb
 
-    (job / "done.json").write_text(json.dumps({"object_material": dict(PLASTIC)}))
+    (job / "done.json").write_text(json.dumps({"object_material": PLASTIC.to_dict()}))
     tree = glb_json(write_glb(job, tmp_path / "z.glb"))
     node = next(n for n in tree["nodes"] if n.get("name") == "ice")
     turn = np.array(node["matrix"]).reshape(4, 4).T  # glTF matrices are column-major

@@ -14,9 +14,11 @@ import pytest
 import trimesh
 import yaml
 
-from icefarm.farm.backends import PAUSE_ENV, PAUSED_ENV
+from hooks.sitecustomize import pause_env
 from icefarm.farm.manifest import load_manifest
-from icefarm.farm.sweep import Status, plan_jobs, run_sweep
+from icefarm.farm.plan import plan_jobs
+from icefarm.farm.sweep import run_sweep
+from icefarm.jobdir import JobState
 
 pytestmark = pytest.mark.slow  # real processes, clusters and renders: `pytest -m "not slow"` skips them
 
@@ -49,8 +51,9 @@ def cluster(tmp_path_factory, paused):
     if not DASK.exists():
         pytest.skip(f"no dask command at {DASK}")
     folder = tmp_path_factory.mktemp("dask")
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")])),
-               DASK_DISTRIBUTED__SCHEDULER__ALLOWED_FAILURES="1", **{PAUSE_ENV: "victim=2", PAUSED_ENV: str(paused)})
+    # The workers pause the jobs of "victim" (tests/hooks/sitecustomize.py), touching paused/<pid> first.
+    env = dict(os.environ, DASK_DISTRIBUTED__SCHEDULER__ALLOWED_FAILURES="1", **pause_env("victim", 2, paused))
+    env["PYTHONPATH"] = os.pathsep.join([str(ROOT), env["PYTHONPATH"]])
     procs = []
 
     def start(*args, log):
@@ -133,7 +136,7 @@ def test_dask_reschedules_the_job_of_a_killed_worker(tmp_path, cluster, paused):
     killer.join()
     assert killed
     records = {r.job_id: r for r in summary.jobs}
-    assert records[victim].status is Status.DONE and records[victim].attempts == 2
+    assert records[victim].status is JobState.DONE and records[victim].attempts == 2
     assert summary.done == 4 and summary.ok
 
 

@@ -49,7 +49,7 @@ def test_valid_manifest_resolves_paths_and_params(tmp_path, ball):
     assert m.defaults == {"surface.mode": "tubes", "drips.count": 5}
     assert obj.params == {"trajectories.curve_angle": 4.0}
     assert obj.exclude == (((0.0, 0.0, 0.0), (0.1, 0.1, 0.1)), ((-1.0, -1.0, -1.0), (0.0, 0.0, 0.0)))
-    assert dict(obj.material)["color"] == (0.9, 0.9, 1.0)
+    assert obj.material.color == (0.9, 0.9, 1.0) and obj.material.roughness == 0.1 and obj.material.type == "diffuse"
     assert m.render is None and m.sweep is None and m.seed == 3
 
 

@@ -12,13 +12,15 @@ import pytest
 import trimesh
 import yaml
 from click.testing import CliRunner
+from hooks.sitecustomize import pause_env
 
 from icefarm.errors import InputError
-from icefarm.farm.backends import PAUSE_ENV, PAUSED_ENV
 from icefarm.farm.commands import sweep as sweep_command
 from icefarm.farm.commands import validate as validate_command
 from icefarm.farm.manifest import load_manifest
-from icefarm.farm.sweep import Status, plan_jobs, run_sweep
+from icefarm.farm.plan import plan_jobs
+from icefarm.farm.sweep import run_sweep
+from icefarm.jobdir import JobState
 
 pytestmark = pytest.mark.slow  # real processes, clusters and renders: `pytest -m "not slow"` skips them
 
@@ -122,7 +124,8 @@ def test_a_failing_job_does_not_stop_the_others(tmp_path, ball):
 def test_a_second_sweep_on_a_running_folder_is_refused_and_deletes_nothing(tmp_path, ball, monkeypatch):
     path = write_manifest(tmp_path, [{"id": "ball", "mesh": ball, "size_m": 0.3}], grid(drips__count=[2, 3]))
     out = tmp_path / "out"
-    monkeypatch.setenv(PAUSE_ENV, "ball=3")  # the first sweep's jobs are still running
+    for key, value in pause_env("ball", 3).items():  # the first sweep's jobs are still running
+        monkeypatch.setenv(key, value)
     first: list = []
     runner = threading.Thread(target=lambda: first.append(run_sweep(path, out, workers=2, until="drips")))
     runner.start()
@@ -179,10 +182,10 @@ def test_a_killed_worker_is_noticed_its_job_retried_once(tmp_path, ball, monkeyp
                                      {"id": "victim", "mesh": ball, "size_m": 0.5}],
                           grid(drips__count=[2, 3]))
     victim = next(j.job_id for j in plan_jobs(load_manifest(path), render=False)[0] if j.object_id == "victim")
-    monkeypatch.setenv(PAUSE_ENV, "victim=1.5")
     paused = tmp_path / "paused"
     paused.mkdir()
-    monkeypatch.setenv(PAUSED_ENV, str(paused))
+    for key, value in pause_env("victim", 1.5, paused).items():  # the workers' jobs of victim pause
+        monkeypatch.setenv(key, value)
     killed: list = []
     killer = threading.Thread(target=_kill_when_started,
                               args=(tmp_path / "out" / "t" / ".farm" / "running", {victim}, kills, killed, paused))
@@ -192,9 +195,9 @@ def test_a_killed_worker_is_noticed_its_job_retried_once(tmp_path, ball, monkeyp
     assert killed == [victim] * kills
     records = {r.job_id: r for r in summary.jobs}
     assert records[victim].attempts == 2
-    assert records[victim].status is (Status.DONE if kills == 1 else Status.FAILED)
+    assert records[victim].status is (JobState.DONE if kills == 1 else JobState.FAILED)
     others = [r for r in summary.jobs if r.job_id != victim]
-    assert all(r.status is Status.DONE for r in others) and len(others) == 3
+    assert all(r.status is JobState.DONE for r in others) and len(others) == 3
     if kills == 2:
         assert "died 2 times" in records[victim].error
         assert (records[victim].job_dir / "error.json").is_file()

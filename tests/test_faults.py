@@ -14,11 +14,11 @@ from pathlib import Path
 import pytest
 import trimesh
 import yaml
+from hooks.sitecustomize import pause_env
 
 from icefarm import params
 from icefarm.artifacts import atomic_write
 from icefarm.errors import CacheWarning
-from icefarm.farm.backends import PAUSE_ENV
 from icefarm.farm.sweep import run_sweep
 from icefarm.pipeline import JobSpec, Stage, run_job
 from icefarm.stage_cache import StageCache
@@ -88,7 +88,7 @@ def alive(pid: int) -> bool:
 def test_a_killed_driver_leaves_no_process_and_resume_finishes_every_job(tmp_path, ball, signum, code):
     path = manifest(tmp_path, {"water.rays": [300, 301, 302]})
     out = tmp_path / "out"
-    env = dict(os.environ, **{PAUSE_ENV: "ball=600"})  # every job stays in its worker
+    env = dict(os.environ, **pause_env("ball", 600))  # every job stays in its worker
     driver = subprocess.Popen([str(ICEFARM), "sweep", str(path), "-o", str(out), "--workers", "2",
                                "--until", "drips"], env=env, cwd=tmp_path, start_new_session=True,
                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
@@ -124,7 +124,7 @@ def test_a_worker_ignores_ctrl_c_and_dies_with_its_driver(tmp_path):
     flag = tmp_path / "child.pid"
     script.write_text(
         "import multiprocessing, os, sys, time\n"
-        "from icefarm.farm.backends import _worker_init\n"
+        "from icefarm.farm.local import _worker_init\n"
         "def child(flag, driver):\n"
         "    _worker_init(driver)\n"
         "    open(flag, 'w').write(str(os.getpid()))\n"

@@ -5,6 +5,7 @@ import pytest
 import trimesh
 
 from icefarm import generators
+from icefarm.generators import branch, fountain, roof, teapot
 from icefarm.errors import InputError
 from icefarm.mesh import clean, count_self_intersections, detect_problems
 
@@ -66,8 +67,8 @@ def test_deterministic_and_detail_scales(name):
 
 
 def test_teapot_is_the_classic_open_teapot(meshes):
-    assert generators._TEAPOT_POINTS.shape == (306, 3)
-    assert generators._TEAPOT_PATCHES.shape == (32, 4, 4)
+    assert teapot._TEAPOT_POINTS.shape == (306, 3)
+    assert teapot._TEAPOT_PATCHES.shape == (32, 4, 4)
     mesh = meshes["teapot"]
     detail = generators.DEFAULT_DETAIL
     assert len(mesh.faces) == 64 * detail ** 2 - 8 * detail
@@ -128,30 +129,30 @@ def test_bad_detail(detail):
 
 def test_resample_polyline_keeps_corners_and_count():
     points = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 3.0]])
-    out = generators.resample_polyline(points, 8)
+    out = fountain.resample_polyline(points, 8)
     assert len(out) == 9
     assert all((np.abs(out - p).sum(axis=1) < 1e-12).any() for p in points)
     np.testing.assert_allclose(np.linalg.norm(np.diff(out, axis=0), axis=1), 0.5)
     with pytest.raises(ValueError):
-        generators.resample_polyline(points, 1)
+        fountain.resample_polyline(points, 1)
 
 
 def test_lathe_makes_a_closed_cone():
-    vertices, faces = generators.lathe([[0.0, 0.0], [1.0, 0.0], [0.0, 2.0]], 256)
+    vertices, faces = fountain.lathe([[0.0, 0.0], [1.0, 0.0], [0.0, 2.0]], 256)
     cone = trimesh.Trimesh(vertices, faces, process=False)
     assert cone.is_watertight and cone.is_winding_consistent
     np.testing.assert_allclose(cone.volume, np.pi * 2 / 3, rtol=1e-3)
     with pytest.raises(ValueError):
-        generators.lathe([[0.5, 0.0], [1.0, 0.0], [0.0, 2.0]], 8)
+        fountain.lathe([[0.5, 0.0], [1.0, 0.0], [0.0, 2.0]], 8)
 
 
 def test_tube_and_prism_are_closed():
     t = np.linspace(0, 1, 9)
     line = np.c_[t, 0.1 * t ** 2, np.zeros_like(t)]
-    tube = generators.tube(line, 0.1 - 0.05 * t, 12)
+    tube = branch.tube(line, 0.1 - 0.05 * t, 12)
     assert tube.is_watertight and tube.is_winding_consistent and tube.volume > 0
-    box = generators.prism([(0, 0), (2, 0), (2, 1), (0, 1)], [[0, 1, 2], [0, 2, 3]], 0.0, 3.0)
+    box = roof.prism([(0, 0), (2, 0), (2, 1), (0, 1)], [[0, 1, 2], [0, 2, 3]], 0.0, 3.0)
     assert box.is_watertight and box.is_winding_consistent
     np.testing.assert_allclose(box.volume, 6.0)
     with pytest.raises(ValueError):
-        generators.prism([(0, 0), (0, 1), (2, 1), (2, 0)], [[0, 1, 2], [0, 2, 3]], 0.0, 3.0)
+        roof.prism([(0, 0), (0, 1), (2, 1), (2, 0)], [[0, 1, 2], [0, 2, 3]], 0.0, 3.0)

@@ -82,8 +82,8 @@ def test_stage4_inputs_scale_the_water_driven_sizes():
     glaze = P.resolve({"glaze.min_radius": 0.001})["glaze"]
     half, g = stage4_inputs_at(drips, glaze, 0.5)
     assert half.water == pytest.approx([0.1, 0.2]) and half.positions is drips.positions
-    assert g["min_radius"] == pytest.approx(0.0005) and g["scale"] == pytest.approx(glaze["scale"] / 2)
-    assert stage4_inputs_at(drips, glaze, 1.0) == (drips, glaze)
+    assert g.min_radius == pytest.approx(0.0005) and g.scale == pytest.approx(glaze["scale"] / 2)
+    assert stage4_inputs_at(drips, glaze, 1.0) == (drips, P.typed("glaze", glaze))
     assert frame_fractions(4)[-1] == 1.0 and len(frame_fractions(1)) == 1
 
 
@@ -91,7 +91,7 @@ def test_a_frame_stream_draws_for_the_bases_what_the_full_growth_draws(forked):
     """After the icicles' noise, every frame's stream stands where the full growth's does."""
     from icefarm.growth import _noise_draws
 
-    surface = P.resolve()["surface"]
+    surface = P.typed("surface", P.resolve()["surface"])
     states = []
     for f in (0.4, 0.7, 1.0):
         traj = trajectories_at(forked, f)

@@ -16,10 +16,10 @@ import trimesh
 from icefarm.errors import InputError
 from icefarm.scene import povray as pov
 from icefarm.scene.camera import frame_view, world_frame
-from icefarm.scene.config import (RenderConfig, View, config_names, load_render_config,
-                                  material_from_dict, parse_view, render_config_from_dict,
-                                  render_config_to_dict)
+from icefarm.scene.config import (RenderConfig, View, config_names, load_render_config, parse_view,
+                                  render_config_from_dict, render_config_to_dict)
 from icefarm.scene.images import read_image
+from icefarm.scene.material import Material, material_from_dict
 from icefarm.scene.render import render_job, write_scenes
 from icefarm.scene.variants import choose_variant, find_libllvm, llvm_version
 
@@ -119,8 +119,8 @@ def test_yaml_file_and_overrides(tmp_path):
 
 
 def test_material_validation():
-    assert material_from_dict(None)["type"] == "diffuse"
-    assert material_from_dict({"type": "metal", "metal": "Cu"})["metal"] == "Cu"
+    assert material_from_dict(None).type == "diffuse" and material_from_dict(None) == Material()
+    assert material_from_dict({"type": "metal", "metal": "Cu"}).metal == "Cu"
     with pytest.raises(InputError, match="color"):
         material_from_dict({"colour": [1, 0, 0]})
     with pytest.raises(InputError, match="material.roughness"):

@@ -161,9 +161,10 @@ def test_decimate_hits_the_face_count():
     assert table2.decimate(small, 10_000) is small
 
 
-def test_ground_box_covers_only_the_base():
-    (lo, hi) = table2.ground_box(0.3)
-    assert lo[1] < -0.15 < hi[1] < -0.15 + 0.3 * 0.05 and lo[0] < -10 and hi[2] > 10
+def test_table2_rows_keep_the_papers_drip_points_and_the_jobs_ground():
+    p = table2._row_params(table2.ROW_OBJECTS["d"], 20, 0.002)
+    assert p["drips"]["distribution"] == "area" and p["drips"]["spacing"] == 0 and p["drips"]["min_fall"] == 0
+    assert p["proxy"]["mode"] == "never" and p["drips"]["ground_clearance"] > 0 and p["drips"]["count"] == 20
 
 
 def test_table2_smoke_two_rows_reduced(tmp_path, shared_mesh):

@@ -189,7 +189,7 @@ def test_varying_keys_fixed_changes_and_jobs_csv_order(run_dir):
         + "missing0000,bowl,32,pending\n")
     bowl = S.scan_run(run_dir).objects["bowl"]
     assert [j.job_id for j in bowl] == ids + ["missing0000"]
-    assert bowl[-1].state is S.JobState.UNFINISHED and bowl[-1].path is None
+    assert bowl[-1].state is S.JobState.PENDING and bowl[-1].path is None
     assert bowl[-1].values == {"drips.count": 32}
     grid = S.plan_grid(bowl, S.varying_keys(bowl))
     assert (grid.arrangement, grid.rows, grid.cols) == (S.Arrangement.ROW, 1, 4)
@@ -197,7 +197,7 @@ def test_varying_keys_fixed_changes_and_jobs_csv_order(run_dir):
 
 def test_plan_grid_arrangements():
     def job(i, **values):
-        return S.JobInfo("o", f"j{i}", None, S.JobState.DONE, values, True, None, None)
+        return S.JobInfo("o", f"j{i}", None, S.JobState.DONE, values, True)
 
     cross = [job(i, a=a, b=b) for i, (a, b) in enumerate([(1, 1), (1, 2), (2, 1), (2, 2), (3, 1)])]
     grid = S.plan_grid(cross, ["a", "b"])

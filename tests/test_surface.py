@@ -334,19 +334,13 @@ def test_real_meshes_through_stages_1_to_4_are_watertight(name):
     path = MESHES / name
     if not path.is_file():
         pytest.skip(f"{path} is absent")
+    from icefarm.chain import run_stages
     from icefarm.mesh import prepare
-    from icefarm.stages.drips import find_drips
-    from icefarm.stages.trajectories import grow_trajectories
-    from icefarm.stages.water import compute_water
 
     p = params.resolve({"drips.count": 8, "water.rays": 800, "surface.voxel_size": 0.0015})
-    mesh = prepare(path, 0.3).mesh
-    rng = np.random.default_rng(1)
-    water = compute_water(mesh, G, p["water"]["rays"], p["water"]["influence_radius"], rng)
-    drips = find_drips(mesh, water.water, G, p["drips"]["count"], p["drips"]["drip_limit"], rng)
-    traj = grow_trajectories(mesh, drips.positions, mesh.face_normals[drips.faces], drips.water, G, rng,
-                             drip_limit=p["drips"]["drip_limit"], **p["trajectories"])
-    ice = S.build_ice(mesh, mesh, water, drips, traj, p["surface"], p["glaze"], G, rng)
+    result = run_stages(prepare(path, 0.3), p, 1)
+    ice = S.build_ice(result.mesh, result.flow, result.water, result.drips, result.trajectories, p["surface"],
+                      p["glaze"], G, np.random.default_rng(1))
     _closed_and_clean(ice)
     assert np.isfinite(ice.icicles.tip_radius_mm)
 

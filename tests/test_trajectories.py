@@ -4,11 +4,13 @@ import numpy as np
 import pytest
 import trimesh
 
+from icefarm.chain import Stage, run_stages
 from icefarm.mesh import prepare
 from icefarm.params import defaults
 from icefarm.stages.drips import find_drips
-from icefarm.stages.trajectories import (BRANCH_ANGLE, TrajectoryResult, grow_trajectories, measure_trajectories,
-                                         spread_steps)
+from icefarm.stages.trajectories import TrajectoryResult, grow_trajectories, spread_steps
+from icefarm.stages.trajectory_stats import measure_trajectories
+from icefarm.stages.turtles import BRANCH_ANGLE
 from icefarm.stages.water import compute_water
 
 G = np.array([0.0, -1.0, 0.0])
@@ -147,14 +149,9 @@ def test_branches_leave_at_30_degrees_even_from_a_leaning_parent(plate):
 
 
 def bunny_setup(shared_mesh):
-    mesh = prepare(shared_mesh("stanford-bunny.obj"), 0.3).mesh
-    p = defaults()
-    heights = mesh.vertices @ -G
-    grounded = heights < heights.min() + p["drips"]["ground_clearance"] * np.ptp(heights)
-    water = compute_water(mesh, G, p["water"]["rays"], p["water"]["influence_radius"], np.random.default_rng(0))
-    drips = find_drips(mesh, water.water, G, p["drips"]["count"], p["drips"]["drip_limit"], np.random.default_rng(1),
-                       exclude_vertices=grounded, spacing=p["drips"]["spacing"],
-                       distribution=p["drips"]["distribution"])
+    """The bunny's drip points as a job finds them (on the default parameters)."""
+    result = run_stages(prepare(shared_mesh("stanford-bunny.obj"), 0.3), defaults(), 1, until=Stage.DRIPS)
+    mesh, drips = result.mesh, result.drips
     return mesh, drips.positions, mesh.face_normals[drips.faces], drips.water
 
 

@@ -16,10 +16,12 @@ from pathlib import Path
 import click
 
 from ..errors import InputError, Interrupted, one_line_each
-from ..jobdir import error_line, stage_phrase
-from .manifest import Manifest, load_manifest
+from ..jobdir import JobState, error_line, stage_phrase
+from .manifest import load_manifest
+from .manifest_model import Manifest
 from .points import MAX_JOBS, apply_sets, check_job_count, count_points
-from .sweep import JobRecord, Status, SweepSummary, run_sweep
+from .plan import JobRecord
+from .sweep import SweepSummary, run_sweep
 
 
 class BadInput(click.ClickException):
@@ -51,10 +53,10 @@ class LineProgress:
 
     def update(self, record: JobRecord) -> None:
         self.count += 1
-        self.failed += record.status is Status.FAILED
+        self.failed += record.status is JobState.FAILED
         values = " ".join(f"{k.split('.')[-1]}={_short(v)}" for k, v in record.values)
         failed = f"FAILED: {error_line(record.error, 'unknown error')}"
-        detail = f"{record.seconds:.1f} s" if record.status is Status.DONE else failed
+        detail = f"{record.seconds:.1f} s" if record.status is JobState.DONE else failed
         reused = f", reused {'+'.join(record.reused)}" if record.reused else ""
         retried = f", attempt {record.attempts}" if record.attempts > 1 else ""
         self.echo(f"[{self.count}/{self.total}] {record.object_id}/{record.job_id} {values} "
@@ -82,7 +84,7 @@ class TqdmProgress:
         self.bar.set_postfix(failed=0)
 
     def update(self, record: JobRecord) -> None:
-        self.failed += record.status is Status.FAILED
+        self.failed += record.status is JobState.FAILED
         self.bar.set_postfix(failed=self.failed, last=record.object_id)
         self.bar.update(1)
 
@@ -171,7 +173,7 @@ def format_summary(summary: SweepSummary) -> str:
                      + ", ".join(str(p.relative_to(summary.sweep_dir)) for p in summary.stale[:10])
                      + (" ..." if len(summary.stale) > 10 else ""))
     for r in summary.jobs:
-        if r.status is Status.FAILED:
+        if r.status is JobState.FAILED:
             stage = f" {stage_phrase(r.failed_stage)}" if r.failed_stage else ""
             lines.append(f"  FAILED {r.object_id}/{r.job_id}{stage}: {error_line(r.error, 'unknown error')}")
     lines.append(f"results: {summary.sweep_dir}  (jobs.csv, jobs/<object>/<job>/)")
@@ -185,7 +187,7 @@ def format_plan(summary: SweepSummary) -> str:
              + (f"; {len(summary.stale)} stale job folder(s) not in this manifest" if summary.stale else "")]
     for r in summary.jobs:
         values = " ".join(f"{k}={_short(v)}" for k, v in r.values)
-        state = "done" if r.status is Status.DONE else "to run"
+        state = "done" if r.status is JobState.DONE else "to run"
         lines.append(f"  {r.object_id}/{r.job_id}  {values}  [{state}]")
     return "\n".join(lines)
 
@@ -380,6 +382,6 @@ def bench_farm(jobs: int, worker_counts: tuple[int, ...], until: str | None, rep
 
 
 def _cores() -> int:
-    from .backends import cores
+    from .task import cores
 
     return cores()

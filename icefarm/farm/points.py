@@ -17,7 +17,8 @@ import numpy as np
 
 from .. import params as P
 from ..errors import InputError
-from .manifest import SOURCE_KEY, Axis, Distribution, Manifest, Sweep, SweepMethod, source_problems
+from .manifest import SOURCE_KEY, source_problems
+from .manifest_model import Axis, Distribution, Manifest, Sweep, SweepMethod
 
 MAX_JOBS = 10_000  # a sweep of more jobs is refused unless --max-jobs raises the limit
 

@@ -4,7 +4,8 @@ Importing this package imports neither mitsuba nor drjit: `variants.pick_variant
 `variants.prepare_llvm`) must run before they are, to choose Dr.Jit's libLLVM.
 """
 
-from .config import RenderConfig, load_render_config, material_from_dict, render_config_to_dict
+from .config import RenderConfig, load_render_config, render_config_to_dict
+from .material import material_from_dict
 from .render import RenderResult, SceneFiles, render_job, write_scenes
 from .variants import pick_variant, prepare_llvm
 

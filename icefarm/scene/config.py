@@ -4,7 +4,8 @@ A render config says how a job is rendered (renderer, variant, resolution, sampl
 views) and how the ice and its surroundings look (ior, roughness, absorption, cloudiness,
 sky, sun, ground).
 Keys are checked like parameters: an unknown key is refused with the nearest valid one,
-a wrong value with the key, the value and what was expected.
+a wrong value with the key, the value and what was expected (the value checks are
+`config_checks`; the object's material, which a manifest states, is `material`).
 """
 
 from __future__ import annotations
@@ -20,6 +21,8 @@ from typing import Any, Callable
 import yaml
 
 from ..errors import InputError
+from .config_checks import (MAX_ABSORPTION, _absorption, _choice, _number, _refuse, _resolution, _sky,
+                            _triple)
 
 RENDERERS = ("mitsuba", "povray", "both")
 VARIANTS = ("auto", "scalar_rgb", "llvm_ad_rgb", "cuda_ad_rgb")
@@ -212,68 +215,6 @@ class RenderConfig:
         return self.renderer in ("povray", "both")
 
 
-# ---------------------------------------------------------------------------- checks
-# Each check takes (key, value) and returns the coerced value or raises InputError.
-
-def _refuse(key: str, value: Any, expected: str) -> InputError:
-    return InputError(f"render config: {key} = {value!r} is not valid: expected {expected}")
-
-
-def _number(low=None, high=None, integer=False, low_open=False) -> Callable[[str, Any], Any]:
-    lo = "-inf" if low is None else f"{low:g}"
-    hi = "inf" if high is None else f"{high:g}"
-    expected = f"{'an integer' if integer else 'a number'} in {'(' if low_open else '['}{lo}, {hi}]"
-
-    def check(key, value):
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise _refuse(key, value, expected)
-        if integer and float(value) != int(value):
-            raise _refuse(key, value, expected)
-        value = int(value) if integer else float(value)
-        if not math.isfinite(value) or (low is not None and (value < low or (low_open and value == low))) \
-                or (high is not None and value > high):
-            raise _refuse(key, value, expected)
-        return value
-
-    return check
-
-
-def _choice(choices: Sequence[str]) -> Callable[[str, Any], str]:
-    def check(key, value):
-        if value not in choices:
-            hint = difflib.get_close_matches(str(value), choices, n=1, cutoff=0.5)
-            tip = f" (did you mean {hint[0]!r}?)" if hint else ""
-            raise _refuse(key, value, "one of " + " | ".join(choices) + tip)
-        return value
-
-    return check
-
-
-def _triple(low: float, high: float, expected: str | None = None) -> Callable[[str, Any], tuple[float, float, float]]:
-    expected = expected or f"3 numbers in [{low:g}, {high:g}]"
-
-    def check(key, value):
-        if isinstance(value, (str, bytes)) or not isinstance(value, Sequence) or len(value) != 3:
-            raise _refuse(key, value, expected)
-        out = []
-        for v in value:
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not low <= v <= high:
-                raise _refuse(key, value, expected)
-            out.append(float(v))
-        return tuple(out)
-
-    return check
-
-
-def _resolution(key, value):
-    expected = "[width, height], integers in [8, 16384]"
-    if isinstance(value, (str, bytes)) or not isinstance(value, Sequence) or len(value) != 2:
-        raise _refuse(key, value, expected)
-    if not all(isinstance(v, int) and not isinstance(v, bool) and 8 <= v <= 16384 for v in value):
-        raise _refuse(key, value, expected)
-    return (int(value[0]), int(value[1]))
-
-
 def parse_view(key: str, value: Any) -> View:
     """A view from a name (``three_quarter``, ``ice``), ``[azimuth, elevation]`` or a mapping.
 
@@ -317,47 +258,6 @@ def _views(key, value):
     if not isinstance(value, Sequence) or not value or len(value) > 16:
         raise _refuse(key, value, "a list of 1 to 16 views")
     return tuple(parse_view(f"{key}[{i}]", v) for i, v in enumerate(value))
-
-
-def _sky(key, value):
-    if not isinstance(value, str) or not value:
-        raise _refuse(key, value, "'procedural' or the path of an equirectangular .exr/.hdr image")
-    if value == "procedural":
-        return value
-    path = Path(value).expanduser()
-    if path.suffix.lower() not in (".exr", ".hdr"):
-        raise _refuse(key, value, "'procedural' or the path of an equirectangular .exr/.hdr image")
-    if not path.is_file():
-        raise InputError(f"render config: environment.sky = {value!r}: no such file")
-    return str(path.resolve())
-
-
-MAX_ABSORPTION = 1.0e4  # per meter: light through 1 mm of ice keeps e^-10
-
-
-def _absorption(key, value):
-    """Per-meter coefficients ``[r, g, b]`` (or one number for all three), or the colour
-    white light takes after a distance of ice, ``{color: [r, g, b], distance: m}``."""
-    expected = (f"[r, g, b] absorption per meter, each in [0, {MAX_ABSORPTION:g}], or "
-                "{color: [r, g, b] in (0, 1], distance: meters > 0}: the colour white light "
-                "takes after that distance of ice")
-    if isinstance(value, Mapping):
-        if set(value) != {"color", "distance"}:
-            raise _refuse(key, value, expected)
-        color, distance = value["color"], value["distance"]
-        if isinstance(distance, bool) or not isinstance(distance, (int, float)) \
-                or not math.isfinite(distance) or distance <= 0:
-            raise _refuse(key, value, expected)
-        if isinstance(color, (str, bytes)) or not isinstance(color, Sequence) or len(color) != 3 or not all(
-                not isinstance(c, bool) and isinstance(c, (int, float)) and 0.0 < c <= 1.0 for c in color):
-            raise _refuse(key, value, expected)
-        per_m = tuple(-math.log(float(c)) / float(distance) + 0.0 for c in color)
-        if max(per_m) > MAX_ABSORPTION:
-            raise _refuse(key, value, expected)
-        return per_m
-    if isinstance(value, (int, float)) and not isinstance(value, bool):
-        value = [value] * 3
-    return _triple(0.0, MAX_ABSORPTION, expected)(key, value)
 
 
 _ICE: dict[str, Callable] = {
@@ -509,47 +409,4 @@ def render_config_to_dict(config: RenderConfig) -> dict[str, Any]:
                     for v in config.views]
     out["ice"]["tint"] = list(config.ice.tint)
     out["ice"]["absorption"] = list(config.ice.absorption)
-    return out
-
-
-# --------------------------------------------------------------------- object material
-MATERIAL_TYPES = ("diffuse", "plastic", "metal")
-METALS = ("Al", "Ag", "Au", "Cu", "Cr")
-_MATERIAL: dict[str, Callable] = {
-    "type": _choice(MATERIAL_TYPES),
-    "color": _triple(0.0, 1.0),
-    "roughness": _number(0.0, 1.0),
-    "metal": _choice(METALS),
-}
-# A darker, warm object (weathered wood, terracotta): clear ice over it reads by its
-# highlights and its blue-green depth; over a pale grey one it disappears.
-DEFAULT_MATERIAL = {"type": "diffuse", "color": (0.3, 0.17, 0.1), "roughness": 0.2, "metal": "Al"}
-
-
-def material_from_dict(values: Mapping[str, Any] | None) -> dict[str, Any]:
-    """Validate an object material: ``{type: diffuse|plastic|metal, color, roughness, metal}``.
-
-    ``color`` is linear RGB reflectance in [0, 1]; ``roughness`` (plastic, metal) is the GGX
-    alpha, 0 for a mirror-smooth coat; ``metal`` names a conductor (Al, Ag, Au, Cu, Cr).
-    Missing keys take `DEFAULT_MATERIAL`'s values.
-
-    Raises
-    ------
-    InputError
-        Unknown key (with the nearest one) or a bad value.
-    """
-    out = dict(DEFAULT_MATERIAL)
-    if values is None:
-        return out
-    if not isinstance(values, Mapping):
-        raise InputError(f"material: expected a mapping of {', '.join(_MATERIAL)}, got {values!r}")
-    for key, value in values.items():
-        if key not in _MATERIAL:
-            hint = difflib.get_close_matches(str(key), list(_MATERIAL), n=1, cutoff=0.5)
-            tip = f"; did you mean {hint[0]!r}?" if hint else f"; valid keys: {', '.join(_MATERIAL)}"
-            raise InputError(f"material: unknown key {key!r}{tip}")
-        try:
-            out[key] = _MATERIAL[key](f"material.{key}", value)
-        except InputError as exc:
-            raise InputError(str(exc).replace("render config: ", "")) from None
     return out

@@ -1,4 +1,4 @@
-"""Mesh data for renderers: crease-aware normals, signed volume, a fast binary PLY writer."""
+"""Mesh data for renderers: winding, crease-aware normals, a fast binary PLY writer."""
 
 from __future__ import annotations
 
@@ -9,31 +9,7 @@ import trimesh
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-
-def face_cross(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """``(e1 x e2)`` per face ``(m, 3)``: the normal scaled by twice the face area (m^2)."""
-    vertices = np.asarray(vertices, dtype=np.float64)
-    faces = np.asarray(faces)
-    v0 = vertices[faces[:, 0]]
-    a = vertices[faces[:, 1]] - v0
-    b = vertices[faces[:, 2]] - v0
-    # Written out: np.cross is several times slower on millions of rows.
-    return np.column_stack([a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1],
-                            a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2],
-                            a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]])
-
-
-def signed_volume(vertices: np.ndarray, faces: np.ndarray) -> float:
-    """Signed volume (m^3) of a closed mesh: negative when its faces wind inwards.
-
-    Parameters
-    ----------
-    vertices : (n, 3) float
-    faces : (m, 3) int
-    """
-    cross = face_cross(vertices, faces)
-    v0 = np.asarray(vertices, dtype=np.float64)[np.asarray(faces)[:, 0]]
-    return float(np.einsum("ij,ij->", v0, cross) / 6.0)  # v0 . (v1 x v2) = v0 . (e1 x e2)
+from ..geometry import face_cross, signed_volume, unit
 
 
 def winds_inward(vertices: np.ndarray, faces: np.ndarray) -> bool:
@@ -65,17 +41,14 @@ def _sum_rows(index: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
     return np.column_stack([np.bincount(index, weights=values[:, i], minlength=n) for i in range(3)])
 
 
-def _normalise(v: np.ndarray) -> np.ndarray:
-    length = np.linalg.norm(v, axis=1, keepdims=True)
-    return np.divide(v, length, out=np.zeros_like(v), where=length > 0)
-
-
 def smooth_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """Angle-weighted unit vertex normals ``(n, 3)``; zero for unused vertices.
 
     Each face adds its unit normal weighted by its angle at the vertex (Thuermer and
     Wuethrich 1998): the normals Mitsuba computes for a mesh loaded without them, so a
-    POV-Ray scene shades like the Mitsuba one.
+    POV-Ray scene shades like the Mitsuba one. Those of trimesh's ``mesh.vertex_normals``
+    (`trimesh.geometry.weighted_vertex_normals`), without its arccos and sparse matrix:
+    1.3M faces 0.45 s vs trimesh 1.70 s (1.23 s from arrays, face normals and angles included).
 
     Parameters
     ----------
@@ -97,7 +70,7 @@ def smooth_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
         weight = np.divide(angle, twice_area, out=np.zeros_like(angle), where=twice_area > 0)
         for axis in range(3):
             summed[axis] += np.bincount(corner_ids[k], weights=cross[axis] * weight, minlength=n)
-    return _normalise(summed.T)
+    return unit(summed.T)
 
 
 def crease_split(mesh: trimesh.Trimesh, angle: float = 30.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -137,7 +110,7 @@ def crease_split(mesh: trimesh.Trimesh, angle: float = 30.0) -> tuple[np.ndarray
     corner_vertex = faces.ravel()
     out_vertices = np.empty((len(used), 3))
     out_vertices[new_index] = vertices[corner_vertex]
-    normals = _normalise(_sum_rows(new_index, np.repeat(face_cross(vertices, faces), 3, axis=0), len(used)))
+    normals = unit(_sum_rows(new_index, np.repeat(face_cross(vertices, faces), 3, axis=0), len(used)))
     return out_vertices, normals, new_index.reshape(-1, 3)
 
 

@@ -16,6 +16,7 @@ import numpy as np
 
 from .camera import Camera
 from .config import GROUND_CHECKER, GROUND_PLAIN, IceMedium, RenderConfig
+from .material import Material
 
 WATER_ICE_IOR = 1.31  # Mitsuba's "water ice"
 
@@ -50,21 +51,21 @@ def frame_matrix(frame: np.ndarray, origin=(0.0, 0.0, 0.0), scale=(1.0, 1.0, 1.0
     return m
 
 
-def _bsdf_object(parent: ET.Element, material: dict) -> None:
+def _bsdf_object(parent: ET.Element, material: Material) -> None:
     # Two-sided: input meshes are often open or inconsistently wound.
     two = _add(parent, "bsdf", type="twosided")
-    kind, rough = material["type"], material["roughness"]
+    kind, rough = material.type, material.roughness
     if kind == "diffuse":
         b = _add(two, "bsdf", type="diffuse")
-        _add(b, "rgb", name="reflectance", value=_vec(material["color"]))
+        _add(b, "rgb", name="reflectance", value=_vec(material.color))
     elif kind == "plastic":
         b = _add(two, "bsdf", type="roughplastic" if rough > 0 else "plastic")
-        _add(b, "rgb", name="diffuse_reflectance", value=_vec(material["color"]))
+        _add(b, "rgb", name="diffuse_reflectance", value=_vec(material.color))
         if rough > 0:
             _add(b, "float", name="alpha", value=rough)
     else:
         b = _add(two, "bsdf", type="roughconductor" if rough > 0 else "conductor")
-        _add(b, "string", name="material", value=material["metal"])
+        _add(b, "string", name="material", value=material.metal)
         if rough > 0:
             _add(b, "float", name="alpha", value=rough)
 
@@ -100,7 +101,7 @@ def _medium_ice(parent: ET.Element, medium: IceMedium) -> None:
 
 def scene_xml(config: RenderConfig, cameras: Sequence[Camera], frame: np.ndarray, *,
               object_ply: str, ice_ply: str | None, ice_flip: bool, sky_file: str,
-              sun_dir: np.ndarray, ground: Ground | None, material: dict,
+              sun_dir: np.ndarray, ground: Ground | None, material: Material,
               medium: IceMedium | None = None) -> str:
     """The text of ``scene.xml``.
 
@@ -120,8 +121,8 @@ def scene_xml(config: RenderConfig, cameras: Sequence[Camera], frame: np.ndarray
     sun_dir : (3,) float
         Unit vector towards the sun.
     ground : Ground or None
-    material : dict
-        Validated object material (`config.material_from_dict`).
+    material : Material
+        Validated object material (`material.material_from_dict`).
     medium : IceMedium, optional
         What fills the ice (absorption, scattering); the XML then names ``volpath``,
         which renders media, instead of ``path``.

@@ -20,6 +20,7 @@ from ..errors import InputError
 from .camera import Camera
 from .camera import direction as direction_of
 from .config import GROUND_CHECKER, GROUND_PLAIN, IceMedium, RenderConfig
+from .material import Material
 from .mitsuba import Ground
 
 FLIP = np.array([1.0, 1.0, -1.0])  # right-handed world -> POV's left-handed one
@@ -120,16 +121,16 @@ def write_mesh2(path: str | Path, name: str, vertices: np.ndarray, normals: np.n
         f.write(f"  scale {1 / MICROMETRES:g}\n}}\n".encode())
 
 
-def _finish_object(material: dict) -> str:
-    kind, rough = material["type"], material["roughness"]
+def _finish_object(material: Material) -> str:
+    kind, rough = material.type, material.roughness
     if kind == "diffuse":
-        return (f"texture {{ pigment {{ color {_rgb(material['color'])} }} "
+        return (f"texture {{ pigment {{ color {_rgb(material.color)} }} "
                 "finish { ambient 0.02 diffuse 1.0 } }")
     if kind == "plastic":
-        return (f"texture {{ pigment {{ color {_rgb(material['color'])} }} "
+        return (f"texture {{ pigment {{ color {_rgb(material.color)} }} "
                 f"finish {{ ambient 0.02 diffuse 0.75 specular 0.6 roughness {max(rough, 0.001) ** 2:.6g} "
                 "reflection { 0.02, 0.2 fresnel on } conserve_energy } }")
-    colour = METAL_COLOURS[material["metal"]]
+    colour = METAL_COLOURS[material.metal]
     return (f"texture {{ pigment {{ color {_rgb(colour)} }} "
             f"finish {{ ambient 0.05 diffuse 0.15 metallic specular 0.8 roughness {max(rough, 0.001) ** 2:.6g} "
             "reflection { 0.75 metallic } } }")
@@ -175,7 +176,7 @@ def _ice_material(config: RenderConfig, medium: IceMedium | None = None) -> str:
 
 def scene_pov(config: RenderConfig, cameras: Sequence[Camera], frame: np.ndarray, *,
               object_inc: str, ice_inc: str | None, sky_file: str, sun_dir: np.ndarray,
-              ground: Ground | None, material: dict, medium: IceMedium | None = None) -> str:
+              ground: Ground | None, material: Material, medium: IceMedium | None = None) -> str:
     """The text of ``scene.pov`` (POV-Ray 3.7); arguments as in `mitsuba.scene_xml`.
 
     The ice's absorption becomes its interior's exponential fade, its scattering an

@@ -11,7 +11,7 @@ import json
 import shutil
 import tempfile
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
@@ -25,9 +25,10 @@ from . import camera as cam
 from . import geometry as geo
 from . import mitsuba as mx
 from . import povray as pov
-from .config import RenderConfig, ice_medium, material_from_dict
+from .config import RenderConfig, ice_medium
 from .focus import ice_focus, pixel_size, surface_points, zoom_on_ice
 from .images import _png_to_exr, write_exr, write_png
+from .material import Material, material_from_dict
 from .sky import procedural_sky
 from .variants import pick_variant
 
@@ -94,7 +95,7 @@ def _procedural_sky_exr(azimuth: float, elevation: float) -> bytes:
 
 def write_scenes(job_dir: str | Path, object_mesh: trimesh.Trimesh, ice_mesh: trimesh.Trimesh | None,
                  config: RenderConfig, gravity: Sequence[float] = (0.0, -1.0, 0.0),
-                 object_material: dict | None = None,
+                 object_material: Material | Mapping | None = None,
                  frame_points: np.ndarray | None = None,
                  defer_povray: bool = False, impurity: float = 0.0,
                  ground_level: float | None = None) -> SceneFiles:
@@ -114,8 +115,8 @@ def write_scenes(job_dir: str | Path, object_mesh: trimesh.Trimesh, ice_mesh: tr
     config : RenderConfig
     gravity : (3,) float
         Gravity direction: "up" is its opposite.
-    object_material : dict, optional
-        ``{type, color, roughness, metal}`` (see `config.material_from_dict`); diffuse clay by default.
+    object_material : Material or mapping, optional
+        ``{type, color, roughness, metal}`` (see `material.material_from_dict`); diffuse clay by default.
     frame_points : (n, 3) float, optional
         What the cameras frame and the ground lies under; default the object's and the
         ice's vertices. Pass the same points to every job of a sweep for identical cameras.

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
-from ..jobdir import error_line, total_seconds
+from ..jobdir import error_line
 from .model import (Arrangement, BACKGROUND_SRGB, COL_HEAD_H, DEFAULT_ASPECT, DIM_TEXT_SRGB, EMPTY_SRGB,
                     FAILED_SRGB, FIT_FILTER, FONT, FONT_BOLD, GAP, Grid, ICE_VIEW_BELOW_PX, JobInfo,
                     JobState, LABEL_SIZE, MARGIN, ROW_HEAD_W, RunInfo, SHEETS_DIR, SheetResult, TEXT_SIZE,
@@ -177,8 +177,7 @@ def cell_render(job: JobInfo, cell_width: int) -> tuple[Path | None, str | None]
 
 
 def _seconds(job: JobInfo) -> float | None:
-    data = job.timings if job.timings is not None else (job.error or {})
-    return total_seconds(data.get("seconds"))
+    return job.folder.total_seconds if job.folder is not None else None
 
 
 def _placeholder(buf, x: int, y: int, w: int, h: int, srgb, title: str, lines: Sequence[str]) -> None:
@@ -201,10 +200,9 @@ def _draw_cell(buf, job: JobInfo, x: int, y: int, cw: int, ch: int, label_keys: 
     exr, view = cell_render(job, cw)
     drawn = "render"
     if job.state is JobState.FAILED:
-        err = job.error or {}
-        message = error_line(err.get("message"), "no error.json message")
+        message = error_line(job.folder.message, "no error.json message")
         _placeholder(buf, x, y, cw, ch, FAILED_SRGB, "FAILED",
-                     [_clip(f"stage: {err.get('stage', '?')}", inner, 12)]
+                     [_clip(f"stage: {job.folder.failed_stage}", inner, 12)]
                      + _wrap(message.split(), inner, 12, 3, sep=" "))
         drawn = "failed"
     elif exr is None:
@@ -235,9 +233,9 @@ def _draw_cell(buf, job: JobInfo, x: int, y: int, cw: int, ch: int, label_keys: 
     values_lines = len(lines)
     if len(lines) < 2:
         seconds = _seconds(job)
-        status = {"render": "", "failed": f"failed at {(job.error or {}).get('stage', '?')}",
+        status = {"render": "", "failed": f"failed at {job.folder.failed_stage}",
                   "not rendered": "not rendered", "unreadable": "render unreadable"}[drawn]
-        if drawn == "render" and job.state is JobState.UNFINISHED:
+        if drawn == "render" and job.state is JobState.PENDING:
             status = "unfinished"
         bits = [f"job {job.job_id}", f"{seconds:.1f} s" if seconds is not None else "", status]
         lines.append(_clip(" · ".join(b for b in bits if b), cw - 4, LABEL_SIZE))

@@ -64,24 +64,21 @@ def _e(value: Any) -> str:
 
 
 def _timings_html(job: JobInfo) -> str:
-    data = job.timings if job.timings is not None else ({"seconds": job.error.get("seconds")} if job.error else None)
-    if not data:
+    folder = job.folder
+    if folder is None or not (folder.seconds or folder.stats):
         return '<p class="muted">no timings</p>'
     rows = []
-    seconds = data.get("seconds")
-    if isinstance(seconds, Mapping):
-        for stage, s in seconds.items():
-            if isinstance(s, (int, float)):
-                rows.append(f"<tr><th>{_e(stage)}</th><td>{s:.3f} s</td></tr>")
-        total = _seconds(job)
-        if total is not None:
-            rows.append(f"<tr><th><b>total</b></th><td><b>{total:.2f} s</b></td></tr>")
-    for key, value in data.items():
-        if key == "seconds" or isinstance(value, (Mapping, list)) and key != "reused":
-            continue
-        if key == "reused":
-            value = ", ".join(map(str, value)) or "none"
-        rows.append(f"<tr><th>{_e(key)}</th><td>{_e(value)}</td></tr>")
+    for stage, s in folder.seconds.items():
+        if isinstance(s, (int, float)):
+            rows.append(f"<tr><th>{_e(stage)}</th><td>{s:.3f} s</td></tr>")
+    total = _seconds(job)
+    if total is not None:
+        rows.append(f"<tr><th><b>total</b></th><td><b>{total:.2f} s</b></td></tr>")
+    for key, value in folder.stats.items():
+        if not isinstance(value, (Mapping, list)):
+            rows.append(f"<tr><th>{_e(key)}</th><td>{_e(value)}</td></tr>")
+    if folder.state is JobState.DONE:
+        rows.append(f"<tr><th>reused</th><td>{_e(', '.join(folder.reused) or 'none')}</td></tr>")
     return f"<table class=\"timings\">{''.join(rows)}</table>"
 
 
@@ -106,7 +103,7 @@ def _job_html(job: JobInfo, varying: Sequence[str], here: Path) -> str:
         picture = (f'<a href="{_href(png, here)}"><img src="{_href(png, here)}" '
                    f'alt="render of {_e(job.job_id)}"></a>')
     elif job.state is JobState.FAILED:
-        picture = f'<div class="ph">FAILED<br>stage: {_e((job.error or {}).get("stage", "?"))}</div>'
+        picture = f'<div class="ph">FAILED<br>stage: {_e(job.folder.failed_stage)}</div>'
     else:
         picture = f'<div class="ph">NOT RENDERED<br>{_e(state)}</div>'
     vary = "".join(f"<dt>{_e(short_name(k))}</dt><dd>{_e(format_value(k, job.values[k]))}</dd>"
@@ -116,16 +113,16 @@ def _job_html(job: JobInfo, varying: Sequence[str], here: Path) -> str:
     meta = f'job <code>{_e(job.job_id)}</code> · {_e(state)}'
     if seconds is not None:
         meta += f" · <b>{seconds:.2f} s</b>"
-    stages = (job.timings or job.error or {}).get("seconds")
-    if isinstance(stages, Mapping) and stages:
+    stages = job.folder.seconds if job.folder is not None else {}
+    if stages:
         meta += "<br>" + " · ".join(f"{_e(k)} {v:.2f} s" for k, v in stages.items() if isinstance(v, (int, float)))
     error = ""
     if job.state is JobState.FAILED:
-        err = job.error or {}
-        error = (f'<p class="error">failed at stage <b>{_e(err.get("stage", "?"))}</b>: '
-                 f'{_e(err.get("message", "no message"))}</p>')
-        if err.get("traceback"):
-            error += f"<details><summary>traceback</summary><pre>{_e(err['traceback'])}</pre></details>"
+        folder = job.folder
+        error = (f'<p class="error">failed at stage <b>{_e(folder.failed_stage)}</b>: '
+                 f'{_e(folder.message)}</p>')
+        if folder.traceback:
+            error += f"<details><summary>traceback</summary><pre>{_e(folder.traceback)}</pre></details>"
     links = []
     for name in ("scene.xml", "ice.ply", "render.exr", "render.png", "scene.pov", "params.yaml",
                  "timings.json", "error.json"):
@@ -152,7 +149,7 @@ def _gallery_html(run: RunInfo, sheets: Sequence[SheetResult]) -> str:
     by_object = {s.object_id: s for s in sheets}
     total = sum(len(j) for j in run.objects.values())
     failed = sum(j.state is JobState.FAILED for jobs in run.objects.values() for j in jobs)
-    unfinished = sum(j.state is JobState.UNFINISHED for jobs in run.objects.values() for j in jobs)
+    unfinished = sum(j.state is JobState.PENDING for jobs in run.objects.values() for j in jobs)
     extra = [f'<a href="{_href(run.run_dir / n, here)}">{n}</a>'
              for n in ("manifest.resolved.yaml", "jobs.csv", "report.md", "report.csv") if (run.run_dir / n).is_file()]
     nav = " · ".join(f'<a href="#{_e(o)}">{_e(o)}</a>' for o in run.objects)

@@ -6,7 +6,9 @@ import enum
 from dataclasses import dataclass
 from pathlib import Path
 
+from ..jobdir import JobFolder, JobState
 
+__all__ = ["JobState"]  # a job's state is the job folder's (icefarm.jobdir)
 
 # Layout, in pixels.
 MARGIN = 16
@@ -39,14 +41,6 @@ UNFINISHED_SRGB = (0.30, 0.30, 0.34)
 EMPTY_SRGB = (0.18, 0.18, 0.19)
 
 SHEETS_DIR = "sheets"
-
-
-class JobState(enum.Enum):
-    """What a job folder holds, as the sheet and the gallery show it."""
-
-    DONE = "done"  # done.json (and normally render.exr)
-    FAILED = "failed"  # error.json without done.json
-    UNFINISHED = "unfinished"  # neither: pending, running, or killed
 
 
 class Arrangement(enum.Enum):
@@ -96,10 +90,8 @@ class JobInfo:
         swept values of jobs.csv when params.yaml is missing.
     has_params : bool
         ``values`` came from params.yaml.
-    error : dict or None
-        error.json (``stage``, ``message``, ``traceback``).
-    timings : dict or None
-        timings.json.
+    folder : JobFolder or None
+        What the job folder holds (`icefarm.jobdir.read_job`); None without a folder.
     """
 
     object_id: str
@@ -108,8 +100,7 @@ class JobInfo:
     state: JobState
     values: dict
     has_params: bool
-    error: dict | None
-    timings: dict | None
+    folder: JobFolder | None = None
 
     def file(self, name: str) -> Path | None:
         """``path / name`` if that file exists."""

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import csv
-import json
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
@@ -11,27 +10,11 @@ import yaml
 
 from .. import params as P
 from ..errors import InputError
-from ..jobdir import DONE, ERROR, PARAMS, TIMINGS
+from ..jobdir import read_job
 from .model import JobInfo, JobState, RunInfo
 from .labels import varying_keys, _sort_key
 
 # reading
-
-def _read_json(path: Path) -> dict | None:
-    try:
-        data = json.loads(path.read_text())
-    except (OSError, ValueError):
-        return None
-    return data if isinstance(data, dict) else None
-
-
-def _read_params(path: Path) -> dict | None:
-    try:
-        data = yaml.safe_load(path.read_text())
-    except (OSError, yaml.YAMLError):
-        return None
-    return P.flatten(data) if isinstance(data, Mapping) else None
-
 
 def _read_jobs_csv(path: Path) -> tuple[list[dict], tuple[str, ...]]:
     """Rows of jobs.csv and its swept columns (those between ``object`` and ``status``)."""
@@ -48,14 +31,6 @@ def _read_jobs_csv(path: Path) -> tuple[list[dict], tuple[str, ...]]:
     if "object" in fields and "status" in fields:
         swept = tuple(fields[fields.index("object") + 1:fields.index("status")])
     return rows, swept
-
-
-def _job_state(path: Path) -> JobState:
-    if (path / DONE).is_file():
-        return JobState.DONE
-    if (path / ERROR).is_file():
-        return JobState.FAILED
-    return JobState.UNFINISHED
 
 
 def scan_run(run_dir: Path, sweep_name: str | None = None) -> RunInfo:
@@ -89,11 +64,10 @@ def scan_run(run_dir: Path, sweep_name: str | None = None) -> RunInfo:
     objects: dict[str, dict[str, JobInfo]] = {}
     for obj_dir in sorted(p for p in jobs_root.iterdir() if p.is_dir()):
         for job_dir in sorted(p for p in obj_dir.iterdir() if p.is_dir() and not p.name.startswith(".")):
-            values = _read_params(job_dir / PARAMS)
+            folder = read_job(job_dir)
             objects.setdefault(obj_dir.name, {})[job_dir.name] = JobInfo(
-                object_id=obj_dir.name, job_id=job_dir.name, path=job_dir, state=_job_state(job_dir),
-                values=values or {}, has_params=values is not None,
-                error=_read_json(job_dir / ERROR), timings=_read_json(job_dir / TIMINGS))
+                object_id=obj_dir.name, job_id=job_dir.name, path=job_dir, state=folder.state,
+                values=folder.params or {}, has_params=folder.params is not None, folder=folder)
     csv_order: dict[str, list[str]] = {}
     for row in csv_rows:
         obj, job = row.get("object") or "", row["job_id"]
@@ -103,8 +77,8 @@ def scan_run(run_dir: Path, sweep_name: str | None = None) -> RunInfo:
             if not known[job].has_params:  # fall back on the swept values jobs.csv lists
                 known[job] = _with_values(known[job], _csv_values(row, swept))
         elif obj:
-            known[job] = JobInfo(object_id=obj, job_id=job, path=None, state=JobState.UNFINISHED,
-                                 values=_csv_values(row, swept), has_params=False, error=None, timings=None)
+            known[job] = JobInfo(object_id=obj, job_id=job, path=None, state=JobState.PENDING,
+                                 values=_csv_values(row, swept), has_params=False)
 
     ordered: dict[str, list[JobInfo]] = {}
     for obj, jobs in objects.items():
@@ -120,7 +94,7 @@ def scan_run(run_dir: Path, sweep_name: str | None = None) -> RunInfo:
 
 
 def _with_values(job: JobInfo, values: dict) -> JobInfo:
-    return JobInfo(job.object_id, job.job_id, job.path, job.state, values, False, job.error, job.timings)
+    return JobInfo(job.object_id, job.job_id, job.path, job.state, values, False, job.folder)
 
 
 def _csv_values(row: Mapping[str, str], swept: Sequence[str]) -> dict:

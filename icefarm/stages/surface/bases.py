@@ -3,11 +3,14 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 
 import numpy as np
 import trimesh
 from scipy.spatial import cKDTree
 
+from ...params import SurfaceParams, typed
+from ...geometry import random_barycentric
 from ...metaballs.balls import LEVEL, NO_BALLS, Balls
 from ..drips import DripResult
 
@@ -23,7 +26,7 @@ BASE_SINK = 0.5
 # Candidate points drawn per drip point (at least; more for nmb over 60).
 BASE_POOL = 256
 
-def base_balls(object_mesh: trimesh.Trimesh, drips: DripResult, surface: dict,
+def base_balls(object_mesh: trimesh.Trimesh, drips: DripResult, surface: SurfaceParams | Mapping,
                rng: np.random.Generator, icicle_radius: np.ndarray | None = None) -> Balls:
     """``nmb`` balls on the object around each drip point (paper 4.4.3, Equation 2).
 
@@ -40,7 +43,8 @@ def base_balls(object_mesh: trimesh.Trimesh, drips: DripResult, surface: dict,
     icicle (one the ground stopped) grows a fillet, not a boulder. Balls sink
     ``BASE_SINK`` of their radius into the object along its face normal.
     """
-    eb, nmb, kb = surface["base_extent"], surface["base_balls"], surface["base_scale"]
+    surface = typed("surface", surface)
+    eb, nmb, kb = surface.base_extent, surface.base_balls, surface.base_scale
     k = len(drips.positions)
     if k == 0 or eb <= 0 or nmb == 0 or kb <= 0:
         return NO_BALLS
@@ -68,7 +72,7 @@ def base_balls(object_mesh: trimesh.Trimesh, drips: DripResult, surface: dict,
     start = np.where(first > 0, cum[np.maximum(first - 1, 0)], 0.0)
     pick = np.searchsorted(cum, start[sd] + rng.random(len(sd)) * total[sd], side="right")
     pick = np.clip(pick, first[sd], last[sd] - 1)
-    pts = _sample_in_triangles(tris[face[pick]], rng)
+    pts = trimesh.triangles.barycentric_to_points(tris[face[pick]], random_barycentric(len(pick), rng))
     normals = object_mesh.face_normals[face[pick]]
     d = np.linalg.norm(pts - pos[sd], axis=1)
     inside = d < eb
@@ -123,16 +127,3 @@ def _grow_from_drips(drip, face, drip_face, mesh):
         reached |= new
         frontier = np.flatnonzero(new)
     return drip[reached], face[reached]
-
-
-def _sample_in_triangles(tris: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """One uniform random point in each triangle of ``tris`` (k, 3, 3)."""
-    return np.einsum("kj,kjd->kd", _random_barycentric(len(tris), rng), tris)
-
-
-def _random_barycentric(n: int, rng: np.random.Generator) -> np.ndarray:
-    """(n, 3) barycentric coordinates of uniform random points in a triangle."""
-    r1, r2 = rng.random(n), rng.random(n)
-    flip = r1 + r2 > 1
-    r1, r2 = np.where(flip, 1 - r1, r1), np.where(flip, 1 - r2, r2)
-    return np.stack([1 - r1 - r2, r1, r2], axis=1)

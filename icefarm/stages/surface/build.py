@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+
 from dataclasses import dataclass
 
 import numpy as np
 import trimesh
 
+from ...params import GlazeParams, SurfaceParams, typed
 from ...metaballs import Balls, concat_balls, fuse_fields, sample_field
 from ...metaballs.clean import collapse_slivers, flip_needles
 from ..drips import DripResult
@@ -55,15 +58,15 @@ class IceResult:
 
 
 def build_ice(object_mesh: trimesh.Trimesh, flow_mesh: trimesh.Trimesh, water: WaterResult,
-              drips: DripResult, trajectories: TrajectoryResult, surface: dict, glaze: dict,
-              gravity: np.ndarray, rng: np.random.Generator, exclude: np.ndarray | None = None,
+              drips: DripResult, trajectories: TrajectoryResult, surface: SurfaceParams | Mapping,
+              glaze: GlazeParams | Mapping, gravity: np.ndarray, rng: np.random.Generator, exclude: np.ndarray | None = None,
               cast=None, measure: bool = True, extra_balls: Balls | None = None) -> IceResult:
     """Stage 4: icicles, their bases and glaze ice as one mesh (paper 4.4).
 
-    ``surface["mode"] == "metaballs"``: one watertight mesh of the icicle chains and the
+    ``surface.mode == "metaballs"``: one watertight mesh of the icicle chains and the
     bases (one field at ``surface.voxel_size``) and the glaze (`glaze_field`, on its own
     coarser lattice), joined by a boolean union where they meet (`fuse_fields`); the
-    ripples are then carved in and slivers cleaned. ``surface["curtain"]`` above 0 joins
+    ripples are then carved in and slivers cleaned. ``surface.curtain`` above 0 joins
     close trunks with sheets (`curtain_balls`); ``extra_balls`` (the mounds and stalagmites
     of `icefarm.stages.surface.ground_ice`) join the same field. ``"tubes"``: each branch as
     its own closed tube (`tube_mesh`), without bases, glaze, curtains or extra balls: an
@@ -81,8 +84,9 @@ def build_ice(object_mesh: trimesh.Trimesh, flow_mesh: trimesh.Trimesh, water: W
         Drip points on ``object_mesh``.
     trajectories : TrajectoryResult
         Branch polylines, base to tip, in meters.
-    surface, glaze : dict
-        ``params.resolve()["surface"]`` and ``["glaze"]``.
+    surface, glaze : SurfaceParams, GlazeParams or mapping
+        The two groups (`icefarm.params.typed`), or mappings such as
+        ``params.resolve()["surface"]``, validated here once.
     gravity : (3,) float
         Direction of gravity (orients the first frame of each tube).
     rng : numpy.random.Generator
@@ -110,6 +114,8 @@ def build_ice(object_mesh: trimesh.Trimesh, flow_mesh: trimesh.Trimesh, water: W
         A voxel size (``surface.voxel_size`` or ``glaze.voxel_size``) too fine for the
         extent of the ice.
     """
+    surface = typed("surface", surface)
+    glaze = typed("glaze", glaze)
     g = np.asarray(gravity, dtype=np.float64).reshape(-1)
     if g.shape != (3,) or not np.isfinite(g).all() or not g.any():
         raise ValueError(f"gravity must be 3 finite numbers, not all zero; got {gravity!r}")
@@ -125,11 +131,11 @@ def build_ice(object_mesh: trimesh.Trimesh, flow_mesh: trimesh.Trimesh, water: W
     off = np.asarray(trajectories.branch_offsets)
     if off.ndim != 1 or len(off) != trajectories.n_branches + 1 or (len(off) and off[-1] != len(trajectories.points)):
         raise ValueError("trajectories.branch_offsets must have n_branches + 1 entries ending at len(points)")
-    if surface["mode"] == "tubes":
+    if surface.mode == "tubes":
         verts, faces = tube_mesh(trajectories, surface, g)
         n_balls, curtain_area = 0, 0.0
     else:
-        voxel = surface["voxel_size"]
+        voxel = surface.voxel_size
         ice = concat_balls(icicle_balls(trajectories, surface, rng),
                            base_balls(object_mesh, drips, surface, rng, _root_radius(trajectories, k, surface)))
         curtains = curtain_balls(trajectories, surface, g)
@@ -146,7 +152,7 @@ def build_ice(object_mesh: trimesh.Trimesh, flow_mesh: trimesh.Trimesh, water: W
                      n_balls, curtain_area)
 
 
-def _root_radius(traj: TrajectoryResult, k: int, surface: dict) -> np.ndarray:
+def _root_radius(traj: TrajectoryResult, k: int, surface: SurfaceParams) -> np.ndarray:
     """(k,) radius of each icicle's trunk where it leaves the object (the tip radius for a
     drip point without a trunk), meters."""
     _, lengths = _branch_lengths(traj)

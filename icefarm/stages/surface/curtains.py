@@ -12,11 +12,14 @@ edge drapes up between the trunks (`DRAPE`). Its balls join the icicles' field.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial import cKDTree
 
+from ...params import SurfaceParams, typed
 from ...geometry import unit
 from ...metaballs.balls import NO_BALLS, Balls, concat_balls, sheet_balls
 from ..trajectories import TrajectoryResult
@@ -57,23 +60,24 @@ class Curtains:
 NO_CURTAINS = Curtains(NO_BALLS, 0.0, 0)
 
 
-def curtain_balls(traj: TrajectoryResult, surface: dict, gravity) -> Curtains:
-    """Sheets between icicle trunks closer than ``surface["curtain"]`` (meters; 0: none).
+def curtain_balls(traj: TrajectoryResult, surface: SurfaceParams | Mapping, gravity) -> Curtains:
+    """Sheets between icicle trunks closer than ``surface.curtain`` (meters; 0: none).
 
     Parameters
     ----------
     traj : TrajectoryResult
         Branch polylines, base to tip, in meters.
-    surface : dict
+    surface : SurfaceParams or mapping
         ``params.resolve()["surface"]``: ``curtain``, ``voxel_size`` and the profile (the
-        trunks' radii). A group without ``curtain`` has none.
+        trunks' radii).
     gravity : (3,) float
 
     Returns
     -------
     Curtains
     """
-    distance = float(surface.get("curtain", 0.0))
+    surface = typed("surface", surface)
+    distance = float(surface.curtain)
     off = np.asarray(traj.branch_offsets, dtype=np.int64)
     trunks = np.flatnonzero((np.asarray(traj.branch_parent) < 0) & (np.diff(off) >= 2))
     if distance <= 0 or len(trunks) < 2:
@@ -86,7 +90,7 @@ def curtain_balls(traj: TrajectoryResult, surface: dict, gravity) -> Curtains:
     radius = smooth_radius(x_pt, np.repeat(grown, np.diff(off)), **prof)
     bases = pts[off[trunks]]
     pairs = _neighbour_pairs(bases, distance)
-    step = surface["voxel_size"]
+    step = surface.voxel_size
     parts, area, joined = [], 0.0, 0
     for a, b in pairs:
         sheet = _sheet([_trunk(pts, radius, off, t, up) for t in (trunks[a], trunks[b])], distance, step)

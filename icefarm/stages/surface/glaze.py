@@ -19,16 +19,17 @@ where it lands), lt = 1 low down (it runs down before freezing), 0.5 evens it ou
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
 import trimesh
 
-from ...geometry import ray_caster, sample_faces, unit
+from ...params import GlazeParams, typed
+from ...geometry import random_barycentric, ray_caster, sample_faces, unit
 from ...metaballs import Field, sample_field
 from ...metaballs.balls import NO_BALLS, Balls, sheet_balls
 from ..water import WaterResult
-from .bases import _random_barycentric
 from .coat import coat_field
 
 # With the glaze on its own coarser lattice, its sheet is at least this many glaze voxels
@@ -48,15 +49,16 @@ def wet_vertices(water: WaterResult, exclude: np.ndarray | None = None) -> np.nd
     return wet
 
 
-def glaze_thickness(water: WaterResult, glaze: dict) -> np.ndarray:
+def glaze_thickness(water: WaterResult, glaze: GlazeParams | Mapping) -> np.ndarray:
     """(n,) float: Equation 3's ``rgi = minGI + s [dUp lt + dDown (1 - lt)]`` per vertex, in meters."""
-    lt = glaze["lifetime"]
+    glaze = typed("glaze", glaze)
+    lt = glaze.lifetime
     d_up = np.asarray(water.d_up, dtype=np.float64)
     d_down = np.asarray(water.d_down, dtype=np.float64)
-    return glaze["min_radius"] + glaze["scale"] * (d_up * lt + d_down * (1 - lt))
+    return glaze.min_radius + glaze.scale * (d_up * lt + d_down * (1 - lt))
 
 
-def glaze_field(flow_mesh: trimesh.Trimesh, water: WaterResult, glaze: dict, rng: np.random.Generator,
+def glaze_field(flow_mesh: trimesh.Trimesh, water: WaterResult, glaze: GlazeParams | Mapping, rng: np.random.Generator,
                 exclude: np.ndarray | None = None, cast=None) -> Field | None:
     """The glaze as a field on the ``glaze.voxel_size`` lattice, per ``glaze.mode``.
 
@@ -69,7 +71,7 @@ def glaze_field(flow_mesh: trimesh.Trimesh, water: WaterResult, glaze: dict, rng
         The surface stages 1-2 ran on, in meters, outward normals.
     water : WaterResult
         Per vertex of ``flow_mesh``.
-    glaze : dict
+    glaze : GlazeParams or mapping
         The resolved ``glaze`` group.
     rng : numpy.random.Generator
         Ball positions (``metaballs`` mode only; the coat is deterministic).
@@ -91,20 +93,21 @@ def glaze_field(flow_mesh: trimesh.Trimesh, water: WaterResult, glaze: dict, rng
     InputError
         ``glaze.voxel_size`` too fine for the extent of the glaze.
     """
-    mode = glaze["mode"]
+    glaze = typed("glaze", glaze)
+    mode = glaze.mode
     if mode == "none":
         return None
     if mode == "metaballs":
-        balls = glaze_balls(flow_mesh, water, glaze, rng, min_sheet=COAT_SHEET * glaze["voxel_size"],
+        balls = glaze_balls(flow_mesh, water, glaze, rng, min_sheet=COAT_SHEET * glaze.voxel_size,
                             exclude=exclude)
-        return sample_field(balls, glaze["voxel_size"], name="glaze.voxel_size") if len(balls) else None
+        return sample_field(balls, glaze.voxel_size, name="glaze.voxel_size") if len(balls) else None
     if mode != "coat":
         raise ValueError(f"glaze.mode must be coat, metaballs or none; got {mode!r}")
-    return coat_field(flow_mesh, glaze_thickness(water, glaze), wet_vertices(water), glaze["voxel_size"],
-                      glaze["edge"], exclude=exclude, name="glaze.voxel_size", cast=cast)
+    return coat_field(flow_mesh, glaze_thickness(water, glaze), wet_vertices(water), glaze.voxel_size,
+                      glaze.edge, exclude=exclude, name="glaze.voxel_size", cast=cast)
 
 
-def glaze_balls(flow_mesh: trimesh.Trimesh, water: WaterResult, glaze: dict,
+def glaze_balls(flow_mesh: trimesh.Trimesh, water: WaterResult, glaze: GlazeParams | Mapping,
                 rng: np.random.Generator, min_sheet: float = 0.0,
                 exclude: np.ndarray | None = None) -> Balls:
     """``glaze.density`` balls per square meter spread at random over the wet surface
@@ -127,7 +130,7 @@ def glaze_balls(flow_mesh: trimesh.Trimesh, water: WaterResult, glaze: dict,
         In meters, outward normals.
     water : WaterResult
         Per vertex of ``flow_mesh``.
-    glaze : dict
+    glaze : GlazeParams or mapping
         The resolved ``glaze`` group (``density``, ``min_radius``, ``scale``, ``lifetime``;
         ``mode: none`` gives no balls).
     rng : numpy.random.Generator
@@ -140,7 +143,8 @@ def glaze_balls(flow_mesh: trimesh.Trimesh, water: WaterResult, glaze: dict,
     -------
     Balls
     """
-    if glaze.get("mode") == "none":
+    glaze = typed("glaze", glaze)
+    if glaze.mode == "none":
         return NO_BALLS
     wet = wet_vertices(water, exclude)
     faces = flow_mesh.faces
@@ -149,13 +153,13 @@ def glaze_balls(flow_mesh: trimesh.Trimesh, water: WaterResult, glaze: dict,
         ok &= ~np.asarray(exclude, dtype=bool)[faces].any(axis=1)
     wet_faces = np.flatnonzero(ok)
     areas = flow_mesh.area_faces[wet_faces]
-    ngi = int(round(glaze["density"] * areas.sum()))
+    ngi = int(round(glaze.density * areas.sum()))
     if ngi == 0 or len(wet_faces) == 0 or areas.sum() <= 0:
         return NO_BALLS
     tris = flow_mesh.triangles[wet_faces]
     pick = spread_on_faces(tris.mean(axis=1), areas, ngi, rng)
     fv = faces[wet_faces[pick]]
-    bary = _random_barycentric(len(pick), rng)
+    bary = random_barycentric(len(pick), rng)
     pts = (flow_mesh.vertices[fv] * bary[:, :, None]).sum(axis=1)
     radius = (glaze_thickness(water, glaze)[fv] * bary).sum(axis=1)
     sink = np.maximum(0.5 * min_sheet - radius, 0.0)

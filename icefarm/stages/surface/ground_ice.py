@@ -13,11 +13,14 @@ with them into the one watertight mesh.
 
 from __future__ import annotations
 
+import dataclasses
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
 
+from ...params import GroundIceParams, SurfaceParams, typed
 from ...geometry import perpendicular_basis, unit
 from ...metaballs.balls import NO_BALLS, Balls, concat_balls, sheet_balls
 from ..landing import LandingResult
@@ -63,19 +66,19 @@ class GroundIce:
     mound_radius: np.ndarray
 
 
-def ground_ice_balls(landing: LandingResult, ground_ice: dict, surface: dict, gravity,
-                     rng: np.random.Generator, *, cast=None, floor: float | None = None) -> GroundIce:
+def ground_ice_balls(landing: LandingResult, ground_ice: GroundIceParams | Mapping,
+                     surface: SurfaceParams | Mapping, gravity, rng: np.random.Generator, *, cast=None, floor: float | None = None) -> GroundIce:
     """Mounds (and stalagmites) of ice at each landing point.
 
     Parameters
     ----------
     landing : LandingResult
-    ground_ice : dict
+    ground_ice : GroundIceParams or mapping
         ``params.resolve()["ground_ice"]``: ``mode`` (none, mounds, stalagmites),
         ``spread`` (mound radius per meter of water, m/m), ``height_scale`` (stalagmite
         height per meter of water, m/m), ``width`` (stalagmite base radius per meter of
         height, m/m).
-    surface : dict
+    surface : SurfaceParams or mapping
         ``params.resolve()["surface"]``: the tip radius, profile, noise and voxel size.
     gravity : (3,) float
     rng : numpy.random.Generator
@@ -89,17 +92,19 @@ def ground_ice_balls(landing: LandingResult, ground_ice: dict, surface: dict, gr
     -------
     GroundIce
     """
+    ground_ice = typed("ground_ice", ground_ice)
+    surface = typed("surface", surface)
     k = len(landing)
     zero = np.zeros(k)
-    if ground_ice["mode"] == "none" or k == 0:
+    if ground_ice.mode == "none" or k == 0:
         return GroundIce(NO_BALLS, zero, np.zeros(k, dtype=bool), zero)
     g = unit(np.asarray(gravity, dtype=np.float64).reshape(3))
-    voxel = surface["voxel_size"]
-    radius = ground_ice["spread"] * landing.water
+    voxel = surface.voxel_size
+    radius = ground_ice.spread * landing.water
     radius = np.where(radius > 2 * voxel, radius, 0.0)  # a drop or two: nothing the lattice shows
     mounds = [_mound(landing.positions[i], landing.normals[i], radius[i], max(MOUND_FLATNESS * radius[i], voxel),
                      voxel, g, cast, floor) for i in np.flatnonzero(radius)]
-    if ground_ice["mode"] != "stalagmites":
+    if ground_ice.mode != "stalagmites":
         return GroundIce(concat_balls(NO_BALLS, *mounds), zero, np.zeros(k, dtype=bool), radius)
     stalagmites, heights, columns = _stalagmites(landing, ground_ice, surface, g, rng)
     return GroundIce(concat_balls(NO_BALLS, *mounds, stalagmites), heights, columns, radius)
@@ -134,7 +139,7 @@ def _mound(centre, normal, radius, height, voxel, g, cast, floor) -> Balls:
     return sheet_balls(points, thickness, math.pi * radius**2 / n)
 
 
-def _stalagmites(landing: LandingResult, ground_ice: dict, surface: dict, g: np.ndarray,
+def _stalagmites(landing: LandingResult, ground_ice: GroundIceParams, surface: SurfaceParams, g: np.ndarray,
                  rng: np.random.Generator):
     """Chains from each landing point up towards its tip; see `ground_ice_balls`.
 
@@ -144,10 +149,10 @@ def _stalagmites(landing: LandingResult, ground_ice: dict, surface: dict, g: np.
     heights : (k,) float
     columns : (k,) bool
     """
-    tip = surface["tip_radius"]
+    tip = surface.tip_radius
     top = STALAGMITE_TOP * tip
     up = -g
-    want = ground_ice["height_scale"] * landing.water
+    want = ground_ice.height_scale * landing.water
     gaps = landing.gaps
     # Under a tip closer than a stalagmite's rounded top (an icicle the ground stopped
     # stands in its own foot) there is no room for one: the mound alone spreads there.
@@ -168,5 +173,5 @@ def _stalagmites(landing: LandingResult, ground_ice: dict, surface: dict, g: np.
                             branch_offsets=np.arange(0, 2 * len(idx) + 1, 2),
                             branch_icicle=np.arange(len(idx)), branch_parent=np.full(len(idx), -1))
     # The icicles' chain with a blunt top and a wide base: R = top + width L^1/4 d^3/4.
-    shape = {**surface, "tip_radius": top, "growth_ratio": ground_ice["width"], "profile": "physical"}
+    shape = dataclasses.replace(surface, tip_radius=top, growth_ratio=ground_ice.width, profile="physical")
     return icicle_balls(traj, shape, rng), heights, columns

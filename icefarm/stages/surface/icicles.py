@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 
 import numpy as np
 
+from ...params import SurfaceParams, typed
 from ...metaballs.balls import KAPPA, LEVEL, NO_BALLS, SPACING, TIP_WEIGHT, Balls
 from ..trajectories import TrajectoryResult
 from .profile import TIP_CALM, _branch_lengths, _points_along, grown_lengths, profile_args, smooth_radius
@@ -16,7 +18,7 @@ from .profile import TIP_CALM, _branch_lengths, _points_along, grown_lengths, pr
 FOOT_CLEARANCE = 0.1
 
 
-def icicle_balls(traj: TrajectoryResult, surface: dict, rng: np.random.Generator) -> Balls:
+def icicle_balls(traj: TrajectoryResult, surface: SurfaceParams | Mapping, rng: np.random.Generator) -> Balls:
     """Metaball chains along every branch (paper 4.4.1-4.4.2).
 
     Balls are spaced ``SPACING * KAPPA * R(x)`` apart along each branch, from its base
@@ -29,6 +31,7 @@ def icicle_balls(traj: TrajectoryResult, surface: dict, rng: np.random.Generator
     -------
     Balls
     """
+    surface = typed("surface", surface)
     prof = profile_args(surface)
     tip = prof["tip"]
     branches = np.flatnonzero(np.diff(np.asarray(traj.branch_offsets)) > 0)
@@ -70,7 +73,7 @@ def icicle_balls(traj: TrajectoryResult, surface: dict, rng: np.random.Generator
 
     pos, tangent = _points_along(traj, x_pt, all_lengths, branches[bb], bx)
 
-    noise = surface["noise"]
+    noise = surface.noise
     if noise > 0:
         e1, e2 = _perpendicular_frame(tangent)
         calm = np.clip((grown[bb] - bx) / (TIP_CALM * tip), 0.0, 1.0)

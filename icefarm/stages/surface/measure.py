@@ -4,11 +4,13 @@ from __future__ import annotations
 
 import itertools
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial import cKDTree
 
+from ...params import SurfaceParams, typed
 from ..trajectories import TrajectoryResult
 from .profile import _branch_lengths, _points_along, grown_lengths
 
@@ -61,7 +63,7 @@ class IcicleStats:
 
 
 def measure_icicles(vertices: np.ndarray, faces: np.ndarray, traj: TrajectoryResult,
-                    surface: dict, sample_step: float = 0.001) -> IcicleStats:
+                    surface: SurfaceParams | Mapping, sample_step: float = 0.001) -> IcicleStats:
     """Physical plausibility of the icicles, measured on the ice mesh.
 
     The radius of a trunk at arc length x is the distance from its axis point to the nearest
@@ -74,7 +76,7 @@ def measure_icicles(vertices: np.ndarray, faces: np.ndarray, traj: TrajectoryRes
         In meters.
     faces : (m, 3) int
     traj : TrajectoryResult
-    surface : dict
+    surface : SurfaceParams or mapping
         The resolved ``surface`` group (tip radius, ripple amplitude, impurity, frequency).
     sample_step : float
         Spacing of the radius samples along each trunk, in meters.
@@ -83,6 +85,7 @@ def measure_icicles(vertices: np.ndarray, faces: np.ndarray, traj: TrajectoryRes
     -------
     IcicleStats
     """
+    surface = typed("surface", surface)
     nan = float("nan")
     off = np.asarray(traj.branch_offsets, dtype=np.int64)
     trunks = np.flatnonzero(np.asarray(traj.branch_parent) < 0)
@@ -114,11 +117,11 @@ def measure_icicles(vertices: np.ndarray, faces: np.ndarray, traj: TrajectoryRes
     x = (TAPER_AT * L)[owner] + k * sample_step
     axis, tangent = _points_along(traj, x_pt, lengths, trunks[owner], x)
     r = _slab_radius(axis, tangent, vertices, tree, sample_step,
-                     2 * surface["ripple_amplitude"] * surface["impurity"])
+                     2 * surface.ripple_amplitude * surface.impurity)
 
-    tip = surface["tip_radius"]
-    amplitude = surface["ripple_amplitude"] * surface["impurity"]
-    fs = surface["ripple_frequency"]
+    tip = surface.tip_radius
+    amplitude = surface.ripple_amplitude * surface.impurity
+    fs = surface.ripple_frequency
     taper, growth, exponent = empty.copy(), empty.copy(), empty.copy()
     amplitudes, spectra = [], []
     for j in np.flatnonzero(ok):
@@ -128,7 +131,7 @@ def measure_icicles(vertices: np.ndarray, faces: np.ndarray, traj: TrajectoryRes
         grown = grown_all[j]  # the profile of a cut icicle runs on below the ground
         d = grown - xj
         # Clear of the base ice too, which swells the first centimetres below the drip point.
-        fit = (d >= FIT_START * grown) & (d <= FIT_END * grown) & (xj >= 0.5 * surface["base_extent"])
+        fit = (d >= FIT_START * grown) & (d <= FIT_END * grown) & (xj >= 0.5 * surface.base_extent)
         if fit.sum() >= 4:
             n_j, k_j = _power_fit(d[fit], rj[fit] - tip)
             exponent[j] = n_j

@@ -1,0 +1,239 @@
+"""The glaze coat's narrow band (`coat`): lattice samples near the coat, their signed
+distance from the surface samples, and its encoding as a field.
+
+Only the narrow band is sampled: tiles of the lattice found coarse to fine, each
+kept where its centre's distance says the coat may come within a voxel of it; where no
+crease or change of wet/dry/excluded comes near, the samples of a tile share their
+centre's nearest surface sample (one plane: the same distance, exactly). The result has
+the block layout of `icefarm.metaballs.Field` and is stored so that marching cubes,
+which interpolates ``value ** _POWER`` linearly (`icefarm.metaballs.march._march_domain`),
+interpolates the signed distance itself: the iso-surface lies where the distance says,
+to a fraction of a voxel, and fuses with the icicles' field through
+`icefarm.metaballs.fuse_fields`.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from ...errors import InputError
+from ...metaballs.field import BLOCK, CUTOFF, Field, _block_keys
+from ...metaballs.march import _POWER
+
+# Signed distance (in voxels) over which the stored field goes from the level to twice
+# it (after ``** _POWER``): marching cubes sees a linear ramp through the surface.
+_RAMP = 2.0
+# Edge of a tile (lattice samples) of the narrow band: tiles far from the coat are skipped.
+_TILE = 2
+# Tiles are found coarse to fine: from tiles of _TILE * 2^_LEVELS samples down to _TILE.
+_LEVELS = 2
+# The lattice's origin sits this many blocks off a multiple of a block (irrational voxels).
+_SHIFT = 1.0 + (math.sqrt(5.0) - 2.0) / BLOCK
+# Refuse coats whose field would need more memory than this, or more lattice samples
+# evaluated than this (about 100 bytes each on the way).
+_MAX_FIELD_BYTES = 2 * 2**30
+_MAX_POINTS = 60_000_000
+
+
+def _sample_band(pts, normals, thick, kind, depth, rim, features, sole, edge, voxel, reach, h,
+                 name) -> Field | None:
+    """The coat's field on the lattice tiles near the wet samples.
+
+    ``kind`` per sample: 1 wet, 0 dry, -1 excluded. Each lattice sample takes its nearest
+    surface sample ``s`` (normal ``n``): ``sd = (p - s) . n``, its lateral offset beyond
+    the sample spacing ``l``, the signed distance ``D = sign(sd) sqrt(sd^2 + l^2)`` and
+    ``phi = min(T - D, D + depth)`` (positive inside); T is the thickness of a wet ``s``
+    and, past the rim, that of the nearest rim point times ``1 - d / edge`` (d: distance
+    from the foot ``p - sd n`` to the rim). No coat where ``s`` is excluded, lies past the
+    taper or farther than ``reach``. Between wet and excluded samples (and the excluded
+    vertices ``sole``) the coat ends in a wall at their bisector, ``phi = (dB - dW) / 2``.
+    """
+    wet = kind == 1
+    blocked = np.concatenate([pts[kind == -1], sole])
+    wall = (np.flatnonzero(wet), cKDTree(pts[wet]), cKDTree(blocked)) if len(blocked) else None
+    inner, inner_lo = float(depth.max()), float(depth.min())
+    pad = BLOCK * voxel + reach  # the lattice's first block stays empty (see _halo_blocks)
+    # Off the round coordinates by a fraction of a voxel: faces of boxes and prisms then
+    # never lie on lattice planes (samples exactly on the iso-surface).
+    origin = (np.floor((pts.min(axis=0) - pad) / (BLOCK * voxel)) - _SHIFT) * (BLOCK * voxel)
+    # Coarse tiles within reach of a wet sample, each with bounds on the coat's thickness
+    # within reach of it (dry and excluded samples count as 0) ...
+    size = _TILE * 2 ** _LEVELS
+    k = int(math.ceil(reach / (size * voxel)))
+    keys = _block_keys(np.floor((pts - origin) / (size * voxel)).astype(np.int64))
+    keys, t_lo, t_hi, has_wet = _reduce(keys, np.where(wet, thick, 0.0), np.where(wet, thick, 0.0), wet)
+    for shift in (42, 21, 0):  # separable dilation by k tiles, one axis at a time
+        step = np.arange(-k, k + 1) << shift
+        keys, t_lo, t_hi, has_wet = _reduce((keys[:, None] + step[None, :]).ravel(), *(
+            np.repeat(a, len(step)) for a in (t_lo, t_hi, has_wet)))
+    keys, t_lo, t_hi = keys[has_wet], t_lo[has_wet], t_hi[has_wet]
+    if len(keys) * size**3 > 8 * _MAX_POINTS:
+        raise InputError(
+            f"{name} = {voxel:g} m is too fine for this much glaze ({len(keys) * size**3} lattice "
+            f"samples within reach of the coat); raise {name}")
+    tiles = np.stack([keys >> 42, (keys >> 21) & (2**21 - 1), keys & (2**21 - 1)], axis=1)
+    # ... then, level by level down to _TILE, tiles are dropped where their centre says
+    # none of their samples is within a voxel of the coat, kept whole where it says all
+    # are more than a voxel inside it, and split in eight otherwise.
+    tree = cKDTree(pts)
+    children = np.stack(np.meshgrid(*[np.arange(2)] * 3, indexing="ij"), axis=-1).reshape(-1, 3)
+    solid = []
+    while True:
+        half = 0.5 * math.sqrt(3) * (size - 1) * voxel
+        centre = origin + (tiles * size + 0.5 * (size - 1)) * voxel
+        dist, idx = tree.query(centre, k=1, distance_upper_bound=reach + half, workers=-1)
+        d_c = np.full(len(centre), np.inf)
+        found = np.isfinite(dist)
+        d_c[found] = _signed(centre[found] - pts[idx[found]], normals[idx[found]], dist[found], 0.6 * h)[0]
+        near = half + voxel
+        inside = (d_c > near - inner_lo) & (d_c < t_lo - near)
+        keep = (d_c > -(inner + near)) & (d_c < t_hi + near) & ~inside
+        if inside.any():
+            n_sub = size // _TILE
+            sub = np.stack(np.meshgrid(*[np.arange(n_sub)] * 3, indexing="ij"), axis=-1).reshape(-1, 3)
+            solid.append((tiles[inside][:, None, :] * n_sub + sub[None]).reshape(-1, 3))
+        tiles, t_lo, t_hi = tiles[keep], t_lo[keep], t_hi[keep]
+        if size == _TILE:
+            nearest = np.where(found, idx, -1)[keep]
+            # A tile's samples share its centre's nearest surface sample where no crease or
+            # change of kind comes near enough to give any of them another (their nearest
+            # lies within dist + 2 half of the centre).
+            shared = found[keep].copy()
+            if features is not None and shared.any():
+                bound = dist[keep][shared] + 2.0 * half + h
+                d_f, _ = features.query(centre[keep][shared], k=1, distance_upper_bound=bound.max(), workers=-1)
+                shared[shared] = d_f > bound
+            # Shared dry tiles share the rim segment nearest to their centre too.
+            rim_seg = None
+            dry = shared & (kind[np.maximum(nearest, 0)] == 0)
+            if rim is not None and dry.any():
+                rim_seg = np.full(len(tiles), -1)
+                c, j = centre[keep][dry], nearest[dry]
+                foot = c - np.einsum("kd,kd->k", c - pts[j], normals[j])[:, None] * normals[j]
+                rim_seg[dry] = rim.query(foot, edge + 2.0 * half)
+            break
+        size //= 2
+        tiles = (2 * tiles[:, None, :] + children[None]).reshape(-1, 3)
+        t_lo, t_hi = np.repeat(t_lo, 8), np.repeat(t_hi, 8)
+    npoints = len(tiles) * _TILE**3
+    if npoints > _MAX_POINTS or npoints * 4 > _MAX_FIELD_BYTES:
+        raise InputError(
+            f"{name} = {voxel:g} m is too fine for this much glaze ({npoints} lattice samples "
+            f"near the coat, at most {_MAX_POINTS}); raise {name}")
+    o = np.arange(_TILE)
+    local = np.stack(np.meshgrid(o, o, o, indexing="ij"), axis=-1).reshape(-1, 3)
+    values = np.empty(npoints, dtype=np.float32)
+    chunk = max(1, 1_000_000 // _TILE**3)
+    for i in range(0, len(tiles), chunk):
+        p = origin + (tiles[i:i + chunk, None, :] * _TILE + local[None]).reshape(-1, 3) * voxel
+        # Where the surface is flat around a tile, its samples share the centre's nearest
+        # surface sample (the same plane: the same distance); elsewhere each finds its own.
+        flat = np.repeat(shared[i:i + chunk], _TILE**3)
+        phi = np.empty(len(p))
+        phi[flat] = _phi(tree, p[flat], normals, thick, kind, rim, edge, depth, reach, 0.6 * h + half,
+                         np.repeat(nearest[i:i + chunk], _TILE**3)[flat],
+                         None if rim_seg is None else np.repeat(rim_seg[i:i + chunk], _TILE**3)[flat])
+        phi[~flat] = _phi(tree, p[~flat], normals, thick, kind, rim, edge, depth, reach, 0.6 * h, wall=wall)
+        values[i * _TILE**3:i * _TILE**3 + len(p)] = _encode(phi, voxel)
+    if solid:  # more than a voxel inside: any value above the level marches the same
+        solid = np.concatenate(solid)
+        tiles = np.concatenate([tiles, solid])
+        values = np.r_[values, np.full(len(solid) * _TILE**3, _encode(np.array([voxel]), voxel)[0])]
+    if len(tiles) == 0:
+        return None
+    # Tiles into blocks (_block_keys order); absent tiles of a block stay 0 (outside).
+    per = BLOCK // _TILE
+    bc = tiles // per
+    keys = _block_keys(bc)
+    ukeys, first, inverse = np.unique(keys, return_index=True, return_inverse=True)
+    if len(ukeys) * BLOCK**3 * 4 > _MAX_FIELD_BYTES:
+        raise InputError(
+            f"{name} = {voxel:g} m is too fine for this much glaze: its field needs "
+            f"{len(ukeys) * BLOCK**3 * 4 / 2**30:.1f} GiB (at most {_MAX_FIELD_BYTES / 2**30:.0f}); raise {name}")
+    blocks = bc[first]
+    out = np.zeros((len(ukeys), BLOCK, BLOCK, BLOCK), dtype=np.float32)
+    t_in = tiles - bc * per
+    vals = values.reshape(len(tiles), _TILE, _TILE, _TILE)
+    ix = t_in[:, 0, None] * _TILE + o[None, :]
+    iy = t_in[:, 1, None] * _TILE + o[None, :]
+    iz = t_in[:, 2, None] * _TILE + o[None, :]
+    out[inverse.reshape(-1)[:, None, None, None], ix[:, :, None, None], iy[:, None, :, None],
+        iz[:, None, None, :]] = vals
+    return Field(origin.astype(np.float64), voxel, 1.0, blocks.astype(np.int64), out)
+
+
+def _reduce(keys, t_lo, t_hi, flag):
+    """Per distinct key: the least ``t_lo``, the greatest ``t_hi``, any ``flag``."""
+    order = np.argsort(keys, kind="stable")
+    keys = keys[order]
+    start = np.flatnonzero(np.r_[True, keys[1:] != keys[:-1]])
+    return (keys[start], np.minimum.reduceat(t_lo[order], start), np.maximum.reduceat(t_hi[order], start),
+            np.logical_or.reduceat(flag[order], start))
+
+
+def _signed(v, n, dist, tol):
+    """Signed distance from offsets ``v`` (k, 3) to samples of normal ``n``: the height
+    over the sample's plane, rounded off with the lateral offset past ``tol``."""
+    sd = np.einsum("kd,kd->k", v, n)
+    extra = np.maximum(np.sqrt(np.maximum(dist**2 - sd**2, 0.0)) - tol, 0.0)
+    return np.sign(sd) * np.sqrt(sd**2 + extra**2), sd
+
+
+def _phi(tree, points, normals, thick, kind, rim, edge, depth, reach, tol, nearest=None, seg=None, wall=None):
+    """``phi`` (meters, positive inside the coat) at ``points`` (see `_sample_band`), from
+    their nearest samples (``nearest``, -1 for none; queried when not given).
+
+    The points of a dry sample lie past the rim: the coat there tapers with the distance
+    to the nearest rim segment, found per point or given (``seg``, -1: none near; the
+    samples of a tile sharing one, `_sample_band`). With ``wall`` (wet sample indices,
+    a tree of the wet samples, one of the excluded ones), the coat stops at the bisector
+    between wet and excluded samples.
+    """
+    if nearest is None:
+        dist, nearest = tree.query(points, k=1, distance_upper_bound=reach, workers=-1)
+        nearest = np.where(np.isfinite(dist), nearest, -1)
+    phi = np.full(len(points), -reach)
+    found = np.flatnonzero(nearest >= 0)
+    i = nearest[found]
+    v = points[found] - tree.data[i]
+    k = kind[i]
+    d, sd = _signed(v, normals[i], np.sqrt(np.einsum("kd,kd->k", v, v)), tol)
+    t = np.where(k == 1, thick[i], -np.inf)
+    dry = np.flatnonzero(k == 0)
+    if rim is not None and len(dry):
+        foot = points[found[dry]] - sd[dry, None] * normals[i[dry]]
+        j = rim.query(foot, edge) if seg is None else seg[found[dry]]
+        dry, foot, j = dry[j >= 0], foot[j >= 0], j[j >= 0]
+        d_rim, t_rim = rim.near(foot, j)
+        facing = np.einsum("kd,kd->k", normals[i[dry]], rim.normal[j]) > -0.5
+        t[dry] = np.where(facing & (d_rim < edge), t_rim * (1.0 - d_rim / edge), -np.inf)
+    p = np.minimum(t - d, d + depth[i])
+    if wall is not None:
+        wet_index, wet_tree, blocked_tree = wall
+        sel = np.flatnonzero(k != 0)  # nearest to a wet or an excluded sample
+        q = points[found[sel]]
+        d_b, _ = blocked_tree.query(q, k=1, distance_upper_bound=reach, workers=-1)
+        d_w = np.sqrt(np.einsum("kd,kd->k", v[sel], v[sel]))
+        cut = np.flatnonzero(k[sel] == -1)
+        if len(cut):  # nearest to an excluded sample: the coat of the nearest wet one, walled
+            d_b[cut] = np.minimum(d_b[cut], d_w[cut])
+            d_cut, j = wet_tree.query(q[cut], k=1, distance_upper_bound=reach, workers=-1)
+            ok = np.isfinite(d_cut)
+            d_w[cut] = d_cut
+            cut, j, d_cut = cut[ok], wet_index[j[ok]], d_cut[ok]
+            dj = _signed(q[cut] - tree.data[j], normals[j], d_cut, tol)[0]
+            p[sel[cut]] = np.minimum(thick[j] - dj, dj + depth[j])
+        p[sel] = np.minimum(p[sel], 0.5 * (d_b - d_w))
+    phi[found] = np.where(np.isfinite(p) & (d < reach), p, -reach)
+    return phi
+
+
+def _encode(phi: np.ndarray, voxel: float) -> np.ndarray:
+    """Field values whose ``** _POWER`` is linear in ``phi`` around the level 1."""
+    ramp = _RAMP * voxel
+    low = CUTOFF**_POWER  # march clamps the field at CUTOFF * level (level 1)
+    g = np.clip(1.0 + phi / ramp, low, 2.0)
+    return (g ** (1.0 / _POWER)).astype(np.float32)

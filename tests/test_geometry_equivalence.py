@@ -1,0 +1,61 @@
+"""Hand-written geometry kept for speed gives what trimesh gives (figures in the docstrings)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from icefarm.geometry import face_cross, sample_faces, signed_volume
+from icefarm.scene.geometry import smooth_normals
+
+
+@pytest.fixture
+def lumpy(sphere) -> trimesh.Trimesh:
+    """The conftest sphere with its vertices jittered, so faces differ in size and angle."""
+    jitter = np.random.default_rng(0).normal(scale=0.005, size=sphere.vertices.shape)
+    return trimesh.Trimesh(sphere.vertices + jitter, sphere.faces, process=False)
+
+
+def test_face_cross_is_trimesh_cross(lumpy):
+    np.testing.assert_allclose(face_cross(lumpy.vertices, lumpy.faces), trimesh.triangles.cross(lumpy.triangles),
+                               rtol=1e-12, atol=1e-15)
+
+
+def test_signed_volume_is_trimesh_volume(lumpy):
+    assert signed_volume(lumpy.vertices, lumpy.faces) == pytest.approx(lumpy.volume, rel=1e-12)
+    inverted = lumpy.copy()
+    inverted.invert()
+    inverted.apply_translation([1.0, 0.0, 0.0])
+    both = trimesh.util.concatenate([lumpy, inverted])
+    labels = np.repeat([0, 1], len(lumpy.faces))
+    np.testing.assert_allclose(signed_volume(both.vertices, both.faces, labels=labels),
+                               [lumpy.volume, inverted.volume], rtol=1e-12)
+    assert inverted.volume < 0
+
+
+def test_smooth_normals_are_trimesh_vertex_normals(lumpy):
+    # an unused vertex gets a zero normal from both
+    mesh = trimesh.Trimesh(np.vstack([lumpy.vertices, [[5.0, 0.0, 0.0]]]), lumpy.faces, process=False)
+    ours = smooth_normals(mesh.vertices, mesh.faces)
+    np.testing.assert_allclose(ours, mesh.vertex_normals, atol=1e-12)
+    assert not ours[-1].any()
+
+
+def test_sample_faces_picks_trimesh_faces_and_spreads_like_it(lumpy):
+    subset = np.flatnonzero(lumpy.triangles_center[:, 1] > 0.05)  # sorted, as sample_surface sees it
+    weight = np.zeros(len(lumpy.faces))
+    weight[subset] = lumpy.area_faces[subset]
+    n = 20000
+    points, face, bary = sample_faces(lumpy, subset, n, np.random.default_rng(7))
+    _, want_face, want_bary = trimesh.sample.sample_surface(
+        lumpy, n, face_weight=weight, return_barycentric=True, seed=np.random.default_rng(7))
+    # the same draws pick the same faces; the points in them are drawn another way
+    np.testing.assert_array_equal(face, want_face)
+    np.testing.assert_allclose(points, trimesh.triangles.barycentric_to_points(lumpy.triangles[face], bary),
+                               atol=1e-15)
+    assert bary.min() >= 0 and np.allclose(bary.sum(axis=1), 1)
+    # uniform in a triangle: mean 1/3, second moment 1/6 per coordinate, as trimesh's
+    for got in (bary, want_bary):
+        np.testing.assert_allclose(got.mean(axis=0), 1 / 3, atol=0.01)
+        np.testing.assert_allclose((got**2).mean(axis=0), 1 / 6, atol=0.01)
