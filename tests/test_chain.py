@@ -44,6 +44,7 @@ def test_steps_come_in_order_and_stop_where_asked(tmp_path):
     assert result.trajectories is None and result.flow is result.mesh
 
 
+@pytest.mark.slow
 def test_a_proxy_run_hangs_its_icicles_from_the_object(tmp_path):
     p = params.resolve({**SMALL, "proxy.mode": "always"})
     prepared = prepare(str(_bowl(tmp_path)), 0.3, p["water"]["gravity"])
