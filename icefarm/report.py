@@ -22,9 +22,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 from .errors import InputError
+from .farm.sweep_folder import read_jobs_csv
 from .jobdir import DONE, ERROR, PARAMS, TIMINGS, JobFolder, JobState, error_line, read_job
 
 #: The stages of the paper's Table 2, in its order; their sum is its "Total time".
@@ -75,7 +74,7 @@ def _is_job_dir(path: Path) -> bool:
 
 
 def find_job_dirs(run_dir: Path) -> list[Path]:
-    """Job folders under a sweep folder, in the order of its manifest when it lists them.
+    """Job folders under a sweep folder, in the order of its jobs.csv when it lists them.
 
     ``run_dir`` may be a sweep folder (``jobs/<object>/<job>/``), any folder above job folders,
     or one job folder.
@@ -88,22 +87,12 @@ def find_job_dirs(run_dir: Path) -> list[Path]:
     else:
         found = sorted({p.parent for name in (DONE, ERROR, TIMINGS, PARAMS)
                         for p in run_dir.rglob(name)})
-    order = _manifest_order(run_dir)
+    rows, _ = read_jobs_csv(run_dir / "jobs.csv")
+    order = [f"jobs/{r.get('object') or ''}/{r['job_id']}" for r in rows]
     if order:
         rank = {d: i for i, d in enumerate(order)}
         found.sort(key=lambda p: (rank.get(str(p.relative_to(run_dir)), len(rank)), str(p)))
     return found
-
-
-def _manifest_order(run_dir: Path) -> list[str]:
-    try:
-        data = yaml.safe_load((run_dir / "manifest.resolved.yaml").read_text())
-    except (OSError, yaml.YAMLError):
-        return []
-    jobs = data.get("jobs") if isinstance(data, dict) else None
-    if not isinstance(jobs, list):
-        return []
-    return [str(j["dir"]) for j in jobs if isinstance(j, dict) and "dir" in j]
 
 
 def summarize(jobs: Sequence[JobFolder]) -> list[ObjectSummary]:

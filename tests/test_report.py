@@ -197,3 +197,16 @@ def test_table2_skips_rows_without_meshes(tmp_path, monkeypatch):
         table2.run_table2(tmp_path / "nowhere", tmp_path, rows="a", progress=False)
     with pytest.raises(InputError, match="repeat"):
         table2.run_table2(None, tmp_path, repeat=0, progress=False)
+
+
+def test_the_report_and_the_sheets_list_jobs_in_the_order_of_jobs_csv(tmp_path):
+    """One job order for every reader of a sweep folder: jobs.csv's, then the unlisted ones."""
+    from icefarm.report import find_job_dirs
+    from icefarm.sheets import scan_run
+
+    for obj, job in (("a", "j1"), ("a", "j2"), ("b", "j3"), ("a", "j9")):
+        (tmp_path / "jobs" / obj / job).mkdir(parents=True)
+        (tmp_path / "jobs" / obj / job / "params.yaml").write_text(yaml.safe_dump(resolve()))
+    (tmp_path / "jobs.csv").write_text("job_id,object,status\nj3,b,done\nj2,a,done\nj1,a,pending\n")
+    assert [p.name for p in find_job_dirs(tmp_path)] == ["j3", "j2", "j1", "j9"]
+    assert [j.job_id for j in scan_run(tmp_path).objects["a"]][:2] == ["j2", "j1"]

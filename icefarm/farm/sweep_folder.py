@@ -61,6 +61,24 @@ def jobs_csv_text(records: Sequence[JobRecord], swept: Sequence[str]) -> str:
     return buf.getvalue()
 
 
+def read_jobs_csv(path: Path) -> tuple[list[dict], tuple[str, ...]]:
+    """Rows of jobs.csv (`jobs_csv_text`) in job order, and its swept columns (those between
+    ``object`` and ``status``); none when it is missing or has no ``job_id`` column."""
+    try:
+        with open(path, newline="") as f:
+            reader = csv.DictReader(f)
+            rows = [r for r in reader if r.get("job_id")]
+            fields = reader.fieldnames or []
+    except OSError:
+        return [], ()
+    if "job_id" not in fields:
+        return [], ()
+    swept = ()
+    if "object" in fields and "status" in fields:
+        swept = tuple(fields[fields.index("object") + 1:fields.index("status")])
+    return rows, swept
+
+
 def resolved_yaml(manifest: Manifest, jobs: Sequence[PlannedJob], sweep_dir: Path, until: str | None) -> str:
     data = manifest_to_dict(manifest)
     data["until"] = until

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import csv
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
@@ -10,28 +9,12 @@ import yaml
 
 from .. import params as P
 from ..errors import InputError
+from ..farm.sweep_folder import read_jobs_csv
 from ..jobdir import read_job
 from .model import JobInfo, JobState, RunInfo
 from .labels import varying_keys, _sort_key
 
 # reading
-
-def _read_jobs_csv(path: Path) -> tuple[list[dict], tuple[str, ...]]:
-    """Rows of jobs.csv and its swept columns (those between ``object`` and ``status``)."""
-    try:
-        with open(path, newline="") as f:
-            reader = csv.DictReader(f)
-            rows = [r for r in reader if r.get("job_id")]
-            fields = reader.fieldnames or []
-    except OSError:
-        return [], ()
-    if "job_id" not in fields:
-        return [], ()
-    swept = ()
-    if "object" in fields and "status" in fields:
-        swept = tuple(fields[fields.index("object") + 1:fields.index("status")])
-    return rows, swept
-
 
 def scan_run(run_dir: Path, sweep_name: str | None = None) -> RunInfo:
     """Read a sweep folder: every job of every object, in job order.
@@ -59,7 +42,7 @@ def scan_run(run_dir: Path, sweep_name: str | None = None) -> RunInfo:
     name = sweep_name or str(manifest.get("name") or run_dir.name)
     sweep = manifest.get("sweep") if isinstance(manifest.get("sweep"), Mapping) else {}
     method = sweep.get("method") if isinstance(sweep.get("method"), str) else None
-    csv_rows, swept = _read_jobs_csv(run_dir / "jobs.csv")
+    csv_rows, swept = read_jobs_csv(run_dir / "jobs.csv")
 
     objects: dict[str, dict[str, JobInfo]] = {}
     for obj_dir in sorted(p for p in jobs_root.iterdir() if p.is_dir()):
