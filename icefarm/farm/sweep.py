@@ -31,7 +31,7 @@ from typing import Protocol
 
 from ..artifacts import atomic_write, check_done
 from ..errors import InputError, Interrupted
-from ..jobdir import JobState, read_job
+from ..jobdir import JobState, read_job, total_seconds
 from .manifest import load_manifest
 from .manifest_model import Manifest
 from .plan import JobRecord, leaders, plan_jobs, private_stages
@@ -297,7 +297,7 @@ def run_sweep(manifest: Manifest | str | Path, out: str | Path = "out", *, worke
         def on_outcome(task, outcome, attempts: int) -> None:
             records[task.job_id] = replace(
                 records[task.job_id], status=outcome.status,
-                seconds=float(sum(outcome.seconds.values())), reused=tuple(outcome.reused),
+                seconds=total_seconds(outcome.seconds) or 0.0, reused=tuple(outcome.reused),
                 attempts=attempts, failed_stage=outcome.failed_stage, error=outcome.error)
             if time.monotonic() - last_write[0] > CSV_INTERVAL_S:  # rewriting it per job is quadratic
                 atomic_write(csv_path, jobs_csv_text(list(records.values()), swept))

@@ -20,6 +20,7 @@ import numpy as np
 import trimesh
 from tqdm import tqdm
 
+from ..artifacts import write_mesh
 from ..errors import InputError
 from . import camera as cam
 from . import geometry as geo
@@ -229,8 +230,8 @@ def write_scenes(job_dir: str | Path, object_mesh: trimesh.Trimesh, ice_mesh: tr
     ice_ply = None
     if ice_mesh is not None:
         ice_ply = job_dir / "ice.ply"
-        if not ice_ply.is_file():
-            geo.write_ply(ice_ply, ice_mesh.vertices, ice_mesh.faces)
+        if not ice_ply.is_file():  # as the pipeline writes it
+            write_mesh(ice_ply, ice_mesh)
     xml = job_dir / "scene.xml"
     xml.write_text(mx.scene_xml(config, cameras, frame, object_ply=object_ply.name,
                                 ice_ply=None if ice_ply is None else ice_ply.name, ice_flip=ice_flip,
