@@ -48,6 +48,18 @@ def read_image(path: str | Path) -> np.ndarray:
     return np.asarray(pixels)
 
 
+def image_size(path: str | Path) -> tuple[int, int] | None:
+    """``(width, height)`` in pixels from an image file's header; None when it cannot be read."""
+    import OpenImageIO as oiio
+
+    image = oiio.ImageInput.open(str(path))
+    if image is None:
+        return None
+    spec = image.spec()
+    image.close()
+    return (spec.width, spec.height) if spec.width > 0 and spec.height > 0 else None
+
+
 def _png_to_exr(png: Path, exr: Path) -> None:
     """Linearise an sRGB PNG (POV-Ray's output) into an EXR."""
     import OpenImageIO as oiio

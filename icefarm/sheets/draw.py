@@ -13,6 +13,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..jobdir import error_line
+from ..scene.images import image_size
 from .model import (Arrangement, BACKGROUND_SRGB, COL_HEAD_H, DEFAULT_ASPECT, DIM_TEXT_SRGB, EMPTY_SRGB,
                     FAILED_SRGB, FIT_FILTER, FONT, FONT_BOLD, GAP, Grid, ICE_VIEW_BELOW_PX, JobInfo,
                     JobState, LABEL_SIZE, MARGIN, ROW_HEAD_W, RunInfo, SHEETS_DIR, SheetResult, TEXT_SIZE,
@@ -113,29 +114,12 @@ def _fitted(path: Path, width: int, height: int):
 
 
 def _cell_aspect(jobs: Sequence[JobInfo]) -> float:
-    oiio = _oiio()
     for job in jobs:
         exr = job.file("render.exr")
-        if exr is None:
-            continue
-        image = oiio.ImageInput.open(str(exr))  # the header only
-        if image is None:
-            continue
-        s = image.spec()
-        image.close()
-        if s.width > 0 and s.height > 0:
-            return s.height / s.width
+        size = image_size(exr) if exr is not None else None
+        if size is not None:
+            return size[1] / size[0]
     return DEFAULT_ASPECT
-
-
-def _image_width(path: Path) -> int | None:
-    """Width in pixels of an image, from its header."""
-    image = _oiio().ImageInput.open(str(path))
-    if image is None:
-        return None
-    width = image.spec().width
-    image.close()
-    return width if width > 0 else None
 
 
 def _views(job: JobInfo) -> list[dict]:
@@ -164,7 +148,8 @@ def cell_render(job: JobInfo, cell_width: int) -> tuple[Path | None, str | None]
     px = views[0].get("icicle_px")
     if isinstance(px, bool) or not isinstance(px, (int, float)) or not math.isfinite(px):
         return exr, None
-    width = _image_width(exr)
+    size = image_size(exr)
+    width = size[0] if size else None
     if width is None or px * cell_width / width >= ICE_VIEW_BELOW_PX:
         return exr, None
     for view in views[1:]:

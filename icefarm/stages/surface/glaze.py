@@ -93,16 +93,13 @@ def glaze_field(flow_mesh: trimesh.Trimesh, water: WaterResult, glaze: GlazePara
     InputError
         ``glaze.voxel_size`` too fine for the extent of the glaze.
     """
-    glaze = typed("glaze", glaze)
-    mode = glaze.mode
-    if mode == "none":
+    glaze = typed("glaze", glaze)  # glaze.mode is none, metaballs or coat from here on
+    if glaze.mode == "none":
         return None
-    if mode == "metaballs":
+    if glaze.mode == "metaballs":
         balls = glaze_balls(flow_mesh, water, glaze, rng, min_sheet=COAT_SHEET * glaze.voxel_size,
                             exclude=exclude)
         return sample_field(balls, glaze.voxel_size, name="glaze.voxel_size") if len(balls) else None
-    if mode != "coat":
-        raise ValueError(f"glaze.mode must be coat, metaballs or none; got {mode!r}")
     return coat_field(flow_mesh, glaze_thickness(water, glaze), wet_vertices(water), glaze.voxel_size,
                       glaze.edge, exclude=exclude, name="glaze.voxel_size", cast=cast)
 
