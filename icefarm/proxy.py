@@ -40,7 +40,7 @@ import numpy as np
 import trimesh
 
 from .errors import InputError
-from .geometry import signed_volume
+from .geometry import closest_point, signed_volume
 from .mesh import MeshProblems, detect_problems
 from .meshlab import current, meshset
 from .params import ProxyParams, typed
@@ -446,8 +446,7 @@ def snap_to_surface(points: np.ndarray, mesh: trimesh.Trimesh) -> tuple[np.ndarr
         raise ValueError("snap_to_surface needs a mesh with faces")
     if len(points) == 0:
         return np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, dtype=np.int64)
-    closest, distance, faces = trimesh.proximity.closest_point(mesh, points)
-    faces = np.asarray(faces, dtype=np.int64)
+    closest, distance, faces = closest_point(mesh, points)
     normals = np.asarray(mesh.face_normals, dtype=np.float64)[faces]
     facing = np.einsum("ij,ij->i", normals, points - closest)
     # Below this distance the side is rounding noise: the point is on the surface.

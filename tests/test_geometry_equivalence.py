@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from icefarm.geometry import face_cross, sample_faces, signed_volume
+from icefarm import geometry
+from icefarm.geometry import closest_point, face_cross, sample_faces, signed_volume
 from icefarm.scene.geometry import smooth_normals
 
 
@@ -59,3 +60,28 @@ def test_sample_faces_picks_trimesh_faces_and_spreads_like_it(lumpy):
     for got in (bary, want_bary):
         np.testing.assert_allclose(got.mean(axis=0), 1 / 3, atol=0.01)
         np.testing.assert_allclose((got**2).mean(axis=0), 1 / 6, atol=0.01)
+
+
+def _brute_distance(mesh, points):
+    """Distance from each point to the nearest of all triangles, one point at a time."""
+    return np.array([np.linalg.norm(trimesh.triangles.closest_point(
+        mesh.triangles, np.repeat(p[None], len(mesh.faces), 0)) - p, axis=1).min() for p in points])
+
+
+@pytest.mark.parametrize("fallback", [False, True])
+def test_closest_point_is_exact_and_never_farther_than_trimeshs(lumpy, monkeypatch, fallback):
+    if fallback:  # the R-tree path, taken when the candidate ball grows too large
+        monkeypatch.setattr(geometry, "CLOSEST_CANDIDATES_MAX", 1)
+    # One huge triangle among small ones: the ball must still find every nearest face.
+    big = trimesh.Trimesh([[-3, -3, 2], [3, -3, 2], [0, 3, 2]], [[0, 1, 2]])
+    mesh = trimesh.util.concatenate([lumpy, big])
+    rng = np.random.default_rng(2)
+    points = np.vstack([mesh.vertices[rng.choice(len(lumpy.vertices), 30)] + rng.normal(0, 0.02, (30, 3)),
+                        rng.uniform(-2, 2, (10, 3))])
+    closest, distance, faces = closest_point(mesh, points)
+    np.testing.assert_allclose(distance, np.linalg.norm(closest - points, axis=1), atol=1e-12)
+    np.testing.assert_allclose(distance, _brute_distance(mesh, points), atol=1e-9 if not fallback else 1e-3)
+    theirs = trimesh.proximity.closest_point(mesh, points)[1]
+    assert np.all(distance <= theirs + 1e-12)
+    on_face = trimesh.triangles.closest_point(mesh.triangles[faces], points)
+    np.testing.assert_allclose(on_face, closest, atol=1e-9)
