@@ -70,3 +70,65 @@ def test_an_unknown_override_is_refused(tmp_path):
     prepared = prepare(str(_bowl(tmp_path)), 0.3, p["water"]["gravity"])
     with pytest.raises(ValueError, match="surface"):
         run_stages(prepared, p, 0, overrides={"surface": "ice.ply"})
+
+
+def _job(tmp_path, path, name, p, **extra):
+    outcome = run_job(JobSpec("ball", str(path), 0.3, p, seed=4, **extra), tmp_path / name, until=Stage.TRAJECTORIES)
+    assert outcome.status == "done", outcome.error
+    return tmp_path / name
+
+
+@pytest.mark.slow
+def test_edited_drips_and_painted_water_replace_what_the_stages_found(tmp_path):
+    """A manifest's overrides: an artist's drips.json hangs exactly its icicles; a painted
+    water.ply replaces the water coefficients (the walks stay) and moves the drips."""
+    path = _bowl(tmp_path)
+    p = params.resolve(SMALL)
+    first = _job(tmp_path, path, "first", p)
+    drips = json.loads((first / "drips.json").read_text())
+    kept = drips["drip_points"][:2]
+    (tmp_path / "edited.json").write_text(json.dumps({**drips, "drip_points": kept}))
+    edited = _job(tmp_path, path, "edited", p, overrides=(("drips", str(tmp_path / "edited.json")),))
+    again = json.loads((edited / "drips.json").read_text())["drip_points"]
+    np.testing.assert_allclose([d["position"] for d in again], [d["position"] for d in kept])
+    assert len(json.loads((edited / "trajectories.json").read_text())["icicles"]) == 2
+
+    water = trimesh.load(first / "water.ply", process=False)
+    data = water.metadata["_ply_raw"]["vertex"]["data"]
+    heights = np.asarray(water.vertices)[:, 1]
+    painted = np.where(heights < np.percentile(heights, 30), 0.0, np.asarray(data["water"]))  # dry below
+    out = trimesh.Trimesh(water.vertices, water.faces, process=False)
+    out.vertex_attributes["supply"] = np.asarray(data["supply"]).astype(np.uint8)
+    out.vertex_attributes["water"] = painted.astype(np.float32)
+    out.export(tmp_path / "painted.ply")
+    repainted = _job(tmp_path, path, "painted", p, overrides=(("water", str(tmp_path / "painted.ply")),))
+    back = trimesh.load(repainted / "water.ply", process=False).metadata["_ply_raw"]["vertex"]["data"]
+    np.testing.assert_allclose(np.asarray(back["water"]), painted, atol=1e-6)
+    assert json.loads((repainted / "drips.json").read_text())["drip_points"] != drips["drip_points"]
+
+
+@pytest.mark.slow
+def test_edited_trajectories_are_the_icicles_built(tmp_path):
+    path = _bowl(tmp_path)
+    p = params.resolve(SMALL)
+    first = _job(tmp_path, path, "first", p)
+    traj = json.loads((first / "trajectories.json").read_text())
+    traj["icicles"] = traj["icicles"][:1]
+    (tmp_path / "one.json").write_text(json.dumps(traj))
+    one = _job(tmp_path, path, "one", p, overrides=(("trajectories", str(tmp_path / "one.json")),))
+    assert len(json.loads((one / "trajectories.json").read_text())["icicles"]) == 1
+
+
+@pytest.mark.slow
+def test_a_rain_source_wets_only_what_lies_under_it(tmp_path):
+    """water.source: a plate over one half of the ball rains on that half alone."""
+    path = _bowl(tmp_path)
+    plate = trimesh.creation.box(extents=(1.0, 0.02, 2.0))
+    plate.apply_translation((0.5, 3.0, 0.0))  # over x > 0, in the mesh file's units (radius 1)
+    plate.export(tmp_path / "rain.ply")
+    p = params.resolve({**SMALL, "water.source": "rain.ply"})
+    job = _job(tmp_path, path, "half", p)
+    water = trimesh.load(job / "water.ply", process=False)
+    supply = np.asarray(water.metadata["_ply_raw"]["vertex"]["data"]["supply"]).astype(bool)
+    x = np.asarray(water.vertices)[:, 0]
+    assert supply.any() and x[supply].min() > -0.02
