@@ -498,6 +498,7 @@ def test_winding_is_read_from_the_outermost_vertex():
         assert winds_inward(inverted.vertices, inverted.faces)
 
 
+@pytest.mark.slow  # a real Mitsuba render
 def test_rough_ice_renders_finite_and_differs_from_clear_ice(tmp_path):
     box, ice = box_with_icicles()
     points = np.vstack([box.vertices, ice.vertices])
