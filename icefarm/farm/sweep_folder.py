@@ -110,7 +110,7 @@ def check_folder(sweep_dir: Path, resume: bool, overwrite: bool) -> bool:
     if not sweep_dir.is_dir():
         raise InputError(f"output {sweep_dir} exists and is not a folder")
     if resume:
-        return
+        return True
     if not overwrite:
         raise InputError(f"output folder {sweep_dir} already exists: add --resume to finish its jobs "
                          f"(done ones are kept), --overwrite to delete it and start over, or choose -o")
