@@ -171,12 +171,12 @@ def _run(prepared, p, seed, placement, exclude, overrides, source, until, mesh_k
     results = StageResults(mesh=obj, flow=obj)
     keys: dict[str, str | None] = {}
 
-    def advance(name: str, key: str | None, work: Work, **fields) -> Any:
+    def advance(name: str, key: str | None, work: Work, field: str) -> Any:
+        """Run step ``name`` through ``step``, keep its value as ``field`` of the results."""
         nonlocal results
         keys[name] = key
         value = step(name, key, work)
-        results = dataclasses.replace(results, keys=dict(keys), **{f: (value if v is None else v(value))
-                                                                    for f, v in fields.items()})
+        results = dataclasses.replace(results, keys=dict(keys), **{field: value})
         on_stage(name, results)
         return value
 
@@ -189,8 +189,8 @@ def _run(prepared, p, seed, placement, exclude, overrides, source, until, mesh_k
         if reason:
             proxy_key = digest(mesh_key, p["proxy"])
             results = dataclasses.replace(results, proxy_reason=reason)
-            advance("proxy", proxy_key, lambda: build_proxy(obj, p["proxy"], prepared.problems),
-                            proxy=None, flow=lambda r: r.mesh)
+            proxy = advance("proxy", proxy_key, lambda: build_proxy(obj, p["proxy"], prepared.problems), "proxy")
+            results = dataclasses.replace(results, flow=proxy.mesh)
     flow = results.flow
 
     water_key = digest(mesh_key, proxy_key, p["water"], seed, override_digest("water"))
@@ -204,7 +204,7 @@ def _run(prepared, p, seed, placement, exclude, overrides, source, until, mesh_k
             result = dataclasses.replace(result, supply=supply, water=water)
         return result
 
-    water = advance("water", water_key, water_stage, water=None)
+    water = advance("water", water_key, water_stage, "water")
     if stops(until, Stage.WATER):
         return results
 
@@ -230,7 +230,7 @@ def _run(prepared, p, seed, placement, exclude, overrides, source, until, mesh_k
         points, normals, faces = snap_to_surface(found.positions, obj)
         return DripResult(found.region_faces, points, normals, found.water, faces)
 
-    drips = advance("drips", drips_key, drips_stage, drips=None)
+    drips = advance("drips", drips_key, drips_stage, "drips")
     if stops(until, Stage.DRIPS):
         return results
 
@@ -254,7 +254,7 @@ def _run(prepared, p, seed, placement, exclude, overrides, source, until, mesh_k
             result = stop_at_ground(result, gravity, ground_height(obj.vertices, gravity), p["surface"]["tip_radius"])
         return result
 
-    traj = advance("trajectories", traj_key, trajectory_stage, trajectories=None)
+    traj = advance("trajectories", traj_key, trajectory_stage, "trajectories")
     if stops(until, Stage.TRAJECTORIES):
         return results
 
@@ -268,17 +268,17 @@ def _run(prepared, p, seed, placement, exclude, overrides, source, until, mesh_k
         landing_key = digest(traj_key, gi["runoff"], gi["merge"])
         landing = advance("landing", landing_key, lambda: find_landings(
             traj, drips.water, gravity, runoff=gi["runoff"], merge=gi["merge"], cast=caster(obj),
-            face_normals=obj.face_normals, floor=floor), landing=None)
+            face_normals=obj.face_normals, floor=floor), "landing")
         # Its own stream: the icicles, bases and glaze draw what they drew without it.
         ground = advance("ground_ice", None, lambda: ground_ice_balls(
             landing, gi, p["surface"], gravity, stage_rng(seed, Stage.SURFACE, 1), cast=caster(obj), floor=floor),
-            ground=None)
+            "ground")
         ground_balls, ground_key = ground.balls, digest(landing_key, gi, p["surface"])
 
     surface_key = digest(traj_key, p["surface"], p["glaze"], ground_key)
     advance("surface", surface_key, lambda: build_surface(
         obj, flow, water, drips, traj, p, gravity, stage_rng(seed, Stage.SURFACE), placement=placement,
-        cast=caster(flow), extra_balls=ground_balls), ice=None)
+        cast=caster(flow), extra_balls=ground_balls), "ice")
     return results
 
 

@@ -181,7 +181,7 @@ def _run_stages(spec: JobSpec, job_dir: Path, run: _Run, cache: StageCache, unti
     def on_stage(name: str, r: StageResults) -> None:
         """Each result's file and figures, as soon as it is there."""
         if name == "proxy":
-            artifacts.write_mesh(job_dir / "proxy.ply", r.flow)
+            artifacts.write_mesh(job_dir / "proxy.ply", r.proxy.mesh)
             stats.update(proxy_reason=r.proxy_reason, proxy_faces=r.proxy.faces,
                          proxy_components=r.proxy.components, proxy_build_seconds=r.proxy.seconds)
         elif name == "water":
