@@ -11,6 +11,7 @@ from icefarm.mesh import clean, count_self_intersections, detect_problems
 
 NAMES = ("teapot", "fountain", "roof", "branch")
 CLOSED = ("fountain", "roof", "branch")
+ASSETS = ("table", "bench", "car", "fence", "lamp", "shelter", "sign")
 
 
 @pytest.fixture(scope="module")
@@ -24,7 +25,7 @@ def boundary_loops(mesh: trimesh.Trimesh) -> int:
 
 
 def test_names():
-    assert generators.generator_names() == NAMES
+    assert generators.generator_names() == NAMES + ASSETS
 
 
 @pytest.mark.parametrize("name", NAMES)
@@ -156,3 +157,52 @@ def test_tube_and_prism_are_closed():
     np.testing.assert_allclose(box.volume, 6.0)
     with pytest.raises(ValueError):
         roof.prism([(0, 0), (0, 1), (2, 1), (2, 0)], [[0, 1, 2], [0, 2, 3]], 0.0, 3.0)
+
+
+@pytest.fixture(scope="module")
+def assets():
+    return {name: generators.generate(name) for name in ASSETS}
+
+
+@pytest.mark.parametrize("name", ASSETS)
+def test_asset_is_one_closed_volume_at_its_real_size(assets, name):
+    mesh = assets[name]
+    assert mesh.is_watertight and mesh.is_winding_consistent and mesh.is_volume
+    assert mesh.volume > 0  # outward-facing
+    assert mesh.body_count == 1
+    assert mesh.vertices[:, 1].min() == 0.0
+    # Real size: the height is the natural size (manifold3d rounds to float32).
+    np.testing.assert_allclose(mesh.extents[1], generators.natural_size(name), atol=1e-6)
+    assert 12 <= len(mesh.faces) <= 1000  # box-modelled, low-poly
+    assert len(clean(mesh).faces) == len(mesh.faces)
+    assert detect_problems(mesh).nonmanifold_edges == 0
+    # Deterministic, and detail leaves it alone.
+    np.testing.assert_array_equal(generators.generate(name, 2).vertices, mesh.vertices)
+
+
+def test_asset_sizes_are_real():
+    expected = {"table": 0.74, "bench": 0.95, "car": 1.5, "fence": 1.0, "lamp": 3.5, "shelter": 2.5}
+    assert {name: generators.natural_size(name) for name in expected} == expected
+    assert all(generators.natural_size(name) is None for name in NAMES)
+    with pytest.raises(InputError, match="did you mean 'bench'"):
+        generators.natural_size("bnch")
+
+
+def test_asset_footprints(assets):
+    # Spot checks of the brief's sizes (meters): x by z.
+    np.testing.assert_allclose(assets["table"].extents[[0, 2]], [0.9, 0.9])
+    np.testing.assert_allclose(assets["car"].extents[0], 3.8)
+    np.testing.assert_allclose(assets["fence"].extents[0], 2.4)
+    shelter = assets["shelter"]
+    # The roof overhangs: downward faces at the roof's underside outside the posts' footprint.
+    centre, down = shelter.triangles_center, shelter.face_normals[:, 1] < -0.99
+    assert (down & (centre[:, 1] > 2.2) & (np.abs(centre[:, 0]) > 1.45)).any()
+
+
+def test_car_cabin_slopes_and_wheels_touch_the_ground(assets):
+    car = assets["car"]
+    normals, centre = car.face_normals, car.triangles_center
+    sloped = (np.abs(normals[:, 1]) > 0.2) & (np.abs(normals[:, 1]) < 0.9) & (centre[:, 1] > 0.9)
+    assert (sloped & (normals[:, 0] > 0)).any() and (sloped & (normals[:, 0] < 0)).any()  # windscreen, rear window
+    on_ground = car.vertices[car.vertices[:, 1] == 0.0]
+    assert len(np.unique(np.sign(on_ground[:, [0, 2]]), axis=0)) == 4  # one wheel at each corner

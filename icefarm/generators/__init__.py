@@ -1,8 +1,8 @@
 """Meshes icefarm builds itself, so its scenes, demos and tests need nothing from outside.
 
-Four objects, all Y-up (gravity is (0, -1, 0)) with their lowest point on y = 0, in arbitrary
-units (`icefarm.mesh.prepare` scales each to the size its manifest states). Manifests name
-them as ``mesh: generator:<name>``.
+All are Y-up (gravity is (0, -1, 0)) with their lowest point on y = 0. Manifests name them
+as ``mesh: generator:<name>``. Four objects are in arbitrary units (`icefarm.mesh.prepare`
+scales each to the size its manifest states):
 
 ========  ==================================================================================
 teapot    the Utah teapot tessellated from Newell's 32 bicubic Bezier patches; like most
@@ -14,12 +14,29 @@ roof      a house with a gable roof whose slabs overhang the walls (eaves) and t
 branch    a bent, tapered branch with three side twigs: one closed manifold
 ========  ==================================================================================
 
-``detail`` sets the resolution: face counts grow about as ``detail ** 2``; the default
-(`DEFAULT_DETAIL`) gives a few thousand faces. Everything is deterministic.
+The box-modelled assets are at their real size, in meters (`natural_size` gives their
+height), low-poly (tens to a few hundred faces) and each one closed manifold:
 
-Each object has its module, with the shape tools it is built with: `teapot` (Bezier
-patches), `fountain` (a lathe), `roof` (prisms), `branch` (tubes along Bezier curves);
-`_common` holds the detail levels and the helpers they share.
+========  ==================================================================================
+table     a garden table, 0.74 m: a 0.9 x 0.9 m top 3 cm thick on four legs with aprons
+bench     a park bench, 0.95 m: three seat slats, two backrest slats, two side frames
+car       a small car, 1.5 m high, 3.8 m long: body box, tapered cabin (sloped windscreen
+          and rear window), four 12-sided wheels
+fence     a picket fence, 1.0 m high, 2.4 m long: three posts, two rails, 12 pointed pickets
+lamp      a street lamp, 3.5 m: plinth, pole, arm, a lamp head with a pitched lid
+shelter   a bus shelter, 2.5 m: four posts, a glass back panel, a sloping roof slab
+          overhanging 30 cm all round
+sign      a sign on a post, 2.2 m: a 0.6 x 0.6 m plate
+========  ==================================================================================
+
+``detail`` sets the resolution of the unitless objects: face counts grow about as
+``detail ** 2``; the default (`DEFAULT_DETAIL`) gives a few thousand faces. The assets
+ignore it. Everything is deterministic.
+
+Each unitless object has its module, with the shape tools it is built with: `teapot`
+(Bezier patches), `fountain` (a lathe), `roof` (prisms), `branch` (tubes along Bezier
+curves); the assets share `assets` (boxes, tapered boxes, extruded polygons); `_common`
+holds the detail levels and the helpers they share.
 """
 
 from __future__ import annotations
@@ -30,10 +47,10 @@ import operator
 import trimesh
 
 from ..errors import InputError
-from . import branch, fountain, roof, teapot
+from . import assets, branch, fountain, roof, teapot
 from ._common import DEFAULT_DETAIL, MAX_DETAIL
 
-__all__ = ["DEFAULT_DETAIL", "MAX_DETAIL", "generate", "generator_names"]
+__all__ = ["DEFAULT_DETAIL", "MAX_DETAIL", "generate", "generator_names", "natural_size"]
 
 
 def generator_names() -> tuple[str, ...]:
@@ -50,25 +67,55 @@ def generate(name: str, detail: int | None = None) -> trimesh.Trimesh:
         One of `generator_names()`.
     detail : int, optional
         Resolution level in ``[1, MAX_DETAIL]``; face counts grow about as ``detail ** 2``.
-        None means `DEFAULT_DETAIL` (a few thousand faces).
+        None means `DEFAULT_DETAIL` (a few thousand faces). The assets ignore it.
 
     Returns
     -------
     trimesh.Trimesh
-        Y-up, lowest point on y = 0, arbitrary units, outward-facing triangles.
+        Y-up, lowest point on y = 0, outward-facing triangles; in meters for the assets
+        (`natural_size`), arbitrary units for the others.
 
     Raises
     ------
     InputError
         Unknown name (the message lists the valid ones and the nearest match) or a bad detail.
     """
+    return _builder(name)(_check_detail(detail))
+
+
+def natural_size(name: str) -> float | None:
+    """Real height of a generated mesh, or None for one in arbitrary units.
+
+    Parameters
+    ----------
+    name : str
+        One of `generator_names()`.
+
+    Returns
+    -------
+    float or None
+        For the real-size assets (``table``, ``bench``, ``car``, ``fence``, ``lamp``,
+        ``shelter``, ``sign``): the height of `generate`'s mesh along y, in meters (the
+        size to keep when a job states none). None for ``teapot``, ``fountain``, ``roof``
+        and ``branch``, which need a size.
+
+    Raises
+    ------
+    InputError
+        Unknown name, as `generate`.
+    """
+    _builder(name)
+    return assets.HEIGHTS.get(name)
+
+
+def _builder(name: str):
     build = _GENERATORS.get(name) if isinstance(name, str) else None
     if build is None:
         names = generator_names()
         hint = difflib.get_close_matches(str(name), names, n=1, cutoff=0.4)
         tip = f"; did you mean {hint[0]!r}?" if hint else ""
         raise InputError(f"unknown mesh generator {name!r}: choose one of {', '.join(names)}{tip}")
-    return build(_check_detail(detail))
+    return build
 
 
 def _check_detail(detail) -> int:
@@ -87,4 +134,4 @@ def _check_detail(detail) -> int:
 
 
 _GENERATORS = {"teapot": teapot.teapot, "fountain": fountain.fountain, "roof": roof.roof,
-               "branch": branch.branch}
+               "branch": branch.branch, **assets.BUILDERS}
