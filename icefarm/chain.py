@@ -28,7 +28,9 @@ from .placement import Placement, ground_height, ground_level, sole_vertices, st
 from .stage_cache import digest, file_digest
 from .stages.drips import DripResult, find_drips
 from .stages.trajectories import TrajectoryResult, grow_trajectories
+from .stages.storm import icicle_lengths, refine, storm_water
 from .stages.water import WaterResult, compute_water
+from .params import typed
 
 
 class Stage(enum.Enum):
@@ -191,14 +193,24 @@ def _run(prepared, p, seed, placement, exclude, overrides, source, until, mesh_k
             results = dataclasses.replace(results, proxy_reason=reason)
             proxy = advance("proxy", proxy_key, lambda: build_proxy(obj, p["proxy"], prepared.problems), "proxy")
             results = dataclasses.replace(results, flow=proxy.mesh)
+    storm = typed("storm", p["storm"])
+    physical = storm.mode == "physical"
+    if physical and storm.flow_edge > 0 and results.flow.edges_unique_length.max() > storm.flow_edge:
+        # Large flat faces (box-modelled assets) carry no water from their middle to their rims.
+        results = dataclasses.replace(results, flow=refine(results.flow, storm.flow_edge))
     flow = results.flow
 
-    water_key = digest(mesh_key, proxy_key, p["water"], seed, override_digest("water"))
+    water_key = digest(mesh_key, proxy_key, p["water"], seed, override_digest("water"),
+                       *((p["storm"], p["glaze"]["lifetime"], p["drips"]["drip_limit"]) if physical else ()))
 
     def water_stage() -> WaterResult:
-        result = compute_water(flow, gravity, p["water"]["rays"], p["water"]["influence_radius"],
-                               stage_rng(seed, Stage.WATER), source() if source else None, caster(flow),
-                               pools=p["water"]["pools"])
+        if physical:
+            result = storm_water(flow, gravity, storm, lifetime=p["glaze"]["lifetime"],
+                                 drip_limit=p["drips"]["drip_limit"], cast=caster(flow))
+        else:
+            result = compute_water(flow, gravity, p["water"]["rays"], p["water"]["influence_radius"],
+                                   stage_rng(seed, Stage.WATER), source() if source else None, caster(flow),
+                                   pools=p["water"]["pools"])
         if "water" in overrides:  # painted water replaces the coefficients, keeps the walks
             supply, water = artifacts.read_water_ply(Path(overrides["water"]), len(flow.vertices))
             result = dataclasses.replace(result, supply=supply, water=water)
@@ -209,7 +221,9 @@ def _run(prepared, p, seed, placement, exclude, overrides, source, until, mesh_k
         return results
 
     drips_key = digest(water_key, p["drips"], exclude, placement, p["trajectories"]["length_scale"],
-                       override_digest("drips"))
+                       override_digest("drips"),
+                       *((p["surface"]["tip_radius"], p["surface"]["growth_ratio"], p["surface"]["profile"])
+                         if physical else ()))
 
     def drips_stage() -> DripResult:
         if "drips" in overrides:
@@ -217,11 +231,17 @@ def _run(prepared, p, seed, placement, exclude, overrides, source, until, mesh_k
         d = p["drips"]
         heights = flow.vertices @ -gravity
         grounded = heights < heights.min() + d["ground_clearance"] * np.ptp(heights)
-        found = find_drips(flow, water.water, gravity, d["count"], d["drip_limit"], stage_rng(seed, Stage.DRIPS),
+        kl = p["trajectories"]["length_scale"]
+        shed = to_water = None
+        if physical and water.storm is not None:
+            shed = water.storm.shed
+            to_water = lambda volume: icicle_lengths(volume, storm, p["surface"]) / kl  # noqa: E731
+        found = find_drips(flow, water.water, gravity, storm.max_icicles if physical else d["count"],
+                           d["drip_limit"], stage_rng(seed, Stage.DRIPS),
                            exclude_boxes=exclude, exclude_vertices=grounded if d["ground_clearance"] > 0 else None,
                            caster=caster(flow), spacing=d["spacing"], distribution=d["distribution"],
                            min_fall=d["min_fall"], floor=ground_level(placement, obj, gravity),
-                           min_water=d["min_length"] / p["trajectories"]["length_scale"])
+                           min_water=d["min_length"] / kl, shed=shed, to_water=to_water)
         if flow is obj:
             return found
         from .proxy import snap_to_surface

@@ -120,6 +120,39 @@ def _p(group, name, symbol, unit, kind, default, doc, **domain) -> Param:
 _F, _I = Kind.FLOAT, Kind.INT
 
 PARAMS: tuple[Param, ...] = (
+    # The storm in physical units (beyond the paper; icefarm.stages.storm)
+    _p("storm", "mode", "-", "-", Kind.CHOICE, "physical",
+       "physical: the weather sets the ice in meters whatever the asset's size (glaze from the "
+       "precipitation, icicles along every drip rim at drips.spacing, their length from the water "
+       "their catchment drains); relative: the paper's knobs, relative to the object (water "
+       "coefficients, drips.count, glaze.scale per meter of height; what Table 2 runs)",
+       choices=("physical", "relative")),
+    _p("storm", "kind", "-", "-", Kind.CHOICE, "freezing_rain",
+       "freezing_rain (glaze on all the rain reaches, icicles at the drip rims) or meltwater (snow "
+       "melting on the upper surfaces: little glaze away from the rims, long icicles at the eaves)",
+       choices=("freezing_rain", "meltwater")),
+    _p("storm", "intensity", "-", "-", Kind.CHOICE, "moderate",
+       "the utilities' freezing-rain classes by radial ice on a wire: light 6 mm (18 mm of "
+       "precipitation), moderate 13 mm (37 mm), severe 25 mm (73 mm); Jones 1998: P = pi R rho_i/rho_w",
+       choices=("light", "moderate", "severe")),
+    _p("storm", "precipitation", "P", "mm", _F, 0.0,
+       "precipitation depth in mm of water (rain, or melted snow for meltwater); 0: the "
+       "intensity's", low=0.0),
+    _p("storm", "freeze", "-", "-", _F, 0.7,
+       "share of the rain on a level face that freezes where it lands (a heat budget per area); "
+       "the rest runs off towards the rims", low=0.0, high=1.0),
+    _p("storm", "wall_freeze", "-", "-", _F, 0.5,
+       "freezing budget of a vertical or downward face over a level one's (they lose less heat "
+       "and shed their film faster)", low=0.0, high=1.0),
+    _p("storm", "icicle_share", "-", "-", _F, 0.5,
+       "share of the water reaching a drip point that freezes on its icicle; the rest drips off "
+       "the tip to the ground (Makkonen 1988)", low=0.0, high=1.0, low_open=True),
+    _p("storm", "max_icicles", "-", "-", _I, 2000,
+       "budget of icicles for huge assets: drip points run along every wet drip rim at "
+       "drips.spacing up to this many (drips.count is the relative mode's)", low=0),
+    _p("storm", "flow_edge", "-", "m", _F, 0.025,
+       "box-modelled assets: the surface the water flows on is refined to edges at most this "
+       "long, so large faces carry their water to the rims (0: never)", low=0.0),
     # Stage 1: water coefficients (paper 4.1)
     _p("water", "source", "ss", "-", Kind.TEXT, "auto",
        "rain source surface: 'auto' (a rectangle above the object, facing along gravity) or a mesh file"),
@@ -133,7 +166,8 @@ PARAMS: tuple[Param, ...] = (
        "over its rim, adding its depth to the water of walks that end there: fountains, gutters)",
        choices=("ignore", "overflow")),
     # Stage 2: drip points (paper 4.2)
-    _p("drips", "count", "ns", "-", _I, 24, "number of drip points, one icicle each", low=0),
+    _p("drips", "count", "ns", "-", _I, 24, "number of drip points, one icicle each (storm.mode relative; physical runs them along "
+       "the rims at drips.spacing, up to storm.max_icicles)", low=0),
     _p("drips", "drip_limit", "dl", "deg", _F, 75.0,
        "water drips where every vertex normal of a face lies within this angle of gravity",
        low=1.0, high=90.0, low_open=True, high_open=True),
@@ -210,6 +244,11 @@ PARAMS: tuple[Param, ...] = (
        "the icicle's own base is t kL wc wide, so kb above t kL makes a swelling", low=0.0),
     _p("surface", "voxel_size", "-", "m", _F, 0.001,
        "edge of a marching-cubes voxel; must resolve the tip radius", low=0.0, low_open=True),
+    _p("surface", "face_budget", "-", "faces", _I, 3_000_000,
+       "storm.mode physical: the ice mesh holds about this many faces at most; past it the "
+       "marching-cubes voxels of the icicles (never past the tip radius) and of the glaze coat "
+       "grow (a 3 m house's icicles at 1 mm were 27 M faces); 0: off. The relative mode keeps "
+       "the voxel sizes (Table 2's polygon counts)", low=0),
     _p("surface", "curtain", "-", "m", _F, 0.0,
        "icicles whose trunks hang closer than this are joined by a sheet of ice, thick near their "
        "bases, draped between them, down to the shorter one's tip (as along eaves); 0: none; "
@@ -281,7 +320,7 @@ PARAMS: tuple[Param, ...] = (
        low=0.0, low_open=True),
 )
 
-GROUPS: tuple[str, ...] = ("water", "drips", "trajectories", "surface", "glaze", "ground_ice", "growth", "proxy")
+GROUPS: tuple[str, ...] = ("storm", "water", "drips", "trajectories", "surface", "glaze", "ground_ice", "growth", "proxy")
 
 
 def param_index() -> dict[str, Param]:
@@ -387,6 +426,7 @@ def group_type(group: str) -> type:
     return cls
 
 
+StormParams = group_type("storm")
 WaterParams = group_type("water")
 DripsParams = group_type("drips")
 TrajectoriesParams = group_type("trajectories")

@@ -18,7 +18,7 @@ Sizes are chosen per row (`RowObject.size_m`); glaze ice, which covers every wet
 and so sets the polygon count, is off where the paper's count is low for its icicles
 (all rows but c and e). The stages run as a job runs them (`icefarm.chain.run_stages`: no icicle
 hangs from the bottom ``drips.ground_clearance`` of a grounded object, icicles stop at the ground),
-with the paper's drip points (`PAPER_STAGES`: area-weighted, no spacing, none removed for want of
+with the paper's relative storm and drip points (`PAPER_STAGES`: area-weighted, no spacing, none removed for want of
 room or water) and no proxy (the rows are clean meshes). The ice polygon count is then steered towards the paper's by the voxel size
 (marching-cubes faces grow as 1 / voxel**2): a coarse calibration run at the tip radius,
 then rescaled runs until the count is within `CALIBRATION_TOLERANCE`. Stage times are
@@ -50,7 +50,7 @@ CALIBRATION_SEEDS = 3  # runs (seeds) per voxel size tried, at most the repeat c
 MIN_VOXEL_M = 0.00012  # the finest voxel calibration may choose; the coarsest resolves the tip radius
 # The paper's stage 2: drip points uniform over the drip region, however close or short; its
 # Table 2 timed the stages on the models themselves (no approximate surface).
-PAPER_STAGES = {"drips.distribution": "area", "drips.spacing": 0.0, "drips.min_fall": 0.0,
+PAPER_STAGES = {"storm.mode": "relative", "drips.distribution": "area", "drips.spacing": 0.0, "drips.min_fall": 0.0,
                 "drips.min_length": 0.0, "proxy.mode": "never"}
 MIN_SCALED_POLYGONS = 1000  # a reduced run keeps meshes fine enough for the water to find its way
 TARGET_SPEEDUP = 20.0

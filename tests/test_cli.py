@@ -41,7 +41,8 @@ def test_params_json_names_every_symbol():
 def test_run_until_trajectories_writes_artifacts(sphere_file, tmp_path):
     out = tmp_path / "job"
     result = run("run", sphere_file, "--size-m", 0.3, "-o", out, "--until", "trajectories",
-                 "--set", "drips.count=12", "--set", "water.rays=2000", "--seed", 3)
+                 "--set", "drips.count=12", "--set", "water.rays=2000", "--seed", 3,
+                 "--set", "storm.mode=relative")
     assert result.exit_code == 0, result.output
     for name in ("params.yaml", "water.ply", "drips.json", "trajectories.json", "timings.json", "done.json"):
         assert (out / name).is_file(), name

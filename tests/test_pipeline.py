@@ -11,7 +11,7 @@ from icefarm.pipeline import JobSpec, Stage, run_job
 def sphere_job(tmp_path, sphere, **values):
     path = tmp_path / "sphere.ply"
     sphere.export(path)
-    p = params.resolve({"water.rays": 2000, "drips.count": 40, "drips.drip_limit": 80, **values})
+    p = params.resolve({"storm.mode": "relative", "water.rays": 2000, "drips.count": 40, "drips.drip_limit": 80, **values})
     return JobSpec("sphere", str(path), 0.3, p, seed=3)
 
 

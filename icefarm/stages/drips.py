@@ -293,19 +293,36 @@ def free_fall(cast, points: np.ndarray, normals: np.ndarray, gravity, floor: flo
 
 def _spaced(points: np.ndarray, spacing: float, count: int) -> np.ndarray:
     """Indices of the first points, in order, that lie ``spacing`` or more from every one kept
-    before them (dart throwing), at most ``count``."""
+    before them (dart throwing), at most ``count``.
+
+    Kept points are binned in cells ``spacing`` wide, so each candidate is compared with the
+    few kept in the 27 cells around it: linear in the candidates (50,000 along a long rim),
+    where comparing with every kept point grew with their product."""
     if spacing <= 0:
         return np.arange(min(count, len(points)))
-    kept = np.zeros((min(count, len(points)), 3))
+    points = np.asarray(points, dtype=np.float64)
+    cells = np.floor(points / spacing).astype(np.int64).tolist()
+    coords = points.tolist()
+    grid: dict[tuple, list] = {}
     chosen: list[int] = []
     limit = spacing * spacing
-    for i, p in enumerate(points):
+    around = [(a, b, c) for a in (-1, 0, 1) for b in (-1, 0, 1) for c in (-1, 0, 1)]
+    for i, (cell, p) in enumerate(zip(cells, coords)):
         if len(chosen) == count:
             break
-        k = len(chosen)
-        if k and (((kept[:k] - p) ** 2).sum(axis=1) < limit).any():
+        x, y, z = p
+        cx, cy, cz = cell
+        close = False
+        for a, b, c in around:
+            for q in grid.get((cx + a, cy + b, cz + c), ()):
+                if (q[0] - x) ** 2 + (q[1] - y) ** 2 + (q[2] - z) ** 2 < limit:
+                    close = True
+                    break
+            if close:
+                break
+        if close:
             continue
-        kept[k] = p
+        grid.setdefault((cx, cy, cz), []).append(p)
         chosen.append(i)
     return np.asarray(chosen, dtype=np.int64)
 
@@ -343,15 +360,7 @@ def catchment_water(mesh: trimesh.Trimesh, water: np.ndarray, flux: np.ndarray, 
     face, cv, cu, width, _ = _rim_half_edges(mesh, flux, region, gravity)
     if len(positions) == 0 or width.sum() <= 0:
         return np.zeros(len(positions))
-    corners = mesh.faces[face]
-    rows = np.arange(len(face))
-    half = 0.5 * np.linalg.norm(mesh.vertices[corners[rows, cu]] - mesh.vertices[corners[rows, cv]], axis=1)
-    step = max(step, float(half.sum()) / MAX_FLUX_SAMPLES)
-    pieces = np.maximum(1, np.ceil(half / step)).astype(np.int64)
-    h = np.repeat(rows, pieces)
-    i = np.arange(len(h)) - np.repeat(np.cumsum(pieces) - pieces, pieces)
-    bary = _edge_bary(cv[h], cu[h], 0.5 * (i + 0.5) / pieces[h])
-    samples = np.einsum("ij,ijk->ik", bary, mesh.vertices[corners[h]])
+    samples, h, bary, corners, pieces = _rim_samples(mesh, face, cv, cu, step)
     wet = np.einsum("ij,ij->i", bary, np.asarray(water, dtype=np.float64)[corners[h]])
     tree = cKDTree(positions)
     _, nearest = tree.query(samples)
@@ -364,11 +373,82 @@ def catchment_water(mesh: trimesh.Trimesh, water: np.ndarray, flux: np.ndarray, 
     return coefficient * np.minimum(ratio ** WATER_CONTRAST, MAX_SHARE)
 
 
+def _rim_samples(mesh, face, cv, cu, step):
+    """Deterministic samples every ``step`` meters along the shedding half-edges.
+
+    Returns
+    -------
+    samples : (s, 3) float
+    h : (s,) int
+        Half-edge of each sample.
+    bary : (s, 3) float
+        Its barycentric coordinates in the half-edge's face.
+    corners : (e, 3) int
+        Vertices of each half-edge's face.
+    pieces : (e,) int
+        Samples per half-edge.
+    """
+    corners = mesh.faces[face]
+    rows = np.arange(len(face))
+    half = 0.5 * np.linalg.norm(mesh.vertices[corners[rows, cu]] - mesh.vertices[corners[rows, cv]], axis=1)
+    step = max(step, float(half.sum()) / MAX_FLUX_SAMPLES)
+    pieces = np.maximum(1, np.ceil(half / step)).astype(np.int64)
+    h = np.repeat(rows, pieces)
+    i = np.arange(len(h)) - np.repeat(np.cumsum(pieces) - pieces, pieces)
+    bary = _edge_bary(cv[h], cu[h], 0.5 * (i + 0.5) / pieces[h])
+    samples = np.einsum("ij,ijk->ik", bary, mesh.vertices[corners[h]])
+    return samples, h, bary, corners, pieces
+
+
+def catchment_volume(mesh: trimesh.Trimesh, shed: np.ndarray, region: np.ndarray, gravity,
+                     positions: np.ndarray, step: float, reach: float) -> np.ndarray:
+    """Each drip point's water under a physical storm: what its stretch of rim sheds, m^3.
+
+    The water ``shed[v]`` at a vertex is spread along the shedding half-edges next to it in
+    proportion to their width across the downhill direction (`_rim_half_edges`), sampled
+    every ``step`` meters; each sample goes to the nearest drip point within ``reach``
+    meters. Water shed farther from every drip point drips off with no icicle under it.
+
+    Parameters
+    ----------
+    shed : (n,) float
+        Water dripping off at each vertex, m^3 (`icefarm.stages.storm.StormResult.shed`).
+    positions : (k, 3) float
+        Drip points.
+    step, reach : float
+        Meters.
+
+    Returns
+    -------
+    (k,) float
+        m^3 of water per drip point (their sum is at most ``shed.sum()``).
+    """
+    face, cv, cu, width, _ = _rim_half_edges(mesh, shed, region, gravity)
+    if len(positions) == 0 or width.sum() <= 0:
+        return np.zeros(len(positions))
+    near_v = mesh.faces[face, cv]
+    around = np.bincount(near_v, weights=width, minlength=len(mesh.vertices))
+    per_edge = np.asarray(shed, dtype=np.float64)[near_v] * width / np.maximum(around[near_v], 1e-300)
+    samples, h, _, _, pieces = _rim_samples(mesh, face, cv, cu, step)
+    distance, nearest = cKDTree(positions).query(samples, distance_upper_bound=reach)
+    close = np.isfinite(distance)
+    return np.bincount(nearest[close], weights=(per_edge[h] / pieces[h])[close], minlength=len(positions))
+
+
+def _rim_pool(mesh, flux, region, gravity, spacing, count) -> int:
+    """Candidates to draw so that dart throwing fills every shedding rim at ``spacing``: `POOL_PER_POINT`
+    per point the rims hold (their length over ``spacing``, at most ``count``)."""
+    _, _, _, width, _ = _rim_half_edges(mesh, flux, region, gravity)
+    hold = count if spacing <= 0 else min(count, int(np.ceil(width.sum() / spacing)) + 1)
+    return min(MAX_POOL, max(2 * hold, POOL_PER_POINT * hold, MIN_POOL))
+
+
 def find_drips(mesh: trimesh.Trimesh, water: np.ndarray, gravity, count: int, drip_limit: float,
                rng: np.random.Generator, exclude_boxes=(),
                exclude_vertices: np.ndarray | None = None, caster=None,
                spacing: float = 0.0, distribution: str = "area", min_fall: float = 0.0,
-               floor: float | None = None, min_water: float = 0.0) -> DripResult:
+               floor: float | None = None, min_water: float = 0.0, shed: np.ndarray | None = None,
+               to_water=None) -> DripResult:
     """Stage 2: the drip region and up to ``count`` drip points on it.
 
     ``distribution="area"`` spreads the points area-weighted over the region's faces (the
@@ -416,6 +496,14 @@ def find_drips(mesh: trimesh.Trimesh, water: np.ndarray, gravity, count: int, dr
         Least water coefficient of a drip point (meters): where less drips, the drop freezes
         in place as part of the glaze instead of growing an icicle. The pipeline sets it
         from ``drips.min_length`` over the length scale kL. 0 keeps every point.
+    shed : (n,) float, optional
+        A physical storm (`icefarm.stages.storm`): the water dripping off at each vertex,
+        m^3. It replaces the water coefficients' `drip_flux`: the region is where it sheds,
+        points are drawn by it along the rims (as many as the rims hold at ``spacing``, at
+        most ``count``), each point's water is the volume its stretch of rim sheds
+        (`catchment_volume`), turned into a water coefficient by ``to_water``.
+    to_water : callable, optional
+        ``(k,) m^3 -> (k,)`` meters of water coefficient (with ``shed``); identity if None.
     """
     water = np.asarray(water, dtype=np.float64)
     if water.shape != (len(mesh.vertices),):
@@ -435,9 +523,17 @@ def find_drips(mesh: trimesh.Trimesh, water: np.ndarray, gravity, count: int, dr
     excluded = excluded_vertices(mesh.vertices, exclude_boxes)
     if exclude_vertices is not None:
         excluded |= np.asarray(exclude_vertices, dtype=bool)
-    region = drip_region(mesh, water, gravity, drip_limit, excluded)
-    pool = 2 * count if spacing == 0 else min(MAX_POOL, max(2 * count, POOL_PER_POINT * count, MIN_POOL))
-    flux = drip_flux(mesh, water, gravity, drip_limit, region) if distribution == "water" else None
+    if shed is not None:
+        shed = np.asarray(shed, dtype=np.float64)
+        if shed.shape != water.shape:
+            raise ValueError(f"shed must have one value per vertex ({len(mesh.vertices)}), got {shed.shape}")
+        region = drip_region(mesh, shed, gravity, drip_limit, excluded)
+        flux = np.where(np.isin(np.arange(len(shed)), mesh.faces[region]), shed, 0.0)
+        pool = _rim_pool(mesh, flux, region, gravity, spacing, count)
+    else:
+        region = drip_region(mesh, water, gravity, drip_limit, excluded)
+        pool = 2 * count if spacing == 0 else min(MAX_POOL, max(2 * count, POOL_PER_POINT * count, MIN_POOL))
+        flux = drip_flux(mesh, water, gravity, drip_limit, region) if distribution == "water" else None
     by_water = flux is not None and flux.sum() > 0
     if by_water:
         face, bary = _rim_points(mesh, flux, region, gravity, pool, rng)
@@ -470,16 +566,23 @@ def find_drips(mesh: trimesh.Trimesh, water: np.ndarray, gravity, count: int, dr
     positions = np.einsum("ij,ijk->ik", bary, mesh.vertices[corners])
     normals = unit(np.einsum("ij,ijk->ik", bary, mesh.vertex_normals[corners]))
     coefficients = np.einsum("ij,ij->i", bary, water[corners])
+    step = (spacing or float(np.median(mesh.edges_unique_length))) / SAMPLES_PER_SPACING
+
+    def drained(positions: np.ndarray) -> np.ndarray:
+        if shed is not None:
+            volume = catchment_volume(mesh, flux, region, gravity, positions, step, reach=2 * max(spacing, step))
+            return volume if to_water is None else np.asarray(to_water(volume), dtype=np.float64)
+        return catchment_water(mesh, water, flux, region, gravity, positions, step)
+
     if by_water:
-        step = (spacing or float(np.median(mesh.edges_unique_length))) / SAMPLES_PER_SPACING
-        coefficients = catchment_water(mesh, water, flux, region, gravity, positions, step)
+        coefficients = drained(positions)
     for _ in range(MAX_DRY_PASSES):  # the rest drain the dry points' stretches of rim too
         wet = coefficients >= min_water
         if wet.all():
             break
         positions, normals, face, coefficients = positions[wet], normals[wet], face[wet], coefficients[wet]
         if by_water and len(positions):
-            coefficients = catchment_water(mesh, water, flux, region, gravity, positions, step)
+            coefficients = drained(positions)
     wet = coefficients >= min_water
     positions, normals, face, coefficients = positions[wet], normals[wet], face[wet], coefficients[wet]
     return DripResult(region_faces=region, positions=positions, normals=normals,

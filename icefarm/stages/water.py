@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import heapq
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import trimesh
@@ -35,6 +36,9 @@ class WaterResult:
         Distance walked down to ``bottom``, in meters (dDown of Equation 3).
     hits : (k, 3) float
         Rain hit points on the surface, in meters.
+    storm : StormResult or None
+        ``storm.mode: physical``: the storm's catch, glaze and shed water per vertex
+        (`icefarm.stages.storm`); None in the relative mode.
     """
 
     supply: np.ndarray
@@ -44,6 +48,7 @@ class WaterResult:
     bottom: np.ndarray
     d_down: np.ndarray
     hits: np.ndarray
+    storm: Any = None
 
 
 def rain_source(mesh: trimesh.Trimesh, gravity: np.ndarray, margin: float = 0.05) -> trimesh.Trimesh:

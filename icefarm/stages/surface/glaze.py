@@ -35,6 +35,12 @@ from .coat import coat_field
 # With the glaze on its own coarser lattice, its sheet is at least this many glaze voxels
 # thick (the extra thickness goes inside the object), so marching cubes tears it less.
 COAT_SHEET = 2.0
+# Under a physical storm the coat's lattice is at least its median thickness over this
+# many voxels: a 25 mm coat at 4 mm voxels was millions of faces no lookdev view resolves.
+STORM_COAT_VOXELS = 4.0
+# The coat's mesh holds about this many faces per voxel face of the wet area (both its
+# sides, its rims and the creases it follows; 7.6 measured on the 3 m house).
+COAT_FACES_PER_VOXEL_AREA = 8.0
 # measure_glaze: rays start this far under the surface (m) and count ice that starts
 # within REACH (m) above it.
 _START = 2e-4
@@ -42,16 +48,23 @@ REACH = 0.01
 
 
 def wet_vertices(water: WaterResult, exclude: np.ndarray | None = None) -> np.ndarray:
-    """(n,) bool: vertices of the water supply or with water, less the ``exclude`` ones."""
-    wet = np.asarray(water.supply, dtype=bool) | (np.asarray(water.water) > 0)
+    """(n,) bool: vertices of the water supply or with water (under a physical storm: with
+    ice), less the ``exclude`` ones."""
+    if water.storm is not None:  # a physical storm: wet where ice froze
+        wet = np.asarray(water.storm.ice) > 0
+    else:
+        wet = np.asarray(water.supply, dtype=bool) | (np.asarray(water.water) > 0)
     if exclude is not None:
         wet = wet & ~np.asarray(exclude, dtype=bool).reshape(-1)
     return wet
 
 
 def glaze_thickness(water: WaterResult, glaze: GlazeParams | Mapping) -> np.ndarray:
-    """(n,) float: Equation 3's ``rgi = minGI + s [dUp lt + dDown (1 - lt)]`` per vertex, in meters."""
+    """(n,) float: Equation 3's ``rgi = minGI + s [dUp lt + dDown (1 - lt)]`` per vertex, in meters;
+    under a physical storm, the ice it froze there (`icefarm.stages.storm`), plus minGI."""
     glaze = typed("glaze", glaze)
+    if water.storm is not None:
+        return glaze.min_radius + np.asarray(water.storm.ice, dtype=np.float64)
     lt = glaze.lifetime
     d_up = np.asarray(water.d_up, dtype=np.float64)
     d_down = np.asarray(water.d_down, dtype=np.float64)
@@ -59,7 +72,7 @@ def glaze_thickness(water: WaterResult, glaze: GlazeParams | Mapping) -> np.ndar
 
 
 def glaze_field(flow_mesh: trimesh.Trimesh, water: WaterResult, glaze: GlazeParams | Mapping, rng: np.random.Generator,
-                exclude: np.ndarray | None = None, cast=None) -> Field | None:
+                exclude: np.ndarray | None = None, cast=None, face_budget: float = 0.0) -> Field | None:
     """The glaze as a field on the ``glaze.voxel_size`` lattice, per ``glaze.mode``.
 
     Fuse it with the icicles' field by ``icefarm.metaballs.fuse_fields(icicles, glaze)``:
@@ -81,6 +94,9 @@ def glaze_field(flow_mesh: trimesh.Trimesh, water: WaterResult, glaze: GlazePara
     cast : callable, optional
         An `icefarm.geometry.ray_caster` of ``flow_mesh``, if one is at hand (the coat
         casts a ray under each of its surface samples to find thin walls).
+    face_budget : float
+        Under a physical storm, the coat's lattice coarsens so that its mesh holds about
+        this many faces (`COAT_FACES_PER_VOXEL_AREA`); 0: off.
 
     Returns
     -------
@@ -100,8 +116,15 @@ def glaze_field(flow_mesh: trimesh.Trimesh, water: WaterResult, glaze: GlazePara
         balls = glaze_balls(flow_mesh, water, glaze, rng, min_sheet=COAT_SHEET * glaze.voxel_size,
                             exclude=exclude)
         return sample_field(balls, glaze.voxel_size, name="glaze.voxel_size") if len(balls) else None
-    return coat_field(flow_mesh, glaze_thickness(water, glaze), wet_vertices(water), glaze.voxel_size,
-                      glaze.edge, exclude=exclude, name="glaze.voxel_size", cast=cast)
+    thickness, wet = glaze_thickness(water, glaze), wet_vertices(water)
+    voxel = glaze.voxel_size
+    if water.storm is not None and wet.any():  # a storm's centimetre coat needs no millimetre voxels
+        voxel = max(voxel, float(np.median(thickness[wet])) / STORM_COAT_VOXELS)
+        if face_budget > 0:
+            wet_area = float(flow_mesh.area_faces[wet[flow_mesh.faces].sum(axis=1) >= 2].sum())
+            voxel = max(voxel, math.sqrt(COAT_FACES_PER_VOXEL_AREA * wet_area / face_budget))
+    return coat_field(flow_mesh, thickness, wet, voxel, glaze.edge, exclude=exclude, name="glaze.voxel_size",
+                      cast=cast)
 
 
 def glaze_balls(flow_mesh: trimesh.Trimesh, water: WaterResult, glaze: GlazeParams | Mapping,

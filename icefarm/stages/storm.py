@@ -1,0 +1,380 @@
+"""A storm in physical units: where its water lands, freezes, runs and drips (``storm.mode: physical``).
+
+The paper's knobs are relative to the object (normalised water, a fixed count of drip
+points, glaze per meter of height), so a garden table and a 3 m house need hand tuning.
+Here the weather sets the ice, whatever the asset's size:
+
+* **Catch.** Rain falls along gravity: a vertex under open sky catches the precipitation
+  depth ``P`` over its area projected across the rain (``P cos(tilt) A``); nothing lands
+  under an overhang. Meltwater comes from the snow on slopes under `SNOW_SLOPE_DEG`.
+* **Freeze.** Each area freezes at most a share of the rain a level face gets
+  (``storm.freeze``; ``storm.wall_freeze`` of that on vertical and downward faces, which
+  lose less heat and shed their film faster): a heat budget, local to the area, so the
+  glaze is as thick on a 0.3 m object as on a 3 m one. A flat top gains ``freeze P`` of
+  water as ice (x `WATER_TO_ICE`); a horizontal bar, where nothing runs off, gains about
+  ``P / pi`` of radial ice (Jones 1998). ``glaze.lifetime`` moves the budget up (0) or down
+  (1) the walk of the water (Equation 3's dUp and dDown) around that amount.
+* **Run off.** What does not freeze runs down the steepest edge (across level tops to
+  their nearest edge) and freezes further down where there is budget left.
+* **Drip.** Where the surface turns towards gravity past the drip limit, the film sheds as
+  the tilt rises (the share ``tilt - seen``, ``seen`` the largest tilt the water already
+  passed, so a fine mesh sheds no faster than a coarse one); where the walk ends facing
+  down, all of it drips; in a basin it pools.
+
+Every drop is counted once: caught = frozen + shed + pooled (`StormBudget`). The water shed
+along the drip rims feeds the icicles (`icefarm.stages.drips.find_drips` with ``flux``); a
+share of it (``storm.icicle_share``) freezes on them, the rest drips to the ground, and the
+ice volume gives the length through the icicle profile (`length_from_volume`).
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import trimesh
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import dijkstra
+from scipy.spatial import cKDTree
+
+from ..geometry import unit
+
+# Density of water and of glaze (clear, dense ice: 917 kg/m^3), kg/m^3; one meter of
+# frozen water is 1.09 m of glaze. Source: DESIGN.md, Facts about real ice (glaze).
+RHO_WATER = 1000.0
+RHO_ICE = 917.0
+WATER_TO_ICE = RHO_WATER / RHO_ICE
+# Radial ice of the utilities' freezing-rain classes, m: 0.25 in an ice storm, 0.5 in
+# damaging, 1 in crippling (US National Weather Service; DESIGN.md, Storms in units).
+RADIAL_ICE_M = {"light": 0.00635, "moderate": 0.0127, "severe": 0.0254}
+# Snow stays on slopes up to this many degrees from level (steeper roofs shed it): the
+# meltwater storm melts it. Typical angle of repose of wet snow, 45-55 degrees.
+SNOW_SLOPE_DEG = 50.0
+# Meltwater: refreezes only this close (m) to the drip rims, the cold edges past the warm
+# body (an eave past the heated wall): long icicles, little glaze elsewhere.
+MELT_RIM_BAND = 0.1
+# glaze.lifetime moves the freezing budget along the water's walk by at most this share
+# (lt 0: 1.5x at the top, 0.5x at the bottom; lt 0.5: even).
+LIFETIME_CONTRAST = 1.0
+
+
+class StormKind(enum.Enum):
+    """The two ways real icicles form."""
+
+    FREEZING_RAIN = "freezing_rain"  # glaze on all the rain reaches, icicles at the drip rims
+    MELTWATER = "meltwater"  # snow melting on the upper surfaces, long icicles at the eaves
+
+
+def precipitation_m(intensity: str, precipitation_mm: float = 0.0) -> float:
+    """The storm's precipitation depth in meters of water.
+
+    ``precipitation_mm`` above 0 is taken as given; 0 takes the ``intensity`` class's depth:
+    the precipitation that leaves its radial ice on a horizontal bar in still air, ``P =
+    pi R rho_i / rho_w`` (Jones, Atmospheric Research 46, 87-97, 1998): light 18 mm,
+    moderate 37 mm, severe 73 mm.
+    """
+    if precipitation_mm > 0:
+        return precipitation_mm / 1000.0
+    if intensity not in RADIAL_ICE_M:
+        raise ValueError(f"storm intensity must be one of {', '.join(RADIAL_ICE_M)}, got {intensity!r}")
+    return math.pi * RADIAL_ICE_M[intensity] / WATER_TO_ICE
+
+
+@dataclass(frozen=True)
+class StormBudget:
+    """Where the storm's water went, in cubic meters of water (caught = frozen + shed + pooled)."""
+
+    caught: float
+    frozen: float
+    shed: float
+    pooled: float
+
+
+@dataclass(frozen=True)
+class StormResult:
+    """The storm on the flow mesh, per vertex.
+
+    Attributes
+    ----------
+    sky : (n,) bool
+        Vertex sees open sky against gravity (nothing of the object above it).
+    catch : (n,) float
+        Water landing at the vertex, m^3.
+    ice : (n,) float
+        Glaze thickness at the vertex, meters of ice (frozen water x `WATER_TO_ICE` over the
+        vertex's area).
+    shed : (n,) float
+        Water dripping off at the vertex, m^3.
+    budget : StormBudget
+    """
+
+    sky: np.ndarray
+    catch: np.ndarray
+    ice: np.ndarray
+    shed: np.ndarray
+    budget: StormBudget
+
+
+def vertex_areas(mesh: trimesh.Trimesh) -> np.ndarray:
+    """``(n,)`` a third of the area of each vertex's faces, m^2."""
+    return np.bincount(np.asarray(mesh.faces).ravel(), weights=np.repeat(mesh.area_faces / 3.0, 3),
+                       minlength=len(mesh.vertices))
+
+
+def open_sky(mesh: trimesh.Trimesh, gravity, cast) -> np.ndarray:
+    """``(n,) bool``: a ray against gravity from each vertex (lifted a hair along its normal)
+    leaves the object. ``cast`` is a `icefarm.geometry.ray_caster` of ``mesh``."""
+    g = unit(np.asarray(gravity, dtype=np.float64))
+    eps = 1e-5 * float(np.linalg.norm(mesh.extents))
+    lifted = mesh.vertices + eps * mesh.vertex_normals - eps * g
+    return ~np.isfinite(cast(lifted, np.broadcast_to(-g, lifted.shape))[0])
+
+
+def accrete(mesh: trimesh.Trimesh, gravity, sky: np.ndarray, precipitation: float, *, kind: str,
+            freeze: float, wall_freeze: float, lifetime: float, drip_limit: float,
+            d_up: np.ndarray, d_down: np.ndarray) -> StormResult:
+    """Catch, freeze, run off and shed a storm's water over ``mesh``.
+
+    Parameters
+    ----------
+    mesh : trimesh.Trimesh
+        The flow surface, in meters, outward normals.
+    gravity : (3,) float
+    sky : (n,) bool
+        `open_sky` of the vertices.
+    precipitation : float
+        Meters of water (`precipitation_m`): rain, or melted snow for ``meltwater``.
+    kind : {"freezing_rain", "meltwater"}
+    freeze : float
+        Share of a level face's catch that it can freeze in place, [0, 1].
+    wall_freeze : float
+        A vertical or downward face's freezing budget over a level one's, [0, 1].
+    lifetime : float
+        ``glaze.lifetime``: 0 puts the budget high on the walk, 1 low, 0.5 evens it.
+    drip_limit : float
+        Degrees from gravity within which a surface sheds its film.
+    d_up, d_down : (n,) float
+        Algorithm 1's walked distances up and down, meters (where on its walk a vertex lies).
+
+    Returns
+    -------
+    StormResult
+    """
+    kind = StormKind(kind).value
+    g = unit(np.asarray(gravity, dtype=np.float64))
+    n = len(mesh.vertices)
+    normals = np.asarray(mesh.vertex_normals)
+    cos_up = normals @ -g
+    area = vertex_areas(mesh)
+    sky = np.asarray(sky, dtype=bool)
+    if kind == StormKind.MELTWATER.value:
+        snow = sky & (cos_up >= math.cos(math.radians(SNOW_SLOPE_DEG)))
+        catch = precipitation * np.where(snow, cos_up, 0.0) * area
+    else:
+        catch = precipitation * np.where(sky, np.maximum(cos_up, 0.0), 0.0) * area
+    cos_limit = math.cos(math.radians(drip_limit))
+    tilt = np.clip((normals @ g - cos_limit) / (1.0 - cos_limit), 0.0, 1.0)
+    walk = np.asarray(d_up, dtype=np.float64) + np.asarray(d_down, dtype=np.float64)
+    low = np.divide(d_up, walk, out=np.full(n, 0.5), where=walk > 0)  # 0 at the top of the walk, 1 at the bottom
+    lean = 1.0 + LIFETIME_CONTRAST * (2.0 * lifetime - 1.0) * (low - 0.5)
+    capacity = freeze * precipitation * area * lean * (wall_freeze + (1.0 - wall_freeze) * np.maximum(cos_up, 0.0))
+    if kind == StormKind.MELTWATER.value:  # the warm body melts, the cold rims refreeze
+        rims = mesh.vertices[tilt > 0]
+        near = cKDTree(rims).query(mesh.vertices, distance_upper_bound=MELT_RIM_BAND)[0] <= MELT_RIM_BAND \
+            if len(rims) else np.zeros(n, dtype=bool)
+        capacity = np.where(near, capacity, 0.0)
+    nxt, order, outlet = _routes(mesh, g, cos_up)
+    frozen, shed, pooled = _flow(catch, capacity, tilt, nxt, order, outlet)
+    ice = np.divide(frozen * WATER_TO_ICE, area, out=np.zeros(n), where=area > 0)
+    budget = StormBudget(float(catch.sum()), float(frozen.sum()), float(shed.sum()), float(pooled.sum()))
+    return StormResult(sky=sky, catch=catch, ice=ice, shed=shed, budget=budget)
+
+
+def _routes(mesh: trimesh.Trimesh, g: np.ndarray, cos_up: np.ndarray):
+    """Where the water at each vertex goes next, and an order that visits every vertex
+    after all those that feed it.
+
+    The next vertex is the lowest edge neighbour (steepest descent). A level, upward
+    vertex with no lower neighbour (a table top) passes its water across level edges
+    towards the nearest vertex that has one; a downward vertex with none drips (an
+    outlet); an upward one with no way out is a basin (it pools).
+
+    Returns
+    -------
+    nxt : (n,) int
+        Next vertex; the vertex itself where the water stops.
+    order : (n,) int
+        Vertices from the highest down (level stretches: farthest from their edge first).
+    outlet : (n,) bool
+        Where a stop means dripping rather than pooling.
+    """
+    from .water import steepest_neighbours
+
+    n = len(mesh.vertices)
+    heights = mesh.vertices @ -g
+    (_, _, _), (down, _, _) = steepest_neighbours(mesh, g)
+    own = np.arange(n)
+    stuck = down == own
+    edges = np.asarray(mesh.edges_unique)
+    tol = 1e-7 * float(np.linalg.norm(mesh.extents))
+    level = np.abs(heights[edges[:, 0]] - heights[edges[:, 1]]) <= tol
+    upward_stuck = stuck & (cos_up > 0)
+    nxt = down.copy()
+    flat_distance = np.zeros(n)
+    # Level stretches: from upward stuck vertices across level edges to a vertex that can go down.
+    usable = level & (upward_stuck[edges[:, 0]] | upward_stuck[edges[:, 1]])
+    if usable.any() and upward_stuck.any():
+        a, b = edges[usable, 0], edges[usable, 1]
+        length = np.maximum(mesh.edges_unique_length[usable], 1e-12)
+        graph = coo_matrix((np.r_[length, length], (np.r_[a, b], np.r_[b, a])), shape=(n, n)).tocsr()
+        exits = np.unique(np.r_[a, b][~upward_stuck[np.r_[a, b]]])
+        if len(exits):
+            distance, pred, _ = dijkstra(graph, indices=exits, min_only=True, return_predecessors=True)
+            reach = upward_stuck & np.isfinite(distance) & (pred >= 0)
+            nxt[reach] = pred[reach]
+            flat_distance = np.where(np.isfinite(distance), distance, 0.0)
+    order = np.lexsort((-flat_distance, -heights))
+    outlet = (nxt == own) & ~(cos_up > 0)
+    return nxt, order, outlet
+
+
+def _flow(catch, capacity, tilt, nxt, order, outlet):
+    """Route the water in ``order`` (a Python loop: each vertex waits for all that feed it;
+    about 1 us a vertex). Returns frozen, shed and pooled water per vertex, m^3."""
+    n = len(catch)
+    inflow = catch.astype(np.float64).tolist()
+    seen = [0.0] * n
+    cap, tl, nx, out = capacity.tolist(), tilt.tolist(), nxt.tolist(), outlet.tolist()
+    frozen, shed, pooled = [0.0] * n, [0.0] * n, [0.0] * n
+    for v in order.tolist():
+        w = inflow[v]
+        if w <= 0.0:
+            continue
+        f = cap[v] if cap[v] < w else w
+        frozen[v] = f
+        w -= f
+        s, t = seen[v], tl[v]
+        if nx[v] == v:
+            if out[v] or t > 0.0:
+                shed[v] = w
+            else:
+                pooled[v] = w
+            continue
+        if t > s:  # shed (t - s) of the water as it was before any shed, of what is left (1 - s)
+            d = w * (t - s) / (1.0 - s) if s < 1.0 else w
+            shed[v] = d
+            w -= d
+            s = t
+        u = nx[v]
+        inflow[u] += w
+        if s > seen[u]:
+            seen[u] = s
+    return np.asarray(frozen), np.asarray(shed), np.asarray(pooled)
+
+
+def icicle_volume(length, tip: float, growth: float, shape: str = "physical"):
+    """Volume of an icicle of ``length`` meters (array-like), m^3: the solid of its profile.
+
+    ``physical``: ``r = tip + t L^(1/4) d^(3/4)`` gives ``pi (tip^2 L + 8/7 tip t L^2 + 2/5 t^2 L^3)``;
+    ``paper``: ``r = tip + t d`` gives ``pi (tip^2 L + tip t L^2 + t^2 L^3 / 3)``.
+    """
+    L = np.asarray(length, dtype=np.float64)
+    if shape == "physical":
+        return math.pi * (tip * tip * L + 8.0 / 7.0 * tip * growth * L ** 2 + 0.4 * growth ** 2 * L ** 3)
+    return math.pi * (tip * tip * L + tip * growth * L ** 2 + growth ** 2 * L ** 3 / 3.0)
+
+
+def length_from_volume(volume, tip: float, growth: float, shape: str = "physical") -> np.ndarray:
+    """``(k,)`` length in meters of icicles holding ``volume`` m^3 of ice (`icicle_volume` inverted
+    by bisection: it rises monotonically with the length)."""
+    volume = np.maximum(np.asarray(volume, dtype=np.float64).reshape(-1), 0.0)
+    lo = np.zeros_like(volume)
+    hi = np.full_like(volume, 1.0)
+    while True:  # widen until every volume is bracketed
+        short = icicle_volume(hi, tip, growth, shape) < volume
+        if not short.any():
+            break
+        hi[short] *= 2.0
+    for _ in range(50):
+        mid = 0.5 * (lo + hi)
+        small = icicle_volume(mid, tip, growth, shape) < volume
+        lo = np.where(small, mid, lo)
+        hi = np.where(small, hi, mid)
+    return 0.5 * (lo + hi)
+
+
+def storm_water(mesh: trimesh.Trimesh, gravity, storm, *, lifetime: float, drip_limit: float, cast):
+    """Stage 1 under a physical storm: the supply is every upward vertex under open sky,
+    Algorithm 1 walks on it (where each vertex lies on its walk) and `accrete` runs the storm.
+
+    Parameters
+    ----------
+    mesh : trimesh.Trimesh
+        The flow surface, in meters.
+    gravity : (3,) float
+    storm : StormParams
+        The resolved ``storm`` group.
+    lifetime, drip_limit : float
+        ``glaze.lifetime`` and ``drips.drip_limit`` (degrees).
+    cast : callable
+        A `icefarm.geometry.ray_caster` of ``mesh``.
+
+    Returns
+    -------
+    WaterResult
+        With ``storm`` set; ``hits`` are the supply vertices.
+    """
+    from .water import WaterResult, water_coefficients
+
+    g = unit(np.asarray(gravity, dtype=np.float64))
+    sky = open_sky(mesh, g, cast)
+    supply = sky & (np.asarray(mesh.vertex_normals) @ -g > 0)
+    water, top, d_up, bottom, d_down = water_coefficients(mesh, supply, g)
+    result = accrete(mesh, g, sky, precipitation_m(storm.intensity, storm.precipitation), kind=storm.kind,
+                     freeze=storm.freeze, wall_freeze=storm.wall_freeze, lifetime=lifetime,
+                     drip_limit=drip_limit, d_up=d_up, d_down=d_down)
+    return WaterResult(supply=supply, water=water, top=top, d_up=d_up, bottom=bottom, d_down=d_down,
+                       hits=np.asarray(mesh.vertices)[supply], storm=result)
+
+
+def icicle_lengths(volume, storm, surface) -> np.ndarray:
+    """``(k,)`` meters: icicles from ``volume`` (k,) m^3 of water reaching their drip points.
+
+    ``storm.icicle_share`` of it freezes on the icicle (the rest drips off its tip); the
+    ice's volume gives the length through the icicle's profile (`length_from_volume` with
+    ``surface.tip_radius``, ``growth_ratio`` and ``profile``)."""
+    ice = np.asarray(volume, dtype=np.float64) * storm.icicle_share * WATER_TO_ICE
+    return length_from_volume(ice, surface["tip_radius"], surface["growth_ratio"], surface["profile"])
+
+
+# The refined flow surface holds about this many faces at most (a 3 m house at 2.5 cm
+# edges would hold 760,000: 18 GB in the glaze coat); coarser edges past it.
+FLOW_FACES = 150_000
+# Midpoint subdivision leaves edges between half and all of the threshold: about
+# FACES_PER_EDGE_AREA faces per square meter over the threshold squared.
+FACES_PER_EDGE_AREA = 3.5
+
+
+def refine(mesh: trimesh.Trimesh, max_edge: float) -> trimesh.Trimesh:
+    """``mesh`` with every edge longer than ``max_edge`` meters split at its midpoint, until
+    none is: the same surface exactly, conforming (no T-junctions), so it stays watertight.
+    The threshold grows so that the result holds about `FLOW_FACES` faces at most.
+
+    pymeshlab's midpoint subdivision with a length threshold; trimesh's
+    ``subdivide_to_size`` splits faces one by one and leaves T-junctions (open seams)."""
+    import pymeshlab
+
+    from ..meshlab import current, meshset
+
+    max_edge = max(max_edge, math.sqrt(FACES_PER_EDGE_AREA * float(mesh.area) / FLOW_FACES))
+    longest = float(mesh.edges_unique_length.max())
+    if longest <= max_edge:
+        return mesh
+    ms = meshset(mesh)
+    ms.meshing_surface_subdivision_midpoint(iterations=min(20, int(math.ceil(math.log2(longest / max_edge))) + 2),
+                                            threshold=pymeshlab.PureValue(max_edge))
+    out = current(ms)
+    out.merge_vertices()
+    return out
