@@ -206,14 +206,16 @@ def _run(prepared, p, seed, placement, exclude, overrides, source, until, mesh_k
     def water_stage() -> WaterResult:
         if physical:
             result = storm_water(flow, gravity, storm, lifetime=p["glaze"]["lifetime"],
-                                 drip_limit=p["drips"]["drip_limit"], cast=caster(flow))
+                                 drip_limit=p["drips"]["drip_limit"], cast=caster(flow),
+                                 source=source() if source else None)
         else:
             result = compute_water(flow, gravity, p["water"]["rays"], p["water"]["influence_radius"],
                                    stage_rng(seed, Stage.WATER), source() if source else None, caster(flow),
                                    pools=p["water"]["pools"])
         if "water" in overrides:  # painted water replaces the coefficients, keeps the walks
             supply, water = artifacts.read_water_ply(Path(overrides["water"]), len(flow.vertices))
-            result = dataclasses.replace(result, supply=supply, water=water)
+            # Painted water replaces the storm too: drips and glaze follow the paint (relative).
+            result = dataclasses.replace(result, supply=supply, water=water, storm=None)
         return result
 
     water = advance("water", water_key, water_stage, "water")
@@ -242,6 +244,12 @@ def _run(prepared, p, seed, placement, exclude, overrides, source, until, mesh_k
                            caster=caster(flow), spacing=d["spacing"], distribution=d["distribution"],
                            min_fall=d["min_fall"], floor=ground_level(placement, obj, gravity),
                            min_water=d["min_length"] / kl, shed=shed, to_water=to_water)
+        if shed is not None and len(found.positions):
+            # The glaze at the rim swallows the icicle's first centimetres: it hangs its
+            # length below the ice, not below the bare object.
+            corners = flow.faces[found.faces]
+            coat = water.storm.ice[corners].max(axis=1)
+            found = dataclasses.replace(found, water=found.water + coat / kl)
         if flow is obj:
             return found
         from .proxy import snap_to_surface

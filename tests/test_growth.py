@@ -107,7 +107,8 @@ def grown(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("growth")
     config = tmp / "tiny.yaml"
     config.write_text("resolution: [40, 30]\nspp: 2\nmax_depth: 4\n")
-    p = P.resolve({"drips.count": 4, "surface.voxel_size": VOXEL, "glaze.mode": "coat", "growth.frames": FRAMES})
+    p = P.resolve({"storm.mode": "relative", "drips.count": 4, "surface.voxel_size": VOXEL, "glaze.mode": "coat",
+                   "growth.frames": FRAMES})
     outcome = run_job(JobSpec("roof", "generator:roof", 0.4, p, seed=3, render=str(config)), tmp / "job")
     assert outcome.status == "done", outcome.error
     return tmp / "job"

