@@ -74,8 +74,10 @@ def _box(text: str):
 
 @main.command()
 @click.argument("mesh", type=click.Path(dir_okay=False))
-@click.option("--size-m", type=float, required=True,
-              help="Real height of the object's bounding box along gravity, in meters.")
+@click.option("--size-m", type=float,
+              help="Real height of the object's bounding box along gravity, in meters. Needed for OBJ, PLY, "
+                   "STL and OFF (no units); USD and glTF/GLB files and the real-size generators keep their "
+                   "own size without it, and are rescaled with it.")
 @click.option("--set", "assignments", multiple=True, metavar="GROUP.PARAM=VALUE",
               help="Override a parameter (repeatable); `icefarm params` lists them.")
 @click.option("--seed", type=int, default=0, show_default=True, help="Random seed of the job.")
@@ -100,11 +102,14 @@ def _box(text: str):
                    "config and camera), growth.mp4, growth.usda (time-sampled for DCCs) and frames.json. "
                    "Same as --set growth.frames=N.")
 def run(mesh, size_m, assignments, seed, out, until, render, no_render, placement, exclude, cache, growth_frames):
-    """Run one job on MESH (any format trimesh reads, or generator:NAME) into OUT.
+    """Run one job on MESH (USD, glTF/GLB, any format trimesh reads, or generator:NAME) into OUT.
 
-    Writes params.yaml, water.ply (vertex colours: supply red, water blue), drips.json,
-    trajectories.json, ice.ply, scene.xml/scene.pov, render.exr/png and timings.json.
+    Gravity follows the up axis of a USD or glTF file unless --set water.gravity=... says
+    otherwise. Writes params.yaml (with the gravity used), water.ply (vertex colours: supply
+    red, water blue), drips.json, trajectories.json, ice.ply, scene.xml/scene.pov,
+    render.exr/png and timings.json.
     """
+    from .asset_io import missing_size, with_asset_gravity
     from .pipeline import GENERATOR_PREFIX, JobSpec, Stage, run_job
 
     values = _assignments(assignments)
@@ -116,11 +121,13 @@ def run(mesh, size_m, assignments, seed, out, until, render, no_render, placemen
         if until:
             raise InputError("--growth-frames needs the whole job: leave out --until")
         values["growth.frames"] = growth_frames
-    resolved = params.resolve(values)
     if not mesh.startswith(GENERATOR_PREFIX):
         if not Path(mesh).is_file():
             raise InputError(f"mesh file not found: {mesh}")
         mesh = str(Path(mesh).resolve())
+    if size_m is None and (why := missing_size(mesh)):
+        raise InputError(f"{why}: pass the object's real height in meters with --size-m")
+    resolved = params.resolve(with_asset_gravity(mesh, values))
     if not no_render:  # a bad config name fails now, in one line, not after the stages
         from .scene.config import load_render_config
 

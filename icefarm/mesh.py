@@ -1,14 +1,14 @@
-"""Load any mesh trimesh reads, scale it to meters, clean it and report its problems."""
+"""Load any mesh (`icefarm.asset_io`), scale it to meters, clean it and report its problems."""
 
 from __future__ import annotations
 
-import logging
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import trimesh
 
+from .asset_io import Asset, read_asset
 from .errors import InputError
 
 
@@ -67,29 +67,17 @@ class PreparedMesh:
 
 
 def load_mesh(path: str | Path) -> trimesh.Trimesh:
-    """Read one mesh (OBJ, PLY, STL, OFF, GLB, ...) as a single `trimesh.Trimesh`.
-
-    Scenes are flattened into one mesh; a missing material file is ignored.
+    """Read one mesh (OBJ, PLY, STL, OFF, GLB, USD, ...) as a single `trimesh.Trimesh`, in
+    the file's units (`icefarm.asset_io.read_asset`: scenes and stages flattened with their
+    transforms, a missing material file ignored, latin-1 text read).
 
     Raises
     ------
     InputError
         The file is missing, unreadable, holds no triangles, or has non-finite vertices.
     """
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(f"mesh file not found: {path}")
-    logging.getLogger("trimesh").setLevel(logging.ERROR)  # missing .mtl files are noise here
-    try:
-        loaded = trimesh.load(path, force="mesh", process=False)
-    except Exception as exc:  # trimesh raises many types for unreadable files
-        raise InputError(f"cannot read mesh {path}: {exc}") from None
-    if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0 or len(loaded.vertices) == 0:
-        raise InputError(f"mesh {path} holds no triangles")
-    if not np.isfinite(loaded.vertices).all():
-        raise InputError(f"mesh {path} has NaN or infinite vertex coordinates")
-    return trimesh.Trimesh(np.asarray(loaded.vertices, dtype=np.float64),
-                           np.asarray(loaded.faces, dtype=np.int64), process=False)
+    asset = read_asset(path)
+    return trimesh.Trimesh(asset.vertices, asset.faces, process=False)
 
 
 def clean(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
@@ -152,10 +140,17 @@ def count_self_intersections(mesh: trimesh.Trimesh) -> int:
 FLAT_FRACTION = 1e-6
 FLAT_THICKNESS_M = 0.002  # a sheet of metal, a sign's board (at most FLAT_THICKNESS_RATIO of the diagonal)
 FLAT_THICKNESS_RATIO = 0.01
+# A mesh whose height along gravity is under this fraction of its largest extent lies flat:
+# ``size_m`` is then its largest extent. A level sheet out of a DCC is level only to its float
+# noise (1e-8 to 1e-5 of its size); scaling that noise to ``size_m`` made a 1 m roof panel
+# thousands of kilometres wide, which the proxy then refused or ran out of memory on.
+LEVEL_FRACTION = 1e-4
 
 
-def prepare(path: str | Path | trimesh.Trimesh, size_m: float, gravity=(0.0, -1.0, 0.0)) -> PreparedMesh:
-    """Load, scale and clean a mesh so its height along gravity is ``size_m`` meters.
+def prepare(path: str | Path | trimesh.Trimesh, size_m: float | None,
+            gravity=(0.0, -1.0, 0.0)) -> PreparedMesh:
+    """Load, scale and clean a mesh so its height along gravity is ``size_m`` meters, or
+    keep the real size its file gives (USD, glTF) when ``size_m`` is None.
 
     The mesh is scaled before it is cleaned, so its units do not matter (welding and the
     test for degenerate faces work in meters: a model in nanometres is not one point).
@@ -165,38 +160,45 @@ def prepare(path: str | Path | trimesh.Trimesh, size_m: float, gravity=(0.0, -1.
     Parameters
     ----------
     path : path or trimesh.Trimesh
-        Any format trimesh reads, or a mesh already in memory.
-    size_m : float
-        Real height of the object's bounding box along gravity, in meters. Flat objects
-        (no height) take it as their largest extent instead.
+        Any format `icefarm.asset_io.read_asset` reads, or a mesh already in memory.
+    size_m : float or None
+        Real height of the object's bounding box along gravity, in meters. Objects lying
+        flat (height under `LEVEL_FRACTION` of their largest extent) take it as their
+        largest extent instead. None: the file's own units (USD ``metersPerUnit``, glTF's
+        meters); OBJ, PLY, STL, OFF and meshes in memory carry none and need it.
     gravity : (3,) float
         Direction of gravity.
 
     Raises
     ------
     InputError
-        Bad file or mesh, or a size that is not a positive number.
+        Bad file or mesh, a size that is not a positive number, or no size for a format
+        without units.
     """
-    if not np.isfinite(size_m) or size_m <= 0:
+    if size_m is not None and (not np.isfinite(size_m) or size_m <= 0):
         raise InputError(f"size_m must be a positive number of meters, got {size_m!r}")
     if isinstance(path, trimesh.Trimesh):
         if len(path.faces) == 0 or not np.isfinite(path.vertices).all():
             raise InputError("the generated mesh is empty or has non-finite vertices")
-        raw = trimesh.Trimesh(np.asarray(path.vertices, dtype=np.float64), np.asarray(path.faces, dtype=np.int64),
-                              process=False)
+        raw = Asset(np.asarray(path.vertices, dtype=np.float64), np.asarray(path.faces, dtype=np.int64))
         path = "(generated)"
     else:
-        raw = load_mesh(path)
+        raw = read_asset(path)
+    if size_m is None and raw.meters_per_unit is None:
+        kind = Path(path).suffix.lstrip(".").upper() or "file"
+        what = "a generated mesh" if path == "(generated)" else f"{path}: the {kind} format"
+        raise InputError(f"{what} carries no units: pass the object's real height in meters with --size-m "
+                         "(icefarm run) or size_m (manifest)")
     g = np.asarray(gravity, dtype=np.float64)
     g = g / np.linalg.norm(g)
     if np.asarray(raw.faces).min() < 0 or np.asarray(raw.faces).max() >= len(raw.vertices):
         raise InputError(f"mesh {path} has faces that name vertices it does not have")
     # Scale on the vertices the faces use, then clean in meters; scale again for what cleaning removed.
-    scale, centre = _fit(raw.vertices[np.unique(raw.faces)], size_m, g, path)
+    scale, centre = _fit(raw.vertices[np.unique(raw.faces)], size_m, g, path, raw.meters_per_unit)
     mesh = clean(trimesh.Trimesh(raw.vertices * scale - centre, raw.faces, process=False))
     if len(mesh.faces) == 0:
         raise InputError(f"mesh {path} has only degenerate faces")
-    again, shift = _fit(mesh.vertices, size_m, g, path)
+    again, shift = _fit(mesh.vertices, size_m, g, path, 1.0)
     mesh.vertices = mesh.vertices * again - shift
     scale, centre = scale * again, centre * again + shift
     if is_flat(mesh):
@@ -204,16 +206,21 @@ def prepare(path: str | Path | trimesh.Trimesh, size_m: float, gravity=(0.0, -1.
     return PreparedMesh(mesh=mesh, scale=scale, offset=centre, problems=detect_problems(mesh))
 
 
-def _fit(vertices: np.ndarray, size_m: float, g: np.ndarray, path) -> tuple[float, np.ndarray]:
+def _fit(vertices: np.ndarray, size_m: float | None, g: np.ndarray, path,
+         meters_per_unit: float | None = None) -> tuple[float, np.ndarray]:
     """``scale, centre`` that bring ``vertices`` to ``size_m`` along ``g`` (or their largest
-    extent when flat along ``g``), centred on the origin: ``v * scale - centre``."""
-    heights = vertices @ g
-    height = float(heights.max() - heights.min())
+    extent when they lie flat across ``g``), or to meters by ``meters_per_unit`` when
+    ``size_m`` is None, centred on the origin: ``v * scale - centre``."""
     lo, hi = vertices.min(axis=0), vertices.max(axis=0)
     extent = float((hi - lo).max())
     if not extent > 0 or not np.isfinite(extent):
         raise InputError(f"mesh {path} has no extent: all its vertices coincide")
-    scale = size_m / (height if height > 1e-9 * extent else extent)
+    if size_m is None:
+        scale = float(meters_per_unit)
+    else:
+        heights = vertices @ g
+        height = float(heights.max() - heights.min())
+        scale = size_m / (height if height > LEVEL_FRACTION * extent else extent)
     return scale, (lo + hi) / 2 * scale
 
 

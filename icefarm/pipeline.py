@@ -48,7 +48,7 @@ class JobSpec:
 
     object_id: str
     mesh: str
-    size_m: float
+    size_m: float | None  # None: the size the mesh carries (USD, glTF, a real-size generator)
     params: dict
     seed: int = 0
     render: str | None = None
@@ -92,12 +92,16 @@ def job_id(spec: JobSpec) -> str:
 
 
 def load_object(spec: JobSpec) -> PreparedMesh:
-    """The job's mesh, cleaned and in meters."""
+    """The job's mesh, cleaned and in meters (without ``size_m``: at the size it carries)."""
     gravity = spec.params["water"]["gravity"]
     if spec.mesh.startswith(GENERATOR_PREFIX):
-        from .generators import generate
+        from .generators import generate, natural_size
 
-        return prepare(generate(spec.mesh[len(GENERATOR_PREFIX):]), spec.size_m, gravity)
+        name = spec.mesh[len(GENERATOR_PREFIX):]
+        size = spec.size_m if spec.size_m is not None else natural_size(name)
+        if size is None:
+            raise InputError(f"{spec.mesh} is in arbitrary units: give its real height in meters (size_m)")
+        return prepare(generate(name), size, gravity)
     return prepare(spec.mesh, spec.size_m, gravity)
 
 

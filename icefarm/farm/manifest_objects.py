@@ -94,7 +94,11 @@ def parse_objects(value: Any, path: Path, errors: list[str]) -> list[ObjectSpec]
             errors.append(f"{where}.id: {short_repr(obj_id)} is used by an earlier object; ids must be unique")
         seen.add(str(obj_id))
         size = item.get("size_m")
-        if isinstance(size, bool) or not isinstance(size, (int, float)) or not math.isfinite(size) or size <= 0:
+        if size is None and mesh:  # USD, glTF and the real-size generators carry their size
+            why = _missing_size(mesh)
+            if why:
+                errors.append(f"{where}.size_m: {why}: give the object's height in meters")
+        elif isinstance(size, bool) or not isinstance(size, (int, float)) or not math.isfinite(size) or size <= 0:
             errors.append(f"{where}.size_m: expected the object's height in meters, a number > 0, got {describe(size)}")
             size = 1.0
         placement = item.get("placement", "ground")
@@ -103,15 +107,44 @@ def parse_objects(value: Any, path: Path, errors: list[str]) -> list[ObjectSpec]
                           f"the ground; hanging: a sign, a branch, a lamp), got {describe(placement)}")
             placement = "ground"
         out.append(ObjectSpec(
-            id=str(obj_id), mesh=mesh, size_m=float(size), placement=placement,
-            # `growth: {frames: N}` is the parameter growth.frames (as in defaults), for this object
-            params={**parse_params(item.get("params"), f"{where}.params", errors),
-                    **_growth(item.get("growth"), where, errors)},
+            id=str(obj_id), mesh=mesh, size_m=None if size is None else float(size), placement=placement,
+            # `growth: {frames: N}` is the parameter growth.frames (as in defaults), for this object;
+            # a USD or glTF file's up axis is its water.gravity unless its params set one
+            params=_asset_gravity(mesh, {**parse_params(item.get("params"), f"{where}.params", errors),
+                                         **_growth(item.get("growth"), where, errors)}, where, errors),
             exclude=_exclude(item.get("exclude"), f"{where}.exclude", errors),
             overrides=_overrides(item.get("overrides"), path, f"{where}.overrides", errors),
             material=_material(item.get("material"), f"{where}.material", errors),
         ))
     return out
+
+
+def _missing_size(mesh: str) -> str | None:
+    """Why ``mesh`` needs a ``size_m`` (`icefarm.asset_io.missing_size`); None for a missing
+    file or an unknown generator, which are reported on their own."""
+    from ..asset_io import missing_size
+
+    if not mesh.startswith(GENERATOR_PREFIX) and not Path(mesh).is_file():
+        return None
+    try:
+        return missing_size(mesh)
+    except InputError:
+        return None
+
+
+def _asset_gravity(mesh: str, params: dict[str, Any], where: str, errors: list[str]) -> dict[str, Any]:
+    """An object's params with ``water.gravity`` from its file's up axis when they set none:
+    the asset knows its up axis better than the manifest's defaults, which may be there for
+    other objects; a sweep or ``--set`` still wins."""
+    from ..asset_io import with_asset_gravity
+
+    if not mesh or not Path(mesh).is_file():
+        return params
+    try:
+        return with_asset_gravity(mesh, params)
+    except InputError as exc:
+        errors.append(f"{where}.mesh: {exc}")
+        return params
 
 
 def _growth(value: Any, where: str, errors: list[str]) -> dict[str, Any]:

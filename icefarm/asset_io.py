@@ -1,0 +1,274 @@
+"""Read a mesh file with what it says of its own size and orientation.
+
+USD stages (usd-core) and glTF scenes carry units and an up axis: their meshes are read
+with every prim's or node's world transform applied, and come with their meters per unit
+and up axis, so they need no ``size_m`` and set gravity. OBJ, PLY, STL and OFF carry
+neither: they need a ``size_m``, and keep the default gravity (-Y). Text files in latin-1
+or cp1252 (a comment with an accented letter) read as well as UTF-8 ones.
+"""
+
+from __future__ import annotations
+
+import io
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+from .errors import InputError
+
+GENERATOR_PREFIX = "generator:"
+USD_SUFFIXES = (".usd", ".usda", ".usdc", ".usdz")
+GLTF_SUFFIXES = (".glb", ".gltf")
+# Gravity for each up axis a file may declare: USD knows Y and Z; glTF is always +Y up.
+UP_GRAVITY = {"Y": (0.0, -1.0, 0.0), "Z": (0.0, 0.0, -1.0)}
+GRAVITY_KEY = "water.gravity"
+
+
+@dataclass(frozen=True)
+class Asset:
+    """The triangles of a mesh file, in its own units, in world space.
+
+    Attributes
+    ----------
+    vertices : (n, 3) float
+        In the file's units, every transform above each mesh applied.
+    faces : (m, 3) int
+        Triangles (polygons fanned), indices into ``vertices``.
+    meters_per_unit : float or None
+        Meters per file unit; None when the format carries no units (OBJ, PLY, STL, OFF).
+    up_axis : str or None
+        ``"Y"`` or ``"Z"``; None when the format says nothing (gravity stays as set).
+    """
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    meters_per_unit: float | None = None
+    up_axis: str | None = None
+
+    @property
+    def gravity(self) -> tuple[float, float, float] | None:
+        """Unit gravity its up axis implies, or None."""
+        return UP_GRAVITY[self.up_axis] if self.up_axis else None
+
+
+def carries_units(path: str | Path) -> bool:
+    """Whether the format of ``path`` gives its size in meters (USD, glTF/GLB), by suffix."""
+    return Path(path).suffix.lower() in USD_SUFFIXES + GLTF_SUFFIXES
+
+
+def missing_size(mesh: str) -> str | None:
+    """Why ``mesh`` (a path or ``generator:NAME``) needs a ``size_m``, or None when it carries
+    its own size (USD, glTF/GLB, the generators' real-size assets)."""
+    if mesh.startswith(GENERATOR_PREFIX):
+        from .generators import natural_size
+
+        return None if natural_size(mesh[len(GENERATOR_PREFIX):]) is not None else f"{mesh} is in arbitrary units"
+    if carries_units(mesh):
+        return None
+    return f"{mesh}: the {Path(mesh).suffix.lstrip('.').upper() or 'file'} format carries no units"
+
+
+def read_asset(path: str | Path) -> Asset:
+    """Read every visible mesh of ``path`` as one `Asset`.
+
+    USD (``.usd``, ``.usda``, ``.usdc``, ``.usdz``): every ``Mesh`` prim that is visible and
+    not a guide (proxies only when the stage has no render meshes), at its world transform
+    (earliest time sample), with the stage's ``metersPerUnit`` (USD's fallback when
+    unauthored: 0.01, centimetres) and ``upAxis``. glTF/GLB: every mesh node at its world
+    transform; meters, +Y up (the glTF spec). Anything else trimesh reads: as it is, no units.
+
+    Raises
+    ------
+    InputError
+        The file is missing, unreadable, holds no triangles, or has non-finite vertices.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"mesh file not found: {path}")
+    suffix = path.suffix.lower()
+    logging.getLogger("trimesh").setLevel(logging.ERROR)  # missing .mtl files are noise here
+    try:
+        if suffix in USD_SUFFIXES:
+            asset = _read_usd(path)
+        elif suffix in GLTF_SUFFIXES:
+            asset = _read_gltf(path)
+        else:
+            asset = _read_unitless(path, suffix)
+    except InputError:
+        raise
+    except Exception as exc:  # trimesh and usd-core raise many types for unreadable files
+        raise InputError(f"cannot read mesh {path}: {exc}") from None
+    if len(asset.faces) == 0 or len(asset.vertices) == 0:
+        raise InputError(f"mesh {path} holds no triangles")
+    if not np.isfinite(asset.vertices).all():
+        raise InputError(f"mesh {path} has NaN or infinite vertex coordinates")
+    if asset.meters_per_unit is not None and not (np.isfinite(asset.meters_per_unit) and asset.meters_per_unit > 0):
+        raise InputError(f"mesh {path} declares {asset.meters_per_unit!r} meters per unit; "
+                         "fix metersPerUnit in the file, or pass --size-m / size_m")
+    return asset
+
+
+def asset_gravity(mesh: str) -> tuple[float, float, float] | None:
+    """Gravity the up axis of ``mesh`` (a path or ``generator:NAME``) implies, None when its
+    format declares none. Reads only the stage's metadata for USD."""
+    suffix = Path(mesh).suffix.lower()
+    if mesh.startswith(GENERATOR_PREFIX) or suffix not in USD_SUFFIXES + GLTF_SUFFIXES:
+        return None  # generators are Y-up, as the default gravity
+    if suffix in GLTF_SUFFIXES:
+        return UP_GRAVITY["Y"]
+    from pxr import Usd, UsdGeom
+
+    try:
+        stage = Usd.Stage.Open(str(mesh), load=Usd.Stage.LoadNone)
+    except Exception as exc:
+        raise InputError(f"cannot read USD stage {mesh}: {exc}") from None
+    return UP_GRAVITY[_usd_up_axis(stage, UsdGeom)]
+
+
+def with_asset_gravity(mesh: str, values: dict) -> dict:
+    """``values`` (flat ``{"group.name": value}``) with ``water.gravity`` from the up axis of
+    ``mesh`` when they do not set it (and the file declares one)."""
+    if GRAVITY_KEY in values:
+        return values
+    gravity = asset_gravity(mesh)
+    return values if gravity is None else {**values, GRAVITY_KEY: list(gravity)}
+
+
+def _usd_up_axis(stage, UsdGeom) -> str:
+    return "Z" if UsdGeom.GetStageUpAxis(stage) == UsdGeom.Tokens.z else "Y"
+
+
+def _read_usd(path: Path) -> Asset:
+    from pxr import Usd, UsdGeom
+
+    stage = Usd.Stage.Open(str(path))
+    if stage is None:
+        raise InputError(f"cannot read USD stage {path}")
+    time = Usd.TimeCode.EarliestTime()  # a static value, or the first frame of an animation
+    xforms = UsdGeom.XformCache(time)
+    by_purpose: dict[str, list] = {"render": [], "proxy": []}
+    for prim in Usd.PrimRange.Stage(stage, Usd.TraverseInstanceProxies()):
+        if not prim.IsA(UsdGeom.Mesh):
+            continue
+        imageable = UsdGeom.Imageable(prim)
+        if imageable.ComputeVisibility(time) == UsdGeom.Tokens.invisible:
+            continue
+        purpose = imageable.ComputePurpose()
+        if purpose == UsdGeom.Tokens.guide:
+            continue
+        part = _usd_mesh(UsdGeom.Mesh(prim), np.array(xforms.GetLocalToWorldTransform(prim)), time, path)
+        by_purpose["proxy" if purpose == UsdGeom.Tokens.proxy else "render"].append(part)
+    parts = by_purpose["render"] or by_purpose["proxy"]  # a proxy stands in for its render mesh
+    if not parts:
+        raise InputError(f"USD stage {path} holds no visible Mesh prim")
+    vertices, faces = _concatenate(parts)
+    return Asset(vertices, faces, float(UsdGeom.GetStageMetersPerUnit(stage)), _usd_up_axis(stage, UsdGeom))
+
+
+def _usd_mesh(mesh, world: np.ndarray, time, path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """One ``UsdGeom.Mesh``'s points in world space ``(n, 3)`` and its faces fanned ``(m, 3)``.
+
+    ``world`` is USD's 4x4 row-vector matrix (``p' = [p, 1] @ world``).
+    """
+    points = np.asarray(mesh.GetPointsAttr().Get(time) or [], dtype=np.float64).reshape(-1, 3)
+    counts = np.asarray(mesh.GetFaceVertexCountsAttr().Get(time) or [], dtype=np.int64)
+    indices = np.asarray(mesh.GetFaceVertexIndicesAttr().Get(time) or [], dtype=np.int64)
+    holes = np.asarray(mesh.GetHoleIndicesAttr().Get(time) or [], dtype=np.int64)
+    name = f"{path}:{mesh.GetPath()}"
+    if counts.sum() != len(indices) or (counts < 0).any():
+        raise InputError(f"mesh {name}: faceVertexCounts add up to {counts.sum()}, "
+                         f"but there are {len(indices)} faceVertexIndices; fix the mesh in its DCC")
+    if len(indices) and (indices.min() < 0 or indices.max() >= len(points)):
+        raise InputError(f"mesh {name} has faces that name points it does not have")
+    keep = np.ones(len(counts), dtype=bool)
+    keep[holes[(holes >= 0) & (holes < len(counts))]] = False
+    faces = fan_triangulate(counts, indices, keep)
+    # A left-handed mesh, or a mirroring transform, winds its faces clockwise: turn them.
+    mirrored = np.linalg.det(world[:3, :3]) < 0
+    if (mesh.GetOrientationAttr().Get(time) == "leftHanded") != mirrored:
+        faces = faces[:, ::-1]
+    return points @ world[:3, :3] + world[3, :3], faces
+
+
+def fan_triangulate(counts: np.ndarray, indices: np.ndarray, keep: np.ndarray | None = None) -> np.ndarray:
+    """Polygons as triangle fans.
+
+    Parameters
+    ----------
+    counts : (f,) int
+        Corners of each polygon (USD's ``faceVertexCounts``); under 3: no triangle.
+    indices : (sum(counts),) int
+        Their vertex indices, polygon after polygon (``faceVertexIndices``).
+    keep : (f,) bool, optional
+        Polygons to triangulate (False: a hole).
+
+    Returns
+    -------
+    (sum(max(counts - 2, 0)), 3) int
+        Triangles ``(c0, ck, ck+1)``, wound as their polygons; exact for convex ones.
+    """
+    counts = np.asarray(counts, dtype=np.int64)
+    starts = np.cumsum(counts) - counts
+    triangles = np.maximum(counts - 2, 0) * (True if keep is None else keep)
+    polygon = np.repeat(np.arange(len(counts)), triangles)
+    k = np.arange(triangles.sum()) - np.repeat(np.cumsum(triangles) - triangles, triangles)  # 0..n-3
+    first = starts[polygon]
+    indices = np.asarray(indices, dtype=np.int64)
+    return np.column_stack([indices[first], indices[first + k + 1], indices[first + k + 2]])
+
+
+def _read_gltf(path: Path) -> Asset:
+    scene = trimesh.load(path, process=False)
+    if isinstance(scene, trimesh.Trimesh):
+        scene = trimesh.Scene(scene)
+    parts = []
+    for node in scene.graph.nodes_geometry:
+        world, name = scene.graph[node]
+        geometry = scene.geometry.get(name)
+        if isinstance(geometry, trimesh.Trimesh) and len(geometry.faces):  # not points or lines
+            faces = np.asarray(geometry.faces, dtype=np.int64)
+            parts.append((trimesh.transform_points(geometry.vertices, world),
+                          faces[:, ::-1] if np.linalg.det(world[:3, :3]) < 0 else faces))
+    if not parts:
+        raise InputError(f"glTF file {path} holds no triangle mesh")
+    vertices, faces = _concatenate(parts)
+    return Asset(vertices, faces, 1.0, "Y")  # the glTF spec: meters, +Y up
+
+
+def _read_unitless(path: Path, suffix: str) -> Asset:
+    try:
+        loaded = trimesh.load(path, force="mesh", process=False)
+    except (UnicodeDecodeError, ImportError):
+        # Not UTF-8: trimesh asks charset_normalizer (not installed) to guess, or fails.
+        # The geometry is ASCII in every such format; only comments and names are not.
+        data = _as_utf8(path.read_bytes(), suffix)
+        loaded = trimesh.load(file_obj=io.BytesIO(data), file_type=suffix.lstrip("."), force="mesh",
+                              process=False, resolver=trimesh.resolvers.FilePathResolver(path))
+    if not isinstance(loaded, trimesh.Trimesh):
+        raise InputError(f"mesh {path} holds no triangles")
+    return Asset(np.asarray(loaded.vertices, dtype=np.float64), np.asarray(loaded.faces, dtype=np.int64))
+
+
+def _as_utf8(data: bytes, suffix: str) -> bytes:
+    """A mesh file's bytes with its non-UTF-8 text made readable.
+
+    PLY: bytes over 127 in the (ASCII) header become ``?``, byte for byte, so a binary body
+    stays where it was. Other text formats (OBJ, OFF, ASCII STL): decoded as latin-1, which
+    maps every byte (cp1252's letters too, as their latin-1 code points), written as UTF-8.
+    """
+    if suffix == ".ply":
+        end = data.find(b"end_header")
+        header = bytes(b if b < 128 else ord("?") for b in data[:max(end, 0)])
+        return header + data[len(header):]
+    return data.decode("latin-1").encode("utf-8")
+
+
+def _concatenate(parts: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:
+    """Meshes ``[(vertices, faces), ...]`` as one ``(vertices, faces)``."""
+    offsets = np.cumsum([0] + [len(v) for v, _ in parts[:-1]])
+    vertices = np.concatenate([v for v, _ in parts]).astype(np.float64)
+    faces = np.concatenate([f + o for (_, f), o in zip(parts, offsets)]).astype(np.int64)
+    return vertices, faces.reshape(-1, 3)
