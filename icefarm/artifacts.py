@@ -179,10 +179,12 @@ def read_water_ply(path: Path, vertex_count: int) -> tuple[np.ndarray, np.ndarra
 
 
 def drips_to_json(drips: DripResult) -> dict:
+    growth = [None] * len(drips.water) if drips.growth is None else drips.growth
     return {
         "drip_points": [
-            {"position": p.tolist(), "normal": n.tolist(), "water": float(w), "face": int(f)}
-            for p, n, w, f in zip(drips.positions, drips.normals, drips.water, drips.faces)
+            {"position": p.tolist(), "normal": n.tolist(), "water": float(w), "face": int(f),
+             **({} if t is None else {"growth": round(float(t), 6)})}
+            for p, n, w, f, t in zip(drips.positions, drips.normals, drips.water, drips.faces, growth)
         ],
         "region_faces": drips.region_faces.tolist(),
     }
@@ -198,6 +200,8 @@ def drips_from_json(path: Path) -> DripResult:
             normals=np.asarray([p["normal"] for p in points], dtype=np.float64).reshape(-1, 3),
             water=np.asarray([p["water"] for p in points], dtype=np.float64),
             faces=np.asarray([p.get("face", -1) for p in points], dtype=np.int64),
+            growth=(np.asarray([p["growth"] for p in points], dtype=np.float64)
+                    if points and all("growth" in p for p in points) else None),
         )
     except (OSError, ValueError, KeyError, TypeError) as exc:
         raise InputError(f"{path}: not a drips.json ({exc})") from None
@@ -218,13 +222,15 @@ def trajectories_to_json(traj: TrajectoryResult) -> dict:
         })
         if cut[b] > 0:  # the ground stopped it: meters it would have grown on
             entry["branches"][-1]["cut"] = round(float(cut[b]), 6)
+        if traj.branch_growth is not None:  # a physical storm's own growth ratio
+            entry["branches"][-1]["growth"] = round(float(traj.branch_growth[b]), 6)
     return {"icicles": list(icicles.values())}
 
 
 def trajectories_from_json(path: Path) -> TrajectoryResult:
     try:
         data = json.loads(Path(path).read_text())
-        points, offsets, icicle, parent, cut = [], [0], [], [], []
+        points, offsets, icicle, parent, cut, growth = [], [0], [], [], [], []
         for entry in data["icicles"]:
             base = len(icicle)
             for branch in entry["branches"]:
@@ -234,12 +240,14 @@ def trajectories_from_json(path: Path) -> TrajectoryResult:
                 icicle.append(int(entry["drip_point"]))
                 parent.append(-1 if branch["parent"] < 0 else base + int(branch["parent"]))
                 cut.append(float(branch.get("cut", 0.0)))
+                growth.append(branch.get("growth"))
         return TrajectoryResult(
             points=np.concatenate(points) if points else np.zeros((0, 3)),
             branch_offsets=np.asarray(offsets, dtype=np.int64),
             branch_icicle=np.asarray(icicle, dtype=np.int64),
             branch_parent=np.asarray(parent, dtype=np.int64),
             branch_cut=np.asarray(cut, dtype=np.float64) if any(cut) else None,
+            branch_growth=np.asarray(growth, dtype=np.float64) if growth and None not in growth else None,
         )
     except (OSError, ValueError, KeyError, TypeError) as exc:
         raise InputError(f"{path}: not a trajectories.json ({exc})") from None

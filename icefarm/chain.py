@@ -28,7 +28,7 @@ from .placement import Placement, ground_height, ground_level, sole_vertices, st
 from .stage_cache import digest, file_digest
 from .stages.drips import DripResult, find_drips
 from .stages.trajectories import TrajectoryResult, grow_trajectories
-from .stages.storm import icicle_lengths, refine, storm_water
+from .stages.storm import growth_ratios, icicle_lengths, refine, storm_water, thickening_m
 from .stages.water import WaterResult, compute_water
 from .params import typed
 
@@ -245,18 +245,18 @@ def _run(prepared, p, seed, placement, exclude, overrides, source, until, mesh_k
                            min_fall=d["min_fall"], floor=ground_level(placement, obj, gravity),
                            min_water=d["min_length"] / kl, shed=shed, to_water=to_water)
         if shed is not None and len(found.positions):
-            # The glaze at the rim swallows the icicle's first centimetres: it hangs its
-            # length below the ice, not below the bare object.
-            corners = flow.faces[found.faces]
-            coat = water.storm.ice[corners].max(axis=1)
-            found = dataclasses.replace(found, water=found.water + coat / kl)
+            # Each icicle thickens as the storm does, whatever its water; and the glaze at the
+            # rim swallows its first centimetres: it hangs its length below the ice.
+            growth = growth_ratios(found.water * kl, thickening_m(storm), p["surface"]["growth_ratio"])
+            coat = water.storm.ice[flow.faces[found.faces]].max(axis=1)
+            found = dataclasses.replace(found, water=found.water + coat / kl, growth=growth)
         if flow is obj:
             return found
         from .proxy import snap_to_surface
 
         # Icicles hang from the real object: move each drip point onto it.
         points, normals, faces = snap_to_surface(found.positions, obj)
-        return DripResult(found.region_faces, points, normals, found.water, faces)
+        return DripResult(found.region_faces, points, normals, found.water, faces, found.growth)
 
     drips = advance("drips", drips_key, drips_stage, "drips")
     if stops(until, Stage.DRIPS):
@@ -278,6 +278,8 @@ def _run(prepared, p, seed, placement, exclude, overrides, source, until, mesh_k
             result = grow_trajectories(obj, drips.positions, lift, drips.water, gravity,
                                        stage_rng(seed, Stage.TRAJECTORIES), drip_limit=p["drips"]["drip_limit"],
                                        caster=caster(obj), **p["trajectories"])
+        if drips.growth is not None and result.n_branches:
+            result = dataclasses.replace(result, branch_growth=drips.growth[result.branch_icicle])
         if grounded:  # an icicle that reaches the ground stops at it
             result = stop_at_ground(result, gravity, ground_height(obj.vertices, gravity), p["surface"]["tip_radius"])
         return result

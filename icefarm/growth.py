@@ -171,7 +171,7 @@ def trajectories_at(traj: TrajectoryResult, fraction: float) -> TrajectoryResult
     out[new_off[1:][partial] - 1] = pts[last] + t[:, None] * (pts[last + 1] - pts[last])
     cut = None if traj.branch_cut is None else np.where(alive, grown - kept, 0.0)
     return TrajectoryResult(points=out, branch_offsets=new_off, branch_icicle=traj.branch_icicle,
-                            branch_parent=traj.branch_parent, branch_cut=cut)
+                            branch_parent=traj.branch_parent, branch_cut=cut, branch_growth=traj.branch_growth)
 
 
 def stage4_inputs_at(drips: DripResult, glaze: GlazeParams | Mapping,

@@ -138,13 +138,13 @@ PARAMS: tuple[Param, ...] = (
     _p("storm", "precipitation", "P", "mm", _F, 0.0,
        "precipitation depth in mm of water (rain, or melted snow for meltwater); 0: the "
        "intensity's", low=0.0),
-    _p("storm", "freeze", "-", "-", _F, 0.7,
+    _p("storm", "freeze", "-", "-", _F, 0.5,
        "share of the rain on a level face that freezes where it lands (a heat budget per area); "
        "the rest runs off towards the rims", low=0.0, high=1.0),
     _p("storm", "wall_freeze", "-", "-", _F, 0.5,
        "freezing budget of a vertical or downward face over a level one's (they lose less heat "
        "and shed their film faster)", low=0.0, high=1.0),
-    _p("storm", "icicle_share", "-", "-", _F, 0.5,
+    _p("storm", "icicle_share", "-", "-", _F, 0.7,
        "share of the water reaching a drip point that freezes on its icicle; the rest drips off "
        "the tip to the ground (Makkonen 1988)", low=0.0, high=1.0, low_open=True),
     _p("storm", "max_icicles", "-", "-", _I, 2000,

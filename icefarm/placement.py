@@ -79,7 +79,7 @@ def stop_at_ground(traj: TrajectoryResult, gravity, floor: float, margin: float)
     return TrajectoryResult(points=np.concatenate(kept) if kept else np.zeros((0, 3)),
                             branch_offsets=np.r_[0, np.cumsum(counts)].astype(np.int64),
                             branch_icicle=traj.branch_icicle, branch_parent=traj.branch_parent,
-                            branch_cut=cut)
+                            branch_cut=cut, branch_growth=traj.branch_growth)
 
 
 def _polyline_length(points: np.ndarray) -> float:

@@ -39,14 +39,14 @@ def test_presets_leave_their_radial_ice_on_a_bar():
 
 def test_water_is_conserved_and_a_flat_top_gains_its_share():
     mesh = _slab()
-    storm = _storm(mesh, freeze=0.7)
+    storm = _storm(mesh, freeze=0.5)
     b = storm.budget
     assert b.caught == pytest.approx(b.frozen + b.shed + b.pooled, rel=1e-9)
     assert b.pooled == pytest.approx(0.0, abs=1e-12)  # a level top drains to its rims
     P = precipitation_m("moderate")
     assert b.caught == pytest.approx(P * 0.9 * 0.9, rel=0.02)  # only the top catches vertical rain
     top = (mesh.vertices[:, 1] > 0.7 - 1e-6) & (np.abs(mesh.vertices[:, [0, 2]]).max(axis=1) < 0.4)
-    assert np.median(storm.ice[top]) == pytest.approx(0.7 * P * WATER_TO_ICE, rel=0.05)
+    assert np.median(storm.ice[top]) == pytest.approx(0.5 * P * WATER_TO_ICE, rel=0.05)
     assert storm.shed.sum() > 0.2 * b.caught  # the rest drips at the rims
 
 
@@ -70,7 +70,7 @@ def test_an_overhang_shades_what_lies_under_it():
 
 def test_steeper_faces_freeze_less_of_their_catch():
     # A gable: two slopes; the glaze on a 60-degree roof is thinner than on a level one.
-    level = precipitation_m("moderate") * 0.7 * WATER_TO_ICE
+    level = precipitation_m("moderate") * 0.5 * WATER_TO_ICE
     steep = trimesh.creation.box([1.0, 0.05, 1.0])
     steep.apply_transform(trimesh.transformations.rotation_matrix(math.radians(60), [0, 0, 1]))
     steep = refine(steep, 0.025)
@@ -85,7 +85,8 @@ def test_meltwater_keeps_the_glaze_near_the_rims():
     rain = _storm(mesh)
     middle = (np.abs(mesh.vertices[:, [0, 2]]).max(axis=1) < 0.5) & (mesh.vertex_normals @ -G > 0.9)
     assert melt.ice[middle].max() == 0 and rain.ice[middle].min() > 0
-    assert melt.shed.sum() > 2 * rain.shed.sum()  # the melt runs to the eaves
+    # the melt runs to the eaves; the rain freezes where it lands
+    assert melt.budget.shed > 0.8 * melt.budget.caught and rain.budget.shed < 0.6 * rain.budget.caught
 
 
 def test_icicle_length_inverts_its_volume():
@@ -127,3 +128,28 @@ def test_relative_mode_keeps_the_paper_knobs():
                         "drips.min_fall": 0.0, "drips.min_length": 0.0, "drips.ground_clearance": 0.0})
     r = run_stages(prep, p, until=Stage.DRIPS, placement="hanging")
     assert r.water.storm is None and len(r.drips.positions) == 7
+
+
+def test_short_icicles_thicken_as_the_storm_does_long_ones_as_real_ones():
+    from icefarm.stages.storm import growth_ratios
+
+    t = growth_ratios(np.array([0.02, 0.05, 0.1, 0.5, 2.0]), 0.006, 0.0625)
+    assert t[0] == pytest.approx(0.25) and t[1] == pytest.approx(0.12)  # a stub: a cone, not a straw
+    assert t[-1] == pytest.approx(0.0625) and np.all(np.diff(t) <= 0)
+    # the taper at 10 % below the base of a 4 cm icicle of the storm passes 3
+    tip, L = 0.00244, 0.04
+    base = tip + growth_ratios(L, 0.006, 0.0625) * L ** 0.25 * (0.9 * L) ** 0.75
+    assert base / tip > 3.0
+
+
+def test_branch_growth_survives_the_job_files(tmp_path):
+    from icefarm.artifacts import trajectories_from_json, trajectories_to_json
+    from icefarm.stages.trajectories import TrajectoryResult
+    import json
+
+    traj = TrajectoryResult(points=np.array([[0, 0, 0], [0, -0.1, 0], [0, 0, 0.05], [0, -0.05, 0.05]]),
+                            branch_offsets=np.array([0, 2, 4]), branch_icicle=np.array([0, 1]),
+                            branch_parent=np.array([-1, -1]), branch_growth=np.array([0.0625, 0.2]))
+    path = tmp_path / "trajectories.json"
+    path.write_text(json.dumps(trajectories_to_json(traj)))
+    assert trajectories_from_json(path).growth(0.01) == pytest.approx([0.0625, 0.2])

@@ -42,6 +42,9 @@ class DripResult:
         (``water``, `catchment_water`).
     faces : (k,) int
         Face holding each drip point.
+    growth : (k,) float or None
+        A physical storm's growth ratio of each drip point's icicle (`icefarm.stages.storm.
+        growth_ratios`); None: ``surface.growth_ratio``.
     """
 
     region_faces: np.ndarray
@@ -49,6 +52,7 @@ class DripResult:
     normals: np.ndarray
     water: np.ndarray
     faces: np.ndarray
+    growth: np.ndarray | None = None
 
 
 def drip_criterion(normals: np.ndarray, gravity: np.ndarray, drip_limit: float) -> np.ndarray:

@@ -61,6 +61,9 @@ MELT_RIM_BAND = 0.1
 # proportion to it (lt 0: it freezes where it lands). A rail's 6 cm side keeps a fifth of
 # what runs over it; the rest drips from its underside as icicles.
 RUNOUT_M = 0.25
+# Largest growth ratio (base radius added per meter of length) of a storm's icicle: a stub
+# that thickened as the storm does is at most a cone half as wide as it is long.
+GROWTH_MAX = 0.25
 # glaze.lifetime moves the freezing budget along the water's walk by at most this share
 # (lt 0: 1.5x at the top, 0.5x at the bottom; lt 0.5: even).
 LIFETIME_CONTRAST = 1.0
@@ -289,32 +292,49 @@ def _flow(catch, capacity, passing, tilt, nxt, order, outlet):
     return np.asarray(frozen), np.asarray(shed), np.asarray(pooled)
 
 
-def icicle_volume(length, tip: float, growth: float, shape: str = "physical"):
+def icicle_volume(length, tip: float, growth, shape: str = "physical"):
     """Volume of an icicle of ``length`` meters (array-like), m^3: the solid of its profile.
 
     ``physical``: ``r = tip + t L^(1/4) d^(3/4)`` gives ``pi (tip^2 L + 8/7 tip t L^2 + 2/5 t^2 L^3)``;
-    ``paper``: ``r = tip + t d`` gives ``pi (tip^2 L + tip t L^2 + t^2 L^3 / 3)``.
+    ``paper``: ``r = tip + t d`` gives ``pi (tip^2 L + tip t L^2 + t^2 L^3 / 3)``. ``growth`` t
+    may be an array like ``length``.
     """
     L = np.asarray(length, dtype=np.float64)
+    t = np.asarray(growth, dtype=np.float64)
     if shape == "physical":
-        return math.pi * (tip * tip * L + 8.0 / 7.0 * tip * growth * L ** 2 + 0.4 * growth ** 2 * L ** 3)
-    return math.pi * (tip * tip * L + tip * growth * L ** 2 + growth ** 2 * L ** 3 / 3.0)
+        return math.pi * (tip * tip * L + 8.0 / 7.0 * tip * t * L ** 2 + 0.4 * t ** 2 * L ** 3)
+    return math.pi * (tip * tip * L + tip * t * L ** 2 + t ** 2 * L ** 3 / 3.0)
 
 
-def length_from_volume(volume, tip: float, growth: float, shape: str = "physical") -> np.ndarray:
-    """``(k,)`` length in meters of icicles holding ``volume`` m^3 of ice (`icicle_volume` inverted
-    by bisection: it rises monotonically with the length)."""
+def growth_ratios(length, thickening: float, growth: float) -> np.ndarray:
+    """``(k,)`` growth ratio t of icicles ``length`` meters long whose base thickened at least
+    ``thickening`` meters: ``thickening / L``, at least ``growth`` (a long icicle's, the
+    widening measured on real ones) and at most `GROWTH_MAX`."""
+    L = np.maximum(np.asarray(length, dtype=np.float64), 1e-9)
+    return np.clip(thickening / L, growth, max(growth, GROWTH_MAX))
+
+
+def length_from_volume(volume, tip: float, growth: float, shape: str = "physical",
+                       thickening: float | None = None) -> np.ndarray:
+    """``(k,)`` length in meters of icicles holding ``volume`` m^3 of ice (`icicle_volume`
+    inverted by bisection: it rises monotonically with the length). With ``thickening``
+    (meters) each icicle's growth ratio is `growth_ratios` of its length (at least
+    ``growth``)."""
     volume = np.maximum(np.asarray(volume, dtype=np.float64).reshape(-1), 0.0)
+
+    def held(L):
+        return icicle_volume(L, tip, growth if thickening is None else growth_ratios(L, thickening, growth), shape)
+
     lo = np.zeros_like(volume)
     hi = np.full_like(volume, 1.0)
     while True:  # widen until every volume is bracketed
-        short = icicle_volume(hi, tip, growth, shape) < volume
+        short = held(hi) < volume
         if not short.any():
             break
         hi[short] *= 2.0
     for _ in range(50):
         mid = 0.5 * (lo + hi)
-        small = icicle_volume(mid, tip, growth, shape) < volume
+        small = held(mid) < volume
         lo = np.where(small, mid, lo)
         hi = np.where(small, hi, mid)
     return 0.5 * (lo + hi)
@@ -363,14 +383,24 @@ def storm_water(mesh: trimesh.Trimesh, gravity, storm, *, lifetime: float, drip_
                        hits=np.asarray(mesh.vertices)[supply], storm=result)
 
 
+def thickening_m(storm) -> float:
+    """Meters an icicle's base thickens at least over the storm: the radial ice of a bar that
+    freezes ``storm.freeze`` of its rain, ``freeze P rho_w / (pi rho_i)`` (Jones 1998).
+    Thickening is set by the heat the icicle loses more than by its water (Makkonen 1988:
+    more water lowers lengthening, not thickening), so a short icicle is a stubby cone, not a
+    straw; a long one widens by ``surface.growth_ratio`` of its length, as real ones do."""
+    return storm.freeze * precipitation_m(storm.intensity, storm.precipitation) * WATER_TO_ICE / math.pi
+
+
 def icicle_lengths(volume, storm, surface) -> np.ndarray:
     """``(k,)`` meters: icicles from ``volume`` (k,) m^3 of water reaching their drip points.
 
     ``storm.icicle_share`` of it freezes on the icicle (the rest drips off its tip); the
     ice's volume gives the length through the icicle's profile (`length_from_volume` with
-    ``surface.tip_radius``, ``growth_ratio`` and ``profile``)."""
+    ``surface.tip_radius`` and ``profile``; each icicle thickens `thickening_m`)."""
     ice = np.asarray(volume, dtype=np.float64) * storm.icicle_share * WATER_TO_ICE
-    return length_from_volume(ice, surface["tip_radius"], surface["growth_ratio"], surface["profile"])
+    return length_from_volume(ice, surface["tip_radius"], surface["growth_ratio"], surface["profile"],
+                              thickening=thickening_m(storm))
 
 
 # The refined flow surface holds about this many faces at most (a 3 m house at 2.5 cm

@@ -40,6 +40,10 @@ class TrajectoryResult:
         Meters of each branch that something below took away (`icefarm.placement.
         stop_at_ground`): the icicle reached the ground and stopped lengthening, but its
         water kept thickening it as if it were that much longer. None: nothing was cut.
+    branch_growth : (b,) float or None
+        Growth ratio of each branch's profile (base radius added per meter of length) under
+        a physical storm, whose short icicles thicken as much as long ones (its icicle's,
+        `icefarm.stages.storm.growth_ratios`). None: ``surface.growth_ratio`` for all.
     """
 
     points: np.ndarray
@@ -47,6 +51,7 @@ class TrajectoryResult:
     branch_icicle: np.ndarray
     branch_parent: np.ndarray
     branch_cut: np.ndarray | None = None
+    branch_growth: np.ndarray | None = None
 
     @property
     def n_branches(self) -> int:
@@ -58,6 +63,12 @@ class TrajectoryResult:
         if self.branch_cut is None:
             return np.zeros(self.n_branches)
         return np.asarray(self.branch_cut, dtype=np.float64)
+
+    def growth(self, default: float) -> np.ndarray:
+        """``(b,)`` growth ratio of each branch (`branch_growth`, ``default`` when None)."""
+        if self.branch_growth is None:
+            return np.full(self.n_branches, float(default))
+        return np.asarray(self.branch_growth, dtype=np.float64)
 
     def branch(self, i: int) -> np.ndarray:
         """``(k, 3)`` points of branch ``i``."""

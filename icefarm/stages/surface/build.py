@@ -167,7 +167,8 @@ def budget_voxel(traj: TrajectoryResult, surface: SurfaceParams, faces: float) -
     branch a solid of its profile: mean radius ``tip + 4/7 t L``), never past the tip radius
     (a tip narrower than two voxels would break up)."""
     _, lengths = _branch_lengths(traj)
-    area = float((2.0 * np.pi * (surface.tip_radius + 4.0 / 7.0 * surface.growth_ratio * lengths) * lengths).sum())
+    growth = traj.growth(surface.growth_ratio)
+    area = float((2.0 * np.pi * (surface.tip_radius + 4.0 / 7.0 * growth * lengths) * lengths).sum())
     if faces <= 0 or area <= 0:
         return surface.voxel_size
     wanted = np.sqrt(FACES_PER_VOXEL_AREA * area / faces)
@@ -181,4 +182,7 @@ def _root_radius(traj: TrajectoryResult, k: int, surface: SurfaceParams) -> np.n
     trunk_length = np.zeros(k)
     trunks = np.flatnonzero(np.asarray(traj.branch_parent) < 0)
     trunk_length[np.asarray(traj.branch_icicle)[trunks]] = grown_lengths(lengths[trunks], traj.cut[trunks])
-    return smooth_radius(0.0, trunk_length, **profile_args(surface))
+    prof = profile_args(surface)
+    growth = np.full(k, prof.pop("growth"))
+    growth[np.asarray(traj.branch_icicle)[trunks]] = traj.growth(surface.growth_ratio)[trunks]
+    return smooth_radius(0.0, trunk_length, growth=growth, **prof)

@@ -87,7 +87,8 @@ def curtain_balls(traj: TrajectoryResult, surface: SurfaceParams | Mapping, grav
     x_pt, lengths = _branch_lengths(traj)
     grown = grown_lengths(lengths, traj.cut)
     prof = profile_args(surface)
-    radius = smooth_radius(x_pt, np.repeat(grown, np.diff(off)), **prof)
+    growth = np.repeat(traj.growth(prof.pop("growth")), np.diff(off))
+    radius = smooth_radius(x_pt, np.repeat(grown, np.diff(off)), growth=growth, **prof)
     bases = pts[off[trunks]]
     pairs = _neighbour_pairs(bases, distance)
     step = surface.voxel_size

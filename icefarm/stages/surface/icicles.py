@@ -39,9 +39,10 @@ def icicle_balls(traj: TrajectoryResult, surface: SurfaceParams | Mapping, rng: 
         return NO_BALLS
     x_pt, all_lengths = _branch_lengths(traj)
     grown = grown_lengths(all_lengths[branches], traj.cut[branches])
+    growth = traj.growth(prof.pop("growth"))[branches]  # per branch under a physical storm
     # A cut branch ends on the ground in a foot wider than the tip's drop: its chain stops
     # short by the difference, so the foot rests on the ground instead of sinking into it.
-    foot = smooth_radius(all_lengths[branches], grown, **prof) - tip + FOOT_CLEARANCE * tip
+    foot = smooth_radius(all_lengths[branches], grown, growth=growth, **prof) - tip + FOOT_CLEARANCE * tip
     lengths = np.where(traj.cut[branches] > 0, np.maximum(all_lengths[branches] - foot, 0.0), all_lengths[branches])
     nb = len(branches)
 
@@ -52,7 +53,7 @@ def icicle_balls(traj: TrajectoryResult, surface: SurfaceParams | Mapping, rng: 
     fstart = np.cumsum(nfine) - nfine
     fj = np.arange(nfine.sum()) - np.repeat(fstart, nfine)
     fx = fj * (lengths / (nfine - 1))[fb]
-    fr = smooth_radius(fx, grown[fb], **prof)
+    fr = smooth_radius(fx, grown[fb], growth=growth[fb], **prof)
     inv_h = 1.0 / (SPACING * KAPPA * fr)
     du = np.zeros_like(fx)
     du[1:] = 0.5 * (inv_h[1:] + inv_h[:-1]) * np.diff(fx)
@@ -69,7 +70,7 @@ def icicle_balls(traj: TrajectoryResult, surface: SurfaceParams | Mapping, rng: 
     target = (u[fstart] + gap)[bb] + bk * np.where(nint > 0, u_len / np.maximum(nint, 1), 0.0)[bb]
     bx = np.interp(target, ug, fx)
     bx[bk == nint[bb]] = lengths[bb][bk == nint[bb]]  # the last ball exactly at the tip
-    radius = smooth_radius(bx, grown[bb], **prof)
+    radius = smooth_radius(bx, grown[bb], growth=growth[bb], **prof)
 
     pos, tangent = _points_along(traj, x_pt, all_lengths, branches[bb], bx)
 

@@ -55,18 +55,20 @@ def carve_ripples(vertices: np.ndarray, traj: TrajectoryResult, prof: dict) -> n
     x_pt, lengths = _branch_lengths(traj)
     L = lengths[branches]
     grown = grown_lengths(L, traj.cut[branches])
+    prof = dict(prof)
+    growth = traj.growth(prof.pop("growth"))[branches]
     step = min(2 * np.pi / frequency / SAMPLES_PER_WAVE, tip)
     n = np.ceil(L / step).astype(np.int64) + 1
     owner = np.repeat(np.arange(len(branches)), n)
     k = np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)
     x = k * (L / np.maximum(n - 1, 1))[owner]
     axis, tangent = _points_along(traj, x_pt, lengths, branches[owner], x)
-    radius = smooth_radius(x, grown[owner], **prof)
+    radius = smooth_radius(x, grown[owner], growth=growth[owner], **prof)
     # Each branch's rings start at their own phase (the golden angle apart: no draw from the
     # stage's stream): neighbours in phase stacked into a column of glass plates at lookdev.
     phase = (branches * GOLDEN_ANGLE) % (2 * np.pi)
     wave = ripple(x, grown[owner], tip, amplitude, frequency, phase[owner]) \
-        * np.clip(x / smooth_radius(0.0, grown[owner], **prof), 0, 1)
+        * np.clip(x / smooth_radius(0.0, grown[owner], growth=growth[owner], **prof), 0, 1)
     wave *= np.clip((radius - tip) / (RIPPLE_WIDENING * tip), 0, 1)
 
     reach = REACH * radius.max() + amplitude

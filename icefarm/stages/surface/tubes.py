@@ -54,7 +54,8 @@ def tube_mesh(traj: TrajectoryResult, surface: SurfaceParams | Mapping, gravity=
     rk = np.arange(n.sum()) - first[rb]
     xr = rk * (L / (n - 1))[rb]
     centre, _ = _points_along(traj, x_pt, lengths, branches[rb], xr)
-    radius = profile_radius(xr, grown_lengths(L, traj.cut[branches])[rb], **prof)
+    growth = traj.growth(prof.pop("growth"))[branches]
+    radius = profile_radius(xr, grown_lengths(L, traj.cut[branches])[rb], growth=growth[rb], **prof)
     # Tangents by central differences within each tube (one-sided at its ends).
     last = first + n - 1
     ahead = centre[np.minimum(np.arange(len(rb)) + 1, last[rb])]
