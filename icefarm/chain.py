@@ -331,6 +331,16 @@ def build_surface(obj: trimesh.Trimesh, flow: trimesh.Trimesh, water: WaterResul
     """
     from .stages.surface import build_ice
 
-    return build_ice(obj, flow, water, drips, traj, params["surface"], params["glaze"] if glaze is None else glaze,
-                     gravity, rng, exclude=sole(flow, params, gravity, placement), cast=cast, measure=False,
-                     extra_balls=extra_balls)
+    ice = build_ice(obj, flow, water, drips, traj, params["surface"], params["glaze"] if glaze is None else glaze,
+                    gravity, rng, exclude=sole(flow, params, gravity, placement), cast=cast, measure=False,
+                    extra_balls=extra_balls)
+    floor = ground_level(placement, obj, gravity)
+    if floor is None or len(ice.vertices) == 0:
+        return ice
+    # Ice cannot sink into the ground: a foot the metaballs' blend pushed a hair below it
+    # (fat stubs bulge past their balls) spreads flat on it instead.
+    g = np.asarray(gravity, dtype=np.float64)
+    below = np.minimum(ice.vertices @ -g - floor, 0.0)
+    if not below.any():
+        return ice
+    return dataclasses.replace(ice, vertices=ice.vertices + below[:, None] * g)

@@ -204,12 +204,41 @@ def export_command(job_dir, fmt, out):
     click.echo(f"done: {write(Path(job_dir), out)}")
 
 
+# A job whose icicles are fewer than this, or whose trunks are shorter than this (m), or whose
+# glaze is thinner than this (mm) reads as bare at lookdev: the run summary says so.
+FEW_ICICLES = 5
+SHORT_TRUNK_M = 0.01
+THIN_GLAZE_MM = 0.5
+
+
+def _print_storm(timings: dict) -> None:
+    """What a physical storm did, and one warning line when it left almost nothing visible."""
+    kind = timings["storm_kind"].replace("_", " ")
+    icicles, per_m = timings.get("icicles", 0), timings.get("icicles_per_m", 0.0)
+    click.echo(f"  storm: {timings['storm_intensity']} {kind}, {timings['precipitation_mm']:.0f} mm of water: "
+               f"glaze {timings['storm_glaze_p50_mm']:.1f} mm (p50 where it froze); {icicles} icicles, "
+               f"{per_m:.0f} per m of drip rim ({timings.get('drip_rim_m', 0.0):.2f} m); the water: "
+               f"{100 * timings['water_frozen']:.0f} % glaze, {100 * timings['water_shed']:.0f} % dripped, "
+               f"{100 * timings['water_pooled']:.0f} % pooled")
+    lengths = timings.get("trunk_lengths_m") or []
+    longest = max([v for v in lengths if v is not None], default=0.0)
+    if icicles < FEW_ICICLES or (lengths and longest < SHORT_TRUNK_M):
+        size = "under 1 cm" if lengths and longest < SHORT_TRUNK_M else f"up to {100 * longest:.0f} cm"
+        click.echo(f"  warning: {icicles} icicles {size}: a {timings['storm_intensity']} storm on a small object "
+                   "or one with little rim; try storm.intensity=severe or a larger size_m")
+    elif timings["storm_glaze_p50_mm"] < THIN_GLAZE_MM:
+        click.echo(f"  warning: glaze {timings['storm_glaze_p50_mm']:.1f} mm: too thin to read; raise "
+                   "storm.precipitation or storm.freeze")
+
+
 def _print_plausibility(timings: dict) -> None:
     if "upward_share" in timings:
         share, spread, cv = (timings.get(k) for k in ("upward_share", "branch_spread_mm", "length_cv"))
         click.echo(f"  trajectories: {'-' if share is None else f'{100 * share:.0f}'} % of segments upward "
                    f"(real: 0); branches spread {'-' if spread is None else f'{spread:.0f}'} mm from their "
                    f"parent; trunk lengths vary {'-' if cv is None else f'{100 * cv:.0f}'} % (std / mean)")
+    if "storm_kind" in timings:
+        _print_storm(timings)
     if "ice_faces" not in timings:
         return
     click.echo(f"  ice: {timings['ice_faces']} faces, {timings.get('icicles', 0)} icicles")
@@ -263,6 +292,11 @@ def params_command(as_json):
             group = row["group"]
             click.echo(f"[{group}]")
         click.echo("  ".join(v.ljust(w) for v, w in zip(line, widths)) + "  " + row["doc"])
+    from .stages.storm import constants
+
+    click.echo("[constants of the storm model (icefarm.stages.storm)]")
+    for c in constants():
+        click.echo(f"{c.name:<24} {c.value:<10g} {c.unit:<7} {c.domain:<8} {c.source}")
 
 
 @main.group()

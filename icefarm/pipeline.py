@@ -29,6 +29,7 @@ from .scene.camera import frame_boxes
 from .stage_cache import StageCache, digest as _digest, file_digest as _file_digest
 from .scene.material import Material
 from .stages.drips import Box, DripResult
+from .stages.storm import drip_rim_length
 from .stages.trajectory_stats import measure_trajectories
 
 GENERATOR_PREFIX = "generator:"
@@ -171,6 +172,20 @@ def run_job(spec: JobSpec, job_dir: Path, cache_dir: Path | None = None,
     return JobOutcome(JobState.DONE, dict(run.seconds), tuple(cache.reused))
 
 
+def storm_figures(storm, group: dict) -> dict:
+    """What a physical storm did, for timings.json and the run summary: its kind, class and
+    precipitation, the glaze's median thickness where it froze, and where the water went."""
+    from .stages.storm import precipitation_m
+
+    ice = storm.ice[storm.ice > 0]
+    caught = storm.budget.caught or 1.0
+    return {"storm_kind": group["kind"], "storm_intensity": group["intensity"],
+            "precipitation_mm": round(1000 * precipitation_m(group["intensity"], group["precipitation"]), 2),
+            "storm_glaze_p50_mm": round(1000 * float(np.median(ice)), 2) if len(ice) else 0.0,
+            "water_frozen": round(storm.budget.frozen / caught, 4), "water_shed": round(storm.budget.shed / caught, 4),
+            "water_pooled": round(storm.budget.pooled / caught, 4)}
+
+
 def _run_stages(spec: JobSpec, job_dir: Path, run: _Run, cache: StageCache, until: Stage | None) -> dict:
     p = spec.params
     gravity = unit_gravity(p)
@@ -191,9 +206,14 @@ def _run_stages(spec: JobSpec, job_dir: Path, run: _Run, cache: StageCache, unti
         elif name == "water":
             stats["flow_faces"] = len(r.flow.faces)
             artifacts.write_water_ply(job_dir / "water.ply", r.flow, r.water.supply, r.water.water)
+            if r.water.storm is not None:
+                stats.update(storm_figures(r.water.storm, p["storm"]))
         elif name == "drips":
             artifacts.write_json(job_dir / "drips.json", artifacts.drips_to_json(r.drips))
             stats["icicles"] = len(r.drips.positions)
+            if r.water.storm is not None:
+                rim = drip_rim_length(r.flow, r.drips.region_faces, gravity, p["drips"]["drip_limit"])
+                stats.update(drip_rim_m=round(rim, 4), icicles_per_m=round(len(r.drips.positions) / rim, 2) if rim else 0.0)
         elif name == "trajectories":
             artifacts.write_json(job_dir / "trajectories.json", artifacts.trajectories_to_json(r.trajectories))
             t = measure_trajectories(r.trajectories, gravity)

@@ -69,6 +69,33 @@ GROWTH_MAX = 0.25
 LIFETIME_CONTRAST = 1.0
 
 
+
+@dataclass(frozen=True)
+class Constant:
+    """A fixed quantity of the storm model, listed by ``icefarm params``."""
+
+    name: str
+    value: float
+    unit: str
+    domain: str
+    source: str
+
+
+def constants() -> tuple[Constant, ...]:
+    """The storm model's constants with their units, domains and sources."""
+    return (
+        Constant("RHO_WATER", RHO_WATER, "kg/m^3", "> 0", "liquid water"),
+        Constant("RHO_ICE", RHO_ICE, "kg/m^3", "> 0", "glaze, clear dense ice (DESIGN.md)"),
+        Constant("RADIAL_ICE_M[light]", RADIAL_ICE_M["light"], "m", "> 0", "NWS ice storm, 0.25 in"),
+        Constant("RADIAL_ICE_M[moderate]", RADIAL_ICE_M["moderate"], "m", "> 0", "utilities' damaging class, 0.5 in"),
+        Constant("RADIAL_ICE_M[severe]", RADIAL_ICE_M["severe"], "m", "> 0", "utilities' crippling class, 1 in"),
+        Constant("SNOW_SLOPE_DEG", SNOW_SLOPE_DEG, "deg", "[0, 90]", "wet snow's angle of repose, 45-55"),
+        Constant("MELT_RIM_BAND", MELT_RIM_BAND, "m", ">= 0", "cold eave past a warm wall (chosen by eye)"),
+        Constant("RUNOUT_M", RUNOUT_M, "m", "> 0", "film run before 1 - 1/e of it freezes, at lifetime 0.5"),
+        Constant("GROWTH_MAX", GROWTH_MAX, "m/m", "> 0", "stubbiest icicle: a cone half as wide as long"),
+        Constant("LIFETIME_CONTRAST", LIFETIME_CONTRAST, "-", "[0, 1]", "Equation 3's lt as a lean of the budget"),
+    )
+
 class StormKind(enum.Enum):
     """The two ways real icicles form."""
 
@@ -432,3 +459,17 @@ def refine(mesh: trimesh.Trimesh, max_edge: float) -> trimesh.Trimesh:
     out = current(ms)
     out.merge_vertices()
     return out
+
+
+def drip_rim_length(mesh: trimesh.Trimesh, region: np.ndarray, gravity, drip_limit: float) -> float:
+    """Meters of drip rim: the edges where the drip region (faces ``region``) meets a face
+    that does not face down past the drip limit (a slab's rim, an eave's edge, a belly's
+    turn), each counted once."""
+    if len(region) == 0:
+        return 0.0
+    in_region = np.zeros(len(mesh.faces), dtype=bool)
+    in_region[region] = True
+    downward = mesh.face_normals @ unit(np.asarray(gravity, dtype=np.float64)) >= math.cos(math.radians(drip_limit))
+    a, b = mesh.face_adjacency.T
+    rim = (in_region[a] & ~in_region[b] & ~downward[b]) | (in_region[b] & ~in_region[a] & ~downward[a])
+    return float(np.linalg.norm(np.diff(mesh.vertices[mesh.face_adjacency_edges[rim]], axis=1), axis=2).sum())

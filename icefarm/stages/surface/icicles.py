@@ -43,6 +43,10 @@ def icicle_balls(traj: TrajectoryResult, surface: SurfaceParams | Mapping, rng: 
     # A cut branch ends on the ground in a foot wider than the tip's drop: its chain stops
     # short by the difference, so the foot rests on the ground instead of sinking into it.
     foot = smooth_radius(all_lengths[branches], grown, growth=growth, **prof) - tip + FOOT_CLEARANCE * tip
+    if traj.branch_growth is not None:  # a storm's stub widens fast above its end: the foot is wider there
+        for _ in range(3):
+            foot = smooth_radius(np.maximum(all_lengths[branches] - foot, 0.0), grown, growth=growth, **prof) \
+                - tip + FOOT_CLEARANCE * tip
     lengths = np.where(traj.cut[branches] > 0, np.maximum(all_lengths[branches] - foot, 0.0), all_lengths[branches])
     nb = len(branches)
 
