@@ -153,3 +153,39 @@ def test_branch_growth_survives_the_job_files(tmp_path):
     path = tmp_path / "trajectories.json"
     path.write_text(json.dumps(trajectories_to_json(traj)))
     assert trajectories_from_json(path).growth(0.01) == pytest.approx([0.0625, 0.2])
+
+
+@pytest.mark.slow
+def test_a_garden_table_at_its_real_size_carries_readable_ice():
+    """Issue 23's figures on a real-size asset at every default (one job, no render)."""
+    from icefarm.chain import unit_gravity
+    from icefarm.generators import generate, natural_size
+    from icefarm.stages.surface.measure import measure_icicles
+    from icefarm.storm_figures import storm_figures
+
+    prep = prepare(generate("table"), natural_size("table"))
+    p = params.resolve({})
+    r = run_stages(prep, p)
+    ice = trimesh.Trimesh(r.ice.vertices, r.ice.faces, process=False)
+    f = storm_figures(prep.mesh, ice, r.trajectories, unit_gravity(p), np.random.default_rng(0), count=2000)
+    assert f.icicles >= 10 and f.median_trunk_m >= 0.03 and f.nearest_root_m <= 0.05
+    assert f.glaze_coverage >= 0.9
+    taper = measure_icicles(r.ice.vertices, r.ice.faces, r.trajectories, p["surface"]).taper
+    assert np.nanmedian(taper) >= 3.0
+
+
+@pytest.mark.slow
+def test_the_bunny_at_3_m_gets_the_same_glaze_and_more_icicles_at_the_same_spacing(shared_mesh):
+    from scipy.spatial import cKDTree
+
+    p = params.resolve({})
+    figures = []
+    for size in (0.3, 3.0):
+        r = run_stages(prepare(shared_mesh("stanford-bunny.obj"), size), p, until=Stage.DRIPS)
+        ice = r.water.storm.ice
+        d, _ = cKDTree(r.drips.positions).query(r.drips.positions, k=2)
+        figures.append((np.median(ice[ice > 0]), len(r.drips.positions), np.median(d[:, 1])))
+    (glaze_small, n_small, gap_small), (glaze_large, n_large, gap_large) = figures
+    assert 1 / 1.5 <= glaze_large / glaze_small <= 1.5
+    assert n_large >= 5 * n_small and n_small >= 10
+    assert gap_small <= 0.05 and gap_large <= 0.05
