@@ -201,8 +201,9 @@ PARAMS: tuple[Param, ...] = (
     _p("trajectories", "length_scale", "kL", "m/m", _F, 2.0,
        "icicle length per meter of water coefficient: sets the number of generations",
        low=0.0, low_open=True),
-    _p("trajectories", "max_branches", "-", "-", _I, 32,
-       "branches per icicle at most; further divisions grow the trunk instead", low=1),
+    _p("trajectories", "max_branches", "-", "-", _I, 4,
+       "branches per icicle at most; further divisions grow the trunk instead (real icicles carry "
+       "a few side tips; 32 made a storm's metre-long icicles into tinsel; Table 2 keeps 32)", low=1),
     _p("trajectories", "max_tilt", "-", "deg", _F, 60.0,
        "bends saturate: no segment leans further than this from gravity, so no icicle curls up",
        low=0.0, high=90.0),
