@@ -233,6 +233,8 @@ def _run(prepared, p, seed, placement, exclude, overrides, source, until, mesh_k
         d = p["drips"]
         heights = flow.vertices @ -gravity
         grounded = heights < heights.min() + d["ground_clearance"] * np.ptp(heights)
+        if physical and placement != Placement.GROUND.value:
+            grounded[:] = False  # a hanging sign's lowest rim is where it drips, not where it stands
         kl = p["trajectories"]["length_scale"]
         shed = to_water = None
         if physical and water.storm is not None:

@@ -216,7 +216,7 @@ def _print_storm(timings: dict) -> None:
     kind = timings["storm_kind"].replace("_", " ")
     icicles, per_m = timings.get("icicles", 0), timings.get("icicles_per_m", 0.0)
     click.echo(f"  storm: {timings['storm_intensity']} {kind}, {timings['precipitation_mm']:.0f} mm of water: "
-               f"glaze {timings['storm_glaze_p50_mm']:.1f} mm (p50 where it froze); {icicles} icicles, "
+               f"glaze {timings['storm_glaze_p50_mm']:.1f} mm (p50 where the rain lands); {icicles} icicles, "
                f"{per_m:.0f} per m of drip rim ({timings.get('drip_rim_m', 0.0):.2f} m); the water: "
                f"{100 * timings['water_frozen']:.0f} % glaze, {100 * timings['water_shed']:.0f} % dripped, "
                f"{100 * timings['water_pooled']:.0f} % pooled")

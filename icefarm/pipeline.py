@@ -174,10 +174,10 @@ def run_job(spec: JobSpec, job_dir: Path, cache_dir: Path | None = None,
 
 def storm_figures(storm, group: dict) -> dict:
     """What a physical storm did, for timings.json and the run summary: its kind, class and
-    precipitation, the glaze's median thickness where it froze, and where the water went."""
+    precipitation, the glaze's median thickness where the rain lands, and where the water went."""
     from .stages.storm import precipitation_m
 
-    ice = storm.ice[storm.ice > 0]
+    ice = storm.ice[storm.catch > 0]  # where the rain lands (films thinned by running are not the storm's glaze)
     caught = storm.budget.caught or 1.0
     return {"storm_kind": group["kind"], "storm_intensity": group["intensity"],
             "precipitation_mm": round(1000 * precipitation_m(group["intensity"], group["precipitation"]), 2),

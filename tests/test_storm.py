@@ -52,7 +52,7 @@ def test_water_is_conserved_and_a_flat_top_gains_its_share():
 
 def test_the_same_storm_gives_the_same_glaze_at_any_size():
     small, large = _slab(0.3, 0.02, 0.3), _slab(3.0, 0.2, 3.0, max_edge=0.1)
-    thin = [np.median(s.ice[s.ice > 0]) for s in (_storm(small), _storm(large))]
+    thin = [np.median(s.ice[s.catch > 0]) for s in (_storm(small), _storm(large))]
     assert thin[1] / thin[0] == pytest.approx(1.0, abs=0.1)
 
 
@@ -182,9 +182,9 @@ def test_the_bunny_at_3_m_gets_the_same_glaze_and_more_icicles_at_the_same_spaci
     figures = []
     for size in (0.3, 3.0):
         r = run_stages(prepare(shared_mesh("stanford-bunny.obj"), size), p, until=Stage.DRIPS)
-        ice = r.water.storm.ice
+        storm = r.water.storm
         d, _ = cKDTree(r.drips.positions).query(r.drips.positions, k=2)
-        figures.append((np.median(ice[ice > 0]), len(r.drips.positions), np.median(d[:, 1])))
+        figures.append((np.median(storm.ice[storm.catch > 0]), len(r.drips.positions), np.median(d[:, 1])))
     (glaze_small, n_small, gap_small), (glaze_large, n_large, gap_large) = figures
     assert 1 / 1.5 <= glaze_large / glaze_small <= 1.5
     assert n_large >= 5 * n_small and n_small >= 10

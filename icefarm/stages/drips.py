@@ -594,10 +594,11 @@ def find_drips(mesh: trimesh.Trimesh, water: np.ndarray, gravity, count: int, dr
     coefficients = np.einsum("ij,ij->i", bary, water[corners])
     step = (spacing or float(np.median(mesh.edges_unique_length))) / SAMPLES_PER_SPACING
 
-    def drained(positions: np.ndarray) -> np.ndarray:
+    def drained(positions: np.ndarray, final: bool = False) -> np.ndarray:
         if shed is not None:
             volume = catchment_volume(mesh, flux, region, gravity, positions, step, reach=RIM_REACH * max(spacing, step))
-            volume = compete(volume, positions)
+            if final:  # after the dry points are gone: competing then would starve the weak ones in turn
+                volume = compete(volume, positions)
             return volume if to_water is None else np.asarray(to_water(volume), dtype=np.float64)
         return catchment_water(mesh, water, flux, region, gravity, positions, step)
 
@@ -612,5 +613,7 @@ def find_drips(mesh: trimesh.Trimesh, water: np.ndarray, gravity, count: int, dr
             coefficients = drained(positions)
     wet = coefficients >= min_water
     positions, normals, face, coefficients = positions[wet], normals[wet], face[wet], coefficients[wet]
+    if by_water and shed is not None and len(positions):
+        coefficients = drained(positions, final=True)
     return DripResult(region_faces=region, positions=positions, normals=normals,
                       water=coefficients, faces=face)

@@ -64,6 +64,11 @@ RUNOUT_M = 0.25
 # Largest growth ratio (base radius added per meter of length) of a storm's icicle: a stub
 # that thickened as the storm does is at most a cone half as wide as it is long.
 GROWTH_MAX = 0.25
+# The film goes to each lower neighbour in proportion to the slope towards it raised to
+# this power (Freeman's multiple flow directions; 1 spreads it like a fan, infinity is one
+# steepest chain): 4 keeps most of it downhill and still spreads it over a wall (one
+# chain striped a car's doors).
+FLOW_CONVERGENCE = 4.0
 # glaze.lifetime moves the freezing budget along the water's walk by at most this share
 # (lt 0: 1.5x at the top, 0.5x at the bottom; lt 0.5: even).
 LIFETIME_CONTRAST = 1.0
@@ -237,8 +242,8 @@ def _routes(mesh: trimesh.Trimesh, g: np.ndarray, cos_up: np.ndarray):
     after all those that feed it.
 
     A film spreads over a face rather than running in one channel: each vertex passes its
-    water to all its lower edge neighbours, in proportion to the slope towards each
-    (multiple flow directions; one steepest neighbour ran it down in stripes, which the
+    water to all its lower edge neighbours, in proportion to the slope towards each raised
+    to `FLOW_CONVERGENCE` (multiple flow directions; one steepest neighbour ran it down in stripes, which the
     glaze on a car's doors showed as dark streaks). A level, upward vertex with no lower
     neighbour (a table top) passes it across level edges towards the nearest vertex that has
     one; a downward vertex with none drips (an outlet); an upward one with no way out is a
@@ -289,8 +294,9 @@ def _routes(mesh: trimesh.Trimesh, g: np.ndarray, cos_up: np.ndarray):
     by_src = np.argsort(src, kind="stable")
     src, target, slope, run = src[by_src], dst[by_src], slope[by_src], run[by_src]
     start = np.searchsorted(src, np.arange(n + 1))
-    total = np.bincount(src, weights=slope, minlength=n)
-    share = slope / total[src]
+    weight = slope ** FLOW_CONVERGENCE
+    total = np.bincount(src, weights=weight, minlength=n)
+    share = weight / total[src]
     step = np.bincount(src, weights=share * run, minlength=n)
     stops = np.diff(start) == 0
     step[stops] = np.sqrt(np.maximum(vertex_areas(mesh)[stops], 0.0))
@@ -303,13 +309,14 @@ def _flow(catch, capacity, passing, tilt, routes, order, outlet):
     """Route the water in ``order`` (a Python loop: each vertex waits for all that feed it;
     about 2 us a vertex). A vertex freezes its own catch up to its budget, then the share
     ``passing`` of the water running through, within what is left of it; sheds as its tilt
-    passes the largest the water has seen; passes the rest on along its ``routes``
+    passes the tilt the water has seen (averaged over the water arriving: a maximum let a
+    trickle that passed a steep spot stop the shedding of all the water it joined); passes the rest on along its ``routes``
     (`_routes`' start, target, share). Returns frozen, shed and pooled water per vertex, m^3."""
     n = len(catch)
     start, target, share = (x.tolist() for x in routes)
     own = catch.astype(np.float64).tolist()
     inflow = [0.0] * n
-    seen = [0.0] * n
+    seen = [0.0] * n  # the tilt the arriving water already passed, summed weighted by that water
     cap, ps, tl, out = capacity.tolist(), passing.tolist(), tilt.tolist(), outlet.tolist()
     frozen, shed, pooled = [0.0] * n, [0.0] * n, [0.0] * n
     for v in order.tolist():
@@ -320,7 +327,7 @@ def _flow(catch, capacity, passing, tilt, routes, order, outlet):
         g = min(ps[v] * r, cap[v] - f)
         frozen[v] = f + g
         w = c + r - f - g
-        s, t = seen[v], tl[v]
+        s, t = seen[v] / (c + r), tl[v]  # its own rain has passed no tilt
         first, last = start[v], start[v + 1]
         if first == last:
             if out[v] or t > 0.0:
@@ -336,8 +343,7 @@ def _flow(catch, capacity, passing, tilt, routes, order, outlet):
         for k in range(first, last):
             u = target[k]
             inflow[u] += w * share[k]
-            if s > seen[u]:
-                seen[u] = s
+            seen[u] += s * w * share[k]
     return np.asarray(frozen), np.asarray(shed), np.asarray(pooled)
 
 
