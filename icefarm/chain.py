@@ -345,4 +345,10 @@ def build_surface(obj: trimesh.Trimesh, flow: trimesh.Trimesh, water: WaterResul
     below = np.minimum(ice.vertices @ -g - floor, 0.0)
     if not below.any():
         return ice
-    return dataclasses.replace(ice, vertices=ice.vertices + below[:, None] * g)
+    from .metaballs.clean import collapse_slivers, flip_needles
+    from .stages.surface.build import SLIVER
+
+    # Flattening can squash the faces of a foot into slivers: clean them as stage 4 does.
+    tol = SLIVER * params["surface"]["voxel_size"]
+    vertices, faces = collapse_slivers(ice.vertices + below[:, None] * g, ice.faces, tol)
+    return dataclasses.replace(ice, vertices=vertices, faces=flip_needles(vertices, faces, tol))

@@ -337,7 +337,7 @@ def test_real_meshes_through_stages_1_to_4_are_watertight(name):
     from icefarm.chain import run_stages
     from icefarm.mesh import prepare
 
-    p = params.resolve({"drips.count": 8, "water.rays": 800, "surface.voxel_size": 0.0015})
+    p = params.resolve({"storm.mode": "relative", "drips.count": 8, "water.rays": 800, "surface.voxel_size": 0.0015})
     result = run_stages(prepare(path, 0.3), p, 1)
     ice = S.build_ice(result.mesh, result.flow, result.water, result.drips, result.trajectories, p["surface"],
                       p["glaze"], G, np.random.default_rng(1))
