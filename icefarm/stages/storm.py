@@ -69,6 +69,13 @@ GROWTH_MAX = 0.25
 # steepest chain): 4 keeps most of it downhill and still spreads it over a wall (one
 # chain striped a car's doors).
 FLOW_CONVERGENCE = 4.0
+# The glaze is relaxed over about this many meters of surface (`_spread`), in at most
+# MAX_BLUR_PASSES passes of one edge each.
+GLAZE_BLUR_M = 0.03
+MAX_BLUR_PASSES = 12
+# Glaze thinner than this (m) is left out of the coat: it reads as a wet sheen, and a coat far
+# thinner than its voxels tore into speckles and took 40 s on a fence.
+GLAZE_MIN_M = 0.001
 # glaze.lifetime moves the freezing budget along the water's walk by at most this share
 # (lt 0: 1.5x at the top, 0.5x at the bottom; lt 0.5: even).
 LIFETIME_CONTRAST = 1.0
@@ -232,10 +239,34 @@ def accrete(mesh: trimesh.Trimesh, gravity, sky: np.ndarray, precipitation: floa
     runout = RUNOUT_M * 2.0 * lifetime
     passing = 1.0 - np.exp(-step / runout) if runout > 0 else np.ones(n)
     frozen, shed, pooled = _flow(catch, capacity, passing, tilt, (start, target, share), order, outlet)
-    ice = np.divide(frozen * WATER_TO_ICE, area, out=np.zeros(n), where=area > 0)
+    ice = np.divide(_spread(mesh, frozen * WATER_TO_ICE), area, out=np.zeros(n), where=area > 0)
+    ice[ice < GLAZE_MIN_M] = 0.0  # a film the blur thinned to nothing: no coat there
     budget = StormBudget(float(catch.sum()), float(frozen.sum()), float(shed.sum()), float(pooled.sum()))
     return StormResult(sky=sky, catch=catch, ice=ice, shed=shed, budget=budget)
 
+
+
+def _spread(mesh: trimesh.Trimesh, volume: np.ndarray) -> np.ndarray:
+    """``(n,)`` ice volumes per vertex, m^3, relaxed over about `GLAZE_BLUR_M`: each pass a
+    vertex keeps half its ice and hands the rest to its edge neighbours in proportion to
+    their areas (the total stays exactly the same; equal shares piled 29 cm of ice on the
+    tiny vertices of a fence's unions). Ice does not freeze vertex by vertex: the water each
+    route carries left the glaze on walls in speckles and in sharp-edged fans, which the
+    coat rendered as black patches on a fence's pickets."""
+    edges = np.asarray(mesh.edges_unique)
+    if len(edges) == 0:
+        return volume
+    n = len(volume)
+    area = vertex_areas(mesh)
+    a, b = edges[:, 0], edges[:, 1]
+    around = np.bincount(a, weights=area[b], minlength=n) + np.bincount(b, weights=area[a], minlength=n)
+    passes = int(min(MAX_BLUR_PASSES, np.ceil(GLAZE_BLUR_M / max(float(np.median(mesh.edges_unique_length)), 1e-9))))
+    v = np.asarray(volume, dtype=np.float64)
+    for _ in range(passes):
+        per_area = np.divide(0.5 * v, around, out=np.zeros(n), where=around > 0)
+        v = np.where(around > 0, 0.5 * v, v) + np.bincount(a, weights=per_area[b] * area[a], minlength=n) \
+            + np.bincount(b, weights=per_area[a] * area[b], minlength=n)
+    return v
 
 def _routes(mesh: trimesh.Trimesh, g: np.ndarray, cos_up: np.ndarray):
     """Where the water at each vertex goes next, and an order that visits every vertex
