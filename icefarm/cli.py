@@ -224,8 +224,9 @@ def _print_storm(timings: dict) -> None:
     longest = max([v for v in lengths if v is not None], default=0.0)
     if icicles < FEW_ICICLES or (lengths and longest < SHORT_TRUNK_M):
         size = "under 1 cm" if lengths and longest < SHORT_TRUNK_M else f"up to {100 * longest:.0f} cm"
-        click.echo(f"  warning: {icicles} icicles {size}: a {timings['storm_intensity']} storm on a small object "
-                   "or one with little rim; try storm.intensity=severe or a larger size_m")
+        what = "no icicles" if icicles == 0 else f"{icicles} icicles {size}"
+        click.echo(f"  warning: {what}: a {timings['storm_intensity']} storm on a small object or one with "
+                   "little rim; try storm.intensity=severe or a larger size_m")
     elif timings["storm_glaze_p50_mm"] < THIN_GLAZE_MM:
         click.echo(f"  warning: glaze {timings['storm_glaze_p50_mm']:.1f} mm: too thin to read; raise "
                    "storm.precipitation or storm.freeze")

@@ -153,3 +153,19 @@ def test_render_again_refuses_what_is_not_a_rendered_job(sphere_file, tmp_path):
                "--set", "drips.count=4", "--set", "water.rays=2000", "--set", "glaze.mode=none").exit_code == 0
     result = run("render", job)
     assert result.exit_code == 2 and "no object.ply" in result.output
+
+
+def test_run_says_what_the_storm_did_and_warns_when_little_shows(tmp_path):
+    # A 30 cm road sign: its 2 cm top edge sheds too little for an icicle.
+    result = run("run", "generator:sign", "--size-m", 0.3, "--until", "trajectories", "-o", tmp_path / "sign")
+    assert result.exit_code == 0, result.output
+    storm = next(line for line in result.output.splitlines() if line.strip().startswith("storm:"))
+    assert "moderate freezing rain, 37 mm of water" in storm and "% glaze" in storm
+    warnings = [line for line in result.output.splitlines() if line.strip().startswith("warning:")]
+    assert len(warnings) == 1 and "storm.intensity=severe" in warnings[0]
+    timings = json.loads((tmp_path / "sign" / "timings.json").read_text())
+    assert timings["storm_kind"] == "freezing_rain" and timings["water_frozen"] + timings["water_shed"] \
+        + timings["water_pooled"] == pytest.approx(1.0, abs=1e-3)
+    table = run("run", "generator:table", "--until", "trajectories", "-o", tmp_path / "table")  # its real size
+    assert table.exit_code == 0, table.output
+    assert "warning:" not in table.output and "icicles, " in table.output
