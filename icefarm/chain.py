@@ -28,7 +28,8 @@ from .placement import Placement, ground_height, ground_level, sole_vertices, st
 from .stage_cache import digest, file_digest
 from .stages.drips import DripResult, find_drips
 from .stages.trajectories import TrajectoryResult, grow_trajectories
-from .stages.storm import growth_ratios, icicle_lengths, refine, storm_water, thickening_m
+from .stages.icicle_size import growth_ratios, icicle_lengths, thickening_m
+from .stages.storm import refine, storm_water
 from .stages.water import WaterResult, compute_water
 from .params import typed
 

@@ -11,8 +11,8 @@ from icefarm import params
 from icefarm.chain import Stage, run_stages
 from icefarm.geometry import ray_caster
 from icefarm.mesh import prepare
-from icefarm.stages.storm import (WATER_TO_ICE, accrete, icicle_volume, length_from_volume, open_sky,
-                                  precipitation_m, refine, storm_water)
+from icefarm.stages.icicle_size import icicle_volume, length_from_volume
+from icefarm.stages.storm import WATER_TO_ICE, accrete, open_sky, precipitation_m, refine, storm_water
 from icefarm.stages.water import water_coefficients
 
 G = np.array([0.0, -1.0, 0.0])
@@ -131,7 +131,7 @@ def test_relative_mode_keeps_the_paper_knobs():
 
 
 def test_short_icicles_thicken_as_the_storm_does_long_ones_as_real_ones():
-    from icefarm.stages.storm import growth_ratios
+    from icefarm.stages.icicle_size import growth_ratios
 
     t = growth_ratios(np.array([0.02, 0.05, 0.1, 0.5, 2.0]), 0.006, 0.0625)
     assert t[0] == pytest.approx(0.25) and t[1] == pytest.approx(0.12)  # a stub: a cone, not a straw

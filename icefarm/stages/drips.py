@@ -8,7 +8,7 @@ far the region's faces there turn towards gravity (`drip_flux`). A sharp lip or 
 edge sheds nearly all of it; a smooth dome sheds it evenly over its area (as the paper);
 what is left drips at the region's lowest points. Points never lie closer than
 ``spacing`` (icicles settle 2.3 to 2.5 cm apart), and each icicle's water is the water
-its stretch of the rim sheds (`catchment_water`), so icicles that drain more grow longer.
+its stretch of the rim sheds (`icefarm.stages.rims`), so icicles that drain more grow longer.
 """
 
 from __future__ import annotations
@@ -18,10 +18,10 @@ from typing import NamedTuple
 
 import numpy as np
 import trimesh
-from scipy.spatial import cKDTree
 
 from ..geometry import inside, ray_caster, sample_faces, unit
-from .water import steepest_neighbours
+from .rims import (RIM_REACH, SAMPLES_PER_SPACING, catchment_volume, catchment_water, compete, drip_flux,
+                   rim_half_edges, rim_points)
 
 
 @dataclass(frozen=True)
@@ -132,157 +132,10 @@ DISTRIBUTIONS = ("water", "area")
 POOL_PER_POINT = 50
 MIN_POOL = 1000
 MAX_POOL = 50_000
-# Below this length of the downhill direction (a surface within ~6 degrees of level) the
-# water has no direction to cross a rim: every edge there counts in full.
-LEVEL = 0.1
-# Deterministic samples of the shed water per spacing along the rim, for the catchments.
-SAMPLES_PER_SPACING = 4
-MAX_FLUX_SAMPLES = 200_000
 # Dropping the dry drip points gives their rim to the rest; these many rounds of dropping and
 # re-draining settle every case seen (then whatever is still dry goes too).
 MAX_DRY_PASSES = 4
-# An icicle's water grows with the stretch of rim it drains raised to this power: the order
-# stays (more water, longer icicle) while the spread shows. Along an evenly wet rim (a
-# fountain's lip) the stretches vary only with the gaps between icicles (32 on a 1.9 m lip
-# at 2.5 cm spacing: a coefficient of variation of 0.35, under 0.27 one time in twenty);
-# real icicles along a rim vary more, as one fed more water widens and draws in more of the
-# film beside it. 1.5 gives 0.4 to 0.7 there.
-WATER_CONTRAST = 1.5
-# An icicle drains at most this many times the water of its neighbours' median stretch
-# (one icicle alone on a long rim would otherwise take all of it).
-MAX_SHARE = 3.0
-# Icicles an icicle's stretch of rim is compared with.
-NEIGHBOURS = 6
-# Under a physical storm a drip point drains the rim up to this many spacings away (farther
-# shed water drips off with no icicle under it): where too little drips for an icicle
-# (drips.min_length) the neighbours within reach take it.
-RIM_REACH = 2.0
 
-
-def _chain_max(parent: np.ndarray, values: np.ndarray) -> np.ndarray:
-    """``(n,)``: the largest of ``values`` along each vertex's chain of parents, itself included."""
-    acc = np.array(values, dtype=np.float64, copy=True)
-    ptr = np.asarray(parent, dtype=np.int64).copy()
-    while True:
-        acc = np.maximum(acc, acc[ptr])
-        nxt = ptr[ptr]
-        if np.array_equal(nxt, ptr):
-            return acc
-        ptr = nxt
-
-
-def drip_flux(mesh: trimesh.Trimesh, water: np.ndarray, gravity, drip_limit: float,
-              region: np.ndarray) -> np.ndarray:
-    """Water that drips off at each vertex, in meters of water coefficient.
-
-    Each vertex's water arrives down its upward walk (Algorithm 1's chain, followed the
-    other way). A vertex's *tilt* is how far its steepest region face turns towards
-    gravity, from 0 at the drip limit to 1 facing straight down. Water clings while the
-    surface keeps its tilt and sheds as the tilt rises: arriving at a tilt ``t`` after a
-    walk whose tilt never exceeded ``m``, the share ``t - m`` of it drips there (so
-    ``1 - max tilt`` is still flowing, whatever the mesh resolution: a smooth dome sheds
-    evenly over its height, hence its area, as the paper's uniform spread; a sharp lip or
-    an eave's edge sheds most of it at once). At a region vertex where the downward walk
-    ends (the bottom of a dome, an eave's lower edge) all that is left drips. Water that
-    walks out of the region lower down (a bowl's underside into its column) runs on.
-
-    Parameters
-    ----------
-    mesh : trimesh.Trimesh
-    water : (n,) float
-        Water coefficients.
-    gravity : (3,) float
-    drip_limit : float
-        dl, degrees.
-    region : (m,) int
-        Faces of the drip region (`drip_region`).
-
-    Returns
-    -------
-    (n,) float
-        ``water * share`` per vertex; 0 off the region.
-    """
-    n = len(mesh.vertices)
-    if len(region) == 0:
-        return np.zeros(n)
-    g = unit(gravity)
-    cos_limit = np.cos(np.radians(drip_limit))
-    face_tilt = np.clip((mesh.face_normals[region] @ g - cos_limit) / (1.0 - cos_limit), 0.0, 1.0)
-    tilt = np.zeros(n)
-    np.maximum.at(tilt, mesh.faces[region].ravel(), np.repeat(face_tilt, 3))
-    (up, _, _), (down, _, _) = steepest_neighbours(mesh, g)
-    own = np.arange(n)
-    above = np.where(up != own, _chain_max(up, tilt)[up], 0.0)
-    share = np.maximum(0.0, tilt - above)
-    end = (down == own) & (tilt > 0)
-    share[end] = 1.0 - above[end]
-    return np.asarray(water, dtype=np.float64) * share
-
-
-def _rim_half_edges(mesh: trimesh.Trimesh, flux: np.ndarray, region: np.ndarray, gravity):
-    """Half-edges of the region's faces that shed water, and their weights.
-
-    The water ``flux[v]`` shed at a vertex is spread over the half of each region edge
-    next to it that leads to another shedding vertex (along the rim; every edge when it
-    sheds alone), in proportion to the edge's length across the downhill direction at
-    ``v`` (an eave's edge catches the water running down to it; an edge running downhill
-    does not).
-
-    Returns
-    -------
-    face, corner_v, corner_u : (h,) int
-        Region face of each half-edge and the corners (0-2) of its near and far ends.
-    width : (h,) float
-        Rim it stands for: its length across the downhill direction, in meters.
-    weight : (h,) float
-        Water shed along it, in meters of water times meters of rim.
-    """
-    faces = mesh.faces[region]
-    pairs = [(a, b) for a in range(3) for b in range(3) if a != b]
-    corner_v = np.repeat([a for a, _ in pairs], len(region))
-    corner_u = np.repeat([b for _, b in pairs], len(region))
-    face = np.tile(region, len(pairs))
-    local = np.tile(np.arange(len(region)), len(pairs))
-    v, u = faces[local, corner_v], faces[local, corner_u]
-    keep = flux[v] > 0
-    # A vertex on a rim sheds along the rim (towards neighbours that shed too); one alone
-    # (the bottom of a dome) all around.
-    along_rim = np.zeros(len(mesh.vertices), dtype=bool)
-    along_rim[v[keep & (flux[u] > 0)]] = True
-    keep &= (flux[u] > 0) | ~along_rim[v]
-    face, corner_v, corner_u, v, u = face[keep], corner_v[keep], corner_u[keep], v[keep], u[keep]
-    if len(v) == 0:
-        return face, corner_v, corner_u, np.zeros(0), np.zeros(0)
-    # An edge shared by two region faces is split between them.
-    _, inverse, counts = np.unique(v * len(mesh.vertices) + u, return_inverse=True, return_counts=True)
-    vec = mesh.vertices[u] - mesh.vertices[v]
-    length = np.linalg.norm(vec, axis=1)
-    g = unit(gravity)
-    normal = mesh.vertex_normals[v]
-    downhill = g - (normal @ g)[:, None] * normal
-    steep = np.linalg.norm(downhill, axis=1)
-    along = np.einsum("ij,ij->i", unit(vec), unit(downhill))
-    across = np.where(steep > LEVEL, np.sqrt(np.clip(1.0 - along ** 2, 0.0, 1.0)), 1.0)
-    width = 0.5 * length * across / counts[inverse]
-    return face, corner_v, corner_u, width, flux[v] * width
-
-
-def _edge_bary(corner_v: np.ndarray, corner_u: np.ndarray, tau: np.ndarray) -> np.ndarray:
-    """``(k, 3)`` barycentric coordinates ``tau`` of the way from corner ``v`` to corner ``u``."""
-    bary = np.zeros((len(tau), 3))
-    rows = np.arange(len(tau))
-    bary[rows, corner_v] = 1.0 - tau
-    bary[rows, corner_u] = tau
-    return bary
-
-
-def _rim_points(mesh, flux, region, gravity, count, rng):
-    """``count`` random points where the water drips, drawn by the water shed there."""
-    face, cv, cu, _, weight = _rim_half_edges(mesh, flux, region, gravity)
-    if count <= 0 or weight.sum() <= 0:
-        return np.zeros(0, dtype=np.int64), np.zeros((0, 3))
-    pick = rng.choice(len(weight), size=count, p=weight / weight.sum())
-    return face[pick], _edge_bary(cv[pick], cu[pick], 0.5 * rng.random(count))
 
 
 def free_fall(cast, points: np.ndarray, normals: np.ndarray, gravity, floor: float | None = None) -> np.ndarray:
@@ -335,136 +188,10 @@ def _spaced(points: np.ndarray, spacing: float, count: int) -> np.ndarray:
     return np.asarray(chosen, dtype=np.int64)
 
 
-def catchment_water(mesh: trimesh.Trimesh, water: np.ndarray, flux: np.ndarray, region: np.ndarray,
-                    gravity, positions: np.ndarray, step: float) -> np.ndarray:
-    """Each icicle's water: the water of the stretch of rim it drains.
-
-    The rim where water drips (`drip_flux`, spread along its edges as in
-    `_rim_half_edges`) is sampled every ``step`` meters and each sample goes to the nearest
-    drip point: its catchment. Icicle ``i`` gets the mean water coefficient along its
-    catchment (the paper's water, so a wetter rim grows longer icicles) times the
-    catchment's width over the median width of its `NEIGHBOURS` nearest icicles and its
-    own, raised to `WATER_CONTRAST` (at most `MAX_SHARE`): an icicle alone on a long
-    stretch of rim drains more of it and grows longer than its neighbours, and one
-    crowded by them shorter. (Wetter rims draw more points, so their stretches are
-    shorter: comparing with the neighbours, not all icicles, keeps their extra water.)
-
-    Parameters
-    ----------
-    water : (n,) float
-        Water coefficients of the vertices.
-    flux : (n,) float
-        `drip_flux` of the vertices.
-    positions : (k, 3) float
-        Drip points.
-    step : float
-        Sampling step along the rim, in meters.
-
-    Returns
-    -------
-    (k,) float
-        Meters of water coefficient per drip point.
-    """
-    face, cv, cu, width, _ = _rim_half_edges(mesh, flux, region, gravity)
-    if len(positions) == 0 or width.sum() <= 0:
-        return np.zeros(len(positions))
-    samples, h, bary, corners, pieces = _rim_samples(mesh, face, cv, cu, step)
-    wet = np.einsum("ij,ij->i", bary, np.asarray(water, dtype=np.float64)[corners[h]])
-    tree = cKDTree(positions)
-    _, nearest = tree.query(samples)
-    share = width[h] / pieces[h]
-    drained = np.bincount(nearest, weights=share, minlength=len(positions))
-    coefficient = np.bincount(nearest, weights=share * wet, minlength=len(positions)) / np.maximum(drained, 1e-300)
-    _, neighbours = tree.query(positions, k=min(NEIGHBOURS + 1, len(positions)))
-    typical = np.median(drained[neighbours.reshape(len(positions), -1)], axis=1)
-    ratio = np.divide(drained, typical, out=np.ones(len(positions)), where=typical > 0)
-    return coefficient * np.minimum(ratio ** WATER_CONTRAST, MAX_SHARE)
-
-
-def _rim_samples(mesh, face, cv, cu, step):
-    """Deterministic samples every ``step`` meters along the shedding half-edges.
-
-    Returns
-    -------
-    samples : (s, 3) float
-    h : (s,) int
-        Half-edge of each sample.
-    bary : (s, 3) float
-        Its barycentric coordinates in the half-edge's face.
-    corners : (e, 3) int
-        Vertices of each half-edge's face.
-    pieces : (e,) int
-        Samples per half-edge.
-    """
-    corners = mesh.faces[face]
-    rows = np.arange(len(face))
-    half = 0.5 * np.linalg.norm(mesh.vertices[corners[rows, cu]] - mesh.vertices[corners[rows, cv]], axis=1)
-    step = max(step, float(half.sum()) / MAX_FLUX_SAMPLES)
-    pieces = np.maximum(1, np.ceil(half / step)).astype(np.int64)
-    h = np.repeat(rows, pieces)
-    i = np.arange(len(h)) - np.repeat(np.cumsum(pieces) - pieces, pieces)
-    bary = _edge_bary(cv[h], cu[h], 0.5 * (i + 0.5) / pieces[h])
-    samples = np.einsum("ij,ijk->ik", bary, mesh.vertices[corners[h]])
-    return samples, h, bary, corners, pieces
-
-
-def catchment_volume(mesh: trimesh.Trimesh, shed: np.ndarray, region: np.ndarray, gravity,
-                     positions: np.ndarray, step: float, reach: float) -> np.ndarray:
-    """Each drip point's water under a physical storm: what its stretch of rim sheds, m^3.
-
-    The water ``shed[v]`` at a vertex is spread along the shedding half-edges next to it in
-    proportion to their width across the downhill direction (`_rim_half_edges`), sampled
-    every ``step`` meters; each sample goes to the nearest drip point within ``reach``
-    meters. Water shed farther from every drip point drips off with no icicle under it.
-
-    Parameters
-    ----------
-    shed : (n,) float
-        Water dripping off at each vertex, m^3 (`icefarm.stages.storm.StormResult.shed`).
-    positions : (k, 3) float
-        Drip points.
-    step, reach : float
-        Meters.
-
-    Returns
-    -------
-    (k,) float
-        m^3 of water per drip point (their sum is at most ``shed.sum()``).
-    """
-    face, cv, cu, width, _ = _rim_half_edges(mesh, shed, region, gravity)
-    if len(positions) == 0 or width.sum() <= 0:
-        return np.zeros(len(positions))
-    near_v = mesh.faces[face, cv]
-    around = np.bincount(near_v, weights=width, minlength=len(mesh.vertices))
-    per_edge = np.asarray(shed, dtype=np.float64)[near_v] * width / np.maximum(around[near_v], 1e-300)
-    samples, h, _, _, pieces = _rim_samples(mesh, face, cv, cu, step)
-    distance, nearest = cKDTree(positions).query(samples, distance_upper_bound=reach)
-    close = np.isfinite(distance)
-    return np.bincount(nearest[close], weights=(per_edge[h] / pieces[h])[close], minlength=len(positions))
-
-
-
-def compete(volume: np.ndarray, positions: np.ndarray) -> np.ndarray:
-    """``(k,)`` each drip point's water after its neighbours compete for the film, m^3.
-
-    An icicle fed more than its `NEIGHBOURS` widens and draws in more of the film beside it:
-    its water over their median is raised to `WATER_CONTRAST` (at most `MAX_SHARE`), then all
-    are scaled back to the same total, so no water is made or lost. Along an evenly wet rim
-    the stretches differ only by the gaps dart throwing leaves (a table's 106 icicles all came
-    out 20-24 cm); this gives the spread of lengths real rims show."""
-    volume = np.asarray(volume, dtype=np.float64)
-    if len(volume) < 2 or volume.sum() <= 0:
-        return volume
-    _, neighbours = cKDTree(positions).query(positions, k=min(NEIGHBOURS + 1, len(positions)))
-    typical = np.median(volume[neighbours.reshape(len(volume), -1)], axis=1)
-    ratio = np.divide(volume, typical, out=np.ones(len(volume)), where=typical > 0)
-    drawn = volume * np.minimum(ratio ** (WATER_CONTRAST - 1.0), MAX_SHARE)
-    return drawn * (volume.sum() / drawn.sum()) if drawn.sum() > 0 else volume
-
 def _rim_pool(mesh, flux, region, gravity, spacing, count) -> int:
     """Candidates to draw so that dart throwing fills every shedding rim at ``spacing``: `POOL_PER_POINT`
     per point the rims hold (their length over ``spacing``, at most ``count``)."""
-    _, _, _, width, _ = _rim_half_edges(mesh, flux, region, gravity)
+    _, _, _, width, _ = rim_half_edges(mesh, flux, region, gravity)
     hold = count if spacing <= 0 else min(count, int(np.ceil(width.sum() / spacing)) + 1)
     return min(MAX_POOL, max(2 * hold, POOL_PER_POINT * hold, MIN_POOL))
 
@@ -562,7 +289,7 @@ def find_drips(mesh: trimesh.Trimesh, water: np.ndarray, gravity, count: int, dr
         flux = drip_flux(mesh, water, gravity, drip_limit, region) if distribution == "water" else None
     by_water = flux is not None and flux.sum() > 0
     if by_water:
-        face, bary = _rim_points(mesh, flux, region, gravity, pool, rng)
+        face, bary = rim_points(mesh, flux, region, gravity, pool, rng)
     else:
         _, face, bary = sample_faces(mesh, region, pool, rng)
     points = np.einsum("ij,ijk->ik", bary, mesh.vertices[mesh.faces[face]])

@@ -25,7 +25,7 @@ Here the weather sets the ice, whatever the asset's size:
 Every drop is counted once: caught = frozen + shed + pooled (`StormBudget`). The water shed
 along the drip rims feeds the icicles (`icefarm.stages.drips.find_drips` with ``flux``); a
 share of it (``storm.icicle_share``) freezes on them, the rest drips to the ground, and the
-ice volume gives the length through the icicle profile (`length_from_volume`).
+ice volume gives the length through the icicle profile (`icefarm.stages.icicle_size`).
 """
 
 from __future__ import annotations
@@ -61,9 +61,6 @@ MELT_RIM_BAND = 0.1
 # proportion to it (lt 0: it freezes where it lands). A rail's 6 cm side keeps a fifth of
 # what runs over it; the rest drips from its underside as icicles.
 RUNOUT_M = 0.25
-# Largest growth ratio (base radius added per meter of length) of a storm's icicle: a stub
-# that thickened as the storm does is at most a cone half as wide as it is long.
-GROWTH_MAX = 0.25
 # The film goes to each lower neighbour in proportion to the slope towards it raised to
 # this power (Freeman's multiple flow directions; 1 spreads it like a fan, infinity is one
 # steepest chain): 4 keeps most of it downhill and still spreads it over a wall (one
@@ -95,6 +92,8 @@ class Constant:
 
 def constants() -> tuple[Constant, ...]:
     """The storm model's constants with their units, domains and sources."""
+    from .icicle_size import GROWTH_MAX
+
     return (
         Constant("RHO_WATER", RHO_WATER, "kg/m^3", "> 0", "liquid water"),
         Constant("RHO_ICE", RHO_ICE, "kg/m^3", "> 0", "glaze, clear dense ice (DESIGN.md)"),
@@ -104,8 +103,8 @@ def constants() -> tuple[Constant, ...]:
         Constant("SNOW_SLOPE_DEG", SNOW_SLOPE_DEG, "deg", "[0, 90]", "wet snow's angle of repose, 45-55"),
         Constant("MELT_RIM_BAND", MELT_RIM_BAND, "m", ">= 0", "cold eave past a warm wall (chosen by eye)"),
         Constant("RUNOUT_M", RUNOUT_M, "m", "> 0", "film run before 1 - 1/e of it freezes, at lifetime 0.5"),
-        Constant("GROWTH_MAX", GROWTH_MAX, "m/m", "> 0", "stubbiest icicle: a cone half as wide as long"),
         Constant("LIFETIME_CONTRAST", LIFETIME_CONTRAST, "-", "[0, 1]", "Equation 3's lt as a lean of the budget"),
+        Constant("GROWTH_MAX", GROWTH_MAX, "m/m", "> 0", "stubbiest icicle: a cone half as wide as long"),
     )
 
 class StormKind(enum.Enum):
@@ -378,54 +377,6 @@ def _flow(catch, capacity, passing, tilt, routes, order, outlet):
     return np.asarray(frozen), np.asarray(shed), np.asarray(pooled)
 
 
-def icicle_volume(length, tip: float, growth, shape: str = "physical"):
-    """Volume of an icicle of ``length`` meters (array-like), m^3: the solid of its profile.
-
-    ``physical``: ``r = tip + t L^(1/4) d^(3/4)`` gives ``pi (tip^2 L + 8/7 tip t L^2 + 2/5 t^2 L^3)``;
-    ``paper``: ``r = tip + t d`` gives ``pi (tip^2 L + tip t L^2 + t^2 L^3 / 3)``. ``growth`` t
-    may be an array like ``length``.
-    """
-    L = np.asarray(length, dtype=np.float64)
-    t = np.asarray(growth, dtype=np.float64)
-    if shape == "physical":
-        return math.pi * (tip * tip * L + 8.0 / 7.0 * tip * t * L ** 2 + 0.4 * t ** 2 * L ** 3)
-    return math.pi * (tip * tip * L + tip * t * L ** 2 + t ** 2 * L ** 3 / 3.0)
-
-
-def growth_ratios(length, thickening: float, growth: float) -> np.ndarray:
-    """``(k,)`` growth ratio t of icicles ``length`` meters long whose base thickened at least
-    ``thickening`` meters: ``thickening / L``, at least ``growth`` (a long icicle's, the
-    widening measured on real ones) and at most `GROWTH_MAX`."""
-    L = np.maximum(np.asarray(length, dtype=np.float64), 1e-9)
-    return np.clip(thickening / L, growth, max(growth, GROWTH_MAX))
-
-
-def length_from_volume(volume, tip: float, growth: float, shape: str = "physical",
-                       thickening: float | None = None) -> np.ndarray:
-    """``(k,)`` length in meters of icicles holding ``volume`` m^3 of ice (`icicle_volume`
-    inverted by bisection: it rises monotonically with the length). With ``thickening``
-    (meters) each icicle's growth ratio is `growth_ratios` of its length (at least
-    ``growth``)."""
-    volume = np.maximum(np.asarray(volume, dtype=np.float64).reshape(-1), 0.0)
-
-    def held(L):
-        return icicle_volume(L, tip, growth if thickening is None else growth_ratios(L, thickening, growth), shape)
-
-    lo = np.zeros_like(volume)
-    hi = np.full_like(volume, 1.0)
-    while True:  # widen until every volume is bracketed
-        short = held(hi) < volume
-        if not short.any():
-            break
-        hi[short] *= 2.0
-    for _ in range(50):
-        mid = 0.5 * (lo + hi)
-        small = held(mid) < volume
-        lo = np.where(small, mid, lo)
-        hi = np.where(small, hi, mid)
-    return 0.5 * (lo + hi)
-
-
 def storm_water(mesh: trimesh.Trimesh, gravity, storm, *, lifetime: float, drip_limit: float, cast,
                 source: trimesh.Trimesh | None = None):
     """Stage 1 under a physical storm: the supply is every upward vertex under open sky,
@@ -467,26 +418,6 @@ def storm_water(mesh: trimesh.Trimesh, gravity, storm, *, lifetime: float, drip_
                      drip_limit=drip_limit, d_up=d_up, d_down=d_down)
     return WaterResult(supply=supply, water=water, top=top, d_up=d_up, bottom=bottom, d_down=d_down,
                        hits=np.asarray(mesh.vertices)[supply], storm=result)
-
-
-def thickening_m(storm) -> float:
-    """Meters an icicle's base thickens at least over the storm: the radial ice of a bar that
-    freezes ``storm.freeze`` of its rain, ``freeze P rho_w / (pi rho_i)`` (Jones 1998).
-    Thickening is set by the heat the icicle loses more than by its water (Makkonen 1988:
-    more water lowers lengthening, not thickening), so a short icicle is a stubby cone, not a
-    straw; a long one widens by ``surface.growth_ratio`` of its length, as real ones do."""
-    return storm.freeze * precipitation_m(storm.intensity, storm.precipitation) * WATER_TO_ICE / math.pi
-
-
-def icicle_lengths(volume, storm, surface) -> np.ndarray:
-    """``(k,)`` meters: icicles from ``volume`` (k,) m^3 of water reaching their drip points.
-
-    ``storm.icicle_share`` of it freezes on the icicle (the rest drips off its tip); the
-    ice's volume gives the length through the icicle's profile (`length_from_volume` with
-    ``surface.tip_radius`` and ``profile``; each icicle thickens `thickening_m`)."""
-    ice = np.asarray(volume, dtype=np.float64) * storm.icicle_share * WATER_TO_ICE
-    return length_from_volume(ice, surface["tip_radius"], surface["growth_ratio"], surface["profile"],
-                              thickening=thickening_m(storm))
 
 
 # The refined flow surface holds about this many faces at most (a 3 m house at 2.5 cm
