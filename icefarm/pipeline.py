@@ -172,7 +172,7 @@ def run_job(spec: JobSpec, job_dir: Path, cache_dir: Path | None = None,
     return JobOutcome(JobState.DONE, dict(run.seconds), tuple(cache.reused))
 
 
-def storm_figures(storm, group: dict) -> dict:
+def _storm_stats(storm, group: dict) -> dict:
     """What a physical storm did, for timings.json and the run summary: its kind, class and
     precipitation, the glaze's median thickness where the rain lands, and where the water went."""
     from .stages.storm import precipitation_m
@@ -207,7 +207,7 @@ def _run_stages(spec: JobSpec, job_dir: Path, run: _Run, cache: StageCache, unti
             stats["flow_faces"] = len(r.flow.faces)
             artifacts.write_water_ply(job_dir / "water.ply", r.flow, r.water.supply, r.water.water)
             if r.water.storm is not None:
-                stats.update(storm_figures(r.water.storm, p["storm"]))
+                stats.update(_storm_stats(r.water.storm, p["storm"]))
         elif name == "drips":
             artifacts.write_json(job_dir / "drips.json", artifacts.drips_to_json(r.drips))
             stats["icicles"] = len(r.drips.positions)

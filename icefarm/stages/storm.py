@@ -234,18 +234,18 @@ def accrete(mesh: trimesh.Trimesh, gravity, sky: np.ndarray, precipitation: floa
         near = cKDTree(rims).query(mesh.vertices, distance_upper_bound=MELT_RIM_BAND)[0] <= MELT_RIM_BAND \
             if len(rims) else np.zeros(n, dtype=bool)
         capacity = np.where(near, capacity, 0.0)
-    start, target, share, step, order, outlet = _routes(mesh, g, cos_up)
+    start, target, share, step, order, outlet = _routes(mesh, g, cos_up, area)
     runout = RUNOUT_M * 2.0 * lifetime
     passing = 1.0 - np.exp(-step / runout) if runout > 0 else np.ones(n)
     frozen, shed, pooled = _flow(catch, capacity, passing, tilt, (start, target, share), order, outlet)
-    ice = np.divide(_spread(mesh, frozen * WATER_TO_ICE), area, out=np.zeros(n), where=area > 0)
+    ice = np.divide(_spread(mesh, frozen * WATER_TO_ICE, area), area, out=np.zeros(n), where=area > 0)
     ice[ice < GLAZE_MIN_M] = 0.0  # a film the blur thinned to nothing: no coat there
     budget = StormBudget(float(catch.sum()), float(frozen.sum()), float(shed.sum()), float(pooled.sum()))
     return StormResult(sky=sky, catch=catch, ice=ice, shed=shed, budget=budget)
 
 
 
-def _spread(mesh: trimesh.Trimesh, volume: np.ndarray) -> np.ndarray:
+def _spread(mesh: trimesh.Trimesh, volume: np.ndarray, area: np.ndarray) -> np.ndarray:
     """``(n,)`` ice volumes per vertex, m^3, relaxed over about `GLAZE_BLUR_M`: each pass a
     vertex keeps half its ice and hands the rest to its edge neighbours in proportion to
     their areas (the total stays exactly the same; equal shares piled 29 cm of ice on the
@@ -256,7 +256,6 @@ def _spread(mesh: trimesh.Trimesh, volume: np.ndarray) -> np.ndarray:
     if len(edges) == 0:
         return volume
     n = len(volume)
-    area = vertex_areas(mesh)
     a, b = edges[:, 0], edges[:, 1]
     around = np.bincount(a, weights=area[b], minlength=n) + np.bincount(b, weights=area[a], minlength=n)
     passes = int(min(MAX_BLUR_PASSES, np.ceil(GLAZE_BLUR_M / max(float(np.median(mesh.edges_unique_length)), 1e-9))))
@@ -267,7 +266,7 @@ def _spread(mesh: trimesh.Trimesh, volume: np.ndarray) -> np.ndarray:
             + np.bincount(b, weights=per_area[a] * area[b], minlength=n)
     return v
 
-def _routes(mesh: trimesh.Trimesh, g: np.ndarray, cos_up: np.ndarray):
+def _routes(mesh: trimesh.Trimesh, g: np.ndarray, cos_up: np.ndarray, area: np.ndarray):
     """Where the water at each vertex goes next, and an order that visits every vertex
     after all those that feed it.
 
@@ -329,7 +328,7 @@ def _routes(mesh: trimesh.Trimesh, g: np.ndarray, cos_up: np.ndarray):
     share = weight / total[src]
     step = np.bincount(src, weights=share * run, minlength=n)
     stops = np.diff(start) == 0
-    step[stops] = np.sqrt(np.maximum(vertex_areas(mesh)[stops], 0.0))
+    step[stops] = np.sqrt(np.maximum(area[stops], 0.0))
     order = np.lexsort((-flat_distance, -heights))
     outlet = stops & ~(cos_up > 0)
     return start, target, share, step, order, outlet
