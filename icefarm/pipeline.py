@@ -287,6 +287,8 @@ def _surface_and_render(spec: JobSpec, job_dir: Path, run: _Run, until: Stage | 
     stats.update(object_material=material.to_dict(), render_variant=result.variant, render_integrator=result.integrator,
                  renderer=result.renderer,
                  render_seconds=result.seconds, scene_seconds=result.scene_seconds,
+                 render_view_seconds=[round(v, 3) for v in result.view_seconds],
+                 denoise_seconds=round(result.denoise_seconds, 3),
                  scene_write_seconds=result.write_seconds, scene_load_seconds=result.load_seconds,
                  scene_wait_seconds=result.wait_seconds,
                  povray_write_cpu_seconds=result.povray_write_cpu_seconds)

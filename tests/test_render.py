@@ -339,7 +339,7 @@ def test_a_process_pinned_to_one_core_renders(tmp_path):
 
 def test_ice_changes_the_picture_where_it_projects(tmp_path):
     box, ice = box_with_icicles()
-    config = tiny_config(resolution=[80, 60], spp=8)
+    config = tiny_config(resolution=[80, 60], spp=8, denoise="none")
     points = np.vstack([box.vertices, ice.vertices])  # same camera for both pictures
     with_ice = write_scenes(tmp_path / "ice", box, ice, config, frame_points=points)
     write_scenes(tmp_path / "bare", box, None, config, frame_points=points)

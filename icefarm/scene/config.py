@@ -27,6 +27,7 @@ from .config_checks import (MAX_ABSORPTION, _absorption, _choice, _number, _refu
 RENDERERS = ("mitsuba", "povray", "both")
 VARIANTS = ("auto", "scalar_rgb", "llvm_ad_rgb", "cuda_ad_rgb")
 GROUNDS = ("checker", "plain", "none")
+DENOISERS = ("none", "oidn")  # oidn: Intel Open Image Denoise, with albedo and normal features
 # Shipped inside the package (package data), so a plain `pip install` renders; the repo's
 # top-level render_configs/ is a link to it, where users look.
 CONFIG_DIR = Path(str(importlib.resources.files("icefarm") / "render_configs"))
@@ -177,6 +178,11 @@ class RenderConfig:
         Samples per pixel (Mitsuba).
     max_depth : int
         Longest light path; ice needs several bounces.
+    denoise : {"none", "oidn"}
+        ``oidn`` denoises each view with Intel Open Image Denoise, guided by the albedo
+        and normal of what each pixel shows (through the ice, what lies behind it):
+        fewer samples give the same image. The EXR stays linear and says so in its
+        ``icefarm:denoised`` attribute.
     views : tuple of View
         The first is the main view (``render.png``); others give ``render_view<i>.png``.
     fov : float
@@ -192,6 +198,7 @@ class RenderConfig:
     resolution: tuple[int, int] = (320, 240)
     spp: int = 32
     max_depth: int = 12
+    denoise: str = "none"
     views: tuple[View, ...] = (View("three_quarter", *NAMED_VIEWS["three_quarter"]),)
     fov: float = 30.0
     ice: IceLook = field(default_factory=IceLook)
@@ -282,6 +289,7 @@ _TOP: dict[str, Callable] = {
     "resolution": _resolution,
     "spp": _number(1, 1 << 16, integer=True),
     "max_depth": _number(1, 1000, integer=True),
+    "denoise": _choice(DENOISERS),
     "views": _views,
     "fov": _number(1.0, 170.0),
 }

@@ -6,14 +6,18 @@ from pathlib import Path
 
 import numpy as np
 
-def write_exr(path: str | Path, rgb: np.ndarray, half: bool = True) -> None:
-    """Write linear RGB ``(h, w, 3)`` to an EXR (half floats unless ``half`` is False)."""
+def write_exr(path: str | Path, rgb: np.ndarray, half: bool = True,
+              attributes: dict[str, str] | None = None) -> None:
+    """Write linear RGB ``(h, w, 3)`` to an EXR (half floats unless ``half`` is False),
+    with string ``attributes`` in its header."""
     import OpenImageIO as oiio
 
     rgb = np.ascontiguousarray(rgb, dtype=np.float32)
     spec = oiio.ImageSpec(rgb.shape[1], rgb.shape[0], rgb.shape[2], oiio.HALF if half else oiio.FLOAT)
     spec.attribute("compression", "zip")
     spec.attribute("oiio:ColorSpace", "lin_rec709")
+    for key, value in (attributes or {}).items():
+        spec.attribute(key, str(value))
     out = oiio.ImageOutput.create(str(path))
     if out is None or not out.open(str(path), spec):
         raise OSError(f"cannot write {path}: {oiio.geterror()}")

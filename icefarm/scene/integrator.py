@@ -50,6 +50,9 @@ RR_DEPTH = 5  # Mitsuba's path default: Russian roulette from this depth on
 _JIT_PREFIXES = ("llvm_", "cuda_")
 ISOTROPIC = 1.0 / (4.0 * math.pi)  # phase function value of isotropic scattering
 AFTER_SCATTER = 2  # real vertices a path may have after it scattered inside the ice
+# The denoiser's feature buffers, after RGB: albedo and normal where the path first meets
+# something that is not a mirror or a refraction (through the ice, what it shows).
+FEATURE_CHANNELS = ("albedo.R", "albedo.G", "albedo.B", "normal.X", "normal.Y", "normal.Z")
 
 
 def _coefficients(value, name: str) -> tuple[float, float, float]:
@@ -89,8 +92,9 @@ class _IcePathMethods:
 
     Properties: ``max_depth`` (int, -1 unbounded; default 12), ``rr_depth`` (5),
     ``ior`` (1.31), ``tint`` (rgb, (1, 1, 1)), ``max_crossings`` (16), ``sigma_a`` and
-    ``sigma_s`` (rgb, absorption and scattering of the ice per scene unit; default 0)
-    and the base class's ``hide_emitters``.
+    ``sigma_s`` (rgb, absorption and scattering of the ice per scene unit; default 0),
+    ``features`` (bool, default False: also write the denoiser's albedo and normal,
+    `FEATURE_CHANNELS`) and the base class's ``hide_emitters``.
     """
 
     def __init__(self, props):
@@ -111,6 +115,7 @@ class _IcePathMethods:
             raise ValueError(f"tint must be three numbers in [0, 1], got {self.tint}")
         if self.rr_depth < 1 or self.max_crossings < 0:
             raise ValueError("rr_depth must be >= 1 and max_crossings >= 0")
+        self.features = bool(props.get("features", False))
         self.sigma_a = _coefficients(props.get("sigma_a", 0.0), "sigma_a")
         self.sigma_s = _coefficients(props.get("sigma_s", 0.0), "sigma_s")
         # Kernel inputs rather than constants: a sweep over impurity reuses one kernel.
@@ -126,6 +131,9 @@ class _IcePathMethods:
     @property
     def has_scattering(self) -> bool:
         return max(self.sigma_s) > 0.0
+
+    def aov_names(self):
+        return list(FEATURE_CHANNELS) if self.features else []
 
     def to_string(self):
         return (f"IcePathIntegrator[max_depth={self.max_depth}, rr_depth={self.rr_depth}, "
@@ -243,6 +251,9 @@ class _IcePathMethods:
         inside = mi.Bool(False)  # the segment being traced runs inside the ice
         scattered = mi.Bool(False)  # the path scattered inside the ice already
         last = mi.UInt32(self.max_depth)  # real vertices allowed (fewer once it scattered)
+        albedo = mi.Spectrum(0.0)  # denoiser features, taken once per path (`FEATURE_CHANNELS`)
+        normal = mi.Vector3f(0.0)
+        featured = mi.Bool(not self.features)
 
         while dr.hint(active, label="icepath"):
             si = scene.ray_intersect(ray, active)
@@ -273,6 +284,19 @@ class _IcePathMethods:
             real = surface & ~through
             valid_ray |= (real & (depth == 0) & si.is_valid()) | scatter
             bsdf = si.bsdf(ray)
+
+            if dr.hint(self.features, mode="scalar"):
+                # the first diffuse or glossy vertex seen through any mirror or refraction
+                # chain, weighted by what that chain lets through; the sky where it escapes
+                hit = real & si.is_valid() & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
+                sky = real & ~si.is_valid()
+                take = ~featured & (hit | sky | scatter)
+                seen = dr.select(hit, bsdf.eval_diffuse_reflectance(si, hit),
+                                 dr.select(sky, scene.environment().eval(si, sky) if scene.environment()
+                                           is not None else mi.Spectrum(0.0), 1.0))
+                albedo[take] = dr.clip(beta * seen, 0.0, 1.0)
+                normal[take] = dr.select(hit, si.sh_frame.n, mi.Vector3f(0.0))
+                featured |= take
 
             # ---- pass-through: same direction, Fresnel transmittance, not a bounce
             crossings[through] += 1
@@ -354,7 +378,8 @@ class _IcePathMethods:
                 ray = dr.select(scatter, mi.Ray3f(scatter_p, wo, ray.time, ray.wavelengths), ray)
             active = (through_next & (beta_max != 0.0)) | vertex_next
 
-        return L, valid_ray, []
+        aovs = [albedo[0], albedo[1], albedo[2], normal[0], normal[1], normal[2]] if self.features else []
+        return L, valid_ray, aovs
 
 
 @functools.cache
@@ -396,7 +421,8 @@ def integrator_class(variant: str) -> type:
 
 def ice_integrator(variant: str, max_depth: int = 12, ior: float = IceLook.ior,
                    tint: Sequence[float] = IceLook.tint, max_crossings: int = MAX_CROSSINGS,
-                   sigma_a: Sequence[float] | float = 0.0, sigma_s: Sequence[float] | float = 0.0):
+                   sigma_a: Sequence[float] | float = 0.0, sigma_s: Sequence[float] | float = 0.0,
+                   features: bool = False):
     """The ice-aware path tracer for ``variant``, or None on scalar variants.
 
     Render with ``mi.render(scene, sensor=i, spp=spp, integrator=it)``; on None keep the
@@ -418,6 +444,9 @@ def ice_integrator(variant: str, max_depth: int = 12, ior: float = IceLook.ior,
     sigma_a, sigma_s : (3,) float or float
         Absorption and scattering coefficients inside the ice, per scene unit (meter):
         the ice's ``homogeneous`` medium (`medium_coefficients` reads them from a scene).
+    features : bool
+        Also write the denoiser's feature buffers (`FEATURE_CHANNELS`): ``mi.render``
+        then returns these six channels after the three of RGB.
 
     Returns
     -------
@@ -441,6 +470,7 @@ def ice_integrator(variant: str, max_depth: int = 12, ior: float = IceLook.ior,
     props["max_crossings"] = int(max_crossings)
     props["sigma_a"] = mi.ScalarColor3f(*_coefficients(sigma_a, "sigma_a"))
     props["sigma_s"] = mi.ScalarColor3f(*_coefficients(sigma_s, "sigma_s"))
+    props["features"] = bool(features)
     return cls(props)
 
 

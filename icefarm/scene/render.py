@@ -27,6 +27,7 @@ from . import geometry as geo
 from . import mitsuba as mx
 from . import povray as pov
 from .config import RenderConfig, ice_medium
+from .denoise import denoise, denoiser_version
 from .focus import ice_focus, pixel_size, surface_points, zoom_on_ice
 from .images import _png_to_exr, write_exr, write_png
 from .material import Material, material_from_dict
@@ -308,6 +309,10 @@ class RenderResult:
         POV-Ray wall time, all views (0 when it did not run).
     files : tuple of Path
         Images written, the main ``render.exr`` and ``render.png`` first.
+    view_seconds : tuple of float
+        Mitsuba's time per view (they add up to ``seconds``).
+    denoise_seconds : float
+        Of ``seconds``, the denoiser's (0 when the config does not denoise).
     """
 
     renderer: str
@@ -320,6 +325,8 @@ class RenderResult:
     povray_write_cpu_seconds: float
     povray_seconds: float
     files: tuple[Path, ...]
+    view_seconds: tuple[float, ...] = ()
+    denoise_seconds: float = 0.0
 
     @property
     def scene_seconds(self) -> float:
@@ -356,17 +363,16 @@ def render_mitsuba(job_dir: Path, config: RenderConfig, variant: str,
     passes (`sample_passes`, each with its own seed, averaged), with a progress bar over
     them when ``progress`` is set.
 
+    With ``config.denoise`` set, each view is denoised (`denoise.denoise`) with the
+    albedo and normal icepath writes beside it.
+
     Returns
     -------
-    load_seconds, render_seconds : float
-    files : list of Path
-    integrator : str
-        ``icepath``, or what scene.xml names (``path``, ``volpath`` when the ice holds a
-        medium) where icepath does not run (scalar variants, scenes without ice).
+    MitsubaRun
     """
     import mitsuba as mi
 
-    from .integrator import ice_integrator, medium_coefficients
+    from .integrator import FEATURE_CHANNELS, ice_integrator, medium_coefficients
 
     if mi.variant() != variant:
         mi.set_variant(variant)
@@ -376,33 +382,83 @@ def render_mitsuba(job_dir: Path, config: RenderConfig, variant: str,
     if on_loaded is not None:
         on_loaded(scene)
     has_ice = any(shape.id() == "ice" for shape in scene.shapes())
+    denoised = config.denoise == "oidn"
     integrator = None
-    if has_ice and variant.startswith(("llvm_", "cuda_")):
-        # the medium as scene.xml has it (written from the config and the job's impurity)
+    if (has_ice or denoised) and variant.startswith(("llvm_", "cuda_")):
+        # the medium as scene.xml has it (written from the config and the job's impurity);
+        # without ice icepath is a plain path tracer, that also writes the denoiser's features
         sigma_a, sigma_s = medium_coefficients(scene, "ice") or ((0.0,) * 3, (0.0,) * 3)
         integrator = ice_integrator(variant, config.max_depth, config.ice.ior, config.ice.tint,
-                                    sigma_a=sigma_a, sigma_s=sigma_s)
+                                    sigma_a=sigma_a, sigma_s=sigma_s, features=denoised)
+    channels = 3 + (len(FEATURE_CHANNELS) if denoised and integrator is not None else 0)
     passes = sample_passes(config.width * config.height, config.spp, PASS_SAMPLES)
     n_views = len(scene.sensors())
     bar = tqdm(total=n_views * config.spp, unit="spp", desc="render", dynamic_ncols=True,
                disable=not progress or len(passes) == 1 and n_views == 1)
-    render_seconds, files = 0.0, []
+    view_seconds, denoise_seconds, files = [], 0.0, []
     for i in range(n_views):
         start = time.perf_counter()
-        image = np.zeros((config.height, config.width, 3))
+        image = np.zeros((config.height, config.width, channels))
         for seed, spp in enumerate(passes):
-            rendered = mi.render(scene, sensor=i, spp=spp, seed=seed, integrator=integrator)
-            image += np.asarray(rendered, dtype=np.float64)[..., :3] * (spp / config.spp)
+            rendered = np.asarray(mi.render(scene, sensor=i, spp=spp, seed=seed, integrator=integrator))
+            image += _channels(rendered, channels) * (spp / config.spp)
             bar.update(spp)
-        render_seconds += time.perf_counter() - start
+        rgb = image[..., :3]
+        if denoised:
+            rendered_at = time.perf_counter()
+            rgb = denoise(rgb, *((image[..., 3:6], image[..., 6:9]) if channels > 3 else ()))
+            denoise_seconds += time.perf_counter() - rendered_at
+        view_seconds.append(time.perf_counter() - start)
         stem = view_stem(i)
-        write_exr(job_dir / f"{stem}.exr", image[..., :3])
-        write_png(job_dir / f"{stem}.png", image[..., :3])
+        write_exr(job_dir / f"{stem}.exr", rgb, attributes=_denoise_note(config, channels) if denoised else None)
+        write_png(job_dir / f"{stem}.png", rgb)
         files += [job_dir / f"{stem}.exr", job_dir / f"{stem}.png"]
     bar.close()
     name = "icepath" if integrator is not None else _integrator_name(scene)
     del scene  # no scene outlives the job (Mitsuba's memory grows with loads)
-    return load_seconds, render_seconds, files, name
+    return MitsubaRun(load_seconds, tuple(view_seconds), denoise_seconds, tuple(files), name)
+
+
+@dataclass(frozen=True)
+class MitsubaRun:
+    """What `render_mitsuba` did.
+
+    Attributes
+    ----------
+    load_seconds : float
+        Loading ``scene.xml``.
+    view_seconds : tuple of float
+        Per view: rendering, denoising and converting the image (writing it excluded).
+    denoise_seconds : float
+        Denoising, all views (0 when the config does not denoise).
+    files : tuple of Path
+        The images written.
+    integrator : str
+        ``icepath``, or what scene.xml names (``path``, ``volpath`` when the ice holds a
+        medium) where icepath does not run (scalar variants, scenes without ice that
+        are not denoised).
+    """
+
+    load_seconds: float
+    view_seconds: tuple[float, ...]
+    denoise_seconds: float
+    files: tuple[Path, ...]
+    integrator: str
+
+
+def _channels(rendered: np.ndarray, channels: int) -> np.ndarray:
+    """RGB (and the features after it) of ``mi.render``'s image, which may hold alpha
+    and a weight before the features."""
+    if channels == 3 or rendered.shape[-1] == channels:
+        return rendered[..., :channels]
+    return np.concatenate([rendered[..., :3], rendered[..., -(channels - 3):]], axis=-1)
+
+
+def _denoise_note(config: RenderConfig, channels: int) -> dict[str, str]:
+    """The EXR attribute that says what was denoised, with what and from how many samples."""
+    guides = "albedo and normal features" if channels > 3 else "colour only"
+    return {"icefarm:denoised": f"{denoiser_version()} RT filter, HDR, {guides}, from {config.spp} spp; "
+                                "pixels stay linear"}
 
 
 def _integrator_name(scene) -> str:
@@ -457,11 +513,14 @@ def render_job(job_dir: str | Path, config: RenderConfig, scene: SceneFiles | No
             if config.uses_povray:
                 pov.require_povray()  # before spending time on Mitsuba
             files: list[Path] = []
-            variant, integrator, load_seconds, seconds, pov_seconds = "", "", 0.0, 0.0, 0.0
+            variant, integrator, load_seconds, pov_seconds = "", "", 0.0, 0.0
+            views, denoise_seconds = (), 0.0
             if config.uses_mitsuba:
                 variant = pick_variant(config.variant)
-                load_seconds, seconds, files, integrator = render_mitsuba(
-                    job_dir, config, variant, on_loaded=start_povray if writer else None, progress=progress)
+                run = render_mitsuba(job_dir, config, variant, on_loaded=start_povray if writer else None,
+                                     progress=progress)
+                load_seconds, views, denoise_seconds = run.load_seconds, run.view_seconds, run.denoise_seconds
+                files, integrator = list(run.files), run.integrator
         finally:  # the job is not over while its scene.pov is missing or being written
             start = time.perf_counter()
             start_povray()
@@ -480,7 +539,8 @@ def render_job(job_dir: str | Path, config: RenderConfig, scene: SceneFiles | No
                 files += [job_dir / f"{stem}.exr", job_dir / f"{stem}.png"]
     if not config.uses_mitsuba:  # keep render.exr, render.png first
         files.sort(key=lambda p: (not p.name.startswith("render."), p.name))
-    return RenderResult(renderer=config.renderer, variant=variant, integrator=integrator, seconds=seconds,
+    return RenderResult(renderer=config.renderer, variant=variant, integrator=integrator, seconds=sum(views),
+                        view_seconds=views, denoise_seconds=denoise_seconds,
                         write_seconds=scene.seconds if scene is not None else 0.0,
                         load_seconds=load_seconds, wait_seconds=waited, povray_write_cpu_seconds=writer_cpu,
                         povray_seconds=pov_seconds, files=tuple(files))
