@@ -14,7 +14,7 @@ from .march import _march
 _MAX_TILES = 2**22
 
 
-def fuse_fields(a: Field | None, b: Field | None):
+def fuse_fields(a: Field | None, b: Field | None, detail: Field | None = None):
     """Boolean union of the iso-surfaces of two sampled fields, each on its own lattice.
 
     Both are marched whole. The union only cuts them where they come close, so only there
@@ -29,6 +29,10 @@ def fuse_fields(a: Field | None, b: Field | None):
     ----------
     a, b : Field or None
         From `sample_field`; None is an empty field.
+    detail : Field, optional
+        A third field, on a finer lattice, whose surface stays away from ``b``'s (the thin
+        ends of icicles meshed finer than their thick parts in ``a``): it is united with
+        ``a``'s part of the result the same way, after ``a`` and ``b``.
 
     Returns
     -------
@@ -37,18 +41,36 @@ def fuse_fields(a: Field | None, b: Field | None):
     faces : (m, 3) int64
         Outward-wound, watertight.
     """
+    if detail is not None and a is None:
+        return fuse_fields(detail, b)
     parts = []
     for f in (a, b):
         if f is not None:
             lattice, faces = _march(f.values, f.blocks, f.level)
             if len(faces):
                 parts.append((f, f.origin + lattice * f.voxel, lattice, faces))
+    keeps_a = bool(parts) and parts[0][0] is a
     if len(parts) < 2:
-        return (parts[0][1], parts[0][3]) if parts else (np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64))
-    fused = _local_union(*parts)
+        fused = (parts[0][1], parts[0][3], parts[0][2] if keeps_a else None) if parts else None
+    else:
+        fused = _local_union(*parts)
+        if fused is None:
+            fused = (*union_meshes([(p[1], p[3]) for p in parts]), None)
+    if detail is not None:
+        d_lattice, d_faces = _march(detail.values, detail.blocks, detail.level)
+        if len(d_faces):
+            d_part = (detail, detail.origin + d_lattice * detail.voxel, d_lattice, d_faces)
+            if fused is None:
+                return d_part[1], d_part[3]
+            verts, faces, lattice = fused
+            fused = None
+            if lattice is not None:  # a's faces near the detail are a's marching: unite there only
+                fused = _local_union(d_part, (a, verts, lattice, faces))
+            if fused is None:
+                return union_meshes([(verts, faces), (d_part[1], d_part[3])])
     if fused is None:
-        fused = union_meshes([(p[1], p[3]) for p in parts])
-    return fused
+        return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64)
+    return fused[0], fused[1]
 
 
 def _margin(field: Field, other: Field) -> float:
@@ -68,6 +90,15 @@ def _local_union(a, b):
     """`fuse_fields` near where the surfaces meet; None when a check fails.
 
     ``a``, ``b``: (field, vertices in meters, vertices in lattice coordinates, faces).
+    The lattice coordinates may be NaN for vertices that the field's marching did not
+    make (a mesh that was united before): their faces must lie away from the other surface.
+
+    Returns
+    -------
+    vertices : (n, 3) float64
+    faces : (m, 3) int64
+    lattice : (n, 3) float64
+        The lattice coordinates of ``a``'s vertices on ``a``'s lattice, NaN for the others.
     """
     sides = []
     for (field, verts, lattice, faces), (other, other_verts, *_) in ((a, b), (b, a)):
@@ -121,7 +152,9 @@ def _local_union(a, b):
     if not _closed_around(faces, touched):
         return None
     used = _used(faces, len(verts))
-    return verts[used], (np.cumsum(used) - 1)[faces]
+    lattice = np.full((len(verts), 3), np.nan)
+    lattice[:na] = a[2]
+    return verts[used], (np.cumsum(used) - 1)[faces], lattice[used]
 
 
 def _used(faces: np.ndarray, n: int) -> np.ndarray:
@@ -170,24 +203,22 @@ def _inner_faces(lattice: np.ndarray, faces: np.ndarray, region, lo, tile) -> np
 
     A face's cell is the floor of its vertices' least coordinates, the same for all faces
     of a cell, so a cell's faces (and the vertex some cells add inside) never split between
-    the two sides of the seam. A cell across tiles asks for the 2 x 2 x 2 tiles from its own.
+    the two sides of the seam. A cell across tiles asks for each tile its samples lie in
+    (asking for the whole 2 x 2 x 2 block left faces near a third field's surface out of the
+    region).
     """
-    corner = np.floor(lattice).astype(np.int32)
+    # NaN (a vertex of no marching of this field): a cell far outside every region
+    corner = np.floor(np.where(np.isfinite(lattice), lattice, -2.0**30)).astype(np.int32)
     cell = np.minimum(np.minimum(corner[faces[:, 0]], corner[faces[:, 1]]), corner[faces[:, 2]])
     t = cell // tile - lo.astype(np.int32)
-    across = (cell % tile == tile - 1).any(axis=1)
-    box = region.copy()
-    for axis in range(3):
-        head = [slice(None)] * 3
-        tail = [slice(None)] * 3
-        head[axis], tail[axis] = slice(0, -1), slice(1, None)
-        box[tuple(head)] &= box[tuple(tail)]
-        tail[axis] = -1
-        box[tuple(tail)] = False
-    ok = ((t >= 0) & (t < np.array(region.shape))).all(axis=1)
-    inner = np.zeros(len(faces), dtype=bool)
-    t, across = t[ok], across[ok]
-    inner[ok] = np.where(across, box[t[:, 0], t[:, 1], t[:, 2]], region[t[:, 0], t[:, 1], t[:, 2]])
+    across = cell % tile == tile - 1  # per axis: the cell's samples reach the next tile
+    shape = np.array(region.shape)
+    inner = ((t >= 0) & (t < shape - across)).all(axis=1)
+    inner[inner] = region[t[inner, 0], t[inner, 1], t[inner, 2]]
+    for step in list(np.ndindex(2, 2, 2))[1:]:  # every other tile the cell's 8 samples lie in
+        rows = np.flatnonzero(inner & across[:, np.array(step, dtype=bool)].all(axis=1))
+        u = t[rows] + np.array(step, dtype=np.int32)
+        inner[rows] = region[u[:, 0], u[:, 1], u[:, 2]]
     return inner
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 
 from dataclasses import dataclass
@@ -17,7 +18,8 @@ from ..trajectories import TrajectoryResult
 from ..water import WaterResult
 from .bases import base_balls
 from .curtains import curtain_balls
-from .glaze import glaze_field
+from .detail import coarse_voxel, split_balls, surface_spacing
+from .glaze import glaze_field, glaze_thickness, wet_vertices
 from .icicles import icicle_balls
 from .measure import IcicleStats, measure_icicles
 from .profile import _branch_lengths, grown_lengths, profile_args, smooth_radius
@@ -144,7 +146,8 @@ def build_ice(object_mesh: trimesh.Trimesh, flow_mesh: trimesh.Trimesh, water: W
         budget = surface.face_budget if water.storm is not None else 0
         if budget:
             voxel = budget_voxel(trajectories, surface, ICICLE_SHARE * budget)
-        ice = concat_balls(icicle_balls(trajectories, surface, rng),
+        chains = icicle_balls(trajectories, surface, rng)
+        ice = concat_balls(chains,
                            base_balls(object_mesh, drips, surface, rng, _root_radius(trajectories, k, surface)))
         curtains = curtain_balls(trajectories, surface, g)
         more = [b for b in (curtains.balls, extra_balls) if b is not None and len(b)]
@@ -152,13 +155,42 @@ def build_ice(object_mesh: trimesh.Trimesh, flow_mesh: trimesh.Trimesh, water: W
             ice = concat_balls(ice, *more)
         coat = glaze_field(flow_mesh, water, glaze, rng, exclude=exclude, cast=cast,
                            face_budget=(1.0 - ICICLE_SHARE) * budget)
-        verts, faces = fuse_fields(sample_field(ice, voxel), coat)
+        fine = None
+        coarse = coarse_voxel(voxel, float(np.linalg.norm(np.ptp(object_mesh.vertices, axis=0))),
+                              surface.error_px, *_ripple(surface)) if budget else None
+        if coarse is not None:
+            chain = np.arange(len(ice)) < len(chains)
+            clearance = _coat_reach(flow_mesh, water, glaze, coat, coarse, voxel)
+            ice, fine = split_balls(ice, coarse, flow_mesh.vertices, clearance, chain)
+            voxel_ice = coarse
+        else:
+            voxel_ice = voxel
+        verts, faces = fuse_fields(sample_field(ice, voxel_ice) if len(ice) else None, coat,
+                                   sample_field(fine, voxel) if fine is not None and len(fine) else None)
         verts = carve_ripples(verts, trajectories, profile_args(surface))
         verts, faces = collapse_slivers(verts, faces, SLIVER * voxel)
         faces = flip_needles(verts, faces, SLIVER * voxel)
         n_balls, curtain_area = len(ice), curtains.area
     return IceResult(verts, faces, measure_icicles(verts, faces, trajectories, surface) if measure else None,
                      n_balls, curtain_area)
+
+
+def _ripple(surface: SurfaceParams) -> tuple[float, float]:
+    """The ripples' amplitude and wavelength, meters."""
+    prof = profile_args(surface)
+    return prof["amplitude"], (2 * np.pi / prof["frequency"] if prof["frequency"] > 0 else 0.0)
+
+
+def _coat_reach(flow_mesh: trimesh.Trimesh, water: WaterResult, glaze: GlazeParams, coat, coarse: float,
+                fine: float) -> float:
+    """How far from the flow mesh's vertices the glaze coat and the margins of its union
+    with the icicles' coarse part may reach, meters (`detail.split_balls`'s clearance)."""
+    reach = surface_spacing(flow_mesh.vertices, flow_mesh.faces) + glaze.edge
+    if coat is not None:
+        wet = wet_vertices(water)
+        thick = glaze_thickness(water, glaze)
+        reach += (float(thick[wet].max()) if wet.any() else 0.0) + 2.0 * coat.voxel
+    return reach + 2.0 * (math.sqrt(3) + 2.0) * (coarse + fine)
 
 
 def budget_voxel(traj: TrajectoryResult, surface: SurfaceParams, faces: float) -> float:

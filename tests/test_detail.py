@@ -1,0 +1,124 @@
+"""The geometric-error budget: thick icicle parts on a coarse lattice, thin ends on a fine one."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from icefarm import metaballs as M
+from icefarm.metaballs import fuse
+from icefarm.metaballs.balls import KAPPA
+from icefarm.stages.surface.detail import COARSE, coarse_voxel, split_balls
+
+
+def _sphere_field(centre, radius, voxel):
+    """One Gaussian ball weighing LEVEL * e: a sphere of radius = its width."""
+    b = M.Balls(np.array([centre], float), np.array([radius]), np.array([M.LEVEL * np.e]))
+    return M.sample_field(b, voxel)
+
+
+def _cone_chain(top, length, r_top, r_tip, step):
+    """A chain of calibrated balls hanging down (-y) from ``top``, from ``r_top`` to ``r_tip``."""
+    n = int(length / step) + 1
+    y = np.linspace(0.0, length, n)
+    radius = r_top + (r_tip - r_top) * y / length
+    centres = np.asarray(top, float) + np.c_[np.zeros(n), -y, np.zeros(n)]
+    width = KAPPA * radius
+    # weight of a chain ball: LEVEL at the radius for balls one spacing apart (`icefarm.metaballs.balls`)
+    weight = M.LEVEL * step / (np.sqrt(np.pi) * width) * np.exp(1 / KAPPA**2)
+    return M.Balls(centres, width, weight)
+
+
+def _closed(verts, faces) -> trimesh.Trimesh:
+    m = trimesh.Trimesh(verts, faces, process=False)
+    assert m.is_watertight and m.is_winding_consistent and m.area_faces.min() > 0
+    return m
+
+
+def test_a_third_finer_field_is_united_locally_and_agrees_with_the_whole_boolean(monkeypatch):
+    coarse_voxel_m, fine_voxel_m = 0.003, 0.001
+    slab = _sphere_field([0.0, 0.10, 0.0], 0.04, 0.004)  # the coat, far above the tip
+    icicle = _cone_chain([0.0, 0.06, 0.0], 0.10, 0.012, 0.002, 0.001)
+    coarse, fine = split_balls(icicle, coarse_voxel_m, np.array([[0.0, 0.10, 0.0]]), clearance=0.03)
+    assert len(coarse) and len(fine)
+    a, d = M.sample_field(coarse, coarse_voxel_m), M.sample_field(fine, fine_voxel_m)
+    whole = []
+    real_union = fuse.union_meshes
+    monkeypatch.setattr(fuse, "union_meshes", lambda parts: whole.append(1) or real_union(parts))
+    m = _closed(*M.fuse_fields(a, slab, d))
+    assert not whole, "fell back to the whole-mesh boolean"
+    assert len(m.split(only_watertight=False)) == 1  # the tip, the thick part and the slab: one solid
+    # the same solids through the whole-mesh boolean
+    parts = [fuse._march(f.values, f.blocks, f.level) for f in (a, slab, d)]
+    ref = _closed(*real_union([(f.origin + lat * f.voxel, fc) for f, (lat, fc) in zip((a, slab, d), parts)]))
+    assert m.volume == pytest.approx(ref.volume, rel=0.005)
+    # the tip keeps its fine lattice: its end reaches as low as the chain's last ball
+    assert m.vertices[:, 1].min() == pytest.approx(0.06 - 0.10 - 0.002, abs=0.0008)
+
+
+def test_the_fine_lattice_takes_only_thin_balls_away_from_the_surface():
+    voxel = 0.006
+    radius = np.array([0.002, 0.004, 0.0065, 0.008, 0.02, 0.002])
+    centres = np.array([[0, -0.5, 0], [0, -0.4, 0], [0, -0.3, 0], [0, -0.35, 0], [0, -0.2, 0], [0, -0.01, 0]], float)
+    balls = M.Balls(centres, KAPPA * radius, np.ones(6))
+    coarse, fine = split_balls(balls, voxel, np.zeros((1, 3)), clearance=0.05)
+    fine_r = set(np.round(fine.widths / KAPPA, 4))
+    coarse_r = list(np.round(coarse.widths / KAPPA, 4))
+    assert fine_r == {0.002, 0.004, 0.0065}  # thin and far; 6.5 mm is in the overlap band
+    assert 0.0065 in coarse_r and 0.02 in coarse_r and 0.008 in coarse_r  # at least a voxel: coarse
+    assert coarse_r.count(0.002) == 1  # the thin ball next to the surface stays with the coat's side
+    chain = np.array([True, False, True, True, True, True])  # a base ball is never fine
+    _, fine = split_balls(balls, voxel, np.zeros((1, 3)), clearance=0.05, chain=chain)
+    assert 0.004 not in set(np.round(fine.widths / KAPPA, 4))
+
+
+def test_the_budget_coarsens_big_assets_only():
+    # 0.3 m bunny at 1 mm voxels: a lookdev pixel is under a millimetre; one lattice
+    assert coarse_voxel(0.001, 0.4, 0.25, 0.0005, 0.01) is None
+    # 3 m house: 11 mm pixels; ripples under the error: three times the tips' voxel
+    assert coarse_voxel(0.00244, 5.4, 0.25, 0.0005, 0.01) == pytest.approx(COARSE * 0.00244)
+    # the same asset with ripples deeper than the error keeps them sampled (4 per wave): no room
+    assert coarse_voxel(0.00244, 5.4, 0.25, 0.004, 0.01) is None
+    assert coarse_voxel(0.00244, 5.4, 0.0, 0.0005, 0.01) is None  # budget off
+
+
+def test_inner_faces_ask_only_for_the_tiles_a_cell_touches():
+    region = np.zeros((4, 4, 4), dtype=bool)
+    region[1, 1, 1] = region[1, 2, 1] = True
+    tile = 4
+    # cell (7, 7, 4): its samples reach x 8 (tile 2, not in the region) -> out;
+    # cell (4, 7, 4): its samples span y tiles 1 and 2 only, both in -> in
+    lattice = np.array([[7.2, 7.0, 4.0], [7.0, 7.5, 4.0], [7.0, 7.0, 4.5],
+                        [4.2, 7.0, 4.0], [4.0, 7.5, 4.0], [4.0, 7.0, 4.5]])
+    faces = np.array([[0, 1, 2], [3, 4, 5]])
+    inner = fuse._inner_faces(lattice, faces, region, np.zeros(3, dtype=np.int64), tile)
+    assert inner.tolist() == [False, True]
+    nan = lattice.copy()
+    nan[3] = np.nan  # a vertex no marching of this field made: never inner
+    assert fuse._inner_faces(nan, faces, region, np.zeros(3, dtype=np.int64), tile).tolist() == [False, False]
+
+
+@pytest.mark.slow
+def test_a_big_asset_meshes_fewer_faces_with_the_same_icicles_and_stays_watertight():
+    from icefarm import params
+    from icefarm.chain import run_stages
+    from icefarm.generators import generate
+    from icefarm.mesh import prepare
+
+    from icefarm.stages.surface.measure import measure_icicles
+
+    prep = prepare(generate("roof"), 1.2)
+    results = {}
+    for error_px in (0.25, 0.0):
+        p = params.resolve({"surface": {"error_px": error_px}})
+        r = run_stages(prep, p, 0)
+        results[error_px] = r.ice, measure_icicles(r.ice.vertices, r.ice.faces, r.trajectories, p["surface"])
+    (budget, stats), (full, full_stats) = results[0.25], results[0.0]
+    m = _closed(budget.vertices, budget.faces)
+    assert len(budget.faces) < 0.6 * len(full.faces)
+    assert m.volume == pytest.approx(trimesh.Trimesh(full.vertices, full.faces).volume, rel=0.03)
+    # the tips keep their fine lattice: tip radius and taper as measured without the budget
+    assert stats.tip_radius_mm == pytest.approx(full_stats.tip_radius_mm, rel=0.1)
+    assert np.median(stats.taper) == pytest.approx(np.median(full_stats.taper), rel=0.15)
+    assert budget.vertices[:, 1].min() == pytest.approx(full.vertices[:, 1].min(), abs=0.002)
