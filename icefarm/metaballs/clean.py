@@ -9,7 +9,8 @@ from scipy.spatial import cKDTree
 
 
 def collapse_slivers(vertices: np.ndarray, faces: np.ndarray, tol: float):
-    """Merge vertices closer than ``tol`` and drop the faces that collapse.
+    """Merge the ends of edges shorter than ``tol`` (and vertices within ``tol`` of those)
+    and drop the faces that collapse.
 
     A boolean union cuts along the other surface's faces, and marching cubes can land two
     vertices a hair apart: both leave faces of next to no area (edges of 1e-8 m), which
@@ -34,30 +35,43 @@ def collapse_slivers(vertices: np.ndarray, faces: np.ndarray, tol: float):
     faces = np.asarray(faces, dtype=np.int64)
     if len(faces) == 0:
         return vertices, faces
-    pairs = cKDTree(vertices).query_pairs(tol, output_type="ndarray")
+    # Vertices a hair apart end an edge that short: only those ends are searched (a tree of
+    # every vertex of a million-face mesh took most of the time).
+    tri = vertices[faces]
+    short = (np.einsum("fij,fij->fi", tri - np.roll(tri, 1, axis=1), tri - np.roll(tri, 1, axis=1)) < tol * tol)
+    ends = np.unique(np.concatenate([faces[short], np.roll(faces, 1, axis=1)[short]]))
+    if len(ends) == 0:
+        return vertices, faces
+    pairs = ends[cKDTree(vertices[ends]).query_pairs(tol, output_type="ndarray")].reshape(-1, 2)
     if len(pairs) == 0:
         return vertices, faces
     n = len(vertices)
-    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
-    _, label = connected_components(graph, directed=False)
+    # Groups of close vertices, found among the few that are; the lowest index stands for each.
+    nodes, inverse = np.unique(pairs, return_inverse=True)
+    inverse = inverse.reshape(-1, 2)
+    graph = coo_matrix((np.ones(len(pairs)), (inverse[:, 0], inverse[:, 1])), shape=(len(nodes),) * 2)
+    _, group = connected_components(graph, directed=False)
+    lowest = np.full(group.max() + 1, n, dtype=np.int64)
+    np.minimum.at(lowest, group, nodes)
+    rep = np.arange(n)
+    rep[nodes] = lowest[group]
     touched = np.zeros(n, dtype=bool)
-    touched[pairs.ravel()] = True
+    touched[nodes] = True
     # Only faces at a merged vertex change, and every edge at one lies in such faces only,
     # so the collapse is done and checked on those faces alone.
     hit = touched[faces].any(axis=1)
-    merged = label[faces[hit]]
+    merged = rep[faces[hit]]
     keep = (merged[:, 0] != merged[:, 1]) & (merged[:, 1] != merged[:, 2]) & (merged[:, 0] != merged[:, 2])
     merged = merged[keep]
     # A collapse can leave a face and its mirror image back to back: drop both.
     _, inverse, count = np.unique(np.sort(merged, axis=1), axis=0, return_inverse=True, return_counts=True)
     merged = merged[count[inverse.reshape(-1)] == 1]
-    if not _closed_at(merged, np.unique(label[touched])):
+    if not _closed_at(merged, np.unique(rep[nodes])):
         return vertices, faces
-    out = np.concatenate([label[faces[~hit]], merged])
-    used, remap = np.unique(out, return_inverse=True)
-    first = np.zeros(label.max() + 1, dtype=np.int64)
-    first[label[::-1]] = np.arange(n)[::-1]  # the first vertex of each group stands for it
-    return vertices[first[used]], remap.reshape(-1, 3)
+    out = np.concatenate([faces[~hit], merged])
+    used = np.zeros(n, dtype=bool)
+    used[out] = True
+    return vertices[used], (np.cumsum(used) - 1)[out]
 
 
 def _closed_at(faces: np.ndarray, at: np.ndarray) -> bool:
@@ -97,8 +111,18 @@ def flip_needles(vertices: np.ndarray, faces: np.ndarray, height: float):
     if len(needles) == 0:
         return faces
     faces = faces.copy()
-    m, n = len(faces), len(vertices)
-    keys = np.concatenate([faces[:, 0] * n + faces[:, 1], faces[:, 1] * n + faces[:, 2], faces[:, 2] * n + faces[:, 0]])
+    n = len(vertices)
+    # Every edge a flip reads or makes joins two vertices of the needles' faces or of their
+    # neighbours across an edge, so the lookup holds the faces at those vertices only (an
+    # argsort of every edge of a million-face mesh took most of the time).
+    near = np.zeros(n, dtype=bool)
+    near[faces[needles]] = True
+    local = np.flatnonzero(near[faces].any(axis=1))
+    near[faces[local]] = True
+    local = np.flatnonzero(near[faces].any(axis=1))
+    sub = faces[local]
+    m = len(local)
+    keys = np.concatenate([sub[:, 0] * n + sub[:, 1], sub[:, 1] * n + sub[:, 2], sub[:, 2] * n + sub[:, 0]])
     order = np.argsort(keys)
     sorted_keys = keys[order]
     changed: dict[int, int | None] = {}  # directed edges the flips made (face) or unmade (None)
@@ -108,7 +132,7 @@ def flip_needles(vertices: np.ndarray, faces: np.ndarray, height: float):
         if key in changed:
             return changed[key]
         i = int(np.searchsorted(sorted_keys, key))
-        return int(order[i] % m) if i < len(sorted_keys) and sorted_keys[i] == key else None
+        return int(local[order[i] % m]) if i < len(sorted_keys) and sorted_keys[i] == key else None
 
     for f in needles:
         u, v, w = _longest_edge_first(vertices, faces[f])
