@@ -115,7 +115,8 @@ def run_stages(prepared: PreparedMesh, params: Mapping, seed: int = 0, *, placem
                exclude: tuple = (), overrides: Mapping[str, str | Path] | None = None,
                source: Callable[[], trimesh.Trimesh | None] | None = None, until: Stage | None = None,
                mesh_key: str = "", step: Step = _plain,
-               on_stage: Callable[[str, StageResults], None] | None = None) -> StageResults:
+               on_stage: Callable[[str, StageResults], None] | None = None,
+               note: Callable[[str], None] | None = None) -> StageResults:
     """Run stages 1-4 (and the ground ice) on a prepared mesh, as a job does.
 
     Parameters
@@ -144,6 +145,8 @@ def run_stages(prepared: PreparedMesh, params: Mapping, seed: int = 0, *, placem
         ``trajectories``, ``landing``, ``ground_ice``, ``surface``): a cache, a timer or both.
     on_stage : callable, optional
         ``on_stage(name, results)`` after each step, with the results so far (files, stats).
+    note : callable, optional
+        ``note(text)``: what a long step is doing inside (stage 4's parts), for progress.
 
     Returns
     -------
@@ -154,10 +157,10 @@ def run_stages(prepared: PreparedMesh, params: Mapping, seed: int = 0, *, placem
     if bad:
         raise ValueError(f"run_stages: no override for {sorted(bad)}; water, drips or trajectories")
     return _run(prepared, params, seed, placement, tuple(exclude), overrides, source, until, mesh_key, step,
-                on_stage or (lambda name, results: None))
+                on_stage or (lambda name, results: None), note)
 
 
-def _run(prepared, p, seed, placement, exclude, overrides, source, until, mesh_key, step, on_stage):
+def _run(prepared, p, seed, placement, exclude, overrides, source, until, mesh_key, step, on_stage, note):
     obj = prepared.mesh
     gravity = unit_gravity(p)
     casters: dict[int, Callable] = {}
@@ -311,7 +314,7 @@ def _run(prepared, p, seed, placement, exclude, overrides, source, until, mesh_k
     surface_key = digest(traj_key, p["surface"], p["glaze"], ground_key)
     advance("surface", surface_key, lambda: build_surface(
         obj, flow, water, drips, traj, p, gravity, stage_rng(seed, Stage.SURFACE), placement=placement,
-        cast=caster(flow), extra_balls=ground_balls), "ice")
+        cast=caster(flow), extra_balls=ground_balls, note=note), "ice")
     return results
 
 
@@ -324,7 +327,8 @@ def sole(flow: trimesh.Trimesh, params: Mapping, gravity: np.ndarray, placement:
 
 def build_surface(obj: trimesh.Trimesh, flow: trimesh.Trimesh, water: WaterResult, drips: DripResult,
                   traj: TrajectoryResult, params: Mapping, gravity: np.ndarray, rng: np.random.Generator, *,
-                  placement: str = "ground", glaze: Mapping | None = None, cast=None, extra_balls=None):
+                  placement: str = "ground", glaze: Mapping | None = None, cast=None, extra_balls=None,
+                  note=None):
     """Stage 4 as a job runs it (the sole kept dry, no measurements); growth frames pass
     their own drips, trajectories, ``glaze`` group and stream.
 
@@ -336,7 +340,7 @@ def build_surface(obj: trimesh.Trimesh, flow: trimesh.Trimesh, water: WaterResul
 
     ice = build_ice(obj, flow, water, drips, traj, params["surface"], params["glaze"] if glaze is None else glaze,
                     gravity, rng, exclude=sole(flow, params, gravity, placement), cast=cast, measure=False,
-                    extra_balls=extra_balls)
+                    extra_balls=extra_balls, note=note)
     floor = ground_level(placement, obj, gravity)
     if floor is None or len(ice.vertices) == 0:
         return ice

@@ -111,6 +111,7 @@ def run(mesh, size_m, assignments, seed, out, until, render, no_render, placemen
     """
     from .asset_io import missing_size, with_asset_gravity
     from .pipeline import GENERATOR_PREFIX, JobSpec, Stage, run_job
+    from .progress import ProgressMode
 
     values = _assignments(assignments)
     if growth_frames is not None:
@@ -141,7 +142,7 @@ def run(mesh, size_m, assignments, seed, out, until, render, no_render, placemen
     if cache:
         _writable_folder(cache)
     outcome = run_job(spec, Path(out), Path(cache) if cache else None, Stage(until) if until else None,
-                      progress=sys.stderr.isatty())
+                      progress=ProgressMode.for_stream(sys.stderr))
     if outcome.status is not JobState.DONE:
         click.echo(f"error: job failed {stage_phrase(outcome.failed_stage)}: {outcome.error} "
                    f"(details in {Path(out) / 'error.json'})", err=True)

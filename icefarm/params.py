@@ -250,7 +250,7 @@ PARAMS: tuple[Param, ...] = (
        "marching-cubes voxels of the icicles (never past the tip radius) and of the glaze coat "
        "grow (a 3 m house's icicles at 1 mm were 27 M faces); 0: off. The relative mode keeps "
        "the voxel sizes (Table 2's polygon counts)", low=0),
-    _p("surface", "error_px", "-", "px", _F, 0.25,
+    _p("surface", "error_px", "-", "px", _F, 0.15,
        "storm.mode physical: how far the icicles' mesh may lie off their exact surface, in pixels of "
        "a 480-pixel view framing the object; where that allows, their thick parts are meshed on a "
        "lattice 3 times coarser than their tips (a 3 m house: 7.8 M faces to under 3 M); 0: one "

@@ -8,6 +8,7 @@ last and atomically, ``error.json`` names the failed stage.
 
 from __future__ import annotations
 
+import contextlib
 import time
 import traceback
 from collections.abc import Callable
@@ -25,6 +26,7 @@ from .jobdir import DONE, ERROR, PARAMS, TIMINGS, JobState
 from .chain import Stage, StageResults, build_surface, run_stages, sole, stage_rng, stops, unit_gravity
 from .mesh import PreparedMesh, prepare
 from .placement import ground_height, ground_level
+from .progress import ProgressMode, StepProgress, step_progress
 from .scene.camera import frame_boxes
 from .stage_cache import StageCache, digest as _digest, file_digest as _file_digest
 from .scene.material import Material
@@ -128,11 +130,15 @@ class _Run:
     stage: str = "prepare"
     seconds: dict = field(default_factory=dict)
     progress: bool = False
+    steps: StepProgress = field(default_factory=lambda: step_progress(ProgressMode.OFF))
 
     def timed(self, stage: str, work: Callable[[], Any]) -> Any:
         self.stage = stage
         start = time.perf_counter()
-        value = work()
+        # the render and the growth frames draw their own bars on a terminal
+        own_bar = self.progress and stage in ("render", "growth")
+        with (contextlib.nullcontext() if own_bar else self.steps.step(stage)):
+            value = work()
         self.seconds[stage] = round(time.perf_counter() - start, 6)
         # What fails before the next step starts (glue, imports, a config read) is not this
         # step's fault: error.json says "after <step>", not "<step>".
@@ -141,18 +147,22 @@ class _Run:
 
 
 def run_job(spec: JobSpec, job_dir: Path, cache_dir: Path | None = None,
-            until: Stage | None = None, progress: bool = False) -> JobOutcome:
+            until: Stage | None = None, progress: bool | ProgressMode = False) -> JobOutcome:
     """Run one job into ``job_dir``; never raises for a failure of the job itself.
 
     A failure writes ``error.json`` (stage, message, traceback) and returns status
     ``failed``; success writes ``done.json`` last. ``until`` stops after that stage;
-    ``progress`` shows progress bars on long work (a render in several passes).
+    ``progress`` shows what the job is doing on stderr (`icefarm.progress`): ``BAR`` (or
+    True) a live line per step and bars over a render's samples and growth frames,
+    ``LINES`` a plain line as each step starts and ends, ``OFF`` (or False) nothing.
     """
     job_dir = Path(job_dir)
     job_dir.mkdir(parents=True, exist_ok=True)
     for stale in (DONE, ERROR):
         (job_dir / stale).unlink(missing_ok=True)
-    run, cache = _Run(progress=progress), StageCache(Path(cache_dir) if cache_dir else None)
+    mode = progress if isinstance(progress, ProgressMode) else (ProgressMode.BAR if progress else ProgressMode.OFF)
+    run = _Run(progress=mode is ProgressMode.BAR, steps=step_progress(mode))
+    cache = StageCache(Path(cache_dir) if cache_dir else None)
     try:
         summary = _run_stages(spec, job_dir, run, cache, until)
     except Exception as exc:
@@ -232,7 +242,7 @@ def _run_stages(spec: JobSpec, job_dir: Path, run: _Run, cache: StageCache, unti
     results = run_stages(prepared, p, spec.seed, placement=spec.placement, exclude=spec.exclude,
                          overrides=dict(spec.overrides), source=lambda: _load_source(spec, prepared), until=until,
                          mesh_key=_digest(mesh_digest(spec.mesh), spec.size_m, p["water"]["gravity"]),
-                         step=step, on_stage=on_stage)
+                         step=step, on_stage=on_stage, note=run.steps.note)
     if results.ice is not None:
         stats.update(_surface_and_render(spec, job_dir, run, until, results, gravity))
         if p["growth"]["frames"] and until is None:  # growth/: stages 1-3 as they are, stage 4 per frame

@@ -38,16 +38,34 @@ class BadInput(click.ClickException):
 
 # --------------------------------------------------------------------------- progress
 
+def _running(total: int, count: int, workers: int | None) -> str:
+    """``, 2 running`` while jobs are left (empty when the worker count is unknown)."""
+    left = total - count
+    return f", {min(workers, left)} running" if workers and left > 0 else ""
+
+
+def time_left(seconds: float, finished: int, left: int) -> str:
+    """``about 3 min left`` from the jobs this run finished so far (empty before the first)."""
+    if finished <= 0 or left <= 0:
+        return ""
+    eta = seconds / finished * left
+    text = f"{eta:.0f} s" if eta < 90 else f"{eta / 60:.0f} min" if eta < 5400 else f"{eta / 3600:.1f} h"
+    return f"about {text} left"
+
+
 class LineProgress:
-    """One plain line per finished job (logs, CI, anything that is not a terminal)."""
+    """One plain line per finished job (logs, CI, anything that is not a terminal), with
+    the jobs running and an estimate of the time left."""
 
     def __init__(self, echo: Callable[[str], None]):
         self.echo = echo
-        self.total = self.count = self.failed = 0
+        self.total = self.count = self.failed = self.skipped = 0
+        self.workers: int | None = None
         self.started = time.perf_counter()
 
-    def start(self, total: int, already_done: int) -> None:
-        self.total, self.count = total, already_done
+    def start(self, total: int, already_done: int, workers: int | None = None) -> None:
+        self.total, self.count, self.skipped, self.workers = total, already_done, already_done, workers
+        self.started = time.perf_counter()
         if already_done:
             self.echo(f"{already_done} of {total} jobs already done (--resume): skipped")
 
@@ -59,7 +77,9 @@ class LineProgress:
         detail = f"{record.seconds:.1f} s" if record.status is JobState.DONE else failed
         reused = f", reused {'+'.join(record.reused)}" if record.reused else ""
         retried = f", attempt {record.attempts}" if record.attempts > 1 else ""
-        self.echo(f"[{self.count}/{self.total}] {record.object_id}/{record.job_id} {values} "
+        left = time_left(time.perf_counter() - self.started, self.count - self.skipped, self.total - self.count)
+        status = _running(self.total, self.count, self.workers) + (f", {left}" if left else "")
+        self.echo(f"[{self.count}/{self.total}{status}] {record.object_id}/{record.job_id} {values} "
                   f"{detail}{reused}{retried}".replace("  ", " "))
 
     def close(self) -> None:
@@ -75,18 +95,25 @@ class TqdmProgress:
     def __init__(self):
         self.bar = None
         self.failed = 0
+        self.workers: int | None = None
 
-    def start(self, total: int, already_done: int) -> None:
+    def start(self, total: int, already_done: int, workers: int | None = None) -> None:
         from tqdm import tqdm
 
+        self.workers = workers
+        # tqdm's own estimate of the time left counts only the jobs this run finishes
         self.bar = tqdm(total=total, initial=already_done, unit="job", dynamic_ncols=True,
                         desc="sweep", file=sys.stderr)
-        self.bar.set_postfix(failed=0)
+        self.bar.set_postfix_str(self._postfix())
+
+    def _postfix(self, last: str = "") -> str:
+        running = _running(self.bar.total, self.bar.n, self.workers).lstrip(", ")
+        return ", ".join(x for x in (running, f"{self.failed} failed", last and f"last {last}") if x)
 
     def update(self, record: JobRecord) -> None:
         self.failed += record.status is JobState.FAILED
-        self.bar.set_postfix(failed=self.failed, last=record.object_id)
         self.bar.update(1)
+        self.bar.set_postfix_str(self._postfix(record.object_id))
 
     def close(self) -> None:
         if self.bar is not None:

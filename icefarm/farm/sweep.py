@@ -94,7 +94,7 @@ class SweepSummary:
 class Progress(Protocol):
     """Receives a sweep's progress (a tqdm bar, plain lines, or nothing)."""
 
-    def start(self, total: int, already_done: int) -> None: ...
+    def start(self, total: int, already_done: int, workers: int | None = None) -> None: ...
 
     def update(self, record: JobRecord) -> None: ...
 
@@ -306,7 +306,8 @@ def run_sweep(manifest: Manifest | str | Path, out: str | Path = "out", *, worke
                 progress.update(records[task.job_id])
 
         if progress is not None:
-            progress.start(len(jobs), len(jobs) - len(todo))
+            # a scheduler's workers are its own: how many run at once is not known here
+            progress.start(len(jobs), len(jobs) - len(todo), None if scheduler else workers)
         stopped: Interrupted | None = None
         try:
             if tasks and backend == "local":

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 
 from dataclasses import dataclass
 
@@ -67,7 +67,8 @@ class IceResult:
 def build_ice(object_mesh: trimesh.Trimesh, flow_mesh: trimesh.Trimesh, water: WaterResult,
               drips: DripResult, trajectories: TrajectoryResult, surface: SurfaceParams | Mapping,
               glaze: GlazeParams | Mapping, gravity: np.ndarray, rng: np.random.Generator, exclude: np.ndarray | None = None,
-              cast=None, measure: bool = True, extra_balls: Balls | None = None) -> IceResult:
+              cast=None, measure: bool = True, extra_balls: Balls | None = None,
+              note: Callable[[str], None] | None = None) -> IceResult:
     """Stage 4: icicles, their bases and glaze ice as one mesh (paper 4.4).
 
     ``surface.mode == "metaballs"``: one watertight mesh of the icicle chains and the
@@ -108,6 +109,9 @@ def build_ice(object_mesh: trimesh.Trimesh, flow_mesh: trimesh.Trimesh, water: W
     extra_balls : Balls, optional
         More metaballs for the icicles' field, in meters. None (or no curtain) leaves the
         mesh exactly as without them.
+    note : callable, optional
+        ``note(text)`` as each part starts (glaze coat, icicle field, meshing, ripples,
+        clean-up): progress for a caller that shows it.
 
     Returns
     -------
@@ -146,6 +150,7 @@ def build_ice(object_mesh: trimesh.Trimesh, flow_mesh: trimesh.Trimesh, water: W
         budget = surface.face_budget if water.storm is not None else 0
         if budget:
             voxel = budget_voxel(trajectories, surface, ICICLE_SHARE * budget)
+        note = note or (lambda text: None)
         chains = icicle_balls(trajectories, surface, rng)
         ice = concat_balls(chains,
                            base_balls(object_mesh, drips, surface, rng, _root_radius(trajectories, k, surface)))
@@ -153,6 +158,7 @@ def build_ice(object_mesh: trimesh.Trimesh, flow_mesh: trimesh.Trimesh, water: W
         more = [b for b in (curtains.balls, extra_balls) if b is not None and len(b)]
         if more:  # nothing appended otherwise: the field's sums stay bit for bit
             ice = concat_balls(ice, *more)
+        note(f"glaze coat over {len(flow_mesh.faces):,} faces")
         coat = glaze_field(flow_mesh, water, glaze, rng, exclude=exclude, cast=cast,
                            face_budget=(1.0 - ICICLE_SHARE) * budget)
         fine = None
@@ -165,9 +171,16 @@ def build_ice(object_mesh: trimesh.Trimesh, flow_mesh: trimesh.Trimesh, water: W
             voxel_ice = coarse
         else:
             voxel_ice = voxel
-        verts, faces = fuse_fields(sample_field(ice, voxel_ice) if len(ice) else None, coat,
-                                   sample_field(fine, voxel) if fine is not None and len(fine) else None)
-        verts = carve_ripples(verts, trajectories, profile_args(surface))
+        note(f"icicle field: {len(ice) + (len(fine) if fine is not None else 0):,} balls at "
+             f"{voxel_ice * 1000:.2g}" + (f" and {voxel * 1000:.2g}" if fine is not None else "") + " mm")
+        fields = (sample_field(ice, voxel_ice) if len(ice) else None, coat,
+                  sample_field(fine, voxel) if fine is not None and len(fine) else None)
+        blocks = sum(len(f.blocks) for f in fields if f is not None)
+        note(f"meshing {blocks:,} blocks and uniting the glaze")
+        verts, faces = fuse_fields(*fields)
+        note(f"ripples on {len(faces):,} faces")
+        verts = carve_ripples(verts, trajectories, profile_args(surface), max_radius=coarse)
+        note("clean-up")
         verts, faces = collapse_slivers(verts, faces, SLIVER * voxel)
         faces = flip_needles(verts, faces, SLIVER * voxel)
         n_balls, curtain_area = len(ice), curtains.area

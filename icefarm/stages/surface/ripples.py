@@ -27,7 +27,8 @@ GOLDEN_ANGLE = np.pi * (3 - np.sqrt(5))
 SAMPLES_PER_WAVE = 16
 
 
-def carve_ripples(vertices: np.ndarray, traj: TrajectoryResult, prof: dict) -> np.ndarray:
+def carve_ripples(vertices: np.ndarray, traj: TrajectoryResult, prof: dict,
+                  max_radius: float | None = None) -> np.ndarray:
     """Move the ice mesh's vertices around each branch radially by the profile's ripple.
 
     Each vertex follows the nearest sample of the branch axes: at arc length x of a branch,
@@ -42,6 +43,10 @@ def carve_ripples(vertices: np.ndarray, traj: TrajectoryResult, prof: dict) -> n
     traj : TrajectoryResult
     prof : dict
         `profile_args` of the surface group (``amplitude`` is ``as * impurity``).
+    max_radius : float, optional
+        Ripples fade out from 0.8 of this radius to it (meters): where the icicles are
+        thicker, their mesh is too coarse to carry them (`icefarm.stages.surface.detail`)
+        and the error budget is coarser than they are deep.
 
     Returns
     -------
@@ -70,6 +75,8 @@ def carve_ripples(vertices: np.ndarray, traj: TrajectoryResult, prof: dict) -> n
     wave = ripple(x, grown[owner], tip, amplitude, frequency, phase[owner]) \
         * np.clip(x / smooth_radius(0.0, grown[owner], growth=growth[owner], **prof), 0, 1)
     wave *= np.clip((radius - tip) / (RIPPLE_WIDENING * tip), 0, 1)
+    if max_radius is not None:
+        wave *= np.clip((max_radius - radius) / (0.2 * max_radius), 0, 1)
 
     reach = REACH * radius.max() + amplitude
     d, i = cKDTree(axis).query(vertices, distance_upper_bound=reach)
