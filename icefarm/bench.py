@@ -85,6 +85,10 @@ class RenderRuns:
         for the POV-Ray files after the render.
     povray_cpu : tuple of float
         CPU time of the POV-Ray writer, which runs during the render.
+    views : tuple of tuple of float
+        Per run, Mitsuba's seconds per view (rendering and denoising).
+    denoise : tuple of float
+        Per run, the denoiser's seconds, all views.
     """
 
     ice_faces: int
@@ -96,6 +100,8 @@ class RenderRuns:
     load: tuple
     wait: tuple
     povray_cpu: tuple
+    views: tuple = ()
+    denoise: tuple = ()
 
     @property
     def scene(self) -> tuple:
@@ -147,7 +153,18 @@ def render_timings(mesh: str, size_m: float, p: dict, render_config: str, repeat
                       step=column("step"), render=column("render_seconds"), alone=column("alone"),
                       write=column("scene_write_seconds"),
                       load=column("scene_load_seconds"), wait=column("scene_wait_seconds"),
-                      povray_cpu=column("povray_write_cpu_seconds"))
+                      povray_cpu=column("povray_write_cpu_seconds"),
+                      views=tuple(tuple(r.get("render_view_seconds", ())) for r in runs),
+                      denoise=tuple(float(r.get("denoise_seconds", 0.0)) for r in runs))
+
+
+def peak_memory_gb() -> float:
+    """Peak resident memory of this process so far, GB (Linux reports KiB, macOS bytes)."""
+    import resource
+    import sys
+
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return peak / 2**30 if sys.platform == "darwin" else peak / 2**20
 
 
 @dataclass(frozen=True)

@@ -315,7 +315,7 @@ def bench():
 @click.option("--surface", is_flag=True, help="Also time stage 4 (the ice surface).")
 def bench_stages(mesh, size_m, drips, repeat, assignments, surface):
     """Median seconds per stage on MESH (mesh loading excluded; the BVH build counts in water)."""
-    from .bench import stage_timings
+    from .bench import peak_memory_gb, stage_timings
 
     values = {"drips.count": drips, **_assignments(assignments)}
     runs = stage_timings(mesh, size_m, params.resolve(values), repeat, surface)
@@ -327,6 +327,7 @@ def bench_stages(mesh, size_m, drips, repeat, assignments, surface):
     if surface:
         rate = runs.ice_faces / statistics.median(runs.seconds["surface"])
         click.echo(f"  ice: {runs.ice_faces} faces, {rate:,.0f} faces/s")
+    click.echo(f"  peak memory of this process: {peak_memory_gb():.2f} GB")
 
 
 @bench.command(name="surface")
@@ -379,7 +380,7 @@ def bench_render(mesh, size_m, drips, render, repeat, assignments):
     """
     from tqdm import tqdm
 
-    from .bench import render_timings
+    from .bench import peak_memory_gb, render_timings
     from .pipeline import GENERATOR_PREFIX
 
     if not mesh.startswith(GENERATOR_PREFIX) and not Path(mesh).is_file():
@@ -393,6 +394,10 @@ def bench_render(mesh, size_m, drips, render, repeat, assignments):
                          ("scene", runs.scene), ("  write", runs.write), ("  load", runs.load),
                          ("  wait", runs.wait)):
         click.echo(f"  {name:<13} {med(values):8.3f} s  {min(values):8.3f} s")
+    for i, seconds in enumerate(zip(*runs.views)):
+        click.echo(f"  view {i:<8} {med(seconds):8.3f} s  {min(seconds):8.3f} s")
+    if any(runs.denoise):
+        click.echo(f"  denoise       {med(runs.denoise):8.3f} s  {min(runs.denoise):8.3f} s  (in the views)")
     click.echo(f"  POV-Ray writer, CPU time during the render: {med(runs.povray_cpu):.3f} s")
     # Ratios within each run, then their median: the load of a shared machine drifts between runs.
     scene = [100 * s / a for s, a in zip(runs.scene, runs.alone)]
@@ -400,6 +405,8 @@ def bench_render(mesh, size_m, drips, render, repeat, assignments):
     click.echo(f"  scene / render alone: {med(scene):.1f}% (target under 10%)")
     click.echo(f"  whole step beyond the render alone (scenes, images, the POV-Ray writer's share of the "
                f"CPU): {med(step):.1f}%")
+    click.echo(f"  ice faces per second of render: {runs.ice_faces / med(runs.render):,.0f}; "
+               f"peak memory of this process: {peak_memory_gb():.2f} GB")
 
 
 @bench.command(name="growth")

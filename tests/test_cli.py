@@ -107,12 +107,12 @@ def test_render_configs_ship_inside_the_package():
 @pytest.mark.slow
 def test_bench_render_compares_overhead_with_render_time(sphere_file, tmp_path):
     config = tmp_path / "tiny.yaml"
-    config.write_text("resolution: [40, 30]\nspp: 2\nmax_depth: 4\n")
+    config.write_text("resolution: [40, 30]\nspp: 2\nmax_depth: 4\ndenoise: oidn\nviews: [three_quarter, front]\n")
     result = run("bench", "render", sphere_file, "--render", config, "--repeat", 1,
                  "--set", "drips.count=6", "--set", "water.rays=2000", "--set", "glaze.mode=none")
     assert result.exit_code == 0, result.output
     for word in ("render step", "render alone", "write", "load", "wait", "scene / render alone", "whole step",
-                 "POV-Ray writer"):
+                 "POV-Ray writer", "view 0", "view 1", "denoise", "faces per second", "peak memory"):
         assert word in result.output, word
 
 
