@@ -85,3 +85,14 @@ def test_closest_point_is_exact_and_never_farther_than_trimeshs(lumpy, monkeypat
     assert np.all(distance <= theirs + 1e-12)
     on_face = trimesh.triangles.closest_point(mesh.triangles[faces], points)
     np.testing.assert_allclose(on_face, closest, atol=1e-9)
+
+
+def test_flat_faces_test_agrees_with_the_heights():
+    from icefarm.metaballs.clean import _flat, _heights
+
+    rng = np.random.default_rng(5)
+    v = rng.random((2000, 3))
+    f = rng.integers(0, 2000, (5000, 3))
+    v[f[:40, 2]] = 0.5 * (v[f[:40, 0]] + v[f[:40, 1]]) + 1e-7  # needles: a corner on the opposite edge
+    for height in (1e-6, 1e-3, 0.05):
+        assert np.array_equal(_flat(v, f, height), _heights(v, f) < height)

