@@ -22,7 +22,7 @@ from scipy.spatial import cKDTree
 
 from .camera import Camera, along
 
-ICICLE_PX = 10.0  # icicle width (pixels) an ice view aims for (8 at least, with some slack)
+ICICLE_PX = 14.0  # icicle width (pixels) an ice view aims for (12 at least, with some slack)
 MIN_ZOOM = 2.5  # an ice view is always a detail: at least this much closer than the full view
 MAX_ZOOM = 40.0
 FOCUS_SAMPLES = 8_000  # ice vertices looked at to find the icicles

@@ -209,8 +209,12 @@ def write_scenes(job_dir: str | Path, object_mesh: trimesh.Trimesh, ice_mesh: tr
             if v.frame == "ice":
                 cameras[i] = zoom_on_ice(cameras[i], focus, config.width, config.height)
         if focus.diameter:
+            # an ice view at the icicles it aims at (its target lies at their depth); others
+            # at the middle of all the icicles
             spot = np.median(focus.points, axis=0)
-            icicle_px = [round(focus.diameter / pixel_size(c, spot, config.width), 2) for c in cameras]
+            icicle_px = [round(focus.diameter / pixel_size(c, c.target if v.frame == "ice" else spot,
+                                                           config.width), 2)
+                         for c, v in zip(cameras, config.views)]
     cameras = tuple(cameras)
 
     # Geometry: the object smooth with its creases kept; the ice as the pipeline wrote it.
