@@ -255,6 +255,11 @@ def _print_plausibility(timings: dict) -> None:
     click.echo(f"  tip radius {'-' if tip is None else f'{tip:.2f}'} mm (real: 2.44 mm); ripples "
                + ("none" if amplitude is None else f"{amplitude:.2f} mm deep, {ripple:.2f} cm apart")
                + " (real: 0.5-1 mm, about 1 cm apart, where the water is impure)")
+    depth, corr, cv = (timings.get(k) for k in ("ripple_depth_mm", "ripple_correlation_3cm", "ripple_crest_cv"))
+    if depth is not None and corr is not None and cv is not None:
+        click.echo(f"  ripple texture on {timings.get('ripple_trunks', 0)} trunks of 10 cm and more: {depth:.2f} mm "
+                   f"deep, radius 3 cm apart correlates {corr:.2f}, crest spacing varies {cv:.2f} (CV) "
+                   "(natural: at most 0.6, and 0.1-0.35)")
     coverage = timings.get("glaze_coverage")
     if coverage is not None:
         p10, p50, p90, ratio = (timings.get(k) for k in ("glaze_p10_mm", "glaze_p50_mm", "glaze_p90_mm",

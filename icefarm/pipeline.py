@@ -272,6 +272,9 @@ def _surface_and_render(spec: JobSpec, job_dir: Path, run: _Run, until: Stage | 
         "taper": _finite_list(m.taper), "growth_ratio": _finite_list(m.growth_ratio, 4),
         "profile_exponent": _finite_list(m.profile_exponent),
         "ripple_amplitude_mm": _finite(m.ripple_amplitude_mm), "ripple_wavelength_cm": _finite(m.ripple_wavelength_cm),
+        "ripple_depth_mm": _finite(m.ripple_texture.depth_mm),
+        "ripple_correlation_3cm": _finite(m.ripple_texture.correlation_3cm),
+        "ripple_crest_cv": _finite(m.ripple_texture.crest_cv), "ripple_trunks": m.ripple_texture.trunks,
     }
     if p["surface"]["curtain"] > 0:
         stats["curtain_area_m2"] = round(ice.curtain_area, 6)

@@ -124,3 +124,31 @@ def test_the_bunny_at_the_defaults_grows_carrots_not_straws(shared_mesh, tmp_pat
     assert len(taper) >= 10 and np.median(taper) >= 3.0
     assert 0.6 <= np.median([v for v in t["profile_exponent"] if v is not None]) <= 0.9
     assert t["ripple_amplitude_mm"] >= 0.4 and t["upward_share"] == 0.0
+
+
+def test_ripples_wander_and_break_like_real_ones_not_stacked_rings(monkeypatch):
+    """Issue 25's measures on one 20 cm icicle at the defaults: deep enough, decorrelated 3 cm
+    along, crest spacing varying by 10-35 %; the same carve with the texture off (one
+    wavelength, crests level and whole) reads as identical rings and fails them."""
+    natural = _one_icicle(length=0.2).ripple_texture
+    assert natural.trunks == 1
+    assert natural.depth_mm >= 0.4
+    assert natural.correlation_3cm <= 0.6
+    assert 0.1 <= natural.crest_cv <= 0.35
+    from icefarm.stages.surface import ripples
+
+    for name, value in (("WANDER", 0.0), ("TILT", 0.0), ("FADE_FLOOR", 1.0)):
+        monkeypatch.setattr(ripples, name, value)
+    rings = _one_icicle(length=0.2).ripple_texture
+    assert rings.correlation_3cm > 0.8 and rings.crest_cv < 0.1
+
+
+def test_pure_water_icicles_have_no_ripple_texture_and_tips_are_quiet():
+    smooth = _one_icicle(length=0.2, surface__impurity=0.0).ripple_texture
+    assert smooth.depth_mm < 0.15  # the mesh's own bumps only
+    from icefarm.stages.surface.ripples import TIP_QUIET, _envelope
+
+    x = np.linspace(0.0, 0.2, 201)
+    env = _envelope(x, 0.2, TIP)
+    assert np.all(env[x > 0.2 - TIP_QUIET] == 0.0) and env[x < 0.15].min() == 1.0
+    assert np.all(np.diff(env[x > 0.1]) <= 0)  # dies away towards the tip, never comes back

@@ -5,15 +5,21 @@ A chain of Gaussian balls of width s keeps ``exp(-(fs s / 2)^2)`` of a ripple al
 0.6 mm asked on a 12 cm icicle). So the chains carry the smooth profile and the ripple is a
 displacement of the mesh's vertices around each branch, which keeps the mesh watertight
 and the ripple exactly as deep as asked, at any frequency the voxel resolves.
+
+The ripple is natural rather than a stack of identical rings (they read as a coiled
+spring at lookdev): its wavelength wanders, its crests tilt and fade around the trunk,
+and it is quiet near the tip (`WANDER`, `TILT`, `FADE_FLOOR`, `TIP_QUIET`, `TIP_RISE`).
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial import cKDTree
 
 from ..trajectories import TrajectoryResult
-from .profile import _branch_lengths, _points_along, grown_lengths, ripple, smooth_radius
+from .profile import TIP_CALM, _branch_lengths, _points_along, grown_lengths, smooth_radius
 
 # Vertices farther from a branch's axis than this times its radius there (plus the ripple)
 # belong to something else: a neighbour, the base ice, the glaze.
@@ -23,6 +29,7 @@ REACH = 1.3
 # string of beads (seen at lookdev), while on real icicles ripples run on the wide part.
 RIPPLE_WIDENING = 1.0
 GOLDEN_ANGLE = np.pi * (3 - np.sqrt(5))
+RIPPLE_SEED = 0x1C1C1E  # each branch's ripple texture: its own stream, not the stage's
 # Axis samples per ripple wavelength (and at least one per tip radius).
 SAMPLES_PER_WAVE = 16
 
@@ -69,14 +76,16 @@ def carve_ripples(vertices: np.ndarray, traj: TrajectoryResult, prof: dict,
     x = k * (L / np.maximum(n - 1, 1))[owner]
     axis, tangent = _points_along(traj, x_pt, lengths, branches[owner], x)
     radius = smooth_radius(x, grown[owner], growth=growth[owner], **prof)
-    # Each branch's rings start at their own phase (the golden angle apart: no draw from the
-    # stage's stream): neighbours in phase stacked into a column of glass plates at lookdev.
-    phase = (branches * GOLDEN_ANGLE) % (2 * np.pi)
-    wave = ripple(x, grown[owner], tip, amplitude, frequency, phase[owner]) \
+    # Natural ripples (`_texture`): a wandering wavelength, quiet above the tip, and crests
+    # that tilt and fade around the trunk, each branch its own (seeded by its index: no
+    # draw from the stage's stream).
+    texture = _texture(branches, frequency)
+    phase = _wandering_phase(x, owner, frequency, texture)
+    wave_amp = amplitude * _envelope(x, grown[owner], tip) \
         * np.clip(x / smooth_radius(0.0, grown[owner], growth=growth[owner], **prof), 0, 1)
-    wave *= np.clip((radius - tip) / (RIPPLE_WIDENING * tip), 0, 1)
+    wave_amp *= np.clip((radius - tip) / (RIPPLE_WIDENING * tip), 0, 1)
     if max_radius is not None:
-        wave *= np.clip((max_radius - radius) / (0.2 * max_radius), 0, 1)
+        wave_amp *= np.clip((max_radius - radius) / (0.2 * max_radius), 0, 1)
 
     reach = REACH * radius.max() + amplitude
     d, i = cKDTree(axis).query(vertices, distance_upper_bound=reach)
@@ -86,7 +95,82 @@ def carve_ripples(vertices: np.ndarray, traj: TrajectoryResult, prof: dict,
     radial = rel - np.einsum("ij,ij->i", rel, tangent[i])[:, None] * tangent[i]
     dist = np.linalg.norm(radial, axis=1)
     own = (dist <= REACH * radius[i] + amplitude) & (dist > 1e-9)
+    i, radial, dist = i[own], radial[own], dist[own]
+    theta = _azimuth(radial, tangent[i])
+    b = owner[i]
+    crest = np.sin(phase[i] + texture.tilt[b] * np.cos(theta - texture.tilt_at[b]))
+    # crests fade and break around the circumference: an amplitude that drifts with angle
+    # and with height, never below FADE_FLOOR of the full one
+    fade = 0.5 * (1 + np.sin(2 * theta + texture.break_phase[b] + x[i] * texture.break_rate[b]))
+    wave = wave_amp[i] * crest * (FADE_FLOOR + (1 - FADE_FLOOR) * fade)
     out = np.array(vertices, dtype=np.float64, copy=True)
     sel = near[own]
-    out[sel] += (wave[i[own]] / dist[own])[:, None] * radial[own]
+    out[sel] += (wave / dist)[:, None] * radial
     return out
+
+
+# Natural ripples (Chen & Morris 2013; photographs of eaves icicles): the wavelength
+# wanders by about WANDER (standard deviation of the local wavenumber, relative) over a few
+# centimetres; crests tilt by up to TILT radians of phase around the trunk and fade to
+# FADE_FLOOR of their depth on some sides; the last TIP_QUIET metres above the tip are
+# smooth, and the ripples rise to full depth over the next TIP_RISE.
+WANDER = 0.15
+WANDER_WAVES = (0.025, 0.04, 0.07)  # wavelengths (m) of the wandering's components
+TILT = 0.6
+FADE_FLOOR = 0.5
+TIP_QUIET = 0.01
+TIP_RISE = 0.03
+
+
+@dataclass(frozen=True)
+class _Texture:
+    """Per branch: the wandering's phases, the crests' tilt and where it leans, how their
+    depth breaks around the trunk."""
+
+    wander_phase: np.ndarray  # (b, len(WANDER_WAVES))
+    tilt: np.ndarray
+    tilt_at: np.ndarray
+    break_phase: np.ndarray
+    break_rate: np.ndarray
+    phase0: np.ndarray
+
+
+def _texture(branches: np.ndarray, frequency: float) -> _Texture:
+    draws = np.array([np.random.default_rng([RIPPLE_SEED, int(b)]).random(len(WANDER_WAVES) + 5)
+                      for b in branches]).reshape(len(branches), -1)
+    k = len(WANDER_WAVES)
+    two_pi = 2 * np.pi
+    return _Texture(wander_phase=two_pi * draws[:, :k], tilt=TILT * (0.4 + 0.6 * draws[:, k]),
+                    tilt_at=two_pi * draws[:, k + 1], break_phase=two_pi * draws[:, k + 2],
+                    break_rate=(20.0 + 40.0 * draws[:, k + 3]) * (1 if frequency > 0 else 0),
+                    phase0=(branches * GOLDEN_ANGLE + two_pi * draws[:, k + 4]) % two_pi)
+
+
+def _wandering_phase(x: np.ndarray, owner: np.ndarray, frequency: float, texture: _Texture) -> np.ndarray:
+    """The ripple's phase at arc length ``x``: ``frequency x`` plus the integral of a
+    wavenumber that wanders by `WANDER` (a sum of slow sines, `WANDER_WAVES`)."""
+    waves = np.asarray(WANDER_WAVES)
+    q = 2 * np.pi / waves  # (k,)
+    weight = WANDER * np.sqrt(2.0 / len(waves))
+    psi = texture.wander_phase[owner]  # (n, k)
+    integral = ((np.cos(psi) - np.cos(q[None, :] * x[:, None] + psi)) / q[None, :]).sum(axis=1)
+    return frequency * (x + weight * integral) + texture.phase0[owner]
+
+
+def _envelope(x: np.ndarray, length: np.ndarray, tip: float) -> np.ndarray:
+    """Depth of the ripples along a branch, 0 to 1: none over the last `TIP_QUIET` above
+    the tip (and at least `TIP_CALM` tip radii), rising smoothly over `TIP_RISE`."""
+    from_tip = np.maximum(np.asarray(length, dtype=np.float64) - x, 0.0)
+    quiet = max(TIP_QUIET, TIP_CALM * tip)
+    t = np.clip((from_tip - quiet) / TIP_RISE, 0.0, 1.0)
+    return t * t * (3 - 2 * t)
+
+
+def _azimuth(radial: np.ndarray, tangent: np.ndarray) -> np.ndarray:
+    """Angle (radians) of each radial vector around its tangent, from a reference that
+    turns with the tangent (world x, or world z for a tangent along x)."""
+    ref = np.where(np.abs(tangent[:, :1]) < 0.9, np.array([[1.0, 0.0, 0.0]]), np.array([[0.0, 0.0, 1.0]]))
+    e1 = ref - np.einsum("ij,ij->i", ref, tangent)[:, None] * tangent
+    e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
+    e2 = np.cross(tangent, e1)
+    return np.arctan2(np.einsum("ij,ij->i", radial, e2), np.einsum("ij,ij->i", radial, e1))
