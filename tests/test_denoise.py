@@ -80,7 +80,7 @@ def test_denoised_render_is_closer_to_many_samples_than_the_noisy_one(tmp_path):
     box, ice = box_with_icicles()
     size = [96, 72]
     images = {}
-    for name, changes in {"ref": dict(spp=256), "noisy": dict(spp=8),
+    for name, changes in {"ref": dict(spp=256, denoise="none"), "noisy": dict(spp=8, denoise="none"),
                           "denoised": dict(spp=8, denoise="oidn")}.items():
         out = tmp_path / name
         config = tiny_config(resolution=size, **changes)
