@@ -368,3 +368,29 @@ def test_a_cut_icicle_thickens_as_if_longer_and_rests_on_its_foot():
     assert cut_ice.icicles.taper[0] > 1.2 * free_ice.icicles.taper[0]
     assert cut_ice.vertices[:, 1].min() >= floor - 1e-6  # on the ground, not in it
     assert np.isnan(cut_ice.icicles.tip_radius_mm)  # a foot, not a drop: no tip to measure
+
+
+def test_bases_are_never_thicker_than_the_rim_they_hang_from():
+    """Issue 25: on an eave's 1 cm slab a base is a fillet, not a glass knob past both faces."""
+    from icefarm.metaballs.balls import LEVEL
+    from icefarm.stages.surface.bases import BASE_SINK, BASE_THICKNESS, base_balls, object_thickness
+
+    slab = trimesh.creation.box(extents=(0.4, 0.01, 0.3))  # 1 cm thick, faces at y = +-0.005
+    rim = [[x, -0.005, 0.149] for x in np.linspace(-0.15, 0.15, 7)]  # on the underside, at the edge
+    drips = _drips(slab, rim, water=0.3)  # much water: bases that would swell to 15 mm and more
+    surface, _ = _groups(surface__base_scale=0.3)
+    balls = base_balls(slab, drips, surface, np.random.default_rng(0), np.full(len(rim), 0.03),
+                       gravity=np.array([0.0, -1.0, 0.0]))
+    assert len(balls) > 0
+    radius = balls.widths  # BASE_KAPPA 1: a lone ball's surface sits at its width
+    assert radius.max() <= BASE_THICKNESS * 0.01 + 1e-9
+    # a ball on a big face reaches at most 0.9 of the way through and stands at most 0.3 of it proud
+    flat = balls.centers[:, 2] < 0.14  # on the underside, clear of the end face
+    assert flat.any()
+    depth = np.abs(np.abs(balls.centers[flat, 1]) - 0.005)  # how far inside its face each centre sits
+    assert np.allclose(depth, BASE_SINK * radius[flat], atol=1e-6)
+    assert (depth + radius[flat] <= 0.01 + 1e-9).all() and (radius[flat] - depth <= 0.3 * 0.01 + 1e-9).all()
+    # the ray cast against the normal reads the slab's thickness
+    t = object_thickness(slab, np.array([[0.0, 0.005, 0.0], [0.0, -0.005, 0.1]]), np.array([[0, 1.0, 0], [0, -1.0, 0]]))
+    assert np.allclose(t, 0.01, atol=1e-6)
+    assert np.all(balls.weights == balls.weights[0]) and balls.weights[0] > LEVEL

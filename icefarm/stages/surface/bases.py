@@ -10,7 +10,7 @@ import trimesh
 from scipy.spatial import cKDTree
 
 from ...params import SurfaceParams, typed
-from ...geometry import random_barycentric
+from ...geometry import random_barycentric, ray_caster
 from ...metaballs.balls import LEVEL, NO_BALLS, Balls
 from ..drips import DripResult
 
@@ -25,9 +25,15 @@ BASE_SWELL = 0.7
 BASE_SINK = 0.5
 # Candidate points drawn per drip point (at least; more for nmb over 60).
 BASE_POOL = 256
+# Most a base ball's radius may be, in thicknesses of the object under it (a ray cast
+# against its face normal): sunk BASE_SINK of itself, it then reaches 0.9 of the way
+# through and stands 0.3 of the thickness proud. A base hugs a thin rim (an eave's 1 cm
+# slab) as a fillet instead of bulging past both of its faces as a glass knob.
+BASE_THICKNESS = 0.6
 
 def base_balls(object_mesh: trimesh.Trimesh, drips: DripResult, surface: SurfaceParams | Mapping,
-               rng: np.random.Generator, icicle_radius: np.ndarray | None = None) -> Balls:
+               rng: np.random.Generator, icicle_radius: np.ndarray | None = None, cast=None,
+               gravity: np.ndarray | None = None) -> Balls:
     """``nmb`` balls on the object around each drip point (paper 4.4.3, Equation 2).
 
     Points are drawn area-weighted on the faces that come within ``eb`` (Euclidean) of the
@@ -41,7 +47,11 @@ def base_balls(object_mesh: trimesh.Trimesh, drips: DripResult, surface: Surface
     ``icicle_radius`` (k,), meters: each icicle's radius where it leaves the object. A
     ball's radius is held to ``BASE_SWELL`` times it, so a drip with much water but a short
     icicle (one the ground stopped) grows a fillet, not a boulder. Balls sink
-    ``BASE_SINK`` of their radius into the object along its face normal.
+    ``BASE_SINK`` of their radius into the object along its face normal, and are held to
+    ``BASE_THICKNESS`` times the object's thickness under them (`object_thickness`: a
+    ray cast against the normal and, with ``gravity``, the height of the part there; ``cast``
+    is an `icefarm.geometry.ray_caster` of ``object_mesh``, made here when not given), so a
+    base is never thicker than the rim it sits on.
     """
     surface = typed("surface", surface)
     eb, nmb, kb = surface.base_extent, surface.base_balls, surface.base_scale
@@ -83,12 +93,34 @@ def base_balls(object_mesh: trimesh.Trimesh, drips: DripResult, surface: Surface
     radius = (eb - d) ** 2 / eb**2 * np.asarray(drips.water, dtype=np.float64)[sd] * kb
     if icicle_radius is not None:
         radius = np.minimum(radius, BASE_SWELL * np.asarray(icicle_radius, dtype=np.float64)[sd])
+    if len(pts):
+        radius = np.minimum(radius, BASE_THICKNESS * object_thickness(object_mesh, pts, normals, cast, gravity))
     keep = radius > 0
     if not keep.any():
         return NO_BALLS
     pts = pts - (BASE_SINK * radius)[:, None] * normals
     widths = BASE_KAPPA * radius[keep]
     return Balls(pts[keep], widths, np.full(len(widths), LEVEL * math.exp(1.0 / BASE_KAPPA**2)))
+
+
+def object_thickness(mesh: trimesh.Trimesh, points: np.ndarray, normals: np.ndarray, cast=None,
+                     gravity: np.ndarray | None = None) -> np.ndarray:
+    """(k,) thickness of ``mesh`` at surface ``points`` (k, 3), meters: how far a ray cast
+    from each against its outward unit normal runs inside before leaving; with ``gravity``
+    (3,), at most the part's height there (rays up and down from just inside), which is
+    what a point on the end face of a thin slab has (inf where rays never leave: an open
+    mesh)."""
+    if cast is None:
+        cast = ray_caster(mesh)
+    nudge = 1e-6 * float(np.ptp(mesh.vertices, axis=0).max())
+    start = points - nudge * normals
+    thickness, _ = cast(start, -normals)
+    thickness = thickness + nudge
+    if gravity is not None:
+        down = np.broadcast_to(np.asarray(gravity, dtype=np.float64) / np.linalg.norm(gravity), points.shape)
+        height = cast(start, down)[0] + cast(start, -down)[0]
+        thickness = np.minimum(thickness, height)
+    return thickness
 
 
 def _grow_from_drips(drip, face, drip_face, mesh):

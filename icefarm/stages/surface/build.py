@@ -153,7 +153,8 @@ def build_ice(object_mesh: trimesh.Trimesh, flow_mesh: trimesh.Trimesh, water: W
         note = note or (lambda text: None)
         chains = icicle_balls(trajectories, surface, rng)
         ice = concat_balls(chains,
-                           base_balls(object_mesh, drips, surface, rng, _root_radius(trajectories, k, surface)))
+                           base_balls(object_mesh, drips, surface, rng, _root_radius(trajectories, k, surface),
+                                      cast=cast if flow_mesh is object_mesh else None, gravity=g))
         curtains = curtain_balls(trajectories, surface, g)
         more = [b for b in (curtains.balls, extra_balls) if b is not None and len(b)]
         if more:  # nothing appended otherwise: the field's sums stay bit for bit
