@@ -87,10 +87,18 @@ def carve_ripples(vertices: np.ndarray, traj: TrajectoryResult, prof: dict,
     if max_radius is not None:
         wave_amp *= np.clip((max_radius - radius) / (0.2 * max_radius), 0, 1)
 
-    reach = REACH * radius.max() + amplitude
-    d, i = cKDTree(axis).query(vertices, distance_upper_bound=reach)
-    near = np.flatnonzero(np.isfinite(d))
-    i = i[near]
+    # Only where there is a ripple (not near tips, bases or coarse parts): the nearest axis
+    # sample there carries an amplitude that fades in smoothly from the quiet stretches.
+    rippled = np.flatnonzero(wave_amp > 0)
+    if len(rippled) == 0:
+        return vertices
+    reach = REACH * radius[rippled].max() + amplitude
+    lo, hi = axis[rippled].min(axis=0) - reach, axis[rippled].max(axis=0) + reach
+    candidates = np.flatnonzero(((vertices >= lo) & (vertices <= hi)).all(axis=1))
+    d, i = cKDTree(axis[rippled], balanced_tree=False).query(vertices[candidates], distance_upper_bound=reach,
+                                                             workers=-1)
+    found = np.isfinite(d)
+    near, i = candidates[found], rippled[i[found]]
     rel = vertices[near] - axis[i]
     radial = rel - np.einsum("ij,ij->i", rel, tangent[i])[:, None] * tangent[i]
     dist = np.linalg.norm(radial, axis=1)
@@ -136,9 +144,10 @@ class _Texture:
 
 
 def _texture(branches: np.ndarray, frequency: float) -> _Texture:
-    draws = np.array([np.random.default_rng([RIPPLE_SEED, int(b)]).random(len(WANDER_WAVES) + 5)
-                      for b in branches]).reshape(len(branches), -1)
     k = len(WANDER_WAVES)
+    # row b of one table is branch b's draws whatever the table's length (rows come in order)
+    table = np.random.default_rng(RIPPLE_SEED).random((int(branches.max(initial=-1)) + 1, k + 5))
+    draws = table[branches]
     two_pi = 2 * np.pi
     return _Texture(wander_phase=two_pi * draws[:, :k], tilt=TILT * (0.4 + 0.6 * draws[:, k]),
                     tilt_at=two_pi * draws[:, k + 1], break_phase=two_pi * draws[:, k + 2],
