@@ -5,7 +5,7 @@ the surface it lies on, as wide as ``ground_ice.spread`` times its water and a q
 high. With ``ground_ice.mode: stalagmites`` a stalagmite rises from the mound towards the
 tip above it: a metaball chain with the icicles' own calibration (`icicle_balls`), but
 blunter (a top `STALAGMITE_TOP` times the icicle's tip radius, a base that widens by
-``ground_ice.width`` per meter of height), ``ground_ice.height_scale`` times its water
+``ground_ice.width`` per meter of height) and lumpy (its axis wanders, `STALAGMITE_LUMPS`), ``ground_ice.height_scale`` times its water
 high, never past the tip. One that would reach the tip does: it ends in the icicle's drop,
 and the two fuse into a column. All of it is balls of the icicles' field, so it fuses
 with them into the one watertight mesh.
@@ -34,9 +34,12 @@ MOUND_BALLS = 256
 # A mound stays on the surface it started on: disc points whose surface lies more than this
 # many mound radii above or below the landing point (past a ledge's edge) get no ice.
 MOUND_STEP = 0.5
-# Top radius of a stalagmite, in icicle tip radii: splashing drops round it off, blunter than
-# the pendant drop that shapes an icicle's tip.
-STALAGMITE_TOP = 2.0
+# Top radius of a stalagmite, in icicle tip radii: splashing drops round it off into a blunt
+# dome, far wider than the pendant drop that shapes an icicle's tip (2 read as glass pyramids).
+STALAGMITE_TOP = 4.0
+# Its axis wanders sideways by this many top radii (standard deviation) every two top radii
+# of height: splash freezes in lumps, not a straight cone.
+STALAGMITE_LUMPS = 0.3
 # A stalagmite whose top would come within this many top radii of the tip above it grows
 # into it: a column.
 COLUMN_REACH = 1.0
@@ -169,8 +172,17 @@ def _stalagmites(landing: LandingResult, ground_ice: GroundIceParams, surface: S
     idx = np.flatnonzero(grow)
     if len(idx) == 0:
         return NO_BALLS, heights, columns
-    traj = TrajectoryResult(points=np.stack([landing.positions[idx], ends[idx]], axis=1).reshape(-1, 3),
-                            branch_offsets=np.arange(0, 2 * len(idx) + 1, 2),
+    # A lumpy axis: points every two top radii, moved sideways at random (not the ends).
+    count = np.maximum(np.ceil((heights[idx] - top) / (2 * top)).astype(np.int64), 1) + 1
+    owner = np.repeat(np.arange(len(idx)), count)
+    k = np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count)
+    t = (k / (count - 1)[owner])[:, None]
+    points = landing.positions[idx][owner] * (1 - t) + ends[idx][owner] * t
+    inner = (k > 0) & (k < count[owner] - 1)
+    if inner.any():
+        side = rng.normal(scale=STALAGMITE_LUMPS * top, size=(int(inner.sum()), 3))
+        points[inner] += side - (side @ up)[:, None] * up
+    traj = TrajectoryResult(points=points, branch_offsets=np.r_[0, np.cumsum(count)],
                             branch_icicle=np.arange(len(idx)), branch_parent=np.full(len(idx), -1))
     # The icicles' chain with a blunt top and a wide base: R = top + width L^1/4 d^3/4.
     shape = dataclasses.replace(surface, tip_radius=top, growth_ratio=ground_ice.width, profile="physical")
