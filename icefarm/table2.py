@@ -283,10 +283,12 @@ def row_mesh(key: str, meshes_dir: Path | None, faces: int) -> trimesh.Trimesh:
 # --------------------------------------------------------------------------- measuring
 
 def _row_params(obj: RowObject, icicles: int, voxel_size: float) -> dict:
-    # The glaze keeps the defaults' 3:1 voxel ratio, so calibration steers glaze rows too.
+    # The glaze keeps the defaults' voxel ratio (4 mm : 1 mm), so calibration steers glaze rows too.
+    defaults = params_mod.defaults()
+    ratio = defaults["glaze"]["voxel_size"] / defaults["surface"]["voxel_size"]
     return params_mod.resolve({**PAPER_STAGES, **dict(obj.settings)},
                               {"drips.count": icicles, "surface.voxel_size": voxel_size,
-                               "glaze.voxel_size": 3 * voxel_size})
+                               "glaze.voxel_size": ratio * voxel_size})
 
 
 def calibrate_voxel(measure: Callable[[float], int], target: int, bounds: tuple[float, float],
