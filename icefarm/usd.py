@@ -29,7 +29,7 @@ from pxr import Gf, Sdf, Tf, Usd, UsdGeom, UsdLux, UsdShade, UsdUtils, Vt
 
 from .errors import InputError
 from .scene.material import Material
-from .rendered import (Rendered, Surface, ice_surface, object_surface, pbr, read_ice, read_rendered, require,
+from .rendered import (TINT_DISTANCE_M, Rendered, Surface, ice_surface, object_surface, pbr, read_ice, read_rendered, require,
                        water_at)
 
 SCENE_FILE, OBJECT_FILE, ICE_FILE = "scene.usda", "object.usdc", "ice.usdc"
@@ -110,7 +110,7 @@ def write_job_usd(job_dir: str | Path, *, material: Material | None = None,
     axis = up_axis(rendered.gravity)
     obj = object_surface(job_dir)
     layers = [out_dir / OBJECT_FILE]
-    _write_mesh_layer(layers[0], "Object", obj, axis, _object_primvars(job_dir, obj))
+    _write_mesh_layer(layers[0], "Object", obj, axis, _object_primvars(job_dir, obj), double_sided=True)
     if rendered.ice is not None:
         ice = (read_ice(job_dir, rendered.ice.flip) if ice_mesh is None
                else ice_surface(ice_mesh.vertices, ice_mesh.faces, rendered.ice.flip))
@@ -177,10 +177,12 @@ def _stage_metadata(stage: Usd.Stage, axis: str, default: Usd.Prim) -> None:
     stage.SetDefaultPrim(default)
 
 
-def _write_mesh_layer(path: Path, name: str, surface: Surface, axis: str, primvars: dict) -> None:
+def _write_mesh_layer(path: Path, name: str, surface: Surface, axis: str, primvars: dict,
+                      double_sided: bool = False) -> None:
     """One mesh as the default prim of a binary layer (it opens on its own too).
 
-    ``primvars``: name to ``(values, type name)``, one value per vertex.
+    ``primvars``: name to ``(values, type name)``, one value per vertex. ``double_sided``:
+    shade both sides (an asset with open seams shows its inside through them).
     """
     with _authored(path) as stage:
         mesh = UsdGeom.Mesh.Define(stage, f"/{name}")
@@ -194,6 +196,8 @@ def _write_mesh_layer(path: Path, name: str, surface: Surface, axis: str, primva
         mesh.SetNormalsInterpolation(UsdGeom.Tokens.vertex)
         # Triangles as they are: the default, Catmull-Clark, would smooth them and ignore the normals.
         mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
+        if double_sided:
+            mesh.CreateDoubleSidedAttr(True)
         lo, hi = (points.min(axis=0), points.max(axis=0)) if len(points) else (np.zeros(3), np.zeros(3))
         mesh.CreateExtentAttr(Vt.Vec3fArray([Gf.Vec3f(*map(float, lo)), Gf.Vec3f(*map(float, hi))]))
         api = UsdGeom.PrimvarsAPI(mesh)
@@ -305,10 +309,12 @@ def _object_material(stage: Usd.Stage, looks: Sdf.Path, rendered: Rendered) -> U
 
 
 def _ice_material(stage: Usd.Stage, looks: Sdf.Path, rendered: Rendered) -> UsdShade.Material:
-    """Ice: ior 1.31, low opacity, its roughness, and as diffuse colour the tint of thick ice
-    (`IceShading.color_at`): UsdPreviewSurface has no absorbing medium."""
+    """Ice: a MaterialX OpenPBR network (`_ice_openpbr`: glass that transmits, refracts and
+    absorbs, for readers of MaterialX), and beside it the UsdPreviewSurface fallback: ior
+    1.31, low opacity, its roughness, and as diffuse colour the tint of thick ice
+    (`IceShading.color_at`), since UsdPreviewSurface has no transmission."""
     ice = rendered.ice
-    return _preview_surface(stage, looks.AppendChild("IceMaterial"), {
+    material = _preview_surface(stage, looks.AppendChild("IceMaterial"), {
         "diffuseColor": (Gf.Vec3f(*map(float, ice.color_at())), Sdf.ValueTypeNames.Color3f),
         "roughness": (ice.roughness, Sdf.ValueTypeNames.Float),
         "metallic": (0.0, Sdf.ValueTypeNames.Float),
@@ -318,3 +324,35 @@ def _ice_material(stage: Usd.Stage, looks: Sdf.Path, rendered: Rendered) -> UsdS
         # opacity. Older readers ignore an input they do not know.
         "opacityMode": ("transparent", Sdf.ValueTypeNames.Token),
     })
+    _ice_openpbr(stage, material, ice)
+    return material
+
+
+# MaterialX's OpenPBR Surface node (MaterialX 1.39), bound as the material's ``mtlx``
+# surface: usdview (Storm), Houdini (Karma), Maya (USD for Maya) and Omniverse read it;
+# Blender's importer needs `icefarm/dcc/blender_usd_hook.py`.
+OPENPBR_ID = "ND_open_pbr_surface_surfaceshader"
+
+
+def _ice_openpbr(stage: Usd.Stage, material: UsdShade.Material, ice) -> UsdShade.Shader:
+    """The ice as OpenPBR Surface: no diffuse base, full transmission at its ior, the colour
+    white light has after `TINT_DISTANCE_M` of it (``transmission_color`` at that
+    ``transmission_depth``), and its scattering as ``transmission_scatter`` (the scattering
+    coefficient times that depth)."""
+    shader = UsdShade.Shader.Define(stage, material.GetPath().AppendChild("OpenPBR"))
+    shader.CreateIdAttr(OPENPBR_ID)
+    color = lambda v: Gf.Vec3f(*(float(np.clip(c, 0.0, 1.0)) for c in v))  # noqa: E731
+    scatter = min(float(ice.scattering) * TINT_DISTANCE_M, 1.0)
+    for name, value, type_name in (
+            ("base_weight", 0.0, Sdf.ValueTypeNames.Float),
+            ("specular_weight", 1.0, Sdf.ValueTypeNames.Float),
+            ("specular_ior", float(ice.ior), Sdf.ValueTypeNames.Float),
+            ("specular_roughness", float(ice.roughness), Sdf.ValueTypeNames.Float),
+            ("transmission_weight", 1.0, Sdf.ValueTypeNames.Float),
+            ("transmission_color", color(ice.color_at()), Sdf.ValueTypeNames.Color3f),
+            ("transmission_depth", float(TINT_DISTANCE_M), Sdf.ValueTypeNames.Float),
+            ("transmission_scatter", color((scatter,) * 3), Sdf.ValueTypeNames.Color3f),
+            ("geometry_thin_walled", False, Sdf.ValueTypeNames.Bool)):
+        shader.CreateInput(name, type_name).Set(value)
+    material.CreateSurfaceOutput("mtlx").ConnectToSource(shader.ConnectableAPI(), "surface")
+    return shader

@@ -311,3 +311,27 @@ def test_z_up_gravity_gives_a_z_up_stage_and_a_y_up_glb(tmp_path):
     packed = write_usdz(job, tmp_path / "z.usdz")
     assert read_usd(packed, tmp_path / "facts_z")["up"] == "Z"
     assert not (job / "scene.usda").exists(), "a usdz of an older job leaves the job as it was"
+
+
+def test_ice_carries_a_materialx_openpbr_glass_and_the_object_is_double_sided(job):
+    """Readers of MaterialX (usdview, Houdini, Maya, Omniverse) get glass, not a faint shell."""
+    from pxr import Usd, UsdGeom, UsdShade
+
+    from icefarm.rendered import TINT_DISTANCE_M
+    from icefarm.usd import OPENPBR_ID
+
+    stage = Usd.Stage.Open(str(job / "scene.usda"))
+    material = UsdShade.Material(stage.GetPrimAtPath("/World/Looks/IceMaterial"))
+    shader = material.ComputeSurfaceSource("mtlx")[0]
+    assert shader and shader.GetIdAttr().Get() == OPENPBR_ID
+    value = lambda name: shader.GetInput(name).Get()  # noqa: E731
+    assert value("transmission_weight") == 1.0 and value("base_weight") == 0.0
+    assert value("specular_ior") == pytest.approx(1.31) and value("geometry_thin_walled") is False
+    assert value("transmission_depth") == pytest.approx(TINT_DISTANCE_M)
+    np.testing.assert_allclose(list(value("transmission_color")), np.exp(-np.asarray(ABSORPTION_PER_M) * 0.1),
+                               atol=1e-4)
+    assert 0.0 <= value("transmission_scatter")[0] <= 1.0
+    # the preview surface stays for readers without MaterialX
+    assert material.ComputeSurfaceSource()[0].GetIdAttr().Get() == "UsdPreviewSurface"
+    obj = UsdGeom.Mesh(stage.GetPrimAtPath("/World/Object"))
+    assert obj.GetDoubleSidedAttr().Get() is True
