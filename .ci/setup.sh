@@ -29,4 +29,12 @@ if [ ! -x .venv/bin/python ]; then
 fi
 .venv/bin/python -m pip install -q --upgrade pip
 .venv/bin/python -m pip install -q -e ".[test]"
+# Blender as a Python module (bpy 5.0, Python 3.11), the real client the USD export's import
+# hook is tested against (tests/test_export.py); its own environment, as it pins numpy 1.26.
+if [ ! -x .venv-blender/bin/python ]; then
+  "$PYTHON" -m venv .venv-blender
+fi
+if ! .venv-blender/bin/python -c "import bpy" 2>/dev/null; then
+  .venv-blender/bin/python -m pip install -q "bpy==5.0.*" || echo "setup: bpy could not be installed: the Blender import test is skipped"
+fi
 echo "setup: ready (.venv/bin/icefarm)"

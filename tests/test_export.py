@@ -13,6 +13,7 @@ import subprocess
 import sys
 import textwrap
 import xml.etree.ElementTree as ET
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -335,3 +336,43 @@ def test_ice_carries_a_materialx_openpbr_glass_and_the_object_is_double_sided(jo
     assert material.ComputeSurfaceSource()[0].GetIdAttr().Get() == "UsdPreviewSurface"
     obj = UsdGeom.Mesh(stage.GetPrimAtPath("/World/Object"))
     assert obj.GetDoubleSidedAttr().Get() is True
+
+
+BLENDER_PYTHON = Path(__file__).resolve().parents[1] / ".venv-blender" / "bin" / "python"
+BLENDER_IMPORT = textwrap.dedent("""
+    import json, sys
+    import bpy
+    sys.path.insert(0, sys.argv[2])
+    if sys.argv[3] == "hook":
+        import blender_usd_hook
+        blender_usd_hook.register()
+    bpy.ops.wm.usd_import(filepath=sys.argv[1])
+    out = {}
+    for m in bpy.data.materials:
+        bsdf = next((n for n in m.node_tree.nodes if n.type == "BSDF_PRINCIPLED"), None) if m.node_tree else None
+        if bsdf is not None:
+            out[m.name] = {k: float(bsdf.inputs[k].default_value) for k in ("Transmission Weight", "IOR", "Alpha")}
+    print("RESULT " + json.dumps(out))
+""")
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not BLENDER_PYTHON.is_file(), reason="no .venv-blender with bpy (.ci/setup.sh makes it)")
+def test_blender_imports_the_ice_as_glass_with_the_hook_and_as_a_shell_without(job):
+    """Blender 5.0 (bpy) importing scene.usda: its importer alone reads the preview surface (a
+    faint shell); with icefarm/dcc/blender_usd_hook.py registered the ice is glass."""
+    from icefarm import dcc
+
+    def materials(mode):
+        done = subprocess.run([str(BLENDER_PYTHON), "-c", BLENDER_IMPORT, str(job / "scene.usda"),
+                               str(Path(dcc.__file__).parent), mode], capture_output=True, text=True, timeout=300)
+        assert done.returncode == 0, done.stderr[-2000:]
+        line = next(x for x in done.stdout.splitlines() if x.startswith("RESULT "))
+        return json.loads(line[len("RESULT "):])
+
+    plain = materials("plain")["IceMaterial"]
+    assert plain["Transmission Weight"] == 0.0 and plain["Alpha"] == pytest.approx(0.1)
+    hooked = materials("hook")
+    assert hooked["IceMaterial"]["Transmission Weight"] == 1.0 and hooked["IceMaterial"]["IOR"] == pytest.approx(1.31)
+    assert hooked["IceMaterial"]["Alpha"] == 1.0
+    assert hooked["ObjectMaterial"]["Transmission Weight"] == 0.0  # the object is left alone

@@ -1,0 +1,1 @@
+"""Helpers that run inside other applications (DCCs), not in icefarm's own processes."""
