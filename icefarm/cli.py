@@ -196,6 +196,13 @@ def export_command(job_dir, fmt, out):
     instead. In the GLB the ice refracts through the glTF extensions KHR_materials_transmission,
     KHR_materials_ior (1.31) and KHR_materials_volume (its absorption); glTF is +Y up, so
     the scene is turned to put minus gravity up. The USDZ keeps cameras and lights.
+
+    \b
+    The USD ice carries a MaterialX OpenPBR network beside its UsdPreviewSurface: Blender
+    needs icefarm/dcc/blender_usd_hook.py (install it as an add-on) to import it as glass.
+    USD camera apertures and focal lengths are in tenths of a scene unit (here meters):
+    Maya's importer reads them as millimetres, which keeps the field of view but makes the
+    film back 100 times smaller.
     """
     out = Path(out) if out else Path(job_dir) / "export" / f"scene.{fmt}"
     if fmt == "glb":
