@@ -77,7 +77,16 @@ def write_glb(job_dir: str | Path, out: str | Path) -> Path:
         scene.add_geometry(_mesh(read_ice(job_dir, ice.flip), ice_material), node_name="ice", geom_name="ice",
                            transform=up)
         finish["ice"] = (ice.tint, ice_extensions(ice))
-    data = export_glb(scene, include_normals=True, tree_postprocessor=functools.partial(_finish, materials=finish))
+    if rendered.ground is not None:
+        ground = rendered.ground
+        ground_material = PBRMaterial(name="ground", baseColorFactor=[*map(float, ground.color), 1.0],
+                                      metallicFactor=0.0, roughnessFactor=1.0, doubleSided=True)
+        quad = trimesh.Trimesh(ground.corners, [[0, 1, 2], [0, 2, 3]], process=False,
+                               visual=trimesh.visual.TextureVisuals(material=ground_material))
+        scene.add_geometry(quad, node_name="ground", geom_name="ground", transform=up)
+        finish["ground"] = (ground.color, {"KHR_materials_specular": {"specularFactor": 0.0}})
+    data = export_glb(scene, include_normals=True, tree_postprocessor=functools.partial(
+        _finish, materials=finish, rendered=rendered, frame=up[:3, :3]))
     atomic_write(out, data)
     return out
 
@@ -102,9 +111,21 @@ def _mesh(surface: Surface, material: PBRMaterial) -> trimesh.Trimesh:
     return mesh
 
 
-def _finish(tree: dict, materials: dict) -> None:
-    """Complete the materials of a glTF ``tree`` in place: ``materials`` maps a material's
-    name to its linear RGB base colour ``(3,)`` and its extensions, listed in ``extensionsUsed``."""
+def _finish(tree: dict, materials: dict, rendered=None, frame: np.ndarray | None = None) -> None:
+    """Complete a glTF ``tree`` in place.
+
+    ``materials`` maps a material's name to its linear RGB base colour ``(3,)`` and its
+    extensions, listed in ``extensionsUsed``. With ``rendered`` (`Rendered`) and ``frame``
+    (``(3, 3)``: world to glTF axes), the rendered cameras and the sun
+    (``KHR_lights_punctual``) join the scene. The asset names icefarm as its generator and
+    every bufferView its target (vertex data or indices).
+    """
+    from . import __version__
+
+    tree.setdefault("asset", {})["generator"] = f"icefarm {__version__}"
+    _buffer_targets(tree)
+    if rendered is not None and frame is not None:
+        _cameras_and_sun(tree, rendered, frame)
     used = set(tree.get("extensionsUsed", []))
     for material in tree.get("materials", []):
         if material.get("name") not in materials:
@@ -116,3 +137,63 @@ def _finish(tree: dict, materials: dict) -> None:
             used.update(extensions)
     if used:
         tree["extensionsUsed"] = sorted(used)
+
+
+ARRAY_BUFFER, ELEMENT_ARRAY_BUFFER = 34962, 34963
+
+
+def _buffer_targets(tree: dict) -> None:
+    """Each bufferView of a mesh's vertex attributes gets target ``ARRAY_BUFFER``, of its
+    indices ``ELEMENT_ARRAY_BUFFER``."""
+    views = tree.get("bufferViews", [])
+    accessors = tree.get("accessors", [])
+    for mesh in tree.get("meshes", []):
+        for primitive in mesh.get("primitives", []):
+            pairs = [(a, ARRAY_BUFFER) for a in primitive.get("attributes", {}).values()]
+            if "indices" in primitive:
+                pairs.append((primitive["indices"], ELEMENT_ARRAY_BUFFER))
+            for accessor, target in pairs:
+                view = accessors[accessor].get("bufferView")
+                if view is not None:
+                    views[view]["target"] = target
+
+
+def _quaternion(columns: np.ndarray) -> list[float]:
+    """glTF's ``[x, y, z, w]`` of the rotation whose matrix has ``columns`` ``(3, 3)``."""
+    m = np.eye(4)
+    m[:3, :3] = columns
+    w, x, y, z = trimesh.transformations.quaternion_from_matrix(m)
+    return [float(x), float(y), float(z), float(w)]
+
+
+def _cameras_and_sun(tree: dict, rendered, frame: np.ndarray) -> None:
+    """The rendered views as glTF cameras (looking down their local -Z, +Y up) and the sun
+    as a ``KHR_lights_punctual`` directional light (shining down its local -Z; intensity:
+    Mitsuba's irradiance, W/m^2), each on a node of the default scene."""
+    nodes = tree.setdefault("nodes", [])
+    scene = tree["scenes"][tree.get("scene", 0)].setdefault("nodes", [])
+    cameras = tree.setdefault("cameras", [])
+    for camera, name in zip(rendered.cameras, rendered.view_names):
+        forward = frame @ camera.forward
+        right = np.cross(forward, frame @ np.asarray(camera.up))
+        right /= np.linalg.norm(right)
+        up = np.cross(right, forward)
+        cameras.append({"name": name, "type": "perspective", "perspective": {
+            "yfov": float(np.radians(camera.fov_y)), "aspectRatio": rendered.width / rendered.height,
+            "znear": float(max(camera.near, 1e-4)), "zfar": float(camera.far)}})
+        nodes.append({"name": f"camera_{name}", "camera": len(cameras) - 1,
+                      "translation": [float(v) for v in frame @ camera.origin],
+                      "rotation": _quaternion(np.column_stack([right, up, -forward]))})
+        scene.append(len(nodes) - 1)
+    if rendered.sun is not None:
+        z = frame @ (rendered.sun / np.linalg.norm(rendered.sun))  # local +Z towards the sun
+        x = np.cross((0.0, 1.0, 0.0) if abs(z[1]) < 0.9 else (1.0, 0.0, 0.0), z)
+        x /= np.linalg.norm(x)
+        strength = float(np.max(rendered.sun_irradiance))
+        light = {"name": "sun", "type": "directional", "intensity": strength,
+                 "color": [float(c) for c in rendered.sun_irradiance / max(strength, 1e-12)]}
+        tree.setdefault("extensions", {}).setdefault("KHR_lights_punctual", {}).setdefault("lights", []).append(light)
+        nodes.append({"name": "sun", "rotation": _quaternion(np.column_stack([x, np.cross(z, x), z])),
+                      "extensions": {"KHR_lights_punctual": {"light": 0}}})
+        scene.append(len(nodes) - 1)
+        tree["extensionsUsed"] = sorted(set(tree.get("extensionsUsed", [])) | {"KHR_lights_punctual"})

@@ -129,6 +129,8 @@ class Rendered:
         Unit gravity direction (``params.yaml``).
     material : Material
         The object's validated material.
+    ground : Ground or None
+        The ground plane the render stood the object on; None without one.
     """
 
     cameras: tuple[Camera, ...]
@@ -143,6 +145,31 @@ class Rendered:
     ice: IceShading | None
     gravity: np.ndarray
     material: Material
+    ground: "Ground | None" = None
+
+
+@dataclass(frozen=True)
+class Ground:
+    """The rendered ground plane: a square ``corners`` ``(4, 3)`` (meters, counter-clockwise
+    seen from above) of a matte ``color`` ``(3,)``, linear RGB (a checker's mean)."""
+
+    corners: np.ndarray
+    color: np.ndarray
+
+    @property
+    def normal(self) -> np.ndarray:
+        n = np.cross(self.corners[1] - self.corners[0], self.corners[2] - self.corners[0])
+        return n / np.linalg.norm(n)
+
+
+def _ground(shape) -> Ground | None:
+    """`Ground` from scene.xml's ``rectangle`` shape (Mitsuba's square -1..1 in its local XY)."""
+    if shape is None:
+        return None
+    m = _floats(shape.find("transform/matrix").get("value")).reshape(4, 4)
+    local = np.array([[-1.0, -1.0, 0.0, 1.0], [1.0, -1.0, 0.0, 1.0], [1.0, 1.0, 0.0, 1.0], [-1.0, 1.0, 0.0, 1.0]])
+    colors = [_floats(c.get("value").replace(",", " ")) for c in shape.iter("rgb")]
+    return Ground(corners=(local @ m.T)[:, :3], color=np.mean(colors, axis=0) if colors else np.full(3, 0.1))
 
 
 def require(job_dir: Path, *names: str) -> None:
@@ -192,7 +219,8 @@ def read_rendered(job_dir: str | Path, material: Material | Mapping | None = Non
         sun=None if sun is None else -_floats(_named(sun, "vector", "direction")),
         sun_irradiance=np.zeros(3) if sun is None else _floats(_named(sun, "rgb", "irradiance")),
         ice=_ice(shapes["ice"]) if "ice" in shapes else None,
-        gravity=gravity / np.linalg.norm(gravity), material=material_from_dict(material))
+        gravity=gravity / np.linalg.norm(gravity), material=material_from_dict(material),
+        ground=_ground(shapes.get("ground")))
 
 
 @dataclass(frozen=True)

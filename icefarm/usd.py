@@ -231,6 +231,8 @@ def _scene(stage: Usd.Stage, rendered: Rendered, axis: str, sky: str, has_ice: b
         prim = stage.DefinePrim(f"/World/{name}")  # a Mesh, by its reference
         prim.GetReferences().AddReference(f"./{layer}")
         UsdShade.MaterialBindingAPI.Apply(prim).Bind(material)
+    if rendered.ground is not None:
+        _ground(stage, looks, rendered.ground)
     UsdGeom.Scope.Define(stage, "/World/Cameras")
     for camera, view in zip(rendered.cameras, rendered.view_names):
         _camera(stage, f"/World/Cameras/{Tf.MakeValidIdentifier(view)}", camera, rendered.width / rendered.height)
@@ -245,6 +247,26 @@ def _scene(stage: Usd.Stage, rendered: Rendered, axis: str, sky: str, has_ice: b
     dome.CreateTextureFormatAttr(UsdLux.Tokens.latlong)
     dome.CreateIntensityAttr(float(rendered.sky_scale))
     dome.AddTransformOp().Set(_rows(rendered.sky_frame, np.zeros(3)))
+
+
+def _ground(stage: Usd.Stage, looks: Sdf.Path, ground) -> None:
+    """The ground the render stood the object on: a matte square of two triangles (its
+    checker's mean colour)."""
+    mesh = UsdGeom.Mesh.Define(stage, "/World/Ground")
+    corners = np.asarray(ground.corners, dtype=np.float32)
+    mesh.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(corners))
+    mesh.CreateFaceVertexCountsAttr([3, 3])
+    mesh.CreateFaceVertexIndicesAttr([0, 1, 2, 0, 2, 3])
+    mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
+    mesh.CreateDoubleSidedAttr(True)
+    mesh.CreateExtentAttr(Vt.Vec3fArray([Gf.Vec3f(*map(float, corners.min(axis=0))),
+                                         Gf.Vec3f(*map(float, corners.max(axis=0)))]))
+    material = _preview_surface(stage, looks.AppendChild("GroundMaterial"), {
+        "diffuseColor": (Gf.Vec3f(*map(float, ground.color)), Sdf.ValueTypeNames.Color3f),
+        "roughness": (1.0, Sdf.ValueTypeNames.Float),
+        "useSpecularWorkflow": (1, Sdf.ValueTypeNames.Int),
+        "specularColor": (Gf.Vec3f(0.0, 0.0, 0.0), Sdf.ValueTypeNames.Color3f)})
+    UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim()).Bind(material)
 
 
 def _rows(axes: np.ndarray, origin: np.ndarray) -> Gf.Matrix4d:

@@ -260,6 +260,57 @@ def test_glb_export_has_the_ice_with_transmission_and_ior(job):
     assert obj["pbrMetallicRoughness"]["baseColorFactor"] == pytest.approx([0.6, 0.1, 0.1, 1.0])
 
 
+def test_glb_is_a_complete_scene_with_ground_cameras_and_sun(job):
+    """The ground the render stood on, the rendered cameras and the sun: what a viewer needs."""
+    from icefarm.rendered import read_rendered
+    from icefarm.scene.camera import world_frame
+
+    out = job.parent / "complete.glb"
+    assert CliRunner().invoke(main, ["export", str(job), "--format", "glb", "-o", str(out)]).exit_code == 0
+    tree = glb_json(out)
+    assert tree["asset"]["generator"].startswith("icefarm")
+    assert all(view.get("target") in (34962, 34963) for view in tree["bufferViews"])
+    nodes = {n["name"]: n for n in tree["nodes"]}
+    assert {"object", "ice", "ground", "camera_three_quarter", "camera_ice", "sun"} <= set(nodes)
+    scene = tree["scenes"][tree.get("scene", 0)]["nodes"]
+    assert all(tree["nodes"].index(nodes[k]) in scene for k in ("ground", "camera_three_quarter", "sun"))
+    rendered = read_rendered(job)
+    frame = world_frame(rendered.gravity)
+
+    def turned(quaternion, v):
+        x, y, z, w = quaternion
+        m = trimesh.transformations.quaternion_matrix([w, x, y, z])[:3, :3]
+        return m @ np.asarray(v, dtype=float)
+
+    for camera, name in zip(rendered.cameras, rendered.view_names):
+        node = nodes[f"camera_{name}"]
+        np.testing.assert_allclose(node["translation"], frame @ camera.origin, atol=1e-6)
+        np.testing.assert_allclose(turned(node["rotation"], [0, 0, -1]), frame @ camera.forward, atol=1e-6)
+        assert turned(node["rotation"], [0, 1, 0])[1] > 0  # upright: glTF's +Y is minus gravity
+        assert tree["cameras"][node["camera"]]["perspective"]["yfov"] == pytest.approx(np.radians(camera.fov_y))
+    sun = nodes["sun"]
+    light = tree["extensions"]["KHR_lights_punctual"]["lights"][sun["extensions"]["KHR_lights_punctual"]["light"]]
+    assert light["type"] == "directional" and light["intensity"] > 0
+    np.testing.assert_allclose(turned(sun["rotation"], [0, 0, 1]), frame @ rendered.sun, atol=1e-6)
+    ground = trimesh.load(out).geometry["ground"]
+    assert len(ground.faces) == 2 and np.ptp(ground.vertices[:, 1]) < 1e-6  # level in glTF's Y-up
+    assert ground.vertices[:, 1].max() <= trimesh.load(out).geometry["object"].vertices[:, 1].min() + 1e-3
+
+
+def test_usd_scene_has_the_rendered_ground_with_a_matte_material(job):
+    from pxr import Usd, UsdGeom, UsdShade
+
+    stage = Usd.Stage.Open(str(job / "scene.usda"))
+    ground = UsdGeom.Mesh(stage.GetPrimAtPath("/World/Ground"))
+    points = np.asarray(ground.GetPointsAttr().Get())
+    assert points.shape == (4, 3) and np.ptp(points[:, 1]) < 1e-6  # Y up: level
+    assert list(ground.GetFaceVertexCountsAttr().Get()) == [3, 3]
+    material = UsdShade.MaterialBindingAPI(ground.GetPrim()).ComputeBoundMaterial()[0]
+    shader = material.ComputeSurfaceSource()[0]
+    assert shader.GetInput("roughness").Get() == 1.0
+    assert tuple(shader.GetInput("specularColor").Get()) == (0.0, 0.0, 0.0)
+
+
 def test_usdz_export_packs_scene_meshes_and_sky(job, tmp_path):
     import zipfile
 
