@@ -355,5 +355,8 @@ def build_surface(obj: trimesh.Trimesh, flow: trimesh.Trimesh, water: WaterResul
 
     # Flattening can squash the faces of a foot into slivers: clean them as stage 4 does.
     tol = SLIVER * params["surface"]["voxel_size"]
-    vertices, faces = collapse_slivers(ice.vertices + below[:, None] * g, ice.faces, tol)
-    return dataclasses.replace(ice, vertices=vertices, faces=flip_needles(vertices, faces, tol))
+    moved = below < 0  # only the faces at a flattened vertex can have become slivers
+    vertices, faces = collapse_slivers(ice.vertices + below[:, None] * g, ice.faces, tol, near=moved)
+    if len(vertices) != len(moved):  # renumbered: find the moved vertices again by height
+        moved = np.abs(vertices @ -g - floor) <= tol
+    return dataclasses.replace(ice, vertices=vertices, faces=flip_needles(vertices, faces, tol, near=moved))

@@ -8,7 +8,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 
-def collapse_slivers(vertices: np.ndarray, faces: np.ndarray, tol: float):
+def collapse_slivers(vertices: np.ndarray, faces: np.ndarray, tol: float, near: np.ndarray | None = None):
     """Merge the ends of edges shorter than ``tol`` (and vertices within ``tol`` of those)
     and drop the faces that collapse.
 
@@ -25,6 +25,8 @@ def collapse_slivers(vertices: np.ndarray, faces: np.ndarray, tol: float):
     faces : (m, 3) int
     tol : float
         Meters; a thousandth of a voxel is ample.
+    near : (n,) bool, optional
+        Look only at the faces with a vertex here (the ones an edit moved).
 
     Returns
     -------
@@ -37,9 +39,10 @@ def collapse_slivers(vertices: np.ndarray, faces: np.ndarray, tol: float):
         return vertices, faces
     # Vertices a hair apart end an edge that short: only those ends are searched (a tree of
     # every vertex of a million-face mesh took most of the time).
-    a, b, c = vertices[faces[:, 0]], vertices[faces[:, 1]], vertices[faces[:, 2]]
+    look = faces if near is None else faces[np.asarray(near, dtype=bool)[faces].any(axis=1)]
+    a, b, c = vertices[look[:, 0]], vertices[look[:, 1]], vertices[look[:, 2]]
     edges = [(0, 1, b - a), (1, 2, c - b), (2, 0, a - c)]
-    ends = np.unique(np.concatenate([faces[(d * d).sum(axis=1) < tol * tol][:, [i, j]].ravel() for i, j, d in edges]))
+    ends = np.unique(np.concatenate([look[(d * d).sum(axis=1) < tol * tol][:, [i, j]].ravel() for i, j, d in edges]))
     if len(ends) == 0:
         return vertices, faces
     pairs = ends[cKDTree(vertices[ends]).query_pairs(tol, output_type="ndarray")].reshape(-1, 2)
@@ -86,7 +89,7 @@ def _closed_at(faces: np.ndarray, at: np.ndarray) -> bool:
     return len(rev) == len(fwd[0]) and np.array_equal(rev, fwd[0])
 
 
-def flip_needles(vertices: np.ndarray, faces: np.ndarray, height: float):
+def flip_needles(vertices: np.ndarray, faces: np.ndarray, height: float, near: np.ndarray | None = None):
     """Flip the longest edge of each face flatter than ``height`` (a needle: one corner on
     the opposite edge, no short edge to collapse) with the face across it.
 
@@ -100,6 +103,8 @@ def flip_needles(vertices: np.ndarray, faces: np.ndarray, height: float):
     faces : (m, 3) int
     height : float
         Meters: a face's least height under this makes it a needle.
+    near : (n,) bool, optional
+        Look only at the faces with a vertex here (the ones an edit moved).
 
     Returns
     -------
@@ -107,7 +112,11 @@ def flip_needles(vertices: np.ndarray, faces: np.ndarray, height: float):
         The faces (the same array when there is no needle).
     """
     faces = np.asarray(faces, dtype=np.int64)
-    needles = np.flatnonzero(_flat(vertices, faces, height))
+    if near is None:
+        needles = np.flatnonzero(_flat(vertices, faces, height))
+    else:
+        candidates = np.flatnonzero(np.asarray(near, dtype=bool)[faces].any(axis=1))
+        needles = candidates[_flat(vertices, faces[candidates], height)]
     if len(needles) == 0:
         return faces
     faces = faces.copy()

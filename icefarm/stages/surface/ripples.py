@@ -30,8 +30,10 @@ REACH = 1.3
 RIPPLE_WIDENING = 1.0
 GOLDEN_ANGLE = np.pi * (3 - np.sqrt(5))
 RIPPLE_SEED = 0x1C1C1E  # each branch's ripple texture: its own stream, not the stage's
-# Axis samples per ripple wavelength (and at least one per tip radius).
-SAMPLES_PER_WAVE = 16
+# Axis samples per ripple wavelength (and at least one per tip radius): each vertex takes
+# its own arc length (its nearest sample's plus its offset along the axis), so the ripple's
+# phase needs no finer samples; the amplitude's envelope is smooth at this spacing.
+SAMPLES_PER_WAVE = 4
 
 
 def carve_ripples(vertices: np.ndarray, traj: TrajectoryResult, prof: dict,
@@ -80,7 +82,6 @@ def carve_ripples(vertices: np.ndarray, traj: TrajectoryResult, prof: dict,
     # that tilt and fade around the trunk, each branch its own (seeded by its index: no
     # draw from the stage's stream).
     texture = _texture(branches, frequency)
-    phase = _wandering_phase(x, owner, frequency, texture)
     wave_amp = amplitude * _envelope(x, grown[owner], tip) \
         * np.clip(x / smooth_radius(0.0, grown[owner], growth=growth[owner], **prof), 0, 1)
     wave_amp *= np.clip((radius - tip) / (RIPPLE_WIDENING * tip), 0, 1)
@@ -100,16 +101,25 @@ def carve_ripples(vertices: np.ndarray, traj: TrajectoryResult, prof: dict,
     found = np.isfinite(d)
     near, i = candidates[found], rippled[i[found]]
     rel = vertices[near] - axis[i]
-    radial = rel - np.einsum("ij,ij->i", rel, tangent[i])[:, None] * tangent[i]
+    along = np.einsum("ij,ij->i", rel, tangent[i])
+    radial = rel - along[:, None] * tangent[i]
     dist = np.linalg.norm(radial, axis=1)
     own = (dist <= REACH * radius[i] + amplitude) & (dist > 1e-9)
-    i, radial, dist = i[own], radial[own], dist[own]
-    theta = _azimuth(radial, tangent[i])
+    i, radial, dist, along = i[own], radial[own], dist[own], along[own]
     b = owner[i]
-    crest = np.sin(phase[i] + texture.tilt[b] * np.cos(theta - texture.tilt_at[b]))
+    # cos and sin of each vertex's angle around the axis, in its sample's frame
+    e1, e2 = _frames(tangent)
+    cos_t = np.einsum("ij,ij->i", radial, e1[i]) / dist
+    sin_t = np.einsum("ij,ij->i", radial, e2[i]) / dist
+    xv = np.clip(x[i] + along, 0.0, L[b])  # the vertex's own arc length along its branch
+    # the phase at the vertex: its sample's, carried on along the axis by the local wavenumber
+    phase, rate = _wandering_phase(x, owner, frequency, texture)
+    tilt = cos_t * np.cos(texture.tilt_at[b]) + sin_t * np.sin(texture.tilt_at[b])  # cos(theta - tilt_at)
+    crest = np.sin(phase[i] + rate[i] * (xv - x[i]) + texture.tilt[b] * tilt)
     # crests fade and break around the circumference: an amplitude that drifts with angle
     # and with height, never below FADE_FLOOR of the full one
-    fade = 0.5 * (1 + np.sin(2 * theta + texture.break_phase[b] + x[i] * texture.break_rate[b]))
+    swirl = texture.break_phase[b] + xv * texture.break_rate[b]
+    fade = 0.5 * (1 + 2 * sin_t * cos_t * np.cos(swirl) + (cos_t**2 - sin_t**2) * np.sin(swirl))
     wave = wave_amp[i] * crest * (FADE_FLOOR + (1 - FADE_FLOOR) * fade)
     out = np.array(vertices, dtype=np.float64, copy=True)
     sel = near[own]
@@ -155,15 +165,17 @@ def _texture(branches: np.ndarray, frequency: float) -> _Texture:
                     phase0=(branches * GOLDEN_ANGLE + two_pi * draws[:, k + 4]) % two_pi)
 
 
-def _wandering_phase(x: np.ndarray, owner: np.ndarray, frequency: float, texture: _Texture) -> np.ndarray:
-    """The ripple's phase at arc length ``x``: ``frequency x`` plus the integral of a
-    wavenumber that wanders by `WANDER` (a sum of slow sines, `WANDER_WAVES`)."""
-    waves = np.asarray(WANDER_WAVES)
-    q = 2 * np.pi / waves  # (k,)
-    weight = WANDER * np.sqrt(2.0 / len(waves))
-    psi = texture.wander_phase[owner]  # (n, k)
-    integral = ((np.cos(psi) - np.cos(q[None, :] * x[:, None] + psi)) / q[None, :]).sum(axis=1)
-    return frequency * (x + weight * integral) + texture.phase0[owner]
+def _wandering_phase(x: np.ndarray, owner: np.ndarray, frequency: float,
+                     texture: _Texture) -> tuple[np.ndarray, np.ndarray]:
+    """The ripple's phase at arc lengths ``x`` of branches ``owner``, and its derivative (the
+    local wavenumber, rad/m): ``frequency x`` plus the integral of a wavenumber that wanders
+    by `WANDER` (a sum of slow sines, `WANDER_WAVES`)."""
+    q = 2 * np.pi / np.asarray(WANDER_WAVES)  # (k,)
+    weight = WANDER * np.sqrt(2.0 / len(q))
+    angle = q[None, :] * x[:, None] + texture.wander_phase[owner]  # (n, k)
+    integral = ((np.cos(texture.wander_phase[owner]) - np.cos(angle)) / q[None, :]).sum(axis=1)
+    phase = frequency * (x + weight * integral) + texture.phase0[owner]
+    return phase, frequency * (1.0 + weight * np.sin(angle).sum(axis=1))
 
 
 def _envelope(x: np.ndarray, length: np.ndarray, tip: float) -> np.ndarray:
@@ -175,11 +187,10 @@ def _envelope(x: np.ndarray, length: np.ndarray, tip: float) -> np.ndarray:
     return t * t * (3 - 2 * t)
 
 
-def _azimuth(radial: np.ndarray, tangent: np.ndarray) -> np.ndarray:
-    """Angle (radians) of each radial vector around its tangent, from a reference that
-    turns with the tangent (world x, or world z for a tangent along x)."""
+def _frames(tangent: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit vectors across each unit ``tangent`` (m, 3), turning with it: the angle
+    around the axis is measured from the first (world x, or world z for a tangent along x)."""
     ref = np.where(np.abs(tangent[:, :1]) < 0.9, np.array([[1.0, 0.0, 0.0]]), np.array([[0.0, 0.0, 1.0]]))
     e1 = ref - np.einsum("ij,ij->i", ref, tangent)[:, None] * tangent
     e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
-    e2 = np.cross(tangent, e1)
-    return np.arctan2(np.einsum("ij,ij->i", radial, e2), np.einsum("ij,ij->i", radial, e1))
+    return e1, np.cross(tangent, e1)
