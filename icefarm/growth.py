@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import os
 import shutil
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -37,14 +36,14 @@ import trimesh
 from . import artifacts
 from .params import GlazeParams, SurfaceParams, typed
 from .scene.material import Material
+from .growth_usd import write_growth_usd
 from .stages.drips import DripResult
 from .stages.trajectories import TrajectoryResult
 
 MAX_FRAMES = 240
 # The movie lasts about this long, at 1 to 24 frames per second.
 MOVIE_SECONDS = 3.0
-GROWTH_DIR, FRAMES_FILE, MOVIE_FILE, USD_FILE, USD_ICE_FILE = (
-    "growth", "frames.json", "growth.mp4", "growth.usda", "growth_ice.usdc")
+GROWTH_DIR, FRAMES_FILE, MOVIE_FILE, USD_FILE = "growth", "frames.json", "growth.mp4", "growth.usda"
 
 
 @dataclass(frozen=True)
@@ -103,7 +102,7 @@ class GrowthFrame:
 @dataclass(frozen=True)
 class GrowthResult:
     """What `grow_frames` wrote into ``folder``: ``ice_####.ply``, ``frame_####.png`` (with a
-    view), ``growth.mp4`` (with a view), ``growth.usda`` (+ ``growth_ice.usdc``), ``frames.json``."""
+    view), ``growth.mp4`` (with a view), ``growth.usda`` (value clips ``ice_0001.usdc``..., `icefarm.growth_usd`), ``frames.json``."""
 
     folder: Path
     frames: tuple[GrowthFrame, ...]
@@ -202,7 +201,7 @@ def grow_frames(folder: str | Path, traj: TrajectoryResult, drips: DripResult, s
                 glaze: GlazeParams | Mapping, *,
                 frames: int, build: Callable, new_rng: Callable[[], np.random.Generator], gravity,
                 view: FrameView | None = None, progress: bool = False,
-                object_usd: str | Path | None = None) -> GrowthResult:
+                object_usd: str | Path | None = None, scene_usd: str | Path | None = None) -> GrowthResult:
     """Stage 4 (and a render) at each of ``frames`` fractions of the growth, into ``folder``.
 
     Parameters
@@ -227,6 +226,9 @@ def grow_frames(folder: str | Path, traj: TrajectoryResult, drips: DripResult, s
         A progress bar over the frames.
     object_usd : path, optional
         The job's ``object.usdc``, referenced by ``growth.usda`` when it exists.
+    scene_usd : path, optional
+        The job's ``scene.usda``: ``growth.usda`` takes its materials, ground, cameras and
+        lights when it exists.
     """
     surface = typed("surface", surface)
     glaze = typed("glaze", glaze)
@@ -274,7 +276,7 @@ def grow_frames(folder: str | Path, traj: TrajectoryResult, drips: DripResult, s
     shutil.rmtree(folder / ".scene", ignore_errors=True)
     fps = float(np.clip(frames / MOVIE_SECONDS, 1.0, 24.0))
     movie = write_movie(pngs, folder / MOVIE_FILE, fps) if pngs else None
-    usd = write_growth_usd(folder / USD_FILE, plies, gravity, fps, object_usd)
+    usd = write_growth_usd(folder / USD_FILE, plies, gravity, fps, object_usd, scene_usd)
     artifacts.write_json(folder / FRAMES_FILE, {"fps": fps, "frames": [dataclasses.asdict(r) for r in rows]})
     return GrowthResult(folder, tuple(rows), movie, usd)
 
@@ -325,63 +327,6 @@ def write_movie(pngs: Sequence[Path], path: Path, fps: float) -> Path:
     finally:
         writer.close()
     tmp.replace(path)
-    return path
-
-
-def write_growth_usd(path: Path, plies: Sequence[Path], gravity, fps: float,
-                     object_usd: str | Path | None = None) -> Path:
-    """``growth.usda``: the ice as one mesh with a time sample per frame (time codes 1..N).
-
-    The samples (points, faceVertexCounts, faceVertexIndices, extent) live in the binary
-    ``growth_ice.usdc`` beside it, which the small text layer references; the job's
-    ``object.usdc`` is referenced too when it exists. Meters, up axis from gravity
-    (`icefarm.usd.up_axis`), ``timeCodesPerSecond`` = the movie's fps.
-    """
-    from pxr import Gf, Usd, UsdGeom, Vt
-
-    from .usd import up_axis
-
-    axis = UsdGeom.Tokens.z if up_axis(gravity) == "Z" else UsdGeom.Tokens.y
-
-    def metadata(stage: Usd.Stage, default: Usd.Prim) -> None:
-        UsdGeom.SetStageMetersPerUnit(stage, UsdGeom.LinearUnits.meters)
-        UsdGeom.SetStageUpAxis(stage, axis)
-        stage.SetStartTimeCode(1)
-        stage.SetEndTimeCode(max(len(plies), 1))
-        stage.SetTimeCodesPerSecond(fps)
-        stage.SetFramesPerSecond(fps)
-        stage.SetDefaultPrim(default)
-
-    layer = path.with_name(USD_ICE_FILE)
-    for old in (path, layer):
-        old.unlink(missing_ok=True)
-    stage = Usd.Stage.CreateNew(str(layer))
-    mesh = UsdGeom.Mesh.Define(stage, "/Ice")
-    metadata(stage, mesh.GetPrim())
-    mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)  # triangles as they are, not Catmull-Clark
-    attrs = (mesh.CreatePointsAttr(), mesh.CreateFaceVertexCountsAttr(), mesh.CreateFaceVertexIndicesAttr(),
-             mesh.CreateExtentAttr())
-    for time_code, ply in enumerate(plies, 1):
-        ice = trimesh.load(ply, process=False, force="mesh")
-        points = np.ascontiguousarray(ice.vertices, dtype=np.float32).reshape(-1, 3)
-        faces = np.ascontiguousarray(ice.faces, dtype=np.int32).reshape(-1, 3)
-        lo, hi = (points.min(axis=0), points.max(axis=0)) if len(points) else (np.zeros(3), np.zeros(3))
-        values = (Vt.Vec3fArray.FromNumpy(points), Vt.IntArray.FromNumpy(np.full(len(faces), 3, dtype=np.int32)),
-                  Vt.IntArray.FromNumpy(faces.ravel()),
-                  Vt.Vec3fArray([Gf.Vec3f(*map(float, lo)), Gf.Vec3f(*map(float, hi))]))
-        for attr, value in zip(attrs, values):
-            attr.Set(value, Usd.TimeCode(time_code))
-    stage.GetRootLayer().Save()
-    del stage
-
-    stage = Usd.Stage.CreateNew(str(path))
-    root = UsdGeom.Xform.Define(stage, "/Growth")
-    metadata(stage, root.GetPrim())
-    stage.DefinePrim("/Growth/Ice").GetReferences().AddReference(f"./{layer.name}")
-    if object_usd is not None and Path(object_usd).is_file():
-        relative = os.path.relpath(Path(object_usd).resolve(), path.parent.resolve())
-        stage.DefinePrim("/Growth/Object").GetReferences().AddReference(Path(relative).as_posix())
-    stage.GetRootLayer().Save()
     return path
 
 

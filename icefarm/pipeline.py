@@ -334,7 +334,7 @@ def _growth(spec: JobSpec, job_dir: Path, run: _Run, r: StageResults, gravity: n
                                                  placement=spec.placement, glaze=g, cast=cast,
                                                  extra_balls=extra_balls),
         new_rng=lambda: stage_rng(spec.seed, Stage.SURFACE), gravity=gravity, view=view, progress=run.progress,
-        object_usd=job_dir / "object.usdc")
+        object_usd=job_dir / "object.usdc", scene_usd=job_dir / "scene.usda")
     return {"growth_frames": len(result.frames), "growth_seconds_per_frame": round(result.seconds_per_frame, 3)}
 
 

@@ -3,6 +3,7 @@
 import json
 import subprocess
 import sys
+import textwrap
 
 import numpy as np
 import pytest
@@ -181,3 +182,36 @@ def test_help_and_manifest_name_growth(tmp_path):
         (tmp_path / "b.yaml").write_text(text % bad)
         with pytest.raises(Exception, match=r"objects\[0\]\.growth"):
             load_manifest(tmp_path / "b.yaml")
+
+
+def test_growth_usd_is_value_clips_with_normals_the_ice_glass_and_the_ground(grown):
+    """One small layer per frame, stitched as value clips; the animation opens looking as
+    the render did: normals, the ice's MaterialX glass, the ground, cameras and lights."""
+    script = textwrap.dedent("""
+        import sys, json
+        from pxr import Usd, UsdGeom, UsdShade
+        s = Usd.Stage.Open(sys.argv[1])
+        ice = s.GetPrimAtPath('/Growth/Ice')
+        clips = Usd.ClipsAPI(ice)
+        normals = UsdGeom.Mesh(ice).GetNormalsAttr()
+        material = UsdShade.MaterialBindingAPI(ice).ComputeBoundMaterial()[0]
+        mtlx = material.ComputeSurfaceSource('mtlx')[0]
+        print(json.dumps({
+            "clips": [a.path for a in clips.GetClipAssetPaths()],
+            "errors": [str(e) for e in s.GetCompositionErrors()],
+            "normals": normals.GetTimeSamples(), "n_normals": len(normals.Get(s.GetEndTimeCode())),
+            "points": len(UsdGeom.Mesh(ice).GetPointsAttr().Get(s.GetEndTimeCode())),
+            "mtlx": mtlx.GetIdAttr().Get() if mtlx else None,
+            "ground": s.GetPrimAtPath('/Growth/Ground').IsA(UsdGeom.Mesh),
+            "cameras": [p.GetName() for p in s.GetPrimAtPath('/Growth/Cameras').GetChildren()],
+            "sun": s.GetPrimAtPath('/Growth/Lights/Sun').IsValid()}))
+    """)
+    out = subprocess.run([sys.executable, "-c", script, str(grown / "growth" / "growth.usda")],
+                         capture_output=True, text=True, check=True)
+    facts = json.loads(out.stdout)
+    assert facts["clips"] == [f"./ice_{i:04d}.usdc" for i in range(1, FRAMES + 1)]
+    assert all((grown / "growth" / f"ice_{i:04d}.usdc").is_file() for i in range(1, FRAMES + 1))
+    assert facts["errors"] == []
+    assert facts["normals"] == list(range(1, FRAMES + 1)) and facts["n_normals"] == facts["points"]
+    assert facts["mtlx"] == "ND_open_pbr_surface_surfaceshader"
+    assert facts["ground"] and facts["sun"] and "three_quarter" in facts["cameras"]
