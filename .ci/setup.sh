@@ -23,6 +23,19 @@ if [ ${#missing[@]} -gt 0 ]; then
   fi
 fi
 
+# npm (for the gallery's 3D viewer, package.json) when the machine has no Node.js of its own
+if ! command -v npm >/dev/null; then
+  if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null; then
+    echo "setup: installing Debian packages: nodejs npm"
+    apt-get update -qq && apt-get install -y -qq --no-install-recommends nodejs npm >/dev/null
+  else
+    echo "setup: no npm: the gallery's 3D view (@google/model-viewer) is left out"
+  fi
+fi
+if command -v npm >/dev/null; then
+  npm install --no-audit --no-fund --silent || echo "setup: npm install failed: the gallery's 3D view is left out"
+fi
+
 PYTHON=${PYTHON:-python3}
 if [ ! -x .venv/bin/python ]; then
   "$PYTHON" -m venv .venv

@@ -36,7 +36,7 @@ from .scene.camera import world_frame
 ICE_THICKNESS_M = 0.02
 
 
-def write_glb(job_dir: str | Path, out: str | Path) -> Path:
+def write_glb(job_dir: str | Path, out: str | Path, max_faces: int | None = None) -> Path:
     """Write the object and the ice of a job that rendered as one GLB file at ``out``.
 
     Parameters
@@ -45,6 +45,10 @@ def write_glb(job_dir: str | Path, out: str | Path) -> Path:
         The job folder: ``ice.ply``, ``object.ply``, ``scene.xml``, ``params.yaml``.
     out : path
         The ``.glb`` file, written whole or not at all.
+    max_faces : int, optional
+        A light preview: the object and the ice are decimated (quadric edge collapse,
+        `fast_simplification` through trimesh) to about this many faces together, shared
+        by their face counts. Default: the meshes as rendered.
 
     Returns
     -------
@@ -65,7 +69,11 @@ def write_glb(job_dir: str | Path, out: str | Path) -> Path:
     look = pbr(rendered.material)
     obj_material = PBRMaterial(name="object", baseColorFactor=[*look.base_color, 1.0], metallicFactor=look.metallic,
                                roughnessFactor=look.roughness, doubleSided=True)  # rendered two-sided
-    scene.add_geometry(_mesh(object_surface(job_dir), obj_material), node_name="object", geom_name="object",
+    obj_surface = object_surface(job_dir)
+    ice_surface = read_ice(job_dir, rendered.ice.flip) if rendered.ice is not None else None
+    if max_faces is not None:
+        obj_surface, ice_surface = _decimated((obj_surface, ice_surface), max_faces)
+    scene.add_geometry(_mesh(obj_surface, obj_material), node_name="object", geom_name="object",
                        transform=up)
     # Names to what trimesh cannot write: extensions, and base colours unrounded (it keeps 8 bits).
     matte = {} if look.specular else {"KHR_materials_specular": {"specularFactor": 0.0}}  # Mitsuba's diffuse
@@ -74,11 +82,14 @@ def write_glb(job_dir: str | Path, out: str | Path) -> Path:
         ice = rendered.ice
         ice_material = PBRMaterial(name="ice", baseColorFactor=[*ice.tint, 1.0], metallicFactor=0.0,
                                    roughnessFactor=ice.roughness, alphaMode="OPAQUE")
-        scene.add_geometry(_mesh(read_ice(job_dir, ice.flip), ice_material), node_name="ice", geom_name="ice",
+        scene.add_geometry(_mesh(ice_surface, ice_material), node_name="ice", geom_name="ice",
                            transform=up)
         finish["ice"] = (ice.tint, ice_extensions(ice))
     if rendered.ground is not None:
         ground = rendered.ground
+        if max_faces is not None:  # a preview frames the object: its ground a little wider than it
+            ground = _ground_around(ground, np.vstack([obj_surface.vertices] + (
+                [ice_surface.vertices] if ice_surface is not None else [])))
         ground_material = PBRMaterial(name="ground", baseColorFactor=[*map(float, ground.color), 1.0],
                                       metallicFactor=0.0, roughnessFactor=1.0, doubleSided=True)
         quad = trimesh.Trimesh(ground.corners, [[0, 1, 2], [0, 2, 3]], process=False,
@@ -102,6 +113,41 @@ def ice_extensions(ice: IceShading) -> dict:
         out["KHR_materials_volume"] = {"thicknessFactor": ICE_THICKNESS_M, "attenuationDistance": TINT_DISTANCE_M,
                                        "attenuationColor": [round(float(c), 6) for c in color]}
     return out
+
+
+def _ground_around(ground, points: np.ndarray, margin: float = 1.5):
+    """``ground`` cut to a square ``margin`` times the half-width of ``points`` (n, 3)
+    around them: the render's ground reaches 15 sizes out, which a viewer that frames the
+    whole scene shows as a plane with a dot on it."""
+    import dataclasses
+
+    corners = np.asarray(ground.corners, dtype=np.float64)
+    centre = corners.mean(axis=0)
+    normal = ground.normal
+    middle = points.mean(axis=0)
+    middle = middle - ((middle - centre) @ normal) * normal  # on the ground plane
+    half = margin * float(np.linalg.norm(points - points.mean(axis=0), axis=1).max())
+    scale = half / (0.5 * float(np.linalg.norm(corners[1] - corners[0])))
+    return dataclasses.replace(ground, corners=middle + (corners - centre) * min(scale, 1.0))
+
+
+def _decimated(surfaces: tuple, max_faces: int) -> tuple:
+    """``surfaces`` (Surface or None) with at most about ``max_faces`` faces in all, each
+    keeping its share; normals recomputed on the decimated meshes."""
+    total = sum(len(s.faces) for s in surfaces if s is not None)
+    if total <= max_faces:
+        return surfaces
+    out = []
+    for surface in surfaces:
+        if surface is None or len(surface.faces) < 8:
+            out.append(surface)
+            continue
+        mesh = trimesh.Trimesh(surface.vertices, surface.faces, process=False)
+        target = max(4, int(max_faces * len(surface.faces) / total))
+        light = mesh.simplify_quadric_decimation(face_count=target)
+        out.append(Surface(np.asarray(light.vertices, dtype=np.float32), np.asarray(light.faces, dtype=np.int32),
+                           np.asarray(light.vertex_normals, dtype=np.float32)))
+    return tuple(out)
 
 
 def _mesh(surface: Surface, material: PBRMaterial) -> trimesh.Trimesh:

@@ -16,6 +16,7 @@ from .model import JobInfo, JobState, RunInfo, SHEETS_DIR, SheetResult
 from .read import scan_run
 from .labels import fixed_changes, format_value, short_name, varying_keys, _assignment, _axis_title, _canon
 from .draw import _seconds, _views
+from .models import model_id, write_models
 
 # gallery
 
@@ -37,6 +38,46 @@ table{border-collapse:collapse;font-size:12px} td,th{padding:1px 6px;text-align:
 th{color:#9a9aa0;font-weight:normal} tr.changed td{color:#ffd479}
 .error{color:#ff9d9d} pre{white-space:pre-wrap;font-size:11px;max-height:20em;overflow:auto}
 details{margin:.3em 0} summary{cursor:pointer;color:#9a9aa0}
+button.orbit{margin:.4em 0;background:#34506e;color:#e8e8e8;border:1px solid #5a7ea6;border-radius:4px;cursor:pointer}
+model-viewer{width:100%;aspect-ratio:4/3;background:#111;display:block}
+"""
+
+# Orbit a job in 3D: the viewer and the job's model script load on demand (from file://
+# only scripts load, hence the models as data: URIs); #3d=<id> in the address opens one.
+_ORBIT = """
+function icefarmLoad(src, done, fail) {
+  var s = document.createElement('script'); s.src = src; s.onload = done; s.onerror = fail;
+  document.head.appendChild(s);
+}
+function icefarmOrbit(button) {
+  var id = button.dataset.id, host = button.closest('article');
+  var note = function (text) { button.textContent = text; document.body.dataset.orbit = text; };
+  if (!button.dataset.viewer) { note('3D needs @google/model-viewer: npm install, then build the sheets again'); return; }
+  note('loading 3D...');
+  var show = function () {
+    var viewer = document.createElement('model-viewer');
+    viewer.setAttribute('camera-controls', ''); viewer.setAttribute('exposure', '1');
+    viewer.setAttribute('loading', 'eager');  // it was asked for: not deferred until scrolled to
+    viewer.setAttribute('alt', '3D view of ' + id);
+    viewer.addEventListener('load', function () { note('3D: drag to orbit'); document.body.dataset.orbitLoaded = id; });
+    viewer.addEventListener('error', function () { note('3D view failed to load'); });
+    viewer.setAttribute('src', window.icefarmModels[id]);
+    var old = host.querySelector('img, .ph');
+    host.insertBefore(viewer, old ? old.parentNode === host ? old : old.parentNode : host.firstChild);
+    if (old) { (old.parentNode === host ? old : old.parentNode).style.display = 'none'; }
+    viewer.scrollIntoView();
+  };
+  var model = function () { icefarmLoad(button.dataset.model, show, function () { note('3D model missing'); }); };
+  if (window.customElements && customElements.get('model-viewer')) { model(); }
+  else { icefarmLoad(button.dataset.viewer, model, function () { note('3D viewer missing'); }); }
+}
+window.addEventListener('load', function () {
+  var want = /#3d=([^&]+)/.exec(location.hash);
+  if (want) {
+    var b = document.querySelector('button.orbit[data-id="' + decodeURIComponent(want[1]) + '"]');
+    if (b) { icefarmOrbit(b); }
+  }
+});
 """
 
 # Counts images that did not load, once the page has loaded (read by tests and by people).
@@ -96,7 +137,8 @@ def _params_html(job: JobInfo, varying: Sequence[str]) -> str:
             f"<table>{''.join(rows)}</table></details>")
 
 
-def _job_html(job: JobInfo, varying: Sequence[str], here: Path) -> str:
+def _job_html(job: JobInfo, varying: Sequence[str], here: Path, models: Mapping[str, Path] | None = None,
+              viewer: Path | None = None) -> str:
     state = job.state.value
     png = job.file("render.png")
     if png is not None:
@@ -106,6 +148,11 @@ def _job_html(job: JobInfo, varying: Sequence[str], here: Path) -> str:
         picture = f'<div class="ph">FAILED<br>stage: {_e(job.folder.failed_stage)}</div>'
     else:
         picture = f'<div class="ph">NOT RENDERED<br>{_e(state)}</div>'
+    script = (models or {}).get(model_id(job))
+    if script is not None:
+        picture += (f'<button type="button" class="orbit" data-id="{_e(model_id(job))}" '
+                    f'data-model="{_href(script, here)}" data-viewer="{_href(viewer, here) if viewer else ""}" '
+                    f'onclick="icefarmOrbit(this)">orbit in 3D</button>')
     vary = "".join(f"<dt>{_e(short_name(k))}</dt><dd>{_e(format_value(k, job.values[k]))}</dd>"
                    for k in varying if k in job.values)
     vary = f'<dl class="vary">{vary}</dl>' if vary else ""
@@ -144,7 +191,8 @@ def _job_html(job: JobInfo, varying: Sequence[str], here: Path) -> str:
             f"{_params_html(job, varying)}</article>")
 
 
-def _gallery_html(run: RunInfo, sheets: Sequence[SheetResult]) -> str:
+def _gallery_html(run: RunInfo, sheets: Sequence[SheetResult], models: Mapping[str, Path] | None = None,
+                  viewer: Path | None = None) -> str:
     here = run.run_dir / SHEETS_DIR
     by_object = {s.object_id: s for s in sheets}
     total = sum(len(j) for j in run.objects.values())
@@ -174,15 +222,17 @@ def _gallery_html(run: RunInfo, sheets: Sequence[SheetResult]) -> str:
         if fixed:
             body.append('<p class="muted">fixed, not default: '
                         + ", ".join(_e(_assignment(k, v)) for k, v in fixed.items()) + "</p>")
-        body.append('<div class="jobs">' + "".join(_job_html(j, varying, here) for j in jobs) + "</div></section>")
+        body.append('<div class="jobs">' + "".join(_job_html(j, varying, here, models, viewer) for j in jobs)
+                    + "</div></section>")
     return ("<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">"
             f"<title>{_e(run.name)} · icefarm sheets</title><style>{_CSS}</style>"
-            f"<script>{_SCRIPT}</script></head>\n<body>\n" + "\n".join(body) + "\n</body></html>\n")
+            f"<script>{_SCRIPT}{_ORBIT}</script></head>\n<body>\n" + "\n".join(body) + "\n</body></html>\n")
 
 
 def _write_gallery(run: RunInfo, sheets: Sequence[SheetResult]) -> Path:
     path = run.run_dir / SHEETS_DIR / "index.html"
-    atomic_write(path, _gallery_html(run, sheets))
+    viewer, models = write_models(run, path.parent)
+    atomic_write(path, _gallery_html(run, sheets, models, viewer))
     return path
 
 
@@ -193,7 +243,9 @@ def write_gallery(run_dir: Path, sheets: list[SheetResult]) -> Path:
     table), timings, links to scene.xml and ice.ply, and for a failed job the stage and
     message. Links are relative, nothing is fetched from elsewhere, so the page works from
     disk. On load a small inline script sets ``data-missing-images`` on ``<body>`` to the
-    count of images that failed to load.
+    count of images that failed to load. Each job that rendered gets an "orbit in 3D"
+    button: ``<model-viewer>`` with a light GLB of the job (`icefarm.sheets.models`);
+    ``#3d=<object>-<job>`` in the address opens one.
 
     Returns
     -------
