@@ -1,11 +1,13 @@
-"""What a finished job rendered, read back from its folder for the exporters (`usd`, `gltf`).
+"""What a finished job rendered, read from its folder for the exporters (`usd`, `gltf`).
 
-``scene.xml`` is the record of the render: the cameras Mitsuba looked through, the sun, the
-sky and how it is turned, and the ice's look (ior, roughness, tint, the medium inside).
-Reading it, rather than framing the cameras again from the render config, gives exactly
-what was rendered, also for jobs of older icefarm versions. The object's material comes
-from the manifest (``done.json``'s ``object_material``), its mesh from ``object.ply`` (split
-along creases, with the normals it was rendered with), the ice from ``ice.ply``.
+``scene.json`` (`icefarm.scene.spec`) is the record of the render, written with
+``scene.xml`` from the same values: the cameras Mitsuba looked through, the sun, the sky and
+how it is turned, the ground, the ice's look (ior, roughness, tint, the medium inside) and
+the object's material. Reading it, rather than framing the cameras again from the render
+config, gives exactly what was rendered. Jobs from before ``scene.json`` are read from
+their ``scene.xml`` (and the material from ``done.json``'s ``object_material``). The
+object's mesh comes from ``object.ply`` (split along creases, with the normals it was
+rendered with), the ice from ``ice.ply``.
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ from .scene import geometry as geo
 from .scene.camera import Camera
 from .scene.material import Material, material_from_dict
 from .scene.mitsuba import WATER_ICE_IOR
+from .scene.spec import SPEC_FILE, read_spec
 
 # Normal-incidence reflectance (linear RGB) of Mitsuba's conductors, as a PBR metal's base
 # colour: the usual table of F0 values (Hoffman, "Physically Based Shading", SIGGRAPH course).
@@ -181,7 +184,8 @@ def require(job_dir: Path, *names: str) -> None:
 
 
 def read_rendered(job_dir: str | Path, material: Material | Mapping | None = None) -> Rendered:
-    """What the job in ``job_dir`` rendered (see `Rendered`).
+    """What the job in ``job_dir`` rendered (see `Rendered`): its ``scene.json``
+    (`icefarm.scene.spec`), or for a job from before it, its ``scene.xml``.
 
     Parameters
     ----------
@@ -197,6 +201,9 @@ def read_rendered(job_dir: str | Path, material: Material | Mapping | None = Non
     """
     job_dir = Path(job_dir)
     require(job_dir, "scene.xml", "params.yaml")
+    if (job_dir / SPEC_FILE).is_file():
+        return _from_spec(job_dir, material)
+    # a job from before scene.json: what scene.xml says
     try:
         root = ET.parse(job_dir / "scene.xml").getroot()
         defaults = {d.get("name"): d.get("value") for d in root.iter("default")}
@@ -221,6 +228,32 @@ def read_rendered(job_dir: str | Path, material: Material | Mapping | None = Non
         ice=_ice(shapes["ice"]) if "ice" in shapes else None,
         gravity=gravity / np.linalg.norm(gravity), material=material_from_dict(material),
         ground=_ground(shapes.get("ground")))
+
+
+def _from_spec(job_dir: Path, material: Material | Mapping | None) -> Rendered:
+    """`Rendered` from ``scene.json``."""
+    try:
+        spec = read_spec(job_dir / SPEC_FILE)
+        width, height = (int(v) for v in spec["resolution"])
+        cameras = tuple(Camera(origin=np.asarray(c["origin"]), target=np.asarray(c["target"]), up=np.asarray(c["up"]),
+                               fov_x=float(c["fov_x"]), fov_y=float(c["fov_y"]), near=float(c["near"]),
+                               far=float(c["far"])) for c in spec["cameras"])
+        sky, sun, ground, ice = spec["sky"], spec.get("sun"), spec.get("ground"), spec.get("ice")
+        rendered = Rendered(
+            cameras=cameras, view_names=tuple(v["name"] for v in spec["views"]), width=width, height=height,
+            sky=job_dir / sky["file"], sky_scale=float(sky["scale"]), sky_frame=np.asarray(sky["frame"]),
+            sun=None if sun is None else np.asarray(sun["direction"]),
+            sun_irradiance=np.zeros(3) if sun is None else np.asarray(sun["irradiance"]),
+            ice=None if ice is None else IceShading(
+                ior=float(ice["ior"]), alpha=float(ice["alpha"]), tint=tuple(float(t) for t in ice["tint"]),
+                absorption=tuple(float(a) for a in ice["absorption"]), scattering=float(ice["scattering"]),
+                flip=bool(ice["flip"])),
+            gravity=np.asarray(spec["gravity"]),
+            material=material_from_dict(material if material is not None else spec["object"]["material"]),
+            ground=None if ground is None else Ground(np.asarray(ground["corners"]), np.asarray(ground["color"])))
+    except (KeyError, TypeError, ValueError) as exc:
+        raise InputError(f"{job_dir / SPEC_FILE}: not a scene.json written by icefarm ({exc})") from None
+    return rendered
 
 
 @dataclass(frozen=True)

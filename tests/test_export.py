@@ -427,3 +427,35 @@ def test_blender_imports_the_ice_as_glass_with_the_hook_and_as_a_shell_without(j
     assert hooked["IceMaterial"]["Transmission Weight"] == 1.0 and hooked["IceMaterial"]["IOR"] == pytest.approx(1.31)
     assert hooked["IceMaterial"]["Alpha"] == 1.0
     assert hooked["ObjectMaterial"]["Transmission Weight"] == 0.0  # the object is left alone
+
+
+def test_scene_json_describes_what_scene_xml_renders(job, tmp_path):
+    """The exporters read scene.json; it says what scene.xml says (the XML is read only
+    for jobs from before scene.json)."""
+    import shutil
+
+    from icefarm.rendered import read_rendered
+
+    spec = json.loads((job / "scene.json").read_text())
+    assert spec["version"] == 1 and spec["object"]["file"] == "object.ply" and spec["ice"]["file"] == "ice.ply"
+    old = tmp_path / "old"
+    shutil.copytree(job, old)
+    (old / "scene.json").unlink()
+    a, b = read_rendered(job), read_rendered(old)
+    assert a.view_names == b.view_names and (a.width, a.height) == (b.width, b.height)
+    for ca, cb in zip(a.cameras, b.cameras, strict=True):
+        for name in ("origin", "target", "up"):
+            np.testing.assert_allclose(getattr(ca, name), getattr(cb, name), atol=1e-6)
+        assert ca.fov_x == pytest.approx(cb.fov_x, abs=1e-6) and ca.far == pytest.approx(cb.far, rel=1e-6)
+    np.testing.assert_allclose(a.sun, b.sun, atol=1e-6)
+    np.testing.assert_allclose(a.sun_irradiance, b.sun_irradiance, rtol=1e-6)
+    assert a.sky.name == b.sky.name and a.sky_scale == pytest.approx(b.sky_scale)
+    np.testing.assert_allclose(a.sky_frame, b.sky_frame, atol=1e-9)
+    np.testing.assert_allclose(a.ground.corners, b.ground.corners, atol=1e-6)
+    np.testing.assert_allclose(a.ground.color, b.ground.color, atol=1e-6)
+    assert a.ice.ior == pytest.approx(b.ice.ior) and a.ice.alpha == pytest.approx(b.ice.alpha)
+    assert a.ice.flip == b.ice.flip and a.ice.tint == pytest.approx(b.ice.tint)
+    np.testing.assert_allclose(a.ice.absorption, b.ice.absorption, rtol=1e-6)
+    assert a.ice.scattering == pytest.approx(b.ice.scattering, rel=1e-6)
+    np.testing.assert_allclose(a.gravity, b.gravity)
+    assert a.material == b.material

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .spec import sky_scale, sun_irradiance
 from .camera import Camera
 from .config import GROUND_CHECKER, GROUND_PLAIN, IceMedium, RenderConfig
 from .material import Material
@@ -128,7 +129,6 @@ def scene_xml(config: RenderConfig, cameras: Sequence[Camera], frame: np.ndarray
         which renders media, instead of ``path``.
     """
     env = config.environment
-    gain = 2.0 ** env.exposure
     root = ET.Element("scene", version="3.0.0")
     volumetric = ice_ply is not None and medium is not None
     root.append(ET.Comment(" icefarm renders scenes with ice with its own `icepath` integrator, a path "
@@ -164,15 +164,14 @@ def scene_xml(config: RenderConfig, cameras: Sequence[Camera], frame: np.ndarray
 
     envmap = _add(root, "emitter", type="envmap")
     _add(envmap, "string", name="filename", value=sky_file)
-    _add(envmap, "float", name="scale", value=f"{env.sky_strength * gain:.9g}")
+    _add(envmap, "float", name="scale", value=f"{sky_scale(env):.9g}")
     t = _add(envmap, "transform", name="to_world")
     _add(t, "matrix", value=_matrix(frame_matrix(frame)))
 
     if env.sun_strength > 0:
         sun = _add(root, "emitter", type="directional")
         _add(sun, "vector", name="direction", value=_vec(-np.asarray(sun_dir)))
-        warm = np.array([1.0, 0.93, 0.84]) * env.sun_strength * gain
-        _add(sun, "rgb", name="irradiance", value=_vec(warm))
+        _add(sun, "rgb", name="irradiance", value=_vec(sun_irradiance(env)))
 
     obj = _add(root, "shape", type="ply", id="object")
     _add(obj, "string", name="filename", value=object_ply)

@@ -32,6 +32,7 @@ from .focus import ice_focus, pixel_size, surface_points, zoom_on_ice
 from .images import _png_to_exr, write_exr, write_png
 from .material import Material, material_from_dict
 from .sky import procedural_sky
+from .spec import SPEC_FILE, scene_spec, write_spec
 from .variants import pick_variant
 
 CREASE_ANGLE = 30.0  # degrees: sharper edges of the object stay sharp in shading
@@ -101,7 +102,8 @@ def write_scenes(job_dir: str | Path, object_mesh: trimesh.Trimesh, ice_mesh: tr
                  frame_points: np.ndarray | None = None,
                  defer_povray: bool = False, impurity: float = 0.0,
                  ground_level: float | None = None) -> SceneFiles:
-    """Write ``object.ply``, ``scene.xml``, ``scene.pov`` (+ includes), the sky and
+    """Write ``object.ply``, ``scene.xml``, ``scene.pov`` (+ includes), the sky,
+    ``scene.json`` (the scene for every other writer, `icefarm.scene.spec`) and
     ``views.json`` into ``job_dir``.
 
     ``ice.ply`` is the pipeline's: it is written from ``ice_mesh`` only when missing.
@@ -242,6 +244,10 @@ def write_scenes(job_dir: str | Path, object_mesh: trimesh.Trimesh, ice_mesh: tr
                                 ice_ply=None if ice_ply is None else ice_ply.name, ice_flip=ice_flip,
                                 sky_file=sky.name, sun_dir=sun_dir, ground=ground, material=material,
                                 medium=medium))
+    write_spec(job_dir / SPEC_FILE, scene_spec(
+        config, cameras, frame, gravity=gravity, object_ply=object_ply.name,
+        ice_ply=None if ice_ply is None else ice_ply.name, ice_flip=ice_flip, sky_file=sky.name, sun_dir=sun_dir,
+        ground=ground, material=material, medium=medium))
     (job_dir / VIEWS_FILE).write_text(json.dumps([
         {"index": i, "name": v.name, "frame": v.frame, "stem": view_stem(i), "icicle_px": icicle_px[i]}
         for i, v in enumerate(config.views)], indent=1) + "\n")
