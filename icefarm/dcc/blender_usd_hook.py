@@ -49,8 +49,8 @@ def _bundled_pxr_path():
 
 
 def _mtlx_surface(usd_material):
-    """The MaterialX surface shader bound to ``usd_material`` (a UsdShade.Material) and
-    its node id, or (None, None)."""
+    """The prim of the MaterialX surface shader bound to ``usd_material`` (a
+    UsdShade.Material, as the importer hands it) and its node id, or (None, None)."""
     output = usd_material.GetSurfaceOutput("mtlx")
     if not output:
         return None, None
@@ -59,15 +59,14 @@ def _mtlx_surface(usd_material):
         prim = source.source.GetPrim()
         node = prim.GetAttribute("info:id").Get()
         if node in _NODES:
-            from pxr import UsdShade
-
-            return UsdShade.Shader(prim), node
+            return prim, node
     return None, None
 
 
-def _value(shader, name, default):
-    shader_input = shader.GetInput(name)
-    value = shader_input.Get() if shader_input else None
+def _value(shader_prim, name, default):
+    """The shader's input ``name`` (its ``inputs:`` attribute), or ``default`` unset."""
+    attribute = shader_prim.GetAttribute("inputs:" + name)
+    value = attribute.Get() if attribute else None
     return default if value is None else value
 
 
