@@ -1,4 +1,5 @@
-"""The stage cache: pickled stage results under keys hashed from their inputs.
+"""The stage cache: stage results (`icefarm.stage_codec`: arrays and JSON, no pickle) under
+keys hashed from their inputs.
 
 A job's stage results are stored under a digest of everything the stage reads (inputs,
 parameters, upstream keys) and of icefarm's source (`StageCache.code_version`), so a sweep
@@ -10,12 +11,12 @@ from __future__ import annotations
 import functools
 import hashlib
 import json
-import pickle
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from . import artifacts
+from .stage_codec import Unencodable, decode, encode
 
 
 def digest(*parts: Any) -> str:
@@ -46,19 +47,21 @@ def _content_digest(path: str, mtime_ns: int, size: int) -> str:
 
 
 class StageCache:
-    """Pickled stage results under ``root/<stage>/<key>.<code>.pkl``; no root, no cache.
+    """Stage results under ``root/<stage>/<key>.<code>.npz``; no root, no cache.
 
     ``<code>`` is `code_version` (a hash of icefarm's source): results of other code are
-    never read. Each entry starts with a line ``icefarm-cache 1 <sha256 of the pickle>``: an
+    never read. Each entry starts with a line ``icefarm-cache 2 <sha256 of the rest>``: an
     entry whose bytes no longer match (a bad disk, a copy cut short, a hand edit) is deleted
-    and recomputed with a `CacheWarning`, never trusted. The entries are pickles: whoever
-    can write the cache folder can run code in the jobs that read it.
+    and recomputed with a `CacheWarning`, never trusted. The rest is `stage_codec`'s: an
+    ``.npz`` of arrays and JSON, loaded without pickle, rebuilding only icefarm's own
+    dataclasses, so an entry written by someone else runs no code. A result the codec does
+    not store is computed each time.
 
     ``root/policy.json`` (a sweep writes it) may name ``private`` stages: their results
     are used by one job only, so they are not stored (they are still read when there).
     """
 
-    MAGIC = b"icefarm-cache 1"
+    MAGIC = b"icefarm-cache 2"
     POLICY = "policy.json"
     _code: str | None = None
 
@@ -88,7 +91,7 @@ class StageCache:
         return cls._code
 
     def path(self, stage: str, key: str) -> Path | None:
-        return self.root / stage / f"{key}.{self.code_version()}.pkl" if self.root else None
+        return self.root / stage / f"{key}.{self.code_version()}.npz" if self.root else None
 
     def get(self, stage: str, key: str, compute: Callable[[], Any]) -> Any:
         path = self.path(stage, key)
@@ -99,7 +102,10 @@ class StageCache:
                 return value
         value = compute()
         if path is not None and stage not in self.private:
-            payload = pickle.dumps(value, protocol=pickle.HIGHEST_PROTOCOL)
+            try:
+                payload = encode(value)
+            except Unencodable:
+                return value
             header = self.MAGIC + b" " + hashlib.sha256(payload).hexdigest().encode() + b"\n"
             artifacts.atomic_write(path, header + payload)
         return value
@@ -123,8 +129,8 @@ class StageCache:
             problem = "its bytes do not match the digest written with it"
         else:
             try:
-                return True, pickle.loads(payload)
-            except Exception as exc:  # intact bytes that do not unpickle: another library version
+                return True, decode(payload)
+            except Exception as exc:  # intact bytes that do not decode: not an entry this code wrote
                 problem = f"it does not load ({type(exc).__name__}: {exc})"
         message = f"stage cache entry {path} is damaged ({problem}): recomputed"
         self.warnings.append(message)

@@ -159,12 +159,12 @@ def test_a_damaged_cache_entry_is_recomputed_with_a_warning(tmp_path, ball):
     cache = tmp_path / "cache"
     first = run_job(job(tmp_path, ball), tmp_path / "a", cache, until=Stage.TRAJECTORIES)
     assert first.status == "done" and first.reused == ()
-    entries = sorted(cache.glob("*/*.pkl"))
+    entries = sorted(cache.glob("*/*.npz"))
     assert {e.parent.name for e in entries} == {"water", "drips", "trajectories"}
-    assert all(e.read_bytes().startswith(b"icefarm-cache 1 ") for e in entries)
+    assert all(e.read_bytes().startswith(b"icefarm-cache 2 ") for e in entries)
     damaged = next(e for e in entries if e.parent.name == "drips")
     data = bytearray(damaged.read_bytes())
-    data[-20] ^= 0xFF  # one flipped byte deep in the pickle: it may still unpickle
+    data[-20] ^= 0xFF  # one flipped byte deep in the entry: it may still decode
     damaged.write_bytes(bytes(data))
     with pytest.warns(CacheWarning, match="drips.*damaged.*recomputed"):
         second = run_job(job(tmp_path, ball, **{"trajectories.curve_angle": 20}), tmp_path / "b", cache,
@@ -182,7 +182,7 @@ def test_cache_entries_of_other_code_are_not_read(tmp_path, ball, monkeypatch):
     cache = tmp_path / "cache"
     assert run_job(job(tmp_path, ball), tmp_path / "a", cache, until=Stage.DRIPS).status == "done"
     code = StageCache.code_version()
-    assert all(f".{code}." in e.name for e in cache.glob("*/*.pkl"))
+    assert all(f".{code}." in e.name for e in cache.glob("*/*.npz"))
     monkeypatch.setattr(StageCache, "_code", "0123456789ab")  # the code changed
     again = run_job(job(tmp_path, ball), tmp_path / "b", cache, until=Stage.DRIPS)
     assert again.status == "done" and again.reused == ()
@@ -194,8 +194,8 @@ def test_a_sweep_caches_only_what_another_job_can_reuse(tmp_path, ball):
     assert summary.ok and summary.done == 3
     cache = tmp_path / "out" / "t" / "cache"
     assert set(json.loads((cache / "policy.json").read_text())["private"]) == {"trajectories", "surface"}
-    assert list((cache / "water").glob("*.pkl")) and list((cache / "drips").glob("*.pkl"))
-    assert not list(cache.glob("trajectories/*.pkl")), "no other job reads a job's own trajectories"
+    assert list((cache / "water").glob("*.npz")) and list((cache / "drips").glob("*.npz"))
+    assert not list(cache.glob("trajectories/*.npz")), "no other job reads a job's own trajectories"
     assert all(set(r.reused) == {"water", "drips"} for r in summary.jobs[1:])
 
 
@@ -263,5 +263,5 @@ def test_a_sweep_folder_is_readable_by_the_group_under_umask_002(tmp_path, ball)
         os.umask(old)
     root = tmp_path / "out" / "t"
     files = [root / "jobs.csv", root / "manifest.resolved.yaml", summary.jobs[0].job_dir / "done.json",
-             summary.jobs[0].job_dir / "water.ply", *root.glob("cache/*/*.pkl")]
+             summary.jobs[0].job_dir / "water.ply", *root.glob("cache/*/*.npz")]
     assert all(f.stat().st_mode & 0o777 == 0o664 for f in files), {str(f): oct(f.stat().st_mode) for f in files}

@@ -55,3 +55,51 @@ def test_a_failed_job_writes_error_json_and_no_done_json(tmp_path, sphere):
     assert not (job_dir / "done.json").exists(), "a stale done.json must not survive a failed rerun"
     error = json.loads((job_dir / "error.json").read_text())
     assert error["stage"] == "prepare" and "sphere.ply" in error["message"] and error["traceback"]
+
+
+def test_cache_entries_round_trip_every_stage_result_without_pickle(tmp_path):
+    """Each cached stage result comes back equal, from an .npz that holds no pickle; an
+    entry naming a type outside icefarm is refused, not imported."""
+    import dataclasses
+    import enum
+
+    import numpy as np
+
+    from icefarm.generators import generate
+    from icefarm.mesh import prepare
+    from icefarm.chain import run_stages
+    from icefarm.stage_codec import decode, encode
+
+    prepared = prepare(generate("roof"), 0.4)
+    r = run_stages(prepared, params.resolve({}), 0)
+    results = [r.water, r.drips, r.trajectories, r.ice]
+
+    def same(a, b):
+        if dataclasses.is_dataclass(a):
+            assert type(a) is type(b)
+            for f in dataclasses.fields(a):
+                same(getattr(a, f.name), getattr(b, f.name))
+        elif isinstance(a, np.ndarray):
+            assert b.dtype == a.dtype and np.array_equal(a, b, equal_nan=True)
+        elif isinstance(a, (tuple, list)):
+            assert type(a) is type(b) and len(a) == len(b)
+            for x, y in zip(a, b):
+                same(x, y)
+        elif isinstance(a, float) and np.isnan(a):
+            assert np.isnan(b)
+        else:
+            assert a == b and type(a) is type(b) or isinstance(a, enum.Enum) and a is b
+
+    for result in results:
+        data = encode(result)
+        with np.load(__import__("io").BytesIO(data), allow_pickle=False) as npz:  # no pickle inside
+            assert all(npz[k].dtype != object for k in npz.files)
+        same(result, decode(data))
+    import pytest
+
+    from icefarm.stage_codec import _decode
+
+    for forged in ({"dataclass": "subprocess:Popen", "fields": {}}, {"enum": "os:system", "value": 1},
+                   {"dataclass": "icefarm.stage_codec:encode", "fields": {}}):
+        with pytest.raises(ValueError):
+            _decode(forged, {})
