@@ -1,4 +1,4 @@
-"""Reading and writing a job's artifacts (DESIGN.md "Artifacts"), always atomically."""
+"""Reading and writing a job's artifacts (the job-folder contract: `icefarm.jobdir`), always atomically."""
 
 from __future__ import annotations
 

@@ -18,8 +18,8 @@ import numpy as np
 import trimesh
 
 from .errors import InputError
+from .generators import GENERATOR_PREFIX
 
-GENERATOR_PREFIX = "generator:"
 USD_SUFFIXES = (".usd", ".usda", ".usdc", ".usdz")
 GLTF_SUFFIXES = (".glb", ".gltf")
 # Gravity for each up axis a file may declare: USD knows Y and Z; glTF is always +Y up.

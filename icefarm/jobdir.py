@@ -1,6 +1,6 @@
 """What a job folder holds and how its records read, in one place.
 
-The pipeline writes a job's folder (DESIGN.md's artifact contract); the sweep, the report,
+The pipeline writes a job's folder (the contract the README's job-folder section states); the sweep, the report,
 the contact sheets and the CLI read it back through `read_job`. The file names, the job
 states, a job's total seconds and the one line that stands for a failure are defined here
 so that every reader says the same.

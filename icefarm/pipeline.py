@@ -2,7 +2,7 @@
 
 Every stage result is cached under a key made from the hashes of its inputs and of the
 parameters it reads, so a sweep over surface parameters reuses stages 1-3 and one over
-trajectory parameters reuses stages 1-2. Artifacts follow DESIGN.md; ``done.json`` comes
+trajectory parameters reuses stages 1-2. Artifacts follow the job-folder contract (`icefarm.jobdir`); ``done.json`` comes
 last and atomically, ``error.json`` names the failed stage.
 """
 
@@ -28,13 +28,13 @@ from .mesh import PreparedMesh, prepare
 from .placement import ground_height, ground_level
 from .progress import ProgressMode, StepProgress, step_progress
 from .scene.camera import frame_boxes
+from .generators import GENERATOR_PREFIX
 from .stage_cache import StageCache, digest as _digest, file_digest as _file_digest
 from .scene.material import Material
 from .stages.drips import Box, DripResult
 from .stages.storm import drip_rim_length
 from .stages.trajectory_stats import measure_trajectories
 
-GENERATOR_PREFIX = "generator:"
 
 
 @dataclass(frozen=True)

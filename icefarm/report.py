@@ -1,6 +1,6 @@
 """Timing reports of a sweep: the paper's Table 2 columns per job and per object.
 
-`build_report` reads the artifacts of every job under a sweep folder (DESIGN.md "Artifacts":
+`build_report` reads the artifacts of every job under a sweep folder (the job-folder contract of `icefarm.jobdir`, README "Job folders":
 ``jobs/<object id>/<job id>/`` with ``timings.json``, ``params.yaml`` and ``done.json`` or
 ``error.json``) and writes ``report.md`` and ``report.csv`` beside them.
 

@@ -29,7 +29,8 @@ def digest(*parts: Any) -> str:
 
 
 def file_digest(path: str | Path) -> str:
-    """sha256 (hex) of a file's bytes (``missing:PATH`` when it cannot be read)."""
+    """`icefarm.artifacts.file_digest` of an input file, computed once per (path, mtime,
+    size): a sweep hashes each mesh once; ``missing:PATH`` when it cannot be read."""
     try:
         stat = Path(path).stat()
     except OSError:
@@ -39,9 +40,8 @@ def file_digest(path: str | Path) -> str:
 
 @functools.lru_cache(maxsize=256)
 def _content_digest(path: str, mtime_ns: int, size: int) -> str:
-    """sha256 of a file, read once per (path, mtime, size): a sweep hashes each mesh once."""
     try:
-        return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+        return artifacts.file_digest(Path(path))
     except OSError:
         return f"missing:{path}"
 

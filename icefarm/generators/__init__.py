@@ -53,6 +53,9 @@ from ._common import DEFAULT_DETAIL, MAX_DETAIL
 __all__ = ["DEFAULT_DETAIL", "MAX_DETAIL", "generate", "generator_names", "natural_size"]
 
 
+GENERATOR_PREFIX = "generator:"  # a mesh argument naming a generator: generator:<name>
+
+
 def generator_names() -> tuple[str, ...]:
     """Names `generate` accepts, in a stable order."""
     return tuple(_GENERATORS)

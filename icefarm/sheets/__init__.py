@@ -1,6 +1,6 @@
 """Lookdev contact sheets (OpenImageIO) and an HTML gallery of one sweep folder.
 
-Reads the artifact contract of DESIGN.md ("Artifacts")::
+Reads the job-folder contract (`icefarm.jobdir`)::
 
     RUN_DIR/jobs/<object>/<job>/  params.yaml, render.exr (linear), render.png (sRGB),
                                   timings.json, scene.xml, ice.ply, done.json | error.json,

@@ -43,12 +43,12 @@ from scipy.spatial import cKDTree
 from ..geometry import unit
 
 # Density of water and of glaze (clear, dense ice: 917 kg/m^3), kg/m^3; one meter of
-# frozen water is 1.09 m of glaze. Source: DESIGN.md, Facts about real ice (glaze).
+# frozen water is 1.09 m of glaze (clear glaze is solid ice: Makkonen 2000, Phil. Trans. R. Soc. A 358).
 RHO_WATER = 1000.0
 RHO_ICE = 917.0
 WATER_TO_ICE = RHO_WATER / RHO_ICE
 # Radial ice of the utilities' freezing-rain classes, m: 0.25 in an ice storm, 0.5 in
-# damaging, 1 in crippling (US National Weather Service; DESIGN.md, Storms in units).
+# damaging, 1 in crippling (the US National Weather Service's ice-storm threshold, then the utilities' classes).
 RADIAL_ICE_M = {"light": 0.00635, "moderate": 0.0127, "severe": 0.0254}
 # Snow stays on slopes up to this many degrees from level (steeper roofs shed it): the
 # meltwater storm melts it. Typical angle of repose of wet snow, 45-55 degrees.
@@ -96,7 +96,7 @@ def constants() -> tuple[Constant, ...]:
 
     return (
         Constant("RHO_WATER", RHO_WATER, "kg/m^3", "> 0", "liquid water"),
-        Constant("RHO_ICE", RHO_ICE, "kg/m^3", "> 0", "glaze, clear dense ice (DESIGN.md)"),
+        Constant("RHO_ICE", RHO_ICE, "kg/m^3", "> 0", "glaze, clear dense ice (Makkonen 2000)"),
         Constant("RADIAL_ICE_M[light]", RADIAL_ICE_M["light"], "m", "> 0", "NWS ice storm, 0.25 in"),
         Constant("RADIAL_ICE_M[moderate]", RADIAL_ICE_M["moderate"], "m", "> 0", "utilities' damaging class, 0.5 in"),
         Constant("RADIAL_ICE_M[severe]", RADIAL_ICE_M["severe"], "m", "> 0", "utilities' crippling class, 1 in"),
