@@ -29,3 +29,17 @@ def sphere() -> trimesh.Trimesh:
 @pytest.fixture
 def rng() -> np.random.Generator:
     return np.random.default_rng(7)
+
+
+@pytest.fixture(scope="module")
+def mi():
+    """Mitsuba on a JIT variant (the ice integrator needs one); skips where there is none."""
+    from icefarm.scene.variants import pick_variant
+
+    variant = pick_variant("auto")
+    if variant == "scalar_rgb":
+        pytest.skip("no JIT variant here: the ice integrator needs llvm_ad_rgb or cuda_ad_rgb")
+    import mitsuba
+
+    mitsuba.set_variant(variant)
+    return mitsuba

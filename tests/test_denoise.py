@@ -91,10 +91,8 @@ def test_denoised_render_is_closer_to_many_samples_than_the_noisy_one(tmp_path):
 
 
 @pytest.mark.slow
-def test_icepath_features_show_what_lies_behind_the_ice(mi_variant):
+def test_icepath_features_show_what_lies_behind_the_ice(mi):
     """Albedo and normal of the first diffuse surface, through the ice; zero normal on the sky."""
-    import mitsuba as mi
-
     from icefarm.scene.integrator import FEATURE_CHANNELS, ice_integrator
 
     grey = 0.5
@@ -108,7 +106,7 @@ def test_icepath_features_show_what_lies_behind_the_ice(mi_variant):
                  "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [grey] * 3}}},
         "ice": {"type": "sphere", "radius": 0.3, "bsdf": {"type": "dielectric", "int_ior": 1.31}},
     })
-    integrator = ice_integrator(mi_variant, max_depth=8, features=True)
+    integrator = ice_integrator(mi.variant(), max_depth=8, features=True)
     image = np.asarray(mi.render(scene, spp=64, integrator=integrator))
     assert image.shape == (32, 32, 3 + len(FEATURE_CHANNELS))
     albedo, normal = image[..., 3:6], image[..., 6:9]
@@ -122,15 +120,3 @@ def test_icepath_features_show_what_lies_behind_the_ice(mi_variant):
     sky = np.s_[4:8, 0:3]  # the left edge: nothing but sky
     assert np.allclose(albedo[sky], 0.3, atol=1e-3) and np.allclose(normal[sky], 0.0)
 
-
-@pytest.fixture
-def mi_variant():
-    from icefarm.scene.variants import pick_variant
-
-    variant = pick_variant("auto")
-    if variant == "scalar_rgb":
-        pytest.skip("no JIT variant here: icepath needs llvm_ad_rgb or cuda_ad_rgb")
-    import mitsuba as mi
-
-    mi.set_variant(variant)
-    return variant

@@ -6,24 +6,12 @@ import numpy as np
 import pytest
 
 from icefarm.scene.config import IceLook
-from icefarm.scene.variants import pick_variant
 
 TINT = IceLook.tint
 IOR = IceLook.ior
 F0 = ((IOR - 1) / (IOR + 1)) ** 2  # Fresnel reflectance at normal incidence
 SUN_DIR = [-0.5, -1.0, -0.3]  # travel direction of the sun's light (down, sideways)
 SHADOW_PIXELS = (slice(22, 26), slice(10, 22))  # inside the cube's shadow in test_ice_shadow_is_light
-
-
-@pytest.fixture(scope="module")
-def mi():
-    variant = pick_variant("auto")
-    if variant == "scalar_rgb":
-        pytest.skip("no JIT variant here: the ice integrator needs llvm_ad_rgb or cuda_ad_rgb")
-    import mitsuba
-
-    mitsuba.set_variant(variant)
-    return mitsuba
 
 
 @pytest.fixture(scope="module")

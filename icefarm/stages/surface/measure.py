@@ -5,7 +5,7 @@ from __future__ import annotations
 import itertools
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -33,49 +33,6 @@ _EXPONENTS = tuple(np.round(np.arange(0.2, 2.0001, 0.01), 2))
 # and 21 GB); and radius samples go through the slab query this many at a time.
 MAX_MEASURED = 200
 SLAB_CHUNK = 2000
-
-@dataclass(frozen=True)
-class IcicleStats:
-    """Plausibility of the icicles, measured on the ice mesh (see `measure_icicles`).
-
-    Per-trunk arrays follow the trunks in branch order, NaN where a trunk is too short to
-    measure (fewer than 4 radius samples, under about 7 mm).
-
-    Attributes
-    ----------
-    tip_radius_mm : float
-        Median over trunks of the drop's radius at the tip (real: 2.44 mm); trunks the
-        ground cut (`TrajectoryResult.branch_cut`) end in a foot, not a drop, and are left out.
-    taper : (i,) float
-        Radius at 10 % of the trunk's length below its base over the tip radius (a carrot:
-        3 and more; a straw: 1).
-    growth_ratio : (i,) float
-        (base diameter - tip diameter) / length, from the fitted profile taken at the base
-        (real icicles: 1/32 to 1/8; length grows 8-32 times faster than width).
-    profile_exponent : (i,) float
-        n of ``r - tip ~ d^n`` fitted in log-log (real: 3/4; a cone: 1).
-    ripple_amplitude_mm : float
-        Median over trunks of the amplitude of the radius at the ripple frequency; NaN when
-        the icicles have no ripple or it stays under the mesh's own noise.
-    ripple_wavelength_cm : float
-        Period at the peak of the trunks' radius spectra; NaN with no ripple (as above).
-    ripple_texture : RippleTexture
-        How natural the ripples are (`ripple_texture`), on trunks of `TEXTURE_MIN_LENGTH`
-        and more.
-    """
-
-    tip_radius_mm: float
-    taper: np.ndarray
-    growth_ratio: np.ndarray
-    profile_exponent: np.ndarray
-    ripple_amplitude_mm: float
-    ripple_wavelength_cm: float
-    ripple_texture: "RippleTexture" = None  # type: ignore[assignment]
-
-    def __post_init__(self):
-        if self.ripple_texture is None:
-            object.__setattr__(self, "ripple_texture", RippleTexture.none())
-
 
 # Ripple texture (`ripple_texture`): trunks this long and more, radius sampled every
 # TEXTURE_STEP in slabs TEXTURE_SLAB thick over TEXTURE_SPAN of the length, compared
@@ -115,6 +72,45 @@ class RippleTexture:
     def none(cls) -> "RippleTexture":
         nan = float("nan")
         return cls(nan, nan, nan, 0)
+
+
+@dataclass(frozen=True)
+class IcicleStats:
+    """Plausibility of the icicles, measured on the ice mesh (see `measure_icicles`).
+
+    Per-trunk arrays follow the trunks in branch order, NaN where a trunk is too short to
+    measure (fewer than 4 radius samples, under about 7 mm).
+
+    Attributes
+    ----------
+    tip_radius_mm : float
+        Median over trunks of the drop's radius at the tip (real: 2.44 mm); trunks the
+        ground cut (`TrajectoryResult.branch_cut`) end in a foot, not a drop, and are left out.
+    taper : (i,) float
+        Radius at 10 % of the trunk's length below its base over the tip radius (a carrot:
+        3 and more; a straw: 1).
+    growth_ratio : (i,) float
+        (base diameter - tip diameter) / length, from the fitted profile taken at the base
+        (real icicles: 1/32 to 1/8; length grows 8-32 times faster than width).
+    profile_exponent : (i,) float
+        n of ``r - tip ~ d^n`` fitted in log-log (real: 3/4; a cone: 1).
+    ripple_amplitude_mm : float
+        Median over trunks of the amplitude of the radius at the ripple frequency; NaN when
+        the icicles have no ripple or it stays under the mesh's own noise.
+    ripple_wavelength_cm : float
+        Period at the peak of the trunks' radius spectra; NaN with no ripple (as above).
+    ripple_texture : RippleTexture
+        How natural the ripples are (`ripple_texture`), on trunks of `TEXTURE_MIN_LENGTH`
+        and more.
+    """
+
+    tip_radius_mm: float
+    taper: np.ndarray
+    growth_ratio: np.ndarray
+    profile_exponent: np.ndarray
+    ripple_amplitude_mm: float
+    ripple_wavelength_cm: float
+    ripple_texture: RippleTexture = field(default_factory=lambda: RippleTexture.none())
 
 
 def ripple_texture(vertices: np.ndarray, traj: TrajectoryResult, tree=None) -> RippleTexture:
