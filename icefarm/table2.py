@@ -41,9 +41,9 @@ from . import params as params_mod
 from .bench import stage_timings
 from .errors import InputError
 from .report import TABLE2_STAGES as STAGES
+from .table2_rows import PAPER_TABLE2, ROW_OBJECTS, RowObject, Table2Row
+from .table2_write import machine_info, table2_csv, table2_markdown
 
-STAGE_TITLES = {"water": "Water coefficients", "drips": "Drip points", "trajectories": "Trajectories",
-                "surface": "Surface modeling", "total": "Total time"}
 CALIBRATION_TOLERANCE = 1.15  # stop calibrating once ice faces are within this factor of the target
 CALIBRATION_RUNS = 5  # voxel sizes tried at most, the first one coarse
 CALIBRATION_SEEDS = 3  # runs (seeds) per voxel size tried, at most the repeat count
@@ -53,128 +53,10 @@ MIN_VOXEL_M = 0.00012  # the finest voxel calibration may choose; the coarsest r
 PAPER_STAGES = {"storm.mode": "relative", "trajectories.max_branches": 32, "drips.distribution": "area", "drips.spacing": 0.0, "drips.min_fall": 0.0,
                 "drips.min_length": 0.0, "proxy.mode": "never"}
 MIN_SCALED_POLYGONS = 1000  # a reduced run keeps meshes fine enough for the water to find its way
-TARGET_SPEEDUP = 20.0
-TARGET_ICE_FACTOR = 1.5
 
 
 class MeshUnavailable(LookupError):
     """A row's mesh is not available here; the row is skipped with this message."""
-
-
-@dataclass(frozen=True)
-class PaperRow:
-    """One column of the paper's Table 2 (Figure 16 a-g); seconds per stage and in total."""
-
-    key: str
-    polygons: int
-    icicles: int
-    ice_polygons: int
-    seconds: dict
-
-
-PAPER_TABLE2: tuple[PaperRow, ...] = tuple(
-    PaperRow(key, polys, icicles, ice, dict(zip((*STAGES, "total"), secs)))
-    for key, polys, icicles, ice, secs in (
-        ("a", 1617, 12, 10400, (0.1, 0.1, 0.1, 11, 11.3)),
-        ("b", 2240, 300, 179428, (0.1, 0.5, 0.2, 55, 55.8)),
-        ("c", 15536, 10, 749296, (0.5, 0.2, 0.1, 60, 60.8)),
-        ("d", 3851, 20, 102594, (0.3, 0.1, 0.2, 20, 20.6)),
-        ("e", 30780, 200, 390616, (5, 0.5, 0.5, 116, 122)),
-        ("f", 11102, 200, 244188, (0.4, 0.5, 0.5, 19.5, 20.9)),
-        ("g", 6660, 400, 131000, (0.3, 0.5, 1, 36, 37.8)),
-    )
-)
-
-
-@dataclass(frozen=True)
-class RowObject:
-    """What stands in for one of the paper's objects.
-
-    ``source`` is a file name in the meshes folder or ``generator:NAME``; ``size_m`` the
-    object's height in meters; ``settings`` parameter values (``("group.name", value)``)
-    that differ from the defaults besides ``drips.count`` and the calibrated voxel size.
-    """
-
-    source: str
-    label: str
-    size_m: float
-    settings: tuple = ()
-
-    def settings_text(self) -> str:
-        return ", ".join(f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}" for k, v in self.settings) or "defaults"
-
-    @property
-    def generated(self) -> bool:
-        return self.source.startswith("generator:")
-
-
-_NO_GLAZE = (("glaze.mode", "none"),)
-# The paper's icicles, whose polygons Table 2 counts: Equation 1's cone at the slope and the
-# bases of its era (icefarm's defaults grow carrot-shaped icicles about twice as wide at the
-# base, with swollen bases: more ice, more polygons for the same voxel).
-_PAPER_ICICLES = (("surface.profile", "paper"), ("surface.growth_ratio", 0.012),
-                  ("surface.base_scale", 0.03), ("surface.base_extent", 0.01))
-
-# Glaze ice covers whole wet surfaces, so it sets the polygon count: rows whose paper count
-# is low for their icicles (a few hundred to a few thousand polygons per icicle) are
-# modelled without glaze; c (10 icicles, 749,296 polygons) cannot be without it. Sizes
-# keep the calibrated voxel at or below the tip radius with the default icicle lengths
-# (small objects, shorter icicles: lengths follow the water, which climbs with the size).
-ROW_OBJECTS: dict[str, RowObject] = {
-    "a": RowObject("cow.obj", "cow", 0.15, _PAPER_ICICLES + _NO_GLAZE),
-    "b": RowObject("generator:fountain", "fountain (generated)", 0.6, _PAPER_ICICLES + _NO_GLAZE),
-    "c": RowObject("dragon.obj", "Stanford dragon", 0.3, _PAPER_ICICLES),
-    "d": RowObject("stanford-bunny.obj", "Stanford bunny", 0.3, _PAPER_ICICLES + _NO_GLAZE),
-    "e": RowObject("armadillo.obj", "Stanford armadillo", 0.3, _PAPER_ICICLES),
-    "f": RowObject("stanford-bunny.obj", "Stanford bunny", 0.2, _PAPER_ICICLES + _NO_GLAZE),
-    "g": RowObject("generator:roof", "house with eaves (generated)", 0.17, _PAPER_ICICLES + _NO_GLAZE),
-}
-
-
-@dataclass(frozen=True)
-class Table2Row:
-    """Our measurement of one row, beside the paper's.
-
-    Attributes
-    ----------
-    paper : PaperRow
-    object : RowObject
-    input_faces, icicles, ice_faces : int
-        Ours: faces of the prepared mesh, drip points found, faces of the ice mesh (median
-        over the runs).
-    target_ice_faces : int
-        The paper's ice polygons times the run's ``scale``.
-    voxel_size : float
-        The calibrated ``surface.voxel_size``, in meters.
-    seconds : dict
-        Stage (and ``total``) to the list of measured seconds, one per repeat.
-    """
-
-    paper: PaperRow
-    object: RowObject
-    input_faces: int
-    icicles: int
-    ice_faces: int
-    target_ice_faces: int
-    voxel_size: float
-    seconds: dict
-
-    def median(self, stage: str) -> float:
-        return statistics.median(self.seconds[stage])
-
-    def speedup(self, stage: str) -> float:
-        ours = self.median(stage)
-        return self.paper.seconds[stage] / ours if ours > 0 else math.inf
-
-    @property
-    def ice_ratio(self) -> float:
-        """Our ice faces over the target (1 = the paper's count)."""
-        return self.ice_faces / self.target_ice_faces if self.target_ice_faces else math.nan
-
-    @property
-    def meets_target(self) -> bool:
-        return (self.speedup("total") >= TARGET_SPEEDUP
-                and 1 / TARGET_ICE_FACTOR <= self.ice_ratio <= TARGET_ICE_FACTOR)
 
 
 @dataclass(frozen=True)
@@ -418,8 +300,6 @@ def run_table2(meshes_dir: Path | None, out_dir: Path, repeat: int = 3, rows: Se
     import sys
 
     from tqdm import tqdm
-
-    from .table2_write import machine_info, table2_csv, table2_markdown
 
     bar = tqdm(total=len(keys) * repeat, unit="run", desc="table2", dynamic_ncols=True,
                disable=not (progress and sys.stderr.isatty()))

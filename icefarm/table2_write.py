@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .table2 import (
+from .table2_rows import (
     PAPER_TABLE2, ROW_OBJECTS, STAGE_TITLES, STAGES, TARGET_ICE_FACTOR, TARGET_SPEEDUP, Table2Row,
 )
 

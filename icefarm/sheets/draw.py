@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import datetime as _dt
-import json
 import math
 import os
 from collections.abc import Mapping, Sequence
@@ -17,9 +16,10 @@ from ..scene.images import image_size
 from .model import (Arrangement, BACKGROUND_SRGB, COL_HEAD_H, DEFAULT_ASPECT, DIM_TEXT_SRGB, EMPTY_SRGB,
                     FAILED_SRGB, FIT_FILTER, FONT, FONT_BOLD, GAP, Grid, ICE_VIEW_BELOW_PX, JobInfo,
                     JobState, LABEL_SIZE, MARGIN, ROW_HEAD_W, RunInfo, SHEETS_DIR, SheetResult, TEXT_SIZE,
-                    TEXT_SRGB, TITLE_SIZE, UNFINISHED_SRGB, VIEWS_FILE)
+                    TEXT_SRGB, TITLE_SIZE, UNFINISHED_SRGB)
+from .gallery import write_run_gallery
 from .read import scan_run
-from .labels import fixed_changes, format_value, short_name, varying_keys, _assignment, _axis_title, _compact
+from .labels import fixed_changes, format_value, short_name, varying_keys, assignment, axis_title, compact_assignment
 from .layout import cell_origin, plan_grid, sheet_size
 
 # drawing
@@ -122,18 +122,6 @@ def _cell_aspect(jobs: Sequence[JobInfo]) -> float:
     return DEFAULT_ASPECT
 
 
-def _views(job: JobInfo) -> list[dict]:
-    """The job's ``views.json`` (one entry per rendered view), or [] without a usable one."""
-    path = job.file(VIEWS_FILE)
-    if path is None:
-        return []
-    try:
-        views = json.loads(path.read_text())
-    except (OSError, ValueError):
-        return []
-    return [v for v in views if isinstance(v, Mapping)] if isinstance(views, list) else []
-
-
 def cell_render(job: JobInfo, cell_width: int) -> tuple[Path | None, str | None]:
     """The EXR a cell of ``cell_width`` pixels shows, and the name of its view if not the main one.
 
@@ -142,7 +130,7 @@ def cell_render(job: JobInfo, cell_width: int) -> tuple[Path | None, str | None]
     the job has an ice view (``frame: ice``) rendered: then that view.
     """
     exr = job.file("render.exr")
-    views = _views(job)
+    views = job.views()
     if exr is None or not views:
         return exr, None
     px = views[0].get("icicle_px")
@@ -159,10 +147,6 @@ def cell_render(job: JobInfo, cell_width: int) -> tuple[Path | None, str | None]
             if zoomed is not None:
                 return zoomed, str(view.get("name") or "ice")
     return exr, None
-
-
-def _seconds(job: JobInfo) -> float | None:
-    return job.folder.total_seconds if job.folder is not None else None
 
 
 def _placeholder(buf, x: int, y: int, w: int, h: int, srgb, title: str, lines: Sequence[str]) -> None:
@@ -211,13 +195,13 @@ def _draw_cell(buf, job: JobInfo, x: int, y: int, cw: int, ch: int, label_keys: 
 
     # label strip: the varying values; then the job id, time or state
     keys = [k for k in label_keys if k in job.values]
-    parts = [_assignment(k, job.values[k]) for k in keys] or [f"job {job.job_id}"]
+    parts = [assignment(k, job.values[k]) for k in keys] or [f"job {job.job_id}"]
     lines = _wrap(parts, cw - 4, LABEL_SIZE, 2)
     if keys and any(line.endswith(("...", "more)")) for line in lines):  # too long: paper symbols
-        lines = _wrap([_compact(k, job.values[k]) for k in keys], cw - 4, LABEL_SIZE, 2)
+        lines = _wrap([compact_assignment(k, job.values[k]) for k in keys], cw - 4, LABEL_SIZE, 2)
     values_lines = len(lines)
     if len(lines) < 2:
-        seconds = _seconds(job)
+        seconds = job.seconds
         status = {"render": "", "failed": f"failed at {job.folder.failed_stage}",
                   "not rendered": "not rendered", "unreadable": "render unreadable"}[drawn]
         if drawn == "render" and job.state is JobState.PENDING:
@@ -242,18 +226,18 @@ def _draw_header(buf, width: int, run: RunInfo, object_id: str, jobs: Sequence[J
     _text(buf, x, y, _clip(f"{method}: {', '.join(state)}   ·   {date}", inner, TEXT_SIZE), TEXT_SIZE, DIM_TEXT_SRGB)
     y += 20
     if grid.arrangement is Arrangement.ROWS_COLUMNS:
-        axes = f"rows: {_axis_title(grid.row_key)}   ×   columns: {_axis_title(grid.col_key)}"
+        axes = f"rows: {axis_title(grid.row_key)}   ×   columns: {axis_title(grid.col_key)}"
     elif grid.arrangement is Arrangement.ROW:
-        axes = f"varying: {_axis_title(grid.varying[0])}"
+        axes = f"varying: {axis_title(grid.varying[0])}"
     elif grid.varying:
-        axes = "grid in job order, varying: " + ", ".join(_axis_title(k) for k in grid.varying)
+        axes = "grid in job order, varying: " + ", ".join(axis_title(k) for k in grid.varying)
     else:
         axes = "no parameter varies between these jobs"
     _text(buf, x, y, _clip(axes, inner, TEXT_SIZE), TEXT_SIZE, TEXT_SRGB)
     y += 20
     fixed = fixed_changes(jobs, grid.varying)
     if fixed:
-        parts = [_assignment(k, v) for k, v in fixed.items()]
+        parts = [assignment(k, v) for k, v in fixed.items()]
         parts[0] = "fixed (not default): " + parts[0]
         lines = _wrap(parts, inner, TEXT_SIZE, 2)
     else:
@@ -266,7 +250,7 @@ def _draw_header(buf, width: int, run: RunInfo, object_id: str, jobs: Sequence[J
 def _draw_heads(buf, grid: Grid, cw: int, ch: int) -> None:
     for c, value in enumerate(grid.col_values):
         x, y = cell_origin(grid, 0, c, cw, ch)
-        text = _clip(_assignment(grid.col_key, value), cw, TEXT_SIZE, FONT_BOLD)
+        text = _clip(assignment(grid.col_key, value), cw, TEXT_SIZE, FONT_BOLD)
         _text(buf, x + cw // 2, y - COL_HEAD_H + 4, text, TEXT_SIZE, TEXT_SRGB, FONT_BOLD, "center")
     for r, value in enumerate(grid.row_values):
         x, y = cell_origin(grid, r, 0, cw, ch)
@@ -359,7 +343,5 @@ def build_sheets(run_dir: Path, cell_width: int = 320, sweep_name: str | None = 
     run = scan_run(Path(run_dir), sweep_name)
     date = _dt.datetime.now().strftime("%Y-%m-%d %H:%M")
     sheets = [build_sheet(run, obj, cell_width, date) for obj in run.objects]
-    from .gallery import _write_gallery  # the gallery links the sheets: imported here, not circular
-
-    _write_gallery(run, sheets)
+    write_run_gallery(run, sheets)
     return sheets

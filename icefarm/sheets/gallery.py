@@ -14,8 +14,7 @@ from .. import params as P
 from ..artifacts import atomic_write
 from .model import JobInfo, JobState, RunInfo, SHEETS_DIR, SheetResult
 from .read import scan_run
-from .labels import fixed_changes, format_value, short_name, varying_keys, _assignment, _axis_title, _canon
-from .draw import _seconds, _views
+from .labels import fixed_changes, format_value, short_name, varying_keys, assignment, axis_title, canonical
 from .models import model_id, write_models
 
 # gallery
@@ -112,7 +111,7 @@ def _timings_html(job: JobInfo) -> str:
     for stage, s in folder.seconds.items():
         if isinstance(s, (int, float)):
             rows.append(f"<tr><th>{_e(stage)}</th><td>{s:.3f} s</td></tr>")
-    total = _seconds(job)
+    total = job.seconds
     if total is not None:
         rows.append(f"<tr><th><b>total</b></th><td><b>{total:.2f} s</b></td></tr>")
     for key, value in folder.stats.items():
@@ -128,7 +127,7 @@ def _params_html(job: JobInfo, varying: Sequence[str]) -> str:
     index = P.param_index()
     rows = []
     for key, value in job.values.items():
-        changed = key not in defaults or _canon(defaults[key]) != _canon(value)
+        changed = key not in defaults or canonical(defaults[key]) != canonical(value)
         cls = ' class="changed"' if changed or key in varying else ""
         unit = index[key].unit if key in index and index[key].unit != "-" else ""
         rows.append(f"<tr{cls}><th>{_e(key)}</th><td>{_e(format_value('', value))}</td><td>{_e(unit)}</td></tr>")
@@ -156,7 +155,7 @@ def _job_html(job: JobInfo, varying: Sequence[str], here: Path, models: Mapping[
     vary = "".join(f"<dt>{_e(short_name(k))}</dt><dd>{_e(format_value(k, job.values[k]))}</dd>"
                    for k in varying if k in job.values)
     vary = f'<dl class="vary">{vary}</dl>' if vary else ""
-    seconds = _seconds(job)
+    seconds = job.seconds
     meta = f'job <code>{_e(job.job_id)}</code> · {_e(state)}'
     if seconds is not None:
         meta += f" · <b>{seconds:.2f} s</b>"
@@ -178,7 +177,7 @@ def _job_html(job: JobInfo, varying: Sequence[str], here: Path, models: Mapping[
             links.append(f'<a href="{_href(path, here)}">{_e(name)}</a>')
         elif name in ("scene.xml", "ice.ply"):
             links.append(f'<span class="muted">{_e(name)} (none)</span>')
-    for view in _views(job)[1:]:
+    for view in job.views()[1:]:
         stem = view.get("stem")
         path = job.file(f"{stem}.png") if isinstance(stem, str) and "/" not in stem else None
         if path is not None:
@@ -217,11 +216,11 @@ def _gallery_html(run: RunInfo, sheets: Sequence[SheetResult], models: Mapping[s
                         f'sheet, {sheet.cells} jobs, {sheet.failed} failed · <a href="{_href(sheet.exr, here)}">'
                         f"linear EXR</a></figcaption></figure>")
         if varying:
-            body.append('<p class="muted">varying: ' + ", ".join(_e(_axis_title(k)) for k in varying) + "</p>")
+            body.append('<p class="muted">varying: ' + ", ".join(_e(axis_title(k)) for k in varying) + "</p>")
         fixed = fixed_changes(jobs, varying)
         if fixed:
             body.append('<p class="muted">fixed, not default: '
-                        + ", ".join(_e(_assignment(k, v)) for k, v in fixed.items()) + "</p>")
+                        + ", ".join(_e(assignment(k, v)) for k, v in fixed.items()) + "</p>")
         body.append('<div class="jobs">' + "".join(_job_html(j, varying, here, models, viewer) for j in jobs)
                     + "</div></section>")
     return ("<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">"
@@ -229,7 +228,7 @@ def _gallery_html(run: RunInfo, sheets: Sequence[SheetResult], models: Mapping[s
             f"<script>{_SCRIPT}{_ORBIT}</script></head>\n<body>\n" + "\n".join(body) + "\n</body></html>\n")
 
 
-def _write_gallery(run: RunInfo, sheets: Sequence[SheetResult]) -> Path:
+def write_run_gallery(run: RunInfo, sheets: Sequence[SheetResult]) -> Path:
     path = run.run_dir / SHEETS_DIR / "index.html"
     viewer, models = write_models(run, path.parent)
     atomic_write(path, _gallery_html(run, sheets, models, viewer))
@@ -253,4 +252,4 @@ def write_gallery(run_dir: Path, sheets: list[SheetResult]) -> Path:
         The page.
     """
     run = scan_run(Path(run_dir))
-    return _write_gallery(run, sheets)
+    return write_run_gallery(run, sheets)

@@ -10,24 +10,24 @@ from .model import JobInfo
 
 # parameters
 
-def _canon(value: Any) -> str:
+def canonical(value: Any) -> str:
     """A comparable form of a parameter value (1 == 1.0; lists by their items)."""
     if isinstance(value, bool) or value is None:
         return repr(value)
     if isinstance(value, (int, float)):
         return repr(float(value))
     if isinstance(value, (list, tuple)):
-        return "[" + ",".join(_canon(v) for v in value) + "]"
+        return "[" + ",".join(canonical(v) for v in value) + "]"
     return repr(value)
 
 
-def _sort_key(value: Any) -> tuple:
+def sort_key(value: Any) -> tuple:
     if value is None:
         return (3, "")
     if isinstance(value, (int, float)) and not isinstance(value, bool):
         return (0, float(value))
     if isinstance(value, (list, tuple)):
-        return (2, tuple(_sort_key(v) for v in value))
+        return (2, tuple(sort_key(v) for v in value))
     return (1, str(value))
 
 
@@ -40,7 +40,7 @@ def varying_keys(jobs: Sequence[JobInfo], order: Sequence[str] = ()) -> list[str
     seen: dict[str, set] = {}
     for job in jobs:
         for key, value in job.values.items():
-            seen.setdefault(key, set()).add(_canon(value))
+            seen.setdefault(key, set()).add(canonical(value))
     keys = [k for k, v in seen.items() if len(v) > 1]
     rank = {k: i for i, k in enumerate(order)}
     table = {k: i for i, k in enumerate(P.param_index())}
@@ -55,9 +55,9 @@ def fixed_changes(jobs: Sequence[JobInfo], varying: Sequence[str]) -> dict[str, 
         return {}
     out = {}
     for key, value in with_params[0].values.items():
-        if key in varying or any(_canon(j.values.get(key)) != _canon(value) for j in with_params[1:]):
+        if key in varying or any(canonical(j.values.get(key)) != canonical(value) for j in with_params[1:]):
             continue
-        if key not in defaults or _canon(defaults[key]) != _canon(value):
+        if key not in defaults or canonical(defaults[key]) != canonical(value):
             out[key] = value
     return out
 
@@ -87,11 +87,11 @@ def format_value(key: str, value: Any) -> str:
     return text
 
 
-def _assignment(key: str, value: Any) -> str:
+def assignment(key: str, value: Any) -> str:
     return f"{short_name(key)}={format_value(key, value)}"
 
 
-def _compact(key: str, value: Any) -> str:
+def compact_assignment(key: str, value: Any) -> str:
     """``c=2``: the paper's symbol where it names one parameter, no unit (the header has them)."""
     param = P.param_index().get(key)
     symbols = [p.symbol for p in P.PARAMS]
@@ -100,7 +100,7 @@ def _compact(key: str, value: Any) -> str:
     return f"{name}={format_value('', value)}"
 
 
-def _axis_title(key: str) -> str:
+def axis_title(key: str) -> str:
     param = P.param_index().get(key)
     if param is None:
         return key

@@ -7,7 +7,7 @@ from collections.abc import Sequence
 
 from .model import (Arrangement, COL_HEAD_H, GAP, Grid, HEADER_H, JobInfo, LABEL_H, MARGIN, MIN_WIDTH,
                     ROW_HEAD_W, WRAP_AFTER)
-from .labels import _canon, _sort_key
+from .labels import canonical, sort_key
 
 # grid
 
@@ -25,14 +25,14 @@ def plan_grid(jobs: Sequence[JobInfo], varying: Sequence[str], method: str | Non
     if len(varying) == 2 and method != "random":
         row_key, col_key = varying
         missing = object()
-        pairs = [(_canon(j.values.get(row_key, missing)), _canon(j.values.get(col_key, missing))) for j in jobs]
+        pairs = [(canonical(j.values.get(row_key, missing)), canonical(j.values.get(col_key, missing))) for j in jobs]
         row_values = _distinct(jobs, row_key)
         col_values = _distinct(jobs, col_key)
         complete = all(row_key in j.values and col_key in j.values for j in jobs)
         if complete and len(set(pairs)) == n and len(row_values) * len(col_values) <= 2 * n:
-            rindex = {_canon(v): i for i, v in enumerate(row_values)}
-            cindex = {_canon(v): i for i, v in enumerate(col_values)}
-            slots = [(rindex[_canon(j.values[row_key])], cindex[_canon(j.values[col_key])], j) for j in jobs]
+            rindex = {canonical(v): i for i, v in enumerate(row_values)}
+            cindex = {canonical(v): i for i, v in enumerate(col_values)}
+            slots = [(rindex[canonical(j.values[row_key])], cindex[canonical(j.values[col_key])], j) for j in jobs]
             return Grid(Arrangement.ROWS_COLUMNS, len(row_values), len(col_values), varying, slots,
                         row_key, col_key, tuple(row_values), tuple(col_values))
     if len(varying) == 1 and method != "random":
@@ -50,8 +50,8 @@ def _distinct(jobs: Sequence[JobInfo], key: str) -> list:
     values = {}
     for j in jobs:
         if key in j.values:
-            values.setdefault(_canon(j.values[key]), j.values[key])
-    return sorted(values.values(), key=_sort_key)
+            values.setdefault(canonical(j.values[key]), j.values[key])
+    return sorted(values.values(), key=sort_key)
 
 
 def sheet_size(grid: Grid, cell_width: int, cell_height: int) -> tuple[int, int]:

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import enum
+import json
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -107,6 +109,22 @@ class JobInfo:
         if self.path is None or not (self.path / name).is_file():
             return None
         return self.path / name
+
+    def views(self) -> list[dict]:
+        """The job's ``views.json`` (one entry per rendered view), or [] without a usable one."""
+        path = self.file(VIEWS_FILE)
+        if path is None:
+            return []
+        try:
+            views = json.loads(path.read_text())
+        except (OSError, ValueError):
+            return []
+        return [v for v in views if isinstance(v, Mapping)] if isinstance(views, list) else []
+
+    @property
+    def seconds(self) -> float | None:
+        """The job's total time (`icefarm.jobdir.JobFolder.total_seconds`); None without a folder."""
+        return self.folder.total_seconds if self.folder is not None else None
 
 
 @dataclass(frozen=True)

@@ -12,7 +12,7 @@ from ..errors import InputError
 from ..farm.sweep_folder import read_jobs_csv
 from ..jobdir import read_job
 from .model import JobInfo, JobState, RunInfo
-from .labels import varying_keys, _sort_key
+from .labels import varying_keys, sort_key
 
 # reading
 
@@ -71,7 +71,7 @@ def scan_run(run_dir: Path, sweep_name: str | None = None) -> RunInfo:
         first = [jobs[j] for j in dict.fromkeys(csv_order.get(obj, [])) if j in jobs]
         listed = {j.job_id for j in first}
         rest = sorted((j for j in jobs.values() if j.job_id not in listed),
-                      key=lambda j: (tuple(_sort_key(j.values.get(k)) for k in vary), j.job_id))
+                      key=lambda j: (tuple(sort_key(j.values.get(k)) for k in vary), j.job_id))
         ordered[obj] = first + rest
     return RunInfo(run_dir=run_dir, name=name, method=method, swept=swept, objects=ordered)
 
