@@ -15,6 +15,8 @@ to a fraction of a voxel, and fuses with the icicles' field through
 from __future__ import annotations
 
 import math
+import os
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -36,6 +38,8 @@ _SHIFT = 1.0 + (math.sqrt(5.0) - 2.0) / BLOCK
 # evaluated than this (about 100 bytes each on the way).
 _MAX_FIELD_BYTES = 2 * 2**30
 _MAX_POINTS = 60_000_000
+# Lattice samples evaluated at once (a thread's share: memory stays bounded).
+_CHUNK_POINTS = 1_000_000
 
 
 def _sample_band(pts, normals, thick, kind, depth, rim, features, sole, edge, voxel, reach, h,
@@ -126,18 +130,25 @@ def _sample_band(pts, normals, thick, kind, depth, rim, features, sole, edge, vo
     o = np.arange(_TILE)
     local = np.stack(np.meshgrid(o, o, o, indexing="ij"), axis=-1).reshape(-1, 3)
     values = np.empty(npoints, dtype=np.float32)
-    chunk = max(1, 1_000_000 // _TILE**3)
-    for i in range(0, len(tiles), chunk):
-        p = origin + (tiles[i:i + chunk, None, :] * _TILE + local[None]).reshape(-1, 3) * voxel
+
+    def evaluate(lo: int, hi: int) -> None:
+        p = origin + (tiles[lo:hi, None, :] * _TILE + local[None]).reshape(-1, 3) * voxel
         # Where the surface is flat around a tile, its samples share the centre's nearest
         # surface sample (the same plane: the same distance); elsewhere each finds its own.
-        flat = np.repeat(shared[i:i + chunk], _TILE**3)
+        flat = np.repeat(shared[lo:hi], _TILE**3)
         phi = np.empty(len(p))
         phi[flat] = _phi(tree, p[flat], normals, thick, kind, rim, edge, depth, reach, 0.6 * h + half,
-                         np.repeat(nearest[i:i + chunk], _TILE**3)[flat],
-                         None if rim_seg is None else np.repeat(rim_seg[i:i + chunk], _TILE**3)[flat])
-        phi[~flat] = _phi(tree, p[~flat], normals, thick, kind, rim, edge, depth, reach, 0.6 * h, wall=wall)
-        values[i * _TILE**3:i * _TILE**3 + len(p)] = _encode(phi, voxel)
+                         np.repeat(nearest[lo:hi], _TILE**3)[flat],
+                         None if rim_seg is None else np.repeat(rim_seg[lo:hi], _TILE**3)[flat], workers=1)
+        phi[~flat] = _phi(tree, p[~flat], normals, thick, kind, rim, edge, depth, reach, 0.6 * h, wall=wall,
+                          workers=1)
+        values[lo * _TILE**3:hi * _TILE**3] = _encode(phi, voxel)
+
+    # Chunks of tiles on every core: the queries and most numpy work release the GIL.
+    threads = os.cpu_count() or 1
+    chunk = max(1, min(_CHUNK_POINTS // _TILE**3, -(-len(tiles) // threads)))
+    with ThreadPoolExecutor(threads) as pool:
+        list(pool.map(lambda lo: evaluate(lo, min(lo + chunk, len(tiles))), range(0, len(tiles), chunk)))
     if solid:  # more than a voxel inside: any value above the level marches the same
         solid = np.concatenate(solid)
         tiles = np.concatenate([tiles, solid])
@@ -182,7 +193,8 @@ def _signed(v, n, dist, tol):
     return np.sign(sd) * np.sqrt(sd**2 + extra**2), sd
 
 
-def _phi(tree, points, normals, thick, kind, rim, edge, depth, reach, tol, nearest=None, seg=None, wall=None):
+def _phi(tree, points, normals, thick, kind, rim, edge, depth, reach, tol, nearest=None, seg=None, wall=None,
+         workers=-1):
     """``phi`` (meters, positive inside the coat) at ``points`` (see `_sample_band`), from
     their nearest samples (``nearest``, -1 for none; queried when not given).
 
@@ -190,17 +202,23 @@ def _phi(tree, points, normals, thick, kind, rim, edge, depth, reach, tol, neare
     to the nearest rim segment, found per point or given (``seg``, -1: none near; the
     samples of a tile sharing one, `_sample_band`). With ``wall`` (wet sample indices,
     a tree of the wet samples, one of the excluded ones), the coat stops at the bisector
-    between wet and excluded samples.
+    between wet and excluded samples. ``workers``: threads of each tree query.
     """
+    samples = tree.data
     if nearest is None:
-        dist, nearest = tree.query(points, k=1, distance_upper_bound=reach, workers=-1)
-        nearest = np.where(np.isfinite(dist), nearest, -1)
+        dist, nearest = tree.query(points, k=1, distance_upper_bound=reach, workers=workers)
+        found = np.flatnonzero(np.isfinite(dist))
+        i = nearest[found]
+        v = points[found] - samples[i]
+        d_s = dist[found]
+    else:
+        found = np.flatnonzero(nearest >= 0)
+        i = nearest[found]
+        v = points[found] - samples[i]
+        d_s = np.sqrt(np.einsum("kd,kd->k", v, v))
     phi = np.full(len(points), -reach)
-    found = np.flatnonzero(nearest >= 0)
-    i = nearest[found]
-    v = points[found] - tree.data[i]
     k = kind[i]
-    d, sd = _signed(v, normals[i], np.sqrt(np.einsum("kd,kd->k", v, v)), tol)
+    d, sd = _signed(v, normals[i], d_s, tol)
     t = np.where(k == 1, thick[i], -np.inf)
     dry = np.flatnonzero(k == 0)
     if rim is not None and len(dry):
@@ -215,16 +233,16 @@ def _phi(tree, points, normals, thick, kind, rim, edge, depth, reach, tol, neare
         wet_index, wet_tree, blocked_tree = wall
         sel = np.flatnonzero(k != 0)  # nearest to a wet or an excluded sample
         q = points[found[sel]]
-        d_b, _ = blocked_tree.query(q, k=1, distance_upper_bound=reach, workers=-1)
-        d_w = np.sqrt(np.einsum("kd,kd->k", v[sel], v[sel]))
+        d_b, _ = blocked_tree.query(q, k=1, distance_upper_bound=reach, workers=workers)
+        d_w = d_s[sel]
         cut = np.flatnonzero(k[sel] == -1)
         if len(cut):  # nearest to an excluded sample: the coat of the nearest wet one, walled
             d_b[cut] = np.minimum(d_b[cut], d_w[cut])
-            d_cut, j = wet_tree.query(q[cut], k=1, distance_upper_bound=reach, workers=-1)
+            d_cut, j = wet_tree.query(q[cut], k=1, distance_upper_bound=reach, workers=workers)
             ok = np.isfinite(d_cut)
             d_w[cut] = d_cut
             cut, j, d_cut = cut[ok], wet_index[j[ok]], d_cut[ok]
-            dj = _signed(q[cut] - tree.data[j], normals[j], d_cut, tol)[0]
+            dj = _signed(q[cut] - samples[j], normals[j], d_cut, tol)[0]
             p[sel[cut]] = np.minimum(thick[j] - dj, dj + depth[j])
         p[sel] = np.minimum(p[sel], 0.5 * (d_b - d_w))
     phi[found] = np.where(np.isfinite(p) & (d < reach), p, -reach)
