@@ -22,25 +22,7 @@ from icefarm.mesh import prepare
 from icefarm.pipeline import JobSpec, Stage, run_job
 
 ICEFARM = Path(sys.executable).parent / "icefarm"
-FAST = {"water": {"rays": 300}, "drips": {"count": 4}, "proxy": {"mode": "never"}}
 MEMORY = 4 << 30  # address space of a command that must not expand a huge sweep
-
-
-@pytest.fixture
-def ball(tmp_path: Path) -> Path:
-    path = tmp_path / "ball.ply"
-    trimesh.creation.icosphere(subdivisions=2, radius=1.0).export(path)
-    return path
-
-
-def write_manifest(tmp_path: Path, sweep: dict | None = None, name: str = "t", **extra) -> Path:
-    data = {"name": name, "seed": 1, "render": None, "defaults": FAST,
-            "objects": [{"id": "ball", "mesh": "ball.ply", "size_m": 0.3}], **extra}
-    if sweep:
-        data["sweep"] = sweep
-    path = tmp_path / f"{name}.yaml"
-    path.write_text(yaml.safe_dump(data, sort_keys=False))
-    return path
 
 
 def cli(*args):
@@ -71,8 +53,8 @@ def unprivileged(command: list[str]) -> list[str]:
 
 @pytest.mark.slow
 @pytest.mark.parametrize("command", ["sweep", "run"])
-def test_an_unwritable_output_folder_is_one_line(tmp_path, ball, command):
-    path = write_manifest(tmp_path)
+def test_an_unwritable_output_folder_is_one_line(tmp_path, ball, command, write_manifest):
+    path = write_manifest()
     readonly = tmp_path / "readonly"
     readonly.mkdir()
     readonly.chmod(0o555)
@@ -91,8 +73,8 @@ def test_an_unwritable_output_folder_is_one_line(tmp_path, ball, command):
 
 
 @pytest.mark.slow
-def test_overwrite_of_a_symlinked_sweep_folder_is_refused_in_one_line(tmp_path, ball):
-    path = write_manifest(tmp_path)
+def test_overwrite_of_a_symlinked_sweep_folder_is_refused_in_one_line(tmp_path, write_manifest):
+    path = write_manifest()
     out = tmp_path / "out"
     assert cli("sweep", path, "-o", out, "--until", "water", "--workers", "1").exit_code == 0
     (tmp_path / "elsewhere").mkdir()
@@ -102,9 +84,9 @@ def test_overwrite_of_a_symlinked_sweep_folder_is_refused_in_one_line(tmp_path, 
     assert (tmp_path / "elsewhere" / "t" / "jobs.csv").is_file() and (out / "t").is_symlink()
 
 
-def test_a_bad_scheduler_address_is_one_line_and_makes_nothing(tmp_path, ball):
+def test_a_bad_scheduler_address_is_one_line_and_makes_nothing(tmp_path, write_manifest):
     pytest.importorskip("distributed")
-    path = write_manifest(tmp_path)
+    path = write_manifest()
     out = tmp_path / "out"
     one_error_line(cli("sweep", path, "-o", out, "--backend", "dask", "--scheduler", "notanaddress"),
                    "notanaddress", "tcp://HOST:PORT")
@@ -112,12 +94,12 @@ def test_a_bad_scheduler_address_is_one_line_and_makes_nothing(tmp_path, ball):
 
 
 @pytest.mark.slow
-def test_an_unreachable_scheduler_is_one_line_and_leaves_nothing_behind(tmp_path, ball):
+def test_an_unreachable_scheduler_is_one_line_and_leaves_nothing_behind(tmp_path, write_manifest):
     pytest.importorskip("distributed")
     with socket.socket() as s:  # a port nobody listens on
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
-    path = write_manifest(tmp_path)
+    path = write_manifest()
     out = tmp_path / "out"
     for _ in range(2):  # a plain rerun is not blocked by anything the first left
         one_error_line(cli("sweep", path, "-o", out, "--backend", "dask", "--scheduler",
@@ -128,14 +110,14 @@ def test_an_unreachable_scheduler_is_one_line_and_leaves_nothing_behind(tmp_path
 # --------------------------------------------------------------------------- manifests
 
 @pytest.mark.slow
-def test_jobs_are_counted_before_a_sweep_is_expanded(tmp_path, ball):
+def test_jobs_are_counted_before_a_sweep_is_expanded(tmp_path, write_manifest):
     huge = {"method": "grid", "parameters": {key: {"values": values} for key, values in (
         ("water.rays", list(range(100, 200))), ("drips.count", list(range(1, 101))),
         ("trajectories.curve_angle", list(range(0, 100))), ("surface.noise", [i * 1e-5 for i in range(100)]),
         ("surface.ripple_amplitude", [i * 1e-5 for i in range(100)]))}}  # 10^10 jobs
-    path = write_manifest(tmp_path, huge)
-    random = write_manifest(tmp_path, {"method": "random", "count": 10**9,
-                                       "parameters": {"drips.count": {"min": 1, "max": 50}}}, name="r")
+    path = write_manifest(huge)
+    random = write_manifest({"method": "random", "count": 10**9,
+                             "parameters": {"drips.count": {"min": 1, "max": 50}}}, name="r")
     for args, words in ((["validate", path], ("10,000,000,000 jobs", "--max-jobs")),
                         (["sweep", path, "-o", tmp_path / "out", "--dry-run"], ("10,000,000,000 jobs",)),
                         (["sweep", random, "-o", tmp_path / "out"], ("1,000,000,000 jobs",))):
@@ -145,8 +127,7 @@ def test_jobs_are_counted_before_a_sweep_is_expanded(tmp_path, ball):
         lines = [line for line in proc.stderr.splitlines() if line.strip()]
         assert proc.returncode == 2 and len(lines) == 1 and lines[0].startswith("error:"), proc.stderr[-2000:]
         assert all(word in lines[0] for word in words), lines[0]
-    small = write_manifest(tmp_path, {"method": "grid", "parameters": {"drips.count": {"values": [2, 3, 4]}}},
-                           name="s")
+    small = write_manifest({"method": "grid", "parameters": {"drips.count": {"values": [2, 3, 4]}}}, name="s")
     one_error_line(cli("validate", small, "--max-jobs", "2"), "3 jobs")
     assert cli("validate", small, "--max-jobs", "3").exit_code == 0
     assert not (tmp_path / "out").exists()
@@ -177,8 +158,8 @@ def test_a_yaml_alias_bomb_gets_a_short_message(tmp_path, ball, where):
     assert len(result.output) < 5000, result.output[:300]
 
 
-def test_a_manifest_that_is_not_utf8_is_one_line(tmp_path, ball):
-    path = write_manifest(tmp_path)
+def test_a_manifest_that_is_not_utf8_is_one_line(tmp_path, write_manifest):
+    path = write_manifest()
     path.write_bytes(path.read_bytes().replace(b"name: t", b"name: t\n# caf\xe9 (latin-1)"))
     one_error_line(cli("validate", path), "not UTF-8", "line 2")
     one_error_line(cli("sweep", path, "-o", tmp_path / "out"), "not UTF-8")
@@ -197,8 +178,8 @@ def test_duplicate_yaml_keys_are_refused(tmp_path, ball):
     assert "base: unknown key" in output and "twice" not in output  # only the anchor's own key is refused
 
 
-def test_a_missing_water_source_is_caught_by_validate(tmp_path, ball):
-    path = write_manifest(tmp_path, defaults={**FAST, "water": {"rays": 300, "source": "rain.ply"}})
+def test_a_missing_water_source_is_caught_by_validate(tmp_path, write_manifest):
+    path = write_manifest(defaults={"water": {"rays": 300, "source": "rain.ply"}})
     one_line = cli("validate", path)
     assert one_line.exit_code == 2 and "water.source 'rain.ply'" in one_line.output
     assert str(tmp_path / "rain.ply") in one_line.output

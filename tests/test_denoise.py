@@ -12,7 +12,6 @@ from icefarm.scene.config import load_render_config, render_config_from_dict
 from icefarm.scene.denoise import denoise
 from icefarm.scene.images import read_image
 from icefarm.scene.render import render_job, write_scenes
-from test_render import box_with_icicles, tiny_config
 
 
 def _stripes(h=64, w=96):
@@ -54,7 +53,7 @@ def test_lookdev_denoises_and_the_key_is_validated():
 
 
 @pytest.mark.slow
-def test_denoised_render_is_box_filtered_stratified_and_labelled(tmp_path):
+def test_denoised_render_is_box_filtered_stratified_and_labelled(tmp_path, box_with_icicles, tiny_config):
     import OpenImageIO as oiio
 
     box, ice = box_with_icicles()
@@ -75,7 +74,7 @@ def test_denoised_render_is_box_filtered_stratified_and_labelled(tmp_path):
 
 
 @pytest.mark.slow
-def test_denoised_render_is_closer_to_many_samples_than_the_noisy_one(tmp_path):
+def test_denoised_render_is_closer_to_many_samples_than_the_noisy_one(tmp_path, box_with_icicles, tiny_config):
     """Same samples, the same scene: denoising brings the image nearer the 256-spp one."""
     box, ice = box_with_icicles()
     size = [96, 72]

@@ -391,11 +391,12 @@ def test_ice_carries_a_materialx_openpbr_glass_and_the_object_is_double_sided(jo
 
 BLENDER_PYTHON = Path(__file__).resolve().parents[1] / ".venv-blender" / "bin" / "python"
 BLENDER_IMPORT = textwrap.dedent("""
-    import json, sys
+    import importlib.util, json, sys
     import bpy
-    sys.path.insert(0, sys.argv[2])
-    if sys.argv[3] == "hook":
-        import blender_usd_hook
+    if sys.argv[3] == "hook":  # the hook loaded from its file, as Blender's script folders would
+        spec = importlib.util.spec_from_file_location("blender_usd_hook", sys.argv[2])
+        blender_usd_hook = sys.modules[spec.name] = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(blender_usd_hook)
         blender_usd_hook.register()
     bpy.ops.wm.usd_import(filepath=sys.argv[1])
     out = {}
@@ -416,7 +417,7 @@ def test_blender_imports_the_ice_as_glass_with_the_hook_and_as_a_shell_without(j
 
     def materials(mode):
         done = subprocess.run([str(BLENDER_PYTHON), "-c", BLENDER_IMPORT, str(job / "scene.usda"),
-                               str(Path(dcc.__file__).parent), mode], capture_output=True, text=True, timeout=300)
+                               str(Path(dcc.__file__).parent / "blender_usd_hook.py"), mode], capture_output=True, text=True, timeout=300)
         assert done.returncode == 0, done.stderr[-2000:]
         line = next(x for x in done.stdout.splitlines() if x.startswith("RESULT "))
         return json.loads(line[len("RESULT "):])

@@ -7,12 +7,9 @@ import signal
 import subprocess
 import sys
 import threading
-import time
 from pathlib import Path
 
 import pytest
-import trimesh
-import yaml
 
 from hooks.sitecustomize import pause_env
 from icefarm.farm.manifest import load_manifest
@@ -26,17 +23,6 @@ pytest.importorskip("distributed")
 
 ROOT = Path(__file__).resolve().parents[1]
 DASK = Path(sys.executable).parent / "dask"
-FAST = {"water": {"rays": 300}, "drips": {"count": 4}, "proxy": {"mode": "never"}}
-
-
-def _wait_for(predicate, timeout: float, what: str):
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        value = predicate()
-        if value:
-            return value
-        time.sleep(0.1)
-    raise TimeoutError(f"timed out after {timeout} s waiting for {what}")
 
 
 @pytest.fixture(scope="module")
@@ -46,7 +32,7 @@ def paused(tmp_path_factory):
 
 
 @pytest.fixture(scope="module")
-def cluster(tmp_path_factory, paused):
+def cluster(tmp_path_factory, paused, wait_for):
     """Address of a scheduler with two single-threaded workers; everything stopped afterwards."""
     if not DASK.exists():
         pytest.skip(f"no dask command at {DASK}")
@@ -67,8 +53,8 @@ def cluster(tmp_path_factory, paused):
         # Its HTTP server (health checks) gets a random port too, not 8787.
         start("scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard",
               "--dashboard-address", "127.0.0.1:0", "--scheduler-file", str(info), log="scheduler.log")
-        address = _wait_for(lambda: info.is_file() and json.loads(info.read_text() or "{}").get("address"),
-                            60, "the scheduler")
+        address = wait_for(lambda: info.is_file() and json.loads(info.read_text() or "{}").get("address"),
+                           "the scheduler", 60)
         for i in range(2):
             start("worker", address, "--nthreads", "1", "--host", "127.0.0.1", "--no-dashboard",
                   "--name", f"w{i}", "--death-timeout", "60", log=f"worker{i}.log")
@@ -91,19 +77,10 @@ def cluster(tmp_path_factory, paused):
                 proc.wait(timeout=10)
 
 
-def _manifest(tmp_path: Path, objects: list, parameters: dict) -> Path:
-    trimesh.creation.icosphere(subdivisions=2).export(tmp_path / "ball.ply")
-    data = {"name": "d", "seed": 2, "render": None, "defaults": FAST, "objects": objects,
-            "sweep": {"method": "grid", "parameters": parameters}}
-    path = tmp_path / "d.yaml"
-    path.write_text(yaml.safe_dump(data, sort_keys=False))
-    return path
-
-
-def test_sweep_on_a_dask_cluster(tmp_path, cluster):
-    path = _manifest(tmp_path, [{"id": "ball", "mesh": "ball.ply", "size_m": 0.3},
-                                {"id": "big", "mesh": "ball.ply", "size_m": 0.6}],
-                     {"trajectories.curve_angle": {"values": [1, 4]}, "surface.noise": {"values": [0.0, 0.001]}})
+def test_sweep_on_a_dask_cluster(tmp_path, cluster, write_manifest):
+    path = write_manifest(grid={"trajectories.curve_angle": [1, 4], "surface.noise": [0.0, 0.001]}, name="d", seed=2,
+                          objects=[{"id": "ball", "mesh": "ball.ply", "size_m": 0.3},
+                                   {"id": "big", "mesh": "ball.ply", "size_m": 0.6}])
     summary = run_sweep(path, tmp_path / "out", backend="dask", scheduler=cluster, until="trajectories")
     assert summary.ok and summary.done == 8 and summary.backend == "dask"
     for r in summary.jobs:
@@ -116,17 +93,17 @@ def test_sweep_on_a_dask_cluster(tmp_path, cluster):
     assert resumed.resumed == 8 and resumed.ok
 
 
-def test_dask_reschedules_the_job_of_a_killed_worker(tmp_path, cluster, paused):
-    path = _manifest(tmp_path, [{"id": "victim", "mesh": "ball.ply", "size_m": 0.3},
-                                {"id": "ball", "mesh": "ball.ply", "size_m": 0.4}],
-                     {"drips.count": {"values": [2, 3]}})
+def test_dask_reschedules_the_job_of_a_killed_worker(tmp_path, cluster, paused, write_manifest, wait_for):
+    path = write_manifest(grid={"drips.count": [2, 3]}, name="d", seed=2,
+                          objects=[{"id": "victim", "mesh": "ball.ply", "size_m": 0.3},
+                                   {"id": "ball", "mesh": "ball.ply", "size_m": 0.4}])
     victim = plan_jobs(load_manifest(path), render=False)[0][0].job_id
     marker = tmp_path / "out" / "d" / ".farm" / "running" / f"{victim}.pid"
     killed = []
 
     def kill_once():
-        pid = _wait_for(lambda: marker.is_file() and marker.read_text().split(), 60, "the victim job")[0]
-        _wait_for(lambda: (paused / pid).exists(), 60, "the victim job to reach its pause")
+        pid = wait_for(lambda: marker.is_file() and marker.read_text().split(), "the victim job", 60)[0]
+        wait_for(lambda: (paused / pid).exists(), "the victim job to reach its pause", 60)
         os.kill(int(pid), signal.SIGKILL)
         killed.append(pid)
 
@@ -140,15 +117,14 @@ def test_dask_reschedules_the_job_of_a_killed_worker(tmp_path, cluster, paused):
     assert summary.done == 4 and summary.ok
 
 
-def test_dask_without_a_scheduler_starts_a_local_cluster(tmp_path):
-    path = _manifest(tmp_path, [{"id": "ball", "mesh": "ball.ply", "size_m": 0.3}],
-                     {"drips.count": {"values": [2, 3]}})
+def test_dask_without_a_scheduler_starts_a_local_cluster(tmp_path, write_manifest):
+    path = write_manifest(grid={"drips.count": [2, 3]}, name="d", seed=2)
     summary = run_sweep(path, tmp_path / "out", backend="dask", workers=2, until="drips")
     assert summary.ok and summary.done == 2 and summary.workers == 2
     assert summary.jobs[1].reused == ("water",)
 
 
-def test_a_sweep_says_when_its_cluster_has_no_workers(tmp_path):
+def test_a_sweep_says_when_its_cluster_has_no_workers(tmp_path, write_manifest, wait_for):
     """A scheduler without workers: the sweep says it waits (and for what) instead of sitting
     silent, and says when a worker joined."""
     if not DASK.exists():
@@ -164,16 +140,15 @@ def test_a_sweep_says_when_its_cluster_has_no_workers(tmp_path):
         info = tmp_path / "scheduler.json"
         start("scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard",
               "--dashboard-address", "127.0.0.1:0", "--scheduler-file", str(info), log="scheduler.log")
-        address = _wait_for(lambda: info.is_file() and json.loads(info.read_text() or "{}").get("address"),
-                            60, "the scheduler")
-        path = _manifest(tmp_path, [{"id": "ball", "mesh": "ball.ply", "size_m": 0.3}],
-                         {"drips.count": {"values": [2, 3]}})
+        address = wait_for(lambda: info.is_file() and json.loads(info.read_text() or "{}").get("address"),
+                           "the scheduler", 60)
+        path = write_manifest(grid={"drips.count": [2, 3]}, name="d", seed=2)
         notes: list[str] = []
         result: list = []
         sweep = threading.Thread(target=lambda: result.append(run_sweep(
             path, tmp_path / "out", backend="dask", scheduler=address, until="water", note=notes.append)))
         sweep.start()
-        _wait_for(lambda: any("no workers" in n for n in notes), 60, "the sweep to say it waits")
+        wait_for(lambda: any("no workers" in n for n in notes), "the sweep to say it waits", 60)
         assert f"dask worker {address}" in notes[0]
         start("worker", address, "--nthreads", "1", "--host", "127.0.0.1", "--no-dashboard", "--name", "late",
               log="worker.log")

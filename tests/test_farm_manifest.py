@@ -3,7 +3,6 @@
 from pathlib import Path
 
 import pytest
-import trimesh
 import yaml
 
 from icefarm.errors import InputError
@@ -19,15 +18,9 @@ def write(tmp_path: Path, data: dict, name: str = "m.yaml") -> Path:
     return path
 
 
-@pytest.fixture
-def ball(tmp_path: Path) -> str:
-    trimesh.creation.icosphere(subdivisions=1).export(tmp_path / "ball.ply")
-    return "ball.ply"
-
-
-def manifest(ball: str, **extra) -> dict:
+def manifest(ball: Path, **extra) -> dict:
     data = {"name": "t", "seed": 3, "render": None,
-            "objects": [{"id": "ball", "mesh": ball, "size_m": 0.3}]}
+            "objects": [{"id": "ball", "mesh": ball.name, "size_m": 0.3}]}
     data.update(extra)
     return data
 
@@ -45,7 +38,7 @@ def test_valid_manifest_resolves_paths_and_params(tmp_path, ball):
                               material={"color": [0.9, 0.9, 1.0], "roughness": 0.1})
     m = load_manifest(write(tmp_path, data))
     obj = m.objects[0]
-    assert Path(obj.mesh) == (tmp_path / ball).resolve()
+    assert Path(obj.mesh) == ball.resolve()
     assert m.defaults == {"surface.mode": "tubes", "drips.count": 5}
     assert obj.params == {"trajectories.curve_angle": 4.0}
     assert obj.exclude == (((0.0, 0.0, 0.0), (0.1, 0.1, 0.1)), ((-1.0, -1.0, -1.0), (0.0, 0.0, 0.0)))
@@ -98,7 +91,7 @@ def test_render_config_and_material_are_checked(tmp_path, ball):
 
 def test_generators_and_ids(tmp_path, ball):
     data = manifest(ball)
-    data["objects"] += [{"mesh": "generator:fountian", "size_m": 0.5}, {"id": "ball", "mesh": ball, "size_m": 1}]
+    data["objects"] += [{"mesh": "generator:fountian", "size_m": 0.5}, {"id": "ball", "mesh": ball.name, "size_m": 1}]
     text = problems(tmp_path, data)
     assert "unknown generator 'fountian'; did you mean generator:fountain?" in text
     assert "objects[2].id: 'ball' is used by an earlier object" in text

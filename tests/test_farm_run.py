@@ -9,7 +9,6 @@ import time
 from pathlib import Path
 
 import pytest
-import trimesh
 import yaml
 from click.testing import CliRunner
 from hooks.sitecustomize import pause_env
@@ -24,31 +23,8 @@ from icefarm.jobdir import JobState
 
 pytestmark = pytest.mark.slow  # real processes, clusters and renders: `pytest -m "not slow"` skips them
 
-FAST = {"water": {"rays": 300}, "drips": {"count": 4}, "proxy": {"mode": "never"}}
-
-
-def write_manifest(tmp_path: Path, objects: list, sweep: dict | None = None, name: str = "t") -> Path:
-    data = {"name": name, "seed": 1, "render": None, "defaults": FAST, "objects": objects}
-    if sweep:
-        data["sweep"] = sweep
-    path = tmp_path / f"{name}.yaml"
-    path.write_text(yaml.safe_dump(data, sort_keys=False))
-    return path
-
-
-@pytest.fixture
-def ball(tmp_path: Path) -> str:
-    trimesh.creation.icosphere(subdivisions=2, radius=1.0).export(tmp_path / "ball.ply")
-    return "ball.ply"
-
-
-def grid(**values) -> dict:
-    return {"method": "grid", "parameters": {k.replace("__", "."): {"values": v} for k, v in values.items()}}
-
-
-def test_sweep_layout_and_stage_reuse(tmp_path, ball):
-    path = write_manifest(tmp_path, [{"id": "ball", "mesh": ball, "size_m": 0.3}],
-                          grid(trajectories__curve_angle=[1, 5], surface__ripple_amplitude=[0.0, 0.001]))
+def test_sweep_layout_and_stage_reuse(tmp_path, write_manifest):
+    path = write_manifest(grid={"trajectories.curve_angle": [1, 5], "surface.ripple_amplitude": [0.0, 0.001]})
     out = tmp_path / "out"
     summary = run_sweep(path, out, workers=2, until="trajectories")
     assert summary.ok and summary.done == 4 and summary.failed == 0
@@ -70,9 +46,8 @@ def test_sweep_layout_and_stage_reuse(tmp_path, ball):
     assert (root / "cache").is_dir() and not (root / ".farm").exists()
 
 
-def test_existing_folder_is_refused_and_resume_redoes_exactly_the_unfinished_job(tmp_path, ball):
-    path = write_manifest(tmp_path, [{"id": "ball", "mesh": ball, "size_m": 0.3}],
-                          grid(drips__count=[2, 3, 4]))
+def test_existing_folder_is_refused_and_resume_redoes_exactly_the_unfinished_job(tmp_path, write_manifest):
+    path = write_manifest(grid={"drips.count": [2, 3, 4]})
     out = tmp_path / "out"
     first = run_sweep(path, out, workers=1, until="drips")
     assert first.done == 3
@@ -93,8 +68,8 @@ def test_existing_folder_is_refused_and_resume_redoes_exactly_the_unfinished_job
     assert plan.dry_run and plan.resumed == 3  # a dry run deletes nothing
 
 
-def test_overwrite_refuses_a_folder_that_is_not_a_sweep(tmp_path, ball):
-    path = write_manifest(tmp_path, [{"id": "ball", "mesh": ball, "size_m": 0.3}])
+def test_overwrite_refuses_a_folder_that_is_not_a_sweep(tmp_path, write_manifest):
+    path = write_manifest()
     (tmp_path / "out" / "t").mkdir(parents=True)
     (tmp_path / "out" / "t" / "precious.txt").write_text("keep me")
     with pytest.raises(InputError, match="does not look like an icefarm sweep folder"):
@@ -102,11 +77,10 @@ def test_overwrite_refuses_a_folder_that_is_not_a_sweep(tmp_path, ball):
     assert (tmp_path / "out" / "t" / "precious.txt").exists()
 
 
-def test_a_failing_job_does_not_stop_the_others(tmp_path, ball):
+def test_a_failing_job_does_not_stop_the_others(tmp_path, ball, write_manifest):
     (tmp_path / "broken.obj").write_text("v 0 0 0\nf 1 2 3\nthis is not a mesh\n")
-    path = write_manifest(tmp_path, [{"id": "bad", "mesh": "broken.obj", "size_m": 0.3},
-                                     {"id": "ball", "mesh": ball, "size_m": 0.3}],
-                          grid(drips__count=[2, 3]))
+    path = write_manifest(grid={"drips.count": [2, 3]}, objects=[{"id": "bad", "mesh": "broken.obj", "size_m": 0.3},
+                                                                {"id": "ball", "mesh": ball.name, "size_m": 0.3}])
     assert CliRunner().invoke(validate_command, [str(path)]).exit_code == 0  # it exists: valid
     result = CliRunner().invoke(sweep_command, [str(path), "-o", str(tmp_path / "out"), "--workers", "2",
                                                 "--until", "drips"])
@@ -121,8 +95,8 @@ def test_a_failing_job_does_not_stop_the_others(tmp_path, ball):
             assert row["error"]
 
 
-def test_a_second_sweep_on_a_running_folder_is_refused_and_deletes_nothing(tmp_path, ball, monkeypatch):
-    path = write_manifest(tmp_path, [{"id": "ball", "mesh": ball, "size_m": 0.3}], grid(drips__count=[2, 3]))
+def test_a_second_sweep_on_a_running_folder_is_refused_and_deletes_nothing(tmp_path, monkeypatch, write_manifest):
+    path = write_manifest(grid={"drips.count": [2, 3]})
     out = tmp_path / "out"
     for key, value in pause_env("ball", 3).items():  # the first sweep's jobs are still running
         monkeypatch.setenv(key, value)
@@ -145,8 +119,8 @@ def test_a_second_sweep_on_a_running_folder_is_refused_and_deletes_nothing(tmp_p
     assert (out / ".t.lock").read_text() == ""
 
 
-def test_cli_dry_run_and_bad_set(tmp_path, ball):
-    path = write_manifest(tmp_path, [{"id": "ball", "mesh": ball, "size_m": 0.3}])
+def test_cli_dry_run_and_bad_set(tmp_path, write_manifest):
+    path = write_manifest()
     result = CliRunner().invoke(sweep_command, [str(path), "-o", str(tmp_path / "out"), "--dry-run",
                                                 "--set", "drips.count=2,3,5"])
     assert result.exit_code == 0 and "3 jobs" in result.output and "drips.count=5" in result.output
@@ -177,10 +151,9 @@ def _kill_when_started(running: Path, job_ids: set[str], kills: int, killed: lis
 
 
 @pytest.mark.parametrize("kills", [1, 2])
-def test_a_killed_worker_is_noticed_its_job_retried_once(tmp_path, ball, monkeypatch, kills):
-    path = write_manifest(tmp_path, [{"id": "ball", "mesh": ball, "size_m": 0.3},
-                                     {"id": "victim", "mesh": ball, "size_m": 0.5}],
-                          grid(drips__count=[2, 3]))
+def test_a_killed_worker_is_noticed_its_job_retried_once(tmp_path, ball, monkeypatch, kills, write_manifest):
+    path = write_manifest(grid={"drips.count": [2, 3]}, objects=[{"id": "ball", "mesh": ball.name, "size_m": 0.3},
+                                                                {"id": "victim", "mesh": ball.name, "size_m": 0.5}])
     victim = next(j.job_id for j in plan_jobs(load_manifest(path), render=False)[0] if j.object_id == "victim")
     paused = tmp_path / "paused"
     paused.mkdir()

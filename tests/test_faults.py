@@ -7,13 +7,10 @@ import os
 import signal
 import subprocess
 import sys
-import time
 import warnings
 from pathlib import Path
 
 import pytest
-import trimesh
-import yaml
 from hooks.sitecustomize import pause_env
 
 from icefarm import params
@@ -26,36 +23,6 @@ from icefarm.stage_cache import StageCache
 pytestmark = pytest.mark.slow  # real processes, clusters and renders: `pytest -m "not slow"` skips them
 
 ICEFARM = Path(sys.executable).parent / "icefarm"
-FAST = {"water": {"rays": 300}, "drips": {"count": 4}, "proxy": {"mode": "never"}}
-
-
-@pytest.fixture
-def ball(tmp_path: Path) -> Path:
-    path = tmp_path / "ball.ply"
-    trimesh.creation.icosphere(subdivisions=2, radius=1.0).export(path)
-    return path
-
-
-def manifest(tmp_path: Path, parameters: dict, name: str = "t", objects: list | None = None) -> Path:
-    data = {"name": name, "seed": 1, "render": None, "defaults": FAST,
-            "objects": objects or [{"id": "ball", "mesh": "ball.ply", "size_m": 0.3}],
-            "sweep": {"method": "grid", "parameters": {k: {"values": v} for k, v in parameters.items()}}}
-    path = tmp_path / f"{name}.yaml"
-    path.write_text(yaml.safe_dump(data, sort_keys=False))
-    return path
-
-
-def wait_for(predicate, what: str, timeout: float = 120.0):
-    """Poll ``predicate`` until it returns something true (a generous deadline, not a timing)."""
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        value = predicate()
-        if value:
-            return value
-        time.sleep(0.05)
-    raise AssertionError(f"timed out after {timeout} s waiting for {what}")
-
-
 def session_processes(sid: int) -> set[int]:
     """Live (not zombie) processes of session ``sid``."""
     found = set()
@@ -85,8 +52,8 @@ def alive(pid: int) -> bool:
 @pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc")
 @pytest.mark.parametrize("signum,code", [(signal.SIGTERM, 143), (signal.SIGINT, 130), (signal.SIGKILL, None)],
                          ids=["SIGTERM", "SIGINT", "SIGKILL"])
-def test_a_killed_driver_leaves_no_process_and_resume_finishes_every_job(tmp_path, ball, signum, code):
-    path = manifest(tmp_path, {"water.rays": [300, 301, 302]})
+def test_a_killed_driver_leaves_no_process_and_resume_finishes_every_job(tmp_path, signum, code, write_manifest, wait_for):
+    path = write_manifest(grid={"water.rays": [300, 301, 302]})
     out = tmp_path / "out"
     env = dict(os.environ, **pause_env("ball", 600))  # every job stays in its worker
     driver = subprocess.Popen([str(ICEFARM), "sweep", str(path), "-o", str(out), "--workers", "2",
@@ -118,7 +85,7 @@ def test_a_killed_driver_leaves_no_process_and_resume_finishes_every_job(tmp_pat
     assert again.ok and again.done == 3 and again.resumed == 0
 
 
-def test_a_worker_ignores_ctrl_c_and_dies_with_its_driver(tmp_path):
+def test_a_worker_ignores_ctrl_c_and_dies_with_its_driver(tmp_path, wait_for):
     """The worker side on its own: a process that ran the initializer dies when its parent does."""
     script = tmp_path / "driver.py"
     flag = tmp_path / "child.pid"
@@ -188,8 +155,8 @@ def test_cache_entries_of_other_code_are_not_read(tmp_path, ball, monkeypatch):
     assert again.status == "done" and again.reused == ()
 
 
-def test_a_sweep_caches_only_what_another_job_can_reuse(tmp_path, ball):
-    path = manifest(tmp_path, {"trajectories.curve_angle": [1, 5, 9]})
+def test_a_sweep_caches_only_what_another_job_can_reuse(tmp_path, write_manifest):
+    path = write_manifest(grid={"trajectories.curve_angle": [1, 5, 9]})
     summary = run_sweep(path, tmp_path / "out", workers=1, until="trajectories")
     assert summary.ok and summary.done == 3
     cache = tmp_path / "out" / "t" / "cache"
@@ -201,8 +168,8 @@ def test_a_sweep_caches_only_what_another_job_can_reuse(tmp_path, ball):
 
 # --------------------------------------------------------------------------- resume checks
 
-def test_resume_redoes_jobs_whose_artifacts_or_done_json_were_damaged(tmp_path, ball):
-    path = manifest(tmp_path, {"drips.count": [2, 3, 4, 5]})
+def test_resume_redoes_jobs_whose_artifacts_or_done_json_were_damaged(tmp_path, write_manifest):
+    path = write_manifest(grid={"drips.count": [2, 3, 4, 5]})
     out = tmp_path / "out"
     first = run_sweep(path, out, workers=1, until="drips")
     assert first.done == 4
@@ -227,11 +194,11 @@ def test_resume_redoes_jobs_whose_artifacts_or_done_json_were_damaged(tmp_path, 
     assert all((d / "drips.json").is_file() for d in (deleted, truncated, flipped))
 
 
-def test_resume_on_an_edited_manifest_names_the_stale_job_folders(tmp_path, ball):
+def test_resume_on_an_edited_manifest_names_the_stale_job_folders(tmp_path, write_manifest):
     out = tmp_path / "out"
-    first = run_sweep(manifest(tmp_path, {"drips.count": [2, 3]}), out, workers=1, until="drips")
+    first = run_sweep(write_manifest(grid={"drips.count": [2, 3]}), out, workers=1, until="drips")
     assert first.done == 2
-    edited = manifest(tmp_path, {"drips.count": [3, 5]})  # 2 is gone, 5 is new
+    edited = write_manifest(grid={"drips.count": [3, 5]})  # 2 is gone, 5 is new
     notes: list[str] = []
     again = run_sweep(edited, out, workers=1, until="drips", resume=True, note=notes.append)
     assert again.ok and again.resumed == 1
@@ -255,10 +222,10 @@ def test_atomically_written_files_follow_the_umask(tmp_path, umask, mode):
     assert (tmp_path / "f.txt").stat().st_mode & 0o777 == mode
 
 
-def test_a_sweep_folder_is_readable_by_the_group_under_umask_002(tmp_path, ball):
+def test_a_sweep_folder_is_readable_by_the_group_under_umask_002(tmp_path, write_manifest):
     old = os.umask(0o002)
     try:
-        summary = run_sweep(manifest(tmp_path, {"drips.count": [2]}), tmp_path / "out", workers=1, until="water")
+        summary = run_sweep(write_manifest(grid={"drips.count": [2]}), tmp_path / "out", workers=1, until="water")
     finally:
         os.umask(old)
     root = tmp_path / "out" / "t"

@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -27,9 +25,6 @@ G = np.array([0.0, -1.0, 0.0])
 UP = -G
 TIP = 0.00244
 
-sys.path.insert(0, str(Path(__file__).parent))
-from test_surface import _dry, _straight  # noqa: E402
-
 
 def _p(**changes):
     return params.resolve({k.replace("__", "."): v for k, v in changes.items()})
@@ -49,12 +44,13 @@ def _drips(mesh, traj, water):
     return DripResult(np.zeros(0, int), closest, mesh.face_normals[face], np.asarray(water, float), face)
 
 
-def _eave_icicles():
+@pytest.fixture
+def eave_icicles(surface_kit):
     """Five trunks 2.5 cm apart under the eave (x < 0, over the ground), lengths 6-16 cm,
-    and one over the ledge."""
+    and one over the ledge; and their water."""
     starts = [[-0.12 + 0.025 * i, 0.3, 0.0] for i in range(5)] + [[0.07, 0.3, 0.0]]
     lengths = [0.10, 0.16, 0.06, 0.12, 0.08, 0.10]
-    return _straight(starts, lengths), np.array([0.12, 0.2, 0.08, 0.15, 0.1, 0.12])
+    return surface_kit.straight(starts, lengths), np.array([0.12, 0.2, 0.08, 0.15, 0.1, 0.12])
 
 
 def _landings(obj, traj, water, merge=0.02, runoff=0.5, floor=0.0):
@@ -62,9 +58,9 @@ def _landings(obj, traj, water, merge=0.02, runoff=0.5, floor=0.0):
                          face_normals=obj.face_normals, floor=floor)
 
 
-def test_every_landing_point_lies_on_a_surface_straight_below_its_tip():
+def test_every_landing_point_lies_on_a_surface_straight_below_its_tip(eave_icicles):
     obj = _step()
-    traj, water = _eave_icicles()
+    traj, water = eave_icicles
     land = _landings(obj, traj, water, merge=0.0)
     assert len(land) == 6 and land.on_ground.sum() == 5
     ground = land.positions[land.on_ground]
@@ -83,19 +79,19 @@ def test_every_landing_point_lies_on_a_surface_straight_below_its_tip():
     assert land.water == pytest.approx(0.5 * water[land.icicles])
 
 
-def test_a_hanging_object_loses_the_water_that_falls_past_it():
+def test_a_hanging_object_loses_the_water_that_falls_past_it(eave_icicles):
     obj = _step()
-    traj, water = _eave_icicles()
+    traj, water = eave_icicles
     land = find_landings(traj, water, G, runoff=0.5, merge=0.0, cast=ray_caster(obj),
                          face_normals=obj.face_normals, floor=None)
     assert len(land) == 1 and not land.on_ground[0]  # only the ledge catches any
     assert (land.branch_landing == -1).sum() == 5
 
 
-def test_merged_landing_points_keep_the_merge_distance_and_the_water():
+def test_merged_landing_points_keep_the_merge_distance_and_the_water(surface_kit):
     rng = np.random.default_rng(3)
     starts = np.c_[rng.uniform(-0.1, 0.1, 60), np.full(60, 0.3), rng.uniform(-0.1, 0.1, 60)]
-    traj = _straight(starts, rng.uniform(0.02, 0.2, 60))
+    traj = surface_kit.straight(starts, rng.uniform(0.02, 0.2, 60))
     water = rng.uniform(0.01, 0.2, 60)
     merge = 0.03
     land = find_landings(traj, water, G, runoff=0.4, merge=merge, floor=0.0)
@@ -119,9 +115,9 @@ def test_branch_tips_share_their_icicles_water_by_length():
                                                              0.1 * branch / (trunk + branch)])
 
 
-def test_no_stalagmite_passes_its_tip_and_the_close_ones_become_columns():
+def test_no_stalagmite_passes_its_tip_and_the_close_ones_become_columns(eave_icicles):
     obj = _step()
-    traj, water = _eave_icicles()
+    traj, water = eave_icicles
     land = _landings(obj, traj, water)
     surface = _p(surface__voxel_size=0.0015)["surface"]
     gi = {**params.defaults()["ground_ice"], "mode": "stalagmites", "height_scale": 2.5}
@@ -155,9 +151,9 @@ def _field(balls, points):
     return (balls.weights * np.exp(-d2 / balls.widths**2)).sum(axis=1)
 
 
-def test_mounds_mode_spreads_caps_without_stalagmites():
+def test_mounds_mode_spreads_caps_without_stalagmites(eave_icicles):
     obj = _step()
-    traj, water = _eave_icicles()
+    traj, water = eave_icicles
     land = _landings(obj, traj, water)
     gi = {**params.defaults()["ground_ice"], "mode": "mounds"}
     ice = ground_ice_balls(land, gi, _p()["surface"], G, np.random.default_rng(0), cast=ray_caster(obj), floor=0.0)
@@ -168,9 +164,9 @@ def test_mounds_mode_spreads_caps_without_stalagmites():
     assert (centres @ UP).min() > -1e-9 and (centres @ UP).max() < 0.1 + 1e-6
 
 
-def test_curtain_area_only_between_trunks_closer_than_the_curtain():
+def test_curtain_area_only_between_trunks_closer_than_the_curtain(surface_kit):
     starts = [[0.0, 0.3, 0.0], [0.025, 0.3, 0.0], [0.1, 0.3, 0.0]]
-    traj = _straight(starts, [0.12, 0.09, 0.12])
+    traj = surface_kit.straight(starts, [0.12, 0.09, 0.12])
     surface = _p(surface__growth_ratio=0.02, surface__voxel_size=0.0015)["surface"]
     near = curtain_balls(traj, {**surface, "curtain": 0.03}, G)
     assert near.pairs == 1 and near.area > 0 and len(near.balls) > 0
@@ -183,36 +179,42 @@ def test_curtain_area_only_between_trunks_closer_than_the_curtain():
     assert curtain_balls(traj, {**surface, "curtain": 0.2}, G).pairs == 2
 
 
-def _build(obj, traj, water, p, **kw):
-    return S.build_ice(obj, obj, _dry(obj), _drips(obj, traj, water), traj, p["surface"], p["glaze"], G,
-                       np.random.default_rng(0), **kw)
+@pytest.fixture
+def build(surface_kit):
+    """``build(obj, traj, water, p, **kw)``: stage 4 on ``obj`` without glaze water, drips at the trunks' roots."""
+
+    def ice(obj, traj, water, p, **kw):
+        return S.build_ice(obj, obj, surface_kit.dry(obj), _drips(obj, traj, water), traj, p["surface"], p["glaze"],
+                           G, np.random.default_rng(0), **kw)
+
+    return ice
 
 
-def test_ice_with_stalagmites_mounds_and_curtains_stays_one_watertight_mesh():
+def test_ice_with_stalagmites_mounds_and_curtains_stays_one_watertight_mesh(eave_icicles, build):
     obj = _step()
-    traj, water = _eave_icicles()
+    traj, water = eave_icicles
     p = _p(surface__voxel_size=0.0015, surface__curtain=0.03, glaze__mode="none", surface__growth_ratio=0.03)
     land = _landings(obj, traj, water)
     gi = {**p["ground_ice"], "mode": "stalagmites"}
     ground = ground_ice_balls(land, gi, p["surface"], G, np.random.default_rng(1), cast=ray_caster(obj), floor=0.0)
-    ice = _build(obj, traj, water, p, extra_balls=ground.balls)
+    ice = build(obj, traj, water, p, extra_balls=ground.balls)
     m = trimesh.Trimesh(ice.vertices, ice.faces, process=False)
     assert m.is_watertight and m.is_winding_consistent and m.volume > 0
     assert ice.curtain_area > 0
-    plain = _build(obj, traj, water, _p(surface__voxel_size=0.0015, glaze__mode="none", surface__growth_ratio=0.03))
+    plain = build(obj, traj, water, _p(surface__voxel_size=0.0015, glaze__mode="none", surface__growth_ratio=0.03))
     assert m.volume > trimesh.Trimesh(plain.vertices, plain.faces).volume
     assert (ice.vertices @ UP).min() < 0.05  # ice on the ground, not only on the icicles
 
 
-def test_mode_none_and_no_curtain_leave_the_ice_exactly_unchanged():
+def test_mode_none_and_no_curtain_leave_the_ice_exactly_unchanged(eave_icicles, build):
     obj = _step()
-    traj, water = _eave_icicles()
+    traj, water = eave_icicles
     p = _p(surface__voxel_size=0.002)
-    before = _build(obj, traj, water, {**p, "surface": {k: v for k, v in p["surface"].items() if k != "curtain"}})
+    before = build(obj, traj, water, {**p, "surface": {k: v for k, v in p["surface"].items() if k != "curtain"}})
     land = _landings(obj, traj, water)
     none = ground_ice_balls(land, p["ground_ice"], p["surface"], G, np.random.default_rng(0))
     assert len(none.balls) == 0
-    after = _build(obj, traj, water, p, extra_balls=none.balls)
+    after = build(obj, traj, water, p, extra_balls=none.balls)
     assert np.array_equal(before.vertices, after.vertices) and np.array_equal(before.faces, after.faces)
     assert after.curtain_area == 0
 

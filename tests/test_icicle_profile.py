@@ -2,24 +2,27 @@
 
 from __future__ import annotations
 
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
 
 from icefarm.stages.surface import profile_radius
 from icefarm.stages.surface.profile import PHYSICAL_EXPONENT, profile_args
 
-sys.path.insert(0, str(Path(__file__).parent))
-from test_surface import TIP, _drips, _dry, _groups, _ice, _sphere, _straight  # noqa: E402
+TIP = 0.00244  # the default tip radius (m)
 
 
-def _one_icicle(length=0.12, **changes):
-    obj = _sphere()
-    drips = _drips(obj, [[0.0, -0.15, 0.0]])
-    traj = _straight(drips.positions, [length])
-    return _ice(obj, _dry(obj), drips, traj, *_groups(**changes)).icicles
+@pytest.fixture
+def one_icicle(surface_kit):
+    """``one_icicle(length=0.12, **changes)``: the measures of one straight icicle under a dry sphere."""
+    kit = surface_kit
+
+    def grow(length=0.12, **changes):
+        obj = kit.sphere()
+        drips = kit.drips(obj, [[0.0, -0.15, 0.0]])
+        traj = kit.straight(drips.positions, [length])
+        return kit.ice(obj, kit.dry(obj), drips, traj, *kit.groups(**changes)).icicles
+
+    return grow
 
 
 def test_physical_profile_is_tip_plus_k_d_to_the_three_quarters():
@@ -35,71 +38,73 @@ def test_physical_profile_is_tip_plus_k_d_to_the_three_quarters():
     assert np.all(r[1:-1] > paper[1:-1])
 
 
-def test_impurity_scales_the_ripple_amplitude():
-    _, surface = None, _groups(surface__impurity=0.5, surface__ripple_amplitude=0.001)[0]
+def test_impurity_scales_the_ripple_amplitude(surface_kit):
+    _, surface = None, surface_kit.groups(surface__impurity=0.5, surface__ripple_amplitude=0.001)[0]
     assert profile_args(surface)["amplitude"] == pytest.approx(0.0005)
-    assert profile_args(_groups(surface__impurity=0.0)[0])["amplitude"] == 0.0
+    assert profile_args(surface_kit.groups(surface__impurity=0.0)[0])["amplitude"] == 0.0
 
 
-def test_physical_profile_measures_three_quarters_and_paper_a_cone():
+def test_physical_profile_measures_three_quarters_and_paper_a_cone(one_icicle):
     smooth = {"surface__impurity": 0.0, "surface__noise": 0.0}
-    physical = _one_icicle(**smooth)
-    paper = _one_icicle(surface__profile="paper", **smooth)
+    physical = one_icicle(**smooth)
+    paper = one_icicle(surface__profile="paper", **smooth)
     assert 0.6 <= physical.profile_exponent[0] <= 0.9
     assert 0.9 <= paper.profile_exponent[0] <= 1.2
 
 
-def test_defaults_taper_like_a_carrot_with_a_real_growth_ratio():
-    m = _one_icicle()
+def test_defaults_taper_like_a_carrot_with_a_real_growth_ratio(one_icicle):
+    m = one_icicle()
     assert m.taper[0] >= 3.0
     assert 1 / 32 <= m.growth_ratio[0] <= 1 / 6
     assert m.tip_radius_mm == pytest.approx(2.44, rel=0.1)
 
 
-def test_ripples_show_at_the_defaults_and_track_the_amplitude():
-    default = _one_icicle()
+def test_ripples_show_at_the_defaults_and_track_the_amplitude(one_icicle):
+    default = one_icicle()
     assert default.ripple_amplitude_mm >= 0.4
     assert default.ripple_wavelength_cm == pytest.approx(1.0, rel=0.15)
     for amplitude in (0.0004, 0.0008, 0.0012):  # real ripples: 0.5-1 mm
-        m = _one_icicle(surface__impurity=1.0, surface__ripple_amplitude=amplitude)
+        m = one_icicle(surface__impurity=1.0, surface__ripple_amplitude=amplitude)
         assert m.ripple_amplitude_mm >= 0.5 * amplitude * 1000
 
 
-def test_pure_water_grows_smooth_icicles_measured_as_no_ripple():
-    m = _one_icicle(surface__impurity=0.0)
+def test_pure_water_grows_smooth_icicles_measured_as_no_ripple(one_icicle):
+    m = one_icicle(surface__impurity=0.0)
     assert np.isnan(m.ripple_amplitude_mm) and np.isnan(m.ripple_wavelength_cm)
 
 
 @pytest.mark.parametrize("frequency", [314.0, 628.3, 1200.0])
-def test_ripple_frequency_sets_the_wavelength(frequency):
-    m = _one_icicle(surface__ripple_frequency=frequency, surface__impurity=1.0)
+def test_ripple_frequency_sets_the_wavelength(frequency, one_icicle):
+    m = one_icicle(surface__ripple_frequency=frequency, surface__impurity=1.0)
     assert m.ripple_wavelength_cm == pytest.approx(2 * np.pi / frequency * 100, rel=0.15)
 
 
-def _base_volume(**changes):
-    """Ice volume (cm^3) that the bases add to two icicles of 6 cm of water on a sphere."""
+@pytest.fixture
+def base_volume(surface_kit):
+    """``base_volume(**changes)``: ice volume (cm^3) that the bases add to two icicles of 6 cm of water on a sphere."""
     import trimesh
 
-    obj = _sphere()
-    drips = _drips(obj, [[0.0, -0.15, 0.0], [0.05, -0.14, 0.0]], water=0.06)
-    traj = _straight(drips.positions, [0.12, 0.08])
+    kit = surface_kit
+    obj = kit.sphere()
+    drips = kit.drips(obj, [[0.0, -0.15, 0.0], [0.05, -0.14, 0.0]], water=0.06)
+    traj = kit.straight(drips.positions, [0.12, 0.08])
 
     def volume(**c):
-        ice = _ice(obj, _dry(obj), drips, traj, *_groups(**c))
+        ice = kit.ice(obj, kit.dry(obj), drips, traj, *kit.groups(**c))
         return trimesh.Trimesh(ice.vertices, ice.faces).volume * 1e6
 
-    return volume(**changes) - volume(**{**changes, "surface__base_balls": 0})
+    return lambda **changes: volume(**changes) - volume(**{**changes, "surface__base_balls": 0})
 
 
-def test_bases_show_at_the_defaults():
+def test_bases_show_at_the_defaults(base_volume):
     # At least a tenth of the two icicles' volume (about 30 cm^3) swells their bases.
-    assert _base_volume() > 3.0
+    assert base_volume() > 3.0
 
 
 @pytest.mark.slow
-def test_base_balls_and_extent_each_add_ice_monotonically():
-    by_count = [_base_volume(surface__base_balls=n) for n in (10, 20, 40)]
-    by_extent = [_base_volume(surface__base_extent=eb) for eb in (0.01, 0.02, 0.03)]
+def test_base_balls_and_extent_each_add_ice_monotonically(base_volume):
+    by_count = [base_volume(surface__base_balls=n) for n in (10, 20, 40)]
+    by_extent = [base_volume(surface__base_extent=eb) for eb in (0.01, 0.02, 0.03)]
     assert np.all(np.diff(by_count) > 0) and np.all(np.diff(by_extent) > 0)
 
 
@@ -126,11 +131,11 @@ def test_the_bunny_at_the_defaults_grows_carrots_not_straws(shared_mesh, tmp_pat
     assert t["ripple_amplitude_mm"] >= 0.4 and t["upward_share"] == 0.0
 
 
-def test_ripples_wander_and_break_like_real_ones_not_stacked_rings(monkeypatch):
+def test_ripples_wander_and_break_like_real_ones_not_stacked_rings(monkeypatch, one_icicle):
     """Issue 25's measures on one 20 cm icicle at the defaults: deep enough, decorrelated 3 cm
     along, crest spacing varying by 10-35 %; the same carve with the texture off (one
     wavelength, crests level and whole) reads as identical rings and fails them."""
-    natural = _one_icicle(length=0.2).ripple_texture
+    natural = one_icicle(length=0.2).ripple_texture
     assert natural.trunks == 1
     assert natural.depth_mm >= 0.4
     assert natural.correlation_3cm <= 0.6
@@ -139,12 +144,12 @@ def test_ripples_wander_and_break_like_real_ones_not_stacked_rings(monkeypatch):
 
     for name, value in (("WANDER", 0.0), ("TILT", 0.0), ("FADE_FLOOR", 1.0)):
         monkeypatch.setattr(ripples, name, value)
-    rings = _one_icicle(length=0.2).ripple_texture
+    rings = one_icicle(length=0.2).ripple_texture
     assert rings.correlation_3cm > 0.8 and rings.crest_cv < 0.1
 
 
-def test_pure_water_icicles_have_no_ripple_texture_and_tips_are_quiet():
-    smooth = _one_icicle(length=0.2, surface__impurity=0.0).ripple_texture
+def test_pure_water_icicles_have_no_ripple_texture_and_tips_are_quiet(one_icicle):
+    smooth = one_icicle(length=0.2, surface__impurity=0.0).ripple_texture
     assert smooth.depth_mm < 0.15  # the mesh's own bumps only
     from icefarm.stages.surface.ripples import TIP_QUIET, _envelope
 

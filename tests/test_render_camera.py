@@ -1,0 +1,101 @@
+"""Cameras: framing along gravity, and the ice view that zooms on the icicles."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from icefarm.scene.camera import frame_view, world_frame
+from icefarm.scene.config import load_render_config, render_config_from_dict
+from icefarm.scene.render import write_scenes
+
+
+@pytest.mark.parametrize("gravity", [(0, -1, 0), (0, 0, -1), (1, 0, 0)])
+def test_camera_up_follows_gravity_and_frames_everything(gravity, box_with_icicles):
+    box, ice = box_with_icicles(gravity)
+    points = np.vstack([box.vertices, ice.vertices])
+    up = world_frame(gravity)[1]
+    assert np.allclose(up, -np.asarray(gravity, float))
+    ground = float((points @ up).min())
+    camera = frame_view(points, gravity, 35.0, -8.0, 4 / 3, ground=ground)
+    assert np.allclose(camera.up, up)
+    assert camera.origin @ up > ground
+    pixels = camera.project(points, 400, 300)
+    assert (pixels >= 0).all() and (pixels[:, 0] <= 400).all() and (pixels[:, 1] <= 300).all()
+    assert np.ptp(pixels[:, 0]) > 0.8 * 400 or np.ptp(pixels[:, 1]) > 0.8 * 300  # fills the frame
+    # Hanging icicles (along gravity) go down the picture.
+    tip, root = camera.project(np.array([[0, 0, 0], [0, 0, 0]]) + [up * -0.1, up * 0.0], 400, 300)
+    assert tip[1] > root[1]
+
+
+def dense_icicles(count: int = 5, spacing: float = 0.05):
+    """A 30 cm box with ``count`` cones hanging from its underside, finely meshed like the
+    pipeline's marching-cubes ice (edges of about 1.5 mm), 12 mm radius at the root."""
+    box = trimesh.creation.box(extents=(0.3, 0.1, 0.2))
+    box.apply_translation((0.0, 0.05, 0.0))
+    cones = []
+    for i in range(count):
+        cone = trimesh.creation.cone(radius=0.012, height=0.08 + 0.02 * (i % 3), sections=48)
+        cone.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, (1, 0, 0)))  # tip -Y
+        cone.apply_translation(((i - (count - 1) / 2) * spacing, 0.0, 0.04))
+        cones.append(cone)
+    ice = trimesh.util.concatenate(cones)
+    v, f = trimesh.remesh.subdivide_to_size(ice.vertices, ice.faces, max_edge=0.0015)
+    return box, trimesh.Trimesh(v, f, process=False), cones
+
+
+def cone_widths(camera, cones, width, height):
+    """Width in pixels of each cone halfway down, and whether that point is in the frame."""
+    right = np.cross(camera.forward, camera.up)
+    right /= np.linalg.norm(right)
+    out = []
+    for cone in cones:
+        lo, hi = cone.bounds
+        mid = np.array([(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, (lo[2] + hi[2]) / 2])
+        radius = 0.012 * 0.5  # halfway down the cone
+        a, b = camera.project(np.array([mid - radius * right, mid + radius * right]), width, height)
+        centre = camera.project(mid[None], width, height)[0]
+        inside = 0 <= centre[0] < width and 0 <= centre[1] < height
+        out.append((float(np.linalg.norm(a - b)), inside))
+    return out
+
+
+@pytest.mark.slow
+def test_lookdev_has_an_ice_view_that_frames_the_icicles(tmp_path):
+    import json
+
+    lookdev = load_render_config("lookdev")
+    assert [v.frame for v in lookdev.views] == ["all", "ice"]
+    config = render_config_from_dict({"resolution": [160, 120]}, base=lookdev)
+    box, ice, cones = dense_icicles()
+    files = write_scenes(tmp_path, box, ice, config)
+    full, zoomed = files.cameras
+    assert np.allclose(full.origin, zoomed.origin) and zoomed.fov_x < full.fov_x / 2
+    seen_full = cone_widths(full, cones, 160, 120)
+    seen_ice = cone_widths(zoomed, cones, 160, 120)
+    assert all(inside for _, inside in seen_full) and max(w for w, _ in seen_full) < 8
+    in_frame = [w for w, inside in seen_ice if inside]
+    assert in_frame and min(in_frame) >= 8  # every icicle it shows is at least 8 px wide
+    views = json.loads((tmp_path / "views.json").read_text())
+    assert [(v["name"], v["frame"], v["stem"]) for v in views] == [
+        ("three_quarter", "all", "render"), ("ice", "ice", "render_view1")]
+    assert views[0]["icicle_px"] < 8 and views[1]["icicle_px"] >= 12  # the ice view: icicles 12 px wide at least
+    assert files.icicle_px == (views[0]["icicle_px"], views[1]["icicle_px"])
+    # Both renderers get the zoomed camera.
+    assert f"{zoomed.fov_x:.9g}" in files.xml.read_text() and f"angle {zoomed.fov_x:.9g}" in files.pov.read_text()
+
+
+@pytest.mark.slow
+def test_ice_view_without_ice_or_icicles_still_renders_a_view(tmp_path):
+    import json
+
+    config = render_config_from_dict({"resolution": [64, 48]}, base=load_render_config("lookdev"))
+    box, _, _ = dense_icicles()
+    files = write_scenes(tmp_path / "bare", box, None, config)
+    assert len(files.cameras) == 2 and np.allclose(files.cameras[0].origin, files.cameras[1].origin)
+    assert [v["icicle_px"] for v in json.loads((tmp_path / "bare" / "views.json").read_text())] == [None, None]
+    glaze = box.copy()
+    glaze.vertices *= 1.02  # a thin shell: ice, but no icicles
+    files = write_scenes(tmp_path / "glaze", box, glaze, config)
+    assert files.cameras[1].fov_x < files.cameras[0].fov_x
