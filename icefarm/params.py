@@ -213,6 +213,11 @@ PARAMS: tuple[Param, ...] = (
     _p("trajectories", "branch_spread", "-", "m", _F, 0.02,
        "a branch leaves its parent at 30 deg and holds that angle until it is this far aside, "
        "then grows on parallel (the paper's p1'' with one F: 2 mm)", low=0.0),
+    _p("trajectories", "contact", "-", "-", Kind.CHOICE, "stop",
+       "what an icicle does where it meets the object below it: stop (it ends touching the surface, "
+       "a column, as real icicles do) or slide (the paper 4.3.1: it runs down the surface and drips "
+       "again where the surface falls away; a fat ridge of icicle along the surface)",
+       choices=("stop", "slide")),
     # Stage 4: surface (paper 4.4)
     _p("surface", "mode", "-", "-", Kind.CHOICE, "metaballs",
        "metaballs (fused, the paper's surface) or tubes (swept tubes, instant preview)",

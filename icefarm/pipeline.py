@@ -227,6 +227,9 @@ def _run_stages(spec: JobSpec, job_dir: Path, run: _Run, cache: StageCache, unti
         elif name == "trajectories":
             artifacts.write_json(job_dir / "trajectories.json", artifacts.trajectories_to_json(r.trajectories))
             t = measure_trajectories(r.trajectories, gravity)
+            # a drop that falls straight onto the object grows no icicle (trajectories.contact)
+            stats["icicles"] = int(np.count_nonzero((np.asarray(r.trajectories.branch_parent) < 0)
+                                                    & (np.diff(r.trajectories.branch_offsets) > 1)))
             stats.update(branches=r.trajectories.n_branches, upward_share=_finite(t.upward_share),
                          branch_spread_mm=_finite(t.branch_spread_mm), length_cv=_finite(t.length_cv),
                          trunk_lengths_m=_finite_list(t.trunk_lengths, 4))

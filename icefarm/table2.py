@@ -50,7 +50,7 @@ CALIBRATION_SEEDS = 3  # runs (seeds) per voxel size tried, at most the repeat c
 MIN_VOXEL_M = 0.00012  # the finest voxel calibration may choose; the coarsest resolves the tip radius
 # The paper's stage 2: drip points uniform over the drip region, however close or short; its
 # Table 2 timed the stages on the models themselves (no approximate surface).
-PAPER_STAGES = {"storm.mode": "relative", "trajectories.max_branches": 32, "drips.distribution": "area", "drips.spacing": 0.0, "drips.min_fall": 0.0,
+PAPER_STAGES = {"storm.mode": "relative", "trajectories.max_branches": 32, "trajectories.contact": "slide", "drips.distribution": "area", "drips.spacing": 0.0, "drips.min_fall": 0.0,
                 "drips.min_length": 0.0, "proxy.mode": "never"}
 MIN_SCALED_POLYGONS = 1000  # a reduced run keeps meshes fine enough for the water to find its way
 

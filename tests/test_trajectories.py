@@ -190,7 +190,7 @@ def test_slides_never_climb():
     top = np.c_[x, np.zeros_like(x), np.zeros_like(x)]
     top += (0.01 - top @ up)[:, None] * up  # onto the roof plane, n . p = 0.01
     traj = grow(roof, top + 0.0002 * up, np.tile(up, (len(x), 1)), np.full(len(x), 0.1),
-                curve_angle=0.0, division_probability=0.0)
+                curve_angle=0.0, division_probability=0.0, contact="slide")
     dirs, _ = segments(traj)
     assert (dirs @ G > 0).all()
     lowest_corner = roof.vertices[:, 1].min()
@@ -226,3 +226,31 @@ def test_measure_trajectories_without_branches():
     stub = TrajectoryResult(np.array([[0, 0, 0], [0, 0, 0], [0.004, -0.003, 0]], float), np.array([0, 1, 3]),
                             np.array([0, 0]), np.array([-1, 0]))
     assert measure_trajectories(stub, G).branch_spread_mm == pytest.approx(5.0)
+
+
+def test_a_drop_onto_the_object_grows_no_icicle_and_one_that_meets_it_stops_on_it():
+    """contact=stop (the default): a drop falling straight onto the roof below its drip
+    point grows nothing; an icicle from a ledge whose course meets a step below ends just
+    above that step (a column), never sliding down it nor climbing."""
+    roof = trimesh.creation.box(extents=(0.2, 0.02, 0.2))
+    roof.apply_transform(trimesh.transformations.rotation_matrix(np.radians(25.0), [0, 0, 1]))
+    up = roof.face_normals[np.argmax(roof.face_normals @ -G)]
+    x = np.linspace(-0.06, 0.06, 7)
+    top = np.c_[x, np.zeros_like(x), np.zeros_like(x)]
+    top += (0.01 - top @ up)[:, None] * up
+    onto = grow(roof, top + 0.0002 * up, np.tile(up, (len(x), 1)), np.full(len(x), 0.1),
+                curve_angle=0.0, division_probability=0.0)
+    assert TRAJ["contact"] == "stop"
+    assert all(len(onto.branch(b)) == 0 for b in range(onto.n_branches))
+
+    ledge = trimesh.creation.box(extents=(0.1, 0.01, 0.1))
+    ledge.apply_translation([0.0, 0.2, 0.0])
+    step = trimesh.creation.box(extents=(0.1, 0.01, 0.1))  # 10 cm below the ledge's underside
+    mesh = trimesh.util.concatenate([ledge, step])
+    starts = np.array([[0.0, 0.195 - 0.0001, 0.0], [0.02, 0.195 - 0.0001, 0.01]])
+    traj = grow(mesh, starts, np.tile(G, (2, 1)), np.full(2, 0.2), curve_angle=0.0,
+                division_probability=0.0)
+    for b in range(traj.n_branches):
+        pts = traj.branch(b)
+        assert 0.005 < pts[-1, 1] < 0.005 + 0.004  # its tip rests on the step's top (y = 5 mm)
+        assert (np.diff(pts[:, 1]) < 0).all()

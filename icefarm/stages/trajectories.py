@@ -89,14 +89,15 @@ def grow_trajectories(mesh: trimesh.Trimesh, positions: np.ndarray, normals: np.
                       curve_angle: float, division_probability: float, roll_angle: float,
                       step_length: float, length_scale: float, max_branches: int,
                       drip_limit: float, max_tilt: float = 60.0, wind=(0.0, 0.0, 0.0),
-                      branch_spread: float = 0.02, caster=None) -> TrajectoryResult:
+                      branch_spread: float = 0.02, contact: str = "slide", caster=None) -> TrajectoryResult:
     """Stage 3: grow one icicle per drip point with the paper's L-system.
 
     ``w: FX;  p1': X -(1-d)-> +(c)FFF/(a)X;  p1'': X -(d)-> [(c)+(30)F-(30)FX]A;
     p2: A -> +(c)FFF/(a)X``, with roll ``a = au * 137.5 / 360``. The turtle starts at the
     drip point heading along gravity. Generations: ``round((kL * wc - F) / 3F)``, so the
     trunk is about ``kL * wc`` long. A step that would cross the object instead follows
-    its surface along gravity until the drip criterion holds, then grows on from there.
+    its surface along gravity until the drip criterion holds, then grows on from there
+    (``contact="slide"``), or ends there (``"stop"``).
 
     Departures from the literal rules: each ``+(c)`` adds only ``1 - tilt / max_tilt`` of
     its tilt, so icicles bend towards max_tilt and never up; with wind it turns towards
@@ -136,6 +137,8 @@ def grow_trajectories(mesh: trimesh.Trimesh, positions: np.ndarray, normals: np.
     branch_spread : float
         Meters a new branch moves aside from its parent before it grows on parallel; 0
         keeps the paper's single F (``F sin 30`` aside).
+    contact : {"slide", "stop"}
+        Where a step meets the object: the paper's slide, or the branch ends on the surface.
     caster : callable, optional
         A `icefarm.geometry.ray_caster` of ``mesh`` to reuse (stage 1 may have built one).
     """
@@ -157,7 +160,8 @@ def grow_trajectories(mesh: trimesh.Trimesh, positions: np.ndarray, normals: np.
     wind = np.asarray(wind, dtype=np.float64).reshape(3)
     wind = wind - (wind @ g) * g
     blowing = bool(np.linalg.norm(wind) > 1e-9)
-    grower = _Grower(mesh, g, step_length, drip_limit, caster, max_tilt, unit(wind) if blowing else None)
+    grower = _Grower(mesh, g, step_length, drip_limit, caster, max_tilt, unit(wind) if blowing else None,
+                     slide=contact == "slide")
     generations = np.maximum(0, np.round((length_scale * water - step_length) / (3 * step_length))).astype(int)
     u, v = perpendicular_basis(g)
     spin = rng.uniform(0, 2 * np.pi, n)[:, None]  # drawn in wind too: the same seed, the same branches
@@ -176,7 +180,10 @@ def grow_trajectories(mesh: trimesh.Trimesh, positions: np.ndarray, normals: np.
     branch_count = np.ones(n, dtype=int)
     roll = roll_angle * GOLDEN_ROLL / 360.0
     n_spread = spread_steps(branch_spread, step_length)
-    grower.forward(turtles, np.arange(n))  # the axiom's F
+    met = grower.forward(turtles, np.arange(n))  # the axiom's F
+    if contact == "stop":  # the drop falls straight onto the object: no icicle (an empty branch)
+        for r in met:
+            grower.points[r] = []
     for gen in range(int(generations.max(initial=0))):
         active = turtles.alive & (generations[turtles.icicle] > gen)
         draws = rng.random(len(turtles.alive))
@@ -220,7 +227,7 @@ def grow_trajectories(mesh: trimesh.Trimesh, positions: np.ndarray, normals: np.
     branch_icicle = np.empty(len(counts), dtype=np.int64)
     branch_icicle[turtles.branch] = turtles.icicle
     return TrajectoryResult(
-        points=np.concatenate([np.array(p) for p in grower.points]) if counts.size else np.zeros((0, 3)),
+        points=np.concatenate([np.array(p).reshape(-1, 3) for p in grower.points]) if counts.size else np.zeros((0, 3)),
         branch_offsets=np.r_[0, np.cumsum(counts)],
         branch_icicle=branch_icicle,
         branch_parent=np.array(parents, dtype=np.int64),

@@ -59,8 +59,9 @@ def _across(v: np.ndarray, h: np.ndarray) -> np.ndarray:
 class _Grower:
     """Runs the turtles of one trajectory stage against one mesh (collisions, slides)."""
 
-    def __init__(self, mesh, gravity, step, drip_limit, caster=None, max_tilt=90.0, wind=None):
+    def __init__(self, mesh, gravity, step, drip_limit, caster=None, max_tilt=90.0, wind=None, slide=True):
         self.mesh, self.g, self.step = mesh, unit(gravity), step
+        self.slides = slide  # False: an icicle that meets the object ends there
         self.cos_dl = np.cos(np.radians(drip_limit))
         self.max_tilt = np.radians(max_tilt)
         self.wind = wind  # (3,) unit, perpendicular to gravity, or None for still air
@@ -155,7 +156,8 @@ class _Grower:
         t.left[rows], _ = _rotate(t.left[rows], up, degrees)
 
     def forward(self, t: _Turtles, rows: np.ndarray) -> np.ndarray:
-        """``F`` for the turtles ``rows``: one step, or a slide along the object on collision.
+        """``F`` for the turtles ``rows``: one step, or on collision with the object a slide
+        along it (``slide``) or the end of the branch, its tip on the surface.
 
         Returns the rows that collided (and slid, dripped again or ended).
         """
@@ -171,7 +173,13 @@ class _Grower:
             self.points[t.branch[r]].append(t.pos[r].copy())
         if blocked.any():
             hits = origin[blocked] + reach[blocked, None] * heading[blocked]
-            self.slide(t, rows[blocked], hits, face[blocked])
+            if self.slides:
+                self.slide(t, rows[blocked], hits, face[blocked])
+            else:  # its tip stops short of the surface it met by the slides' lift, on its course
+                ends = blocked.copy()
+                ends[blocked] = reach[blocked] > 2.0 * self.lift
+                self.record(t, rows[ends], origin[ends] + (reach[ends] - self.lift)[:, None] * heading[ends])
+                t.alive[rows[blocked]] = False
         return rows[blocked]
 
     def cast(self, origin: np.ndarray, direction: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
