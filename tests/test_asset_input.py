@@ -230,8 +230,8 @@ def test_a_level_sheet_keeps_its_size(noise):
     assert prepared.mesh.extents[1] < 0.01
 
 
-@pytest.mark.parametrize("kind", ["level, float noise", pytest.param("tilted quad", marks=pytest.mark.slow),
-                                  "upright quad"])
+@pytest.mark.parametrize("kind", ["level, float noise", "upright quad",
+                                  pytest.param("tilted quad", marks=pytest.mark.slow)])  # pure, but 6 s: 192 icicles
 def test_a_single_sheet_runs_end_to_end(tmp_path, kind):
     if kind == "level, float noise":
         sheet = level_sheet(1e-7)
@@ -243,7 +243,8 @@ def test_a_single_sheet_runs_end_to_end(tmp_path, kind):
     sheet.export(path)
     out = tmp_path / "job"
     result = run("run", path, "--size-m", 1, "--no-render", "-o", out, "--until", "surface",
-                 "--set", "water.rays=2000", "--set", "drips.count=6", "--placement", "hanging")
+                 "--set", "water.rays=2000", "--set", "drips.count=6", "--placement", "hanging",
+                 "--set", "surface.voxel_size=0.004", "--set", "glaze.voxel_size=0.016")  # coarse: a quick run
     assert result.exit_code == 0, result.output
     timings = json.loads((out / "timings.json").read_text())
     assert timings["problems"]["boundary_edges"] == 0  # solidified: a closed slab

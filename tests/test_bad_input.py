@@ -51,7 +51,7 @@ def unprivileged(command: list[str]) -> list[str]:
 
 # --------------------------------------------------------------------------- output folders
 
-@pytest.mark.slow
+@pytest.mark.slow  # starts a process
 @pytest.mark.parametrize("command", ["sweep", "run"])
 def test_an_unwritable_output_folder_is_one_line(tmp_path, ball, command, write_manifest):
     path = write_manifest()
@@ -72,7 +72,7 @@ def test_an_unwritable_output_folder_is_one_line(tmp_path, ball, command, write_
     assert not any(readonly.iterdir())
 
 
-@pytest.mark.slow
+@pytest.mark.slow  # starts processes (a sweep's pool)
 def test_overwrite_of_a_symlinked_sweep_folder_is_refused_in_one_line(tmp_path, write_manifest):
     path = write_manifest()
     out = tmp_path / "out"
@@ -93,7 +93,7 @@ def test_a_bad_scheduler_address_is_one_line_and_makes_nothing(tmp_path, write_m
     assert not out.exists()
 
 
-@pytest.mark.slow
+@pytest.mark.slow  # dials a dask cluster: waits out two connection timeouts
 def test_an_unreachable_scheduler_is_one_line_and_leaves_nothing_behind(tmp_path, write_manifest):
     pytest.importorskip("distributed")
     with socket.socket() as s:  # a port nobody listens on
@@ -109,7 +109,7 @@ def test_an_unreachable_scheduler_is_one_line_and_leaves_nothing_behind(tmp_path
 
 # --------------------------------------------------------------------------- manifests
 
-@pytest.mark.slow
+@pytest.mark.slow  # starts processes
 def test_jobs_are_counted_before_a_sweep_is_expanded(tmp_path, write_manifest):
     huge = {"method": "grid", "parameters": {key: {"values": values} for key, values in (
         ("water.rays", list(range(100, 200))), ("drips.count", list(range(1, 101))),
@@ -207,7 +207,7 @@ def grid_plane(n: int = 24) -> trimesh.Trimesh:
     return trimesh.Trimesh(vertices, faces, process=False)
 
 
-FLAT = {
+FLAT = {  # the coarse ones need a proxy: about 1 s each (slow), the triangle's is small
     "plane": lambda: tilted(trimesh.Trimesh([[0, 0, 0], [1, 0, 0], [1, 0, 1], [0, 0, 1]], [[0, 1, 2], [0, 2, 3]])),
     "fine plane": lambda: tilted(grid_plane()),
     "triangle": lambda: tilted(trimesh.Trimesh([[0, 0, 0], [1, 0, 0], [0, 0, 1]], [[0, 1, 2]])),
@@ -215,8 +215,8 @@ FLAT = {
 }
 
 
-@pytest.mark.slow
-@pytest.mark.parametrize("name", list(FLAT))
+@pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.slow) if n in ("plane", "level plane") else n
+                                  for n in FLAT])
 def test_flat_meshes_run_with_the_default_proxy_mode(tmp_path, name):
     path = tmp_path / "flat.ply"
     FLAT[name]().export(path)

@@ -44,7 +44,7 @@ def test_steps_come_in_order_and_stop_where_asked(tmp_path):
     assert result.trajectories is None and result.flow is result.mesh
 
 
-@pytest.mark.slow
+@pytest.mark.slow  # pure, but 2 s: the proxy's wrap
 def test_a_proxy_run_hangs_its_icicles_from_the_object(tmp_path):
     p = params.resolve({**SMALL, "proxy.mode": "always"})
     prepared = prepare(str(_bowl(tmp_path)), 0.3, p["water"]["gravity"])
@@ -78,7 +78,6 @@ def _job(tmp_path, path, name, p, **extra):
     return tmp_path / name
 
 
-@pytest.mark.slow
 def test_edited_drips_and_painted_water_replace_what_the_stages_found(tmp_path):
     """A manifest's overrides: an artist's drips.json hangs exactly its icicles; a painted
     water.ply replaces the water coefficients (the walks stay) and moves the drips."""
@@ -107,7 +106,6 @@ def test_edited_drips_and_painted_water_replace_what_the_stages_found(tmp_path):
     assert json.loads((repainted / "drips.json").read_text())["drip_points"] != drips["drip_points"]
 
 
-@pytest.mark.slow
 def test_edited_trajectories_are_the_icicles_built(tmp_path):
     path = _bowl(tmp_path)
     p = params.resolve(SMALL)
@@ -119,7 +117,6 @@ def test_edited_trajectories_are_the_icicles_built(tmp_path):
     assert len(json.loads((one / "trajectories.json").read_text())["icicles"]) == 1
 
 
-@pytest.mark.slow
 def test_a_rain_source_wets_only_what_lies_under_it(tmp_path):
     """water.source: a plate over one half of the ball rains on that half alone."""
     path = _bowl(tmp_path)

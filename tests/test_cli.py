@@ -149,8 +149,8 @@ def test_render_again_refuses_what_is_not_a_rendered_job(sphere_file, tmp_path):
     result = run("render", tmp_path)
     assert result.exit_code == 2 and "not a finished job" in result.output
     job = tmp_path / "job"
-    assert run("run", sphere_file, "--size-m", 0.3, "-o", job, "--no-render",
-               "--set", "drips.count=4", "--set", "water.rays=2000", "--set", "glaze.mode=none").exit_code == 0
+    assert run("run", sphere_file, "--size-m", 0.3, "-o", job, "--no-render", "--set", "drips.count=4",
+               "--set", "water.rays=2000", "--set", "glaze.mode=none", "--set", "surface.voxel_size=0.003").exit_code == 0
     result = run("render", job)
     assert result.exit_code == 2 and "no object.ply" in result.output
 

@@ -99,7 +99,7 @@ def test_inner_faces_ask_only_for_the_tiles_a_cell_touches():
     assert fuse._inner_faces(nan, faces, region, np.zeros(3, dtype=np.int64), tile).tolist() == [False, False]
 
 
-@pytest.mark.slow
+@pytest.mark.slow  # pure, but about 30 s: a 1.2 m roof meshed twice
 def test_a_big_asset_meshes_fewer_faces_with_the_same_icicles_and_stays_watertight():
     from icefarm import params
     from icefarm.chain import run_stages

@@ -30,8 +30,6 @@ from icefarm.scene.material import material_from_dict
 from icefarm.scene.render import write_scenes
 from icefarm.usd import up_axis, write_job_usd, write_usdz
 
-pytestmark = pytest.mark.slow  # real processes, clusters and renders: `pytest -m "not slow"` skips them
-
 PLASTIC = material_from_dict({"type": "plastic", "color": (0.6, 0.1, 0.1), "roughness": 0.09})
 
 # Run in a fresh interpreter: everything a DCC sees of scene.usda, as JSON and .npy files.
@@ -152,6 +150,7 @@ def test_up_axis_follows_gravity_to_the_nearest_of_y_and_z():
     assert up_axis((0, 1, 0)) == "Y" and up_axis((-1, 0, 0)) == "Y"
 
 
+@pytest.mark.slow  # a rendered job (module fixture)
 def test_job_writes_scene_usda_as_a_timed_step_listed_in_done_json(job):
     done = json.loads((job / "done.json").read_text())
     assert {"scene.usda", "object.usdc", "ice.usdc"} <= set(done["artifacts"])
@@ -160,6 +159,7 @@ def test_job_writes_scene_usda_as_a_timed_step_listed_in_done_json(job):
     assert not list(job.glob(".*.usd*")), "no temporary layer is left behind"
 
 
+@pytest.mark.slow  # a rendered job (module fixture)
 def test_stage_is_in_meters_y_up_with_the_expected_prims(usd):
     assert usd["meters"] == 1.0 and usd["up"] == "Y" and usd["default"] == "/World"
     assert usd["errors"] == []
@@ -171,6 +171,7 @@ def test_stage_is_in_meters_y_up_with_the_expected_prims(usd):
     assert types["/World/Looks/IceMaterial/PreviewSurface"] == "Shader"
 
 
+@pytest.mark.slow  # a rendered job (module fixture)
 def test_meshes_hold_the_plys_points_with_extents_and_normals(job, usd):
     out = usd["dir"]
     for name, ply in (("Ice", "ice.ply"), ("Object", "object.ply")):
@@ -188,6 +189,7 @@ def test_meshes_hold_the_plys_points_with_extents_and_normals(job, usd):
     assert ice_normals[np.argmin(ice_points[:, 1]), 1] < -0.5
 
 
+@pytest.mark.slow  # a rendered job (module fixture)
 def test_ice_material_is_bound_with_ior_transmission_roughness_and_tint(usd):
     ice = usd["meshes"]["Ice"]
     assert ice["material"] == "/World/Looks/IceMaterial" and ice["shader"] == "UsdPreviewSurface"
@@ -199,6 +201,7 @@ def test_ice_material_is_bound_with_ior_transmission_roughness_and_tint(usd):
     np.testing.assert_allclose(inputs["diffuseColor"], np.exp(-absorption * 0.1), atol=1e-4)
 
 
+@pytest.mark.slow  # a rendered job (module fixture)
 def test_object_has_its_manifest_material_and_the_water_of_stage_1(job, usd):
     obj = usd["meshes"]["Object"]
     assert obj["material"] == "/World/Looks/ObjectMaterial"
@@ -219,6 +222,7 @@ def test_object_has_its_manifest_material_and_the_water_of_stage_1(job, usd):
     assert water.max() > 0 and supply.any()
 
 
+@pytest.mark.slow  # a rendered job (module fixture)
 def test_cameras_are_the_ones_mitsuba_rendered(job, usd):
     sensors = mitsuba_sensors(job / "scene.xml")
     names = [v["name"] for v in json.loads((job / "views.json").read_text())]
@@ -229,6 +233,7 @@ def test_cameras_are_the_ones_mitsuba_rendered(job, usd):
         assert camera["aperture"][0] / camera["aperture"][1] == pytest.approx(40 / 30)
 
 
+@pytest.mark.slow  # a rendered job (module fixture)
 def test_sun_and_sky_are_the_renders(job, usd):
     root = ET.parse(job / "scene.xml").getroot()
     emitters = {e.get("type"): e for e in root.iter("emitter")}
@@ -242,6 +247,7 @@ def test_sun_and_sky_are_the_renders(job, usd):
     np.testing.assert_allclose(np.array(sky["matrix"]).T, frame.reshape(4, 4), atol=1e-9)
 
 
+@pytest.mark.slow  # a rendered job (module fixture)
 def test_glb_export_has_the_ice_with_transmission_and_ior(job):
     out = job.parent / "scene.glb"
     result = CliRunner().invoke(main, ["export", str(job), "--format", "glb", "-o", str(out)])
@@ -260,6 +266,7 @@ def test_glb_export_has_the_ice_with_transmission_and_ior(job):
     assert obj["pbrMetallicRoughness"]["baseColorFactor"] == pytest.approx([0.6, 0.1, 0.1, 1.0])
 
 
+@pytest.mark.slow  # a rendered job (module fixture)
 def test_glb_is_a_complete_scene_with_ground_cameras_and_sun(job):
     """The ground the render stood on, the rendered cameras and the sun: what a viewer needs."""
     from icefarm.rendered import read_rendered
@@ -297,6 +304,7 @@ def test_glb_is_a_complete_scene_with_ground_cameras_and_sun(job):
     assert ground.vertices[:, 1].max() <= trimesh.load(out).geometry["object"].vertices[:, 1].min() + 1e-3
 
 
+@pytest.mark.slow  # a rendered job (module fixture)
 def test_usd_scene_has_the_rendered_ground_with_a_matte_material(job):
     from pxr import Usd, UsdGeom, UsdShade
 
@@ -311,6 +319,7 @@ def test_usd_scene_has_the_rendered_ground_with_a_matte_material(job):
     assert tuple(shader.GetInput("specularColor").Get()) == (0.0, 0.0, 0.0)
 
 
+@pytest.mark.slow  # a rendered job (module fixture)
 def test_usdz_export_packs_scene_meshes_and_sky(job, tmp_path):
     import zipfile
 
@@ -332,6 +341,7 @@ def test_export_of_a_folder_that_never_rendered_is_one_clear_line(tmp_path, fmt)
     assert "Traceback" not in result.output
 
 
+@pytest.mark.slow  # starts a process (read_usd: pxr in a fresh Python)
 def test_z_up_gravity_gives_a_z_up_stage_and_a_y_up_glb(tmp_path):
     """A job folder written by `write_scenes` with gravity along -Z, exported without a
     done.json: the material is passed in, and the usdz is made from a fresh scene.usda."""
@@ -365,6 +375,7 @@ def test_z_up_gravity_gives_a_z_up_stage_and_a_y_up_glb(tmp_path):
     assert not (job / "scene.usda").exists(), "a usdz of an older job leaves the job as it was"
 
 
+@pytest.mark.slow  # a rendered job (module fixture)
 def test_ice_carries_a_materialx_openpbr_glass_and_the_object_is_double_sided(job):
     """Readers of MaterialX (usdview, Houdini, Maya, Omniverse) get glass, not a faint shell."""
     from pxr import Usd, UsdGeom, UsdShade
@@ -430,6 +441,7 @@ def test_blender_imports_the_ice_as_glass_with_the_hook_and_as_a_shell_without(j
     assert hooked["ObjectMaterial"]["Transmission Weight"] == 0.0  # the object is left alone
 
 
+@pytest.mark.slow  # a rendered job (module fixture)
 def test_scene_json_describes_what_scene_xml_renders(job, tmp_path):
     """The exporters read scene.json; it says what scene.xml says (the XML is read only
     for jobs from before scene.json)."""

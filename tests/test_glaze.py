@@ -73,8 +73,8 @@ def roof_water():
     return mesh, compute_water(mesh, G, 400, 0.01, np.random.default_rng(0)), _grounded(mesh)
 
 
-@pytest.mark.slow
-@pytest.mark.parametrize("case", ["bunny_water", "roof_water"])
+@pytest.mark.parametrize("case", [pytest.param("bunny_water", marks=pytest.mark.slow),  # ../shared/meshes
+                                  "roof_water"])
 def test_default_coat_covers_the_wet_surface_evenly(case, request):
     mesh, water, sole = request.getfixturevalue(case)
     v, f = _coat(mesh, water, _glaze(), exclude=sole)
@@ -86,7 +86,7 @@ def test_default_coat_covers_the_wet_surface_evenly(case, request):
     assert s.p50_mm >= 1.0  # thick enough to read as ice
 
 
-@pytest.mark.slow
+@pytest.mark.slow  # reads ../shared/meshes (roof: pure, but four coats in about 1 s)
 @pytest.mark.parametrize("case", ["bunny_water", "roof_water"])
 def test_lifetime_puts_the_ice_high_up_or_low_down(case, request):
     mesh, water, sole = request.getfixturevalue(case)
@@ -98,7 +98,6 @@ def test_lifetime_puts_the_ice_high_up_or_low_down(case, request):
     assert ratio[1.0] <= 1 / 3  # runs down first: thick low down
 
 
-@pytest.mark.slow
 def test_lifetime_on_a_sphere_with_water_by_height():
     sphere = trimesh.creation.icosphere(subdivisions=4, radius=0.15)
     water = _by_height(sphere, np.ones(len(sphere.vertices), dtype=bool))

@@ -20,8 +20,6 @@ from icefarm.stages.drips import DripResult
 from icefarm.stages.surface.icicles import icicle_balls
 from icefarm.stages.trajectories import TrajectoryResult
 
-pytestmark = pytest.mark.slow  # real processes, clusters and renders: `pytest -m "not slow"` skips them
-
 FRAMES = 3
 VOXEL = 0.003
 
@@ -115,6 +113,7 @@ def grown(tmp_path_factory):
     return tmp / "job"
 
 
+@pytest.mark.slow  # a rendered growth job (module fixture)
 def test_each_frame_holds_the_one_before(grown):
     rows = read_frames(grown / "growth")
     assert [r["index"] for r in rows] == list(range(1, FRAMES + 1)) and rows[-1]["fraction"] == 1.0
@@ -134,6 +133,7 @@ def test_each_frame_holds_the_one_before(grown):
     assert rows[0]["tip_radius_mm"] == pytest.approx(2.44, abs=0.5)
 
 
+@pytest.mark.slow  # a rendered growth job (module fixture)
 def test_the_last_frame_is_the_jobs_ice(grown):
     last = trimesh.load(grown / "growth" / f"ice_{FRAMES:04d}.ply", process=False)
     ice = trimesh.load(grown / "ice.ply", process=False)
@@ -141,6 +141,7 @@ def test_the_last_frame_is_the_jobs_ice(grown):
     np.testing.assert_array_equal(last.faces, ice.faces)
 
 
+@pytest.mark.slow  # a rendered growth job (module fixture)
 def test_frames_movie_and_usd(grown):
     import imageio_ffmpeg
     import OpenImageIO as oiio
@@ -184,6 +185,7 @@ def test_help_and_manifest_name_growth(tmp_path):
             load_manifest(tmp_path / "b.yaml")
 
 
+@pytest.mark.slow  # a rendered growth job (module fixture)
 def test_growth_usd_is_value_clips_with_normals_the_ice_glass_and_the_ground(grown):
     """One small layer per frame, stitched as value clips; the animation opens looking as
     the render did: normals, the ice's MaterialX glass, the ground, cameras and lights."""

@@ -64,6 +64,7 @@ def render(mi, scene: dict, integrator, spp: int, seed: int = 0) -> np.ndarray:
     return np.array(mi.render(mi.load_dict(scene), integrator=integrator, spp=spp, seed=seed))[..., :3]
 
 
+@pytest.mark.slow  # renders
 def test_matches_path_without_ice(mi, integrators):
     scene = base_scene(mi)
     scene["ball"] = ball()
@@ -77,6 +78,7 @@ def test_matches_path_without_ice(mi, integrators):
         assert b[rows, cols].mean() == pytest.approx(a[rows, cols].mean(), rel=0.05)
 
 
+@pytest.mark.slow  # renders
 def test_object_under_an_ice_shell_is_lit(mi, integrators):
     # Sun and a faint sky, so that what reaches the ball is mostly sunlight through the shell.
     env = {"type": "constant", "radiance": {"type": "rgb", "value": [0.02] * 3}}
@@ -93,6 +95,7 @@ def test_object_under_an_ice_shell_is_lit(mi, integrators):
     assert floor < ours < lit * 1.01
 
 
+@pytest.mark.slow  # renders
 def test_ice_shadow_is_light(mi, integrators):
     # Looking down at a floating dielectric cube; a low sun from +x casts its shadow
     # well beside it, on ground the camera sees directly.
@@ -114,6 +117,7 @@ def test_ice_shadow_is_light(mi, integrators):
             assert ((1 - 3 * F0) * min(TINT)) ** 2 * 0.8 < ratio < 0.99
 
 
+@pytest.mark.slow  # renders
 def test_camera_still_sees_refraction(mi, integrators):
     scene = base_scene(mi, width=48, height=36, origin=(0, 0.5, 4), target=(0, 0.5, 0),
                        env={"type": "constant", "radiance": {"type": "rgb", "value": [1.0] * 3}},
@@ -144,8 +148,9 @@ def test_scalar_variant_gives_none():
 
 
 def test_plugin_and_parameters(mi):
-    from icefarm.scene.integrator import PLUGIN_NAME, ice_integrator
+    from icefarm.scene.integrator import PLUGIN_NAME, ice_integrator, integrator_class
 
+    integrator_class(mi.variant())  # registers the plugin (not left to a test run before this one)
     it = mi.load_dict({"type": PLUGIN_NAME, "max_depth": 5, "ior": 1.5, "tint": [0.9, 0.9, 1.0]})
     assert it.max_depth == 5 and it.ior == 1.5 and it.tint == pytest.approx((0.9, 0.9, 1.0))
     assert ice_integrator(mi.variant(), max_depth=-1).max_depth > 10**9
@@ -169,6 +174,7 @@ def ball_scene(mi, env=1.0, sun=0.0, sun_dir=SUN_DIR):
     return scene
 
 
+@pytest.mark.slow  # renders
 def test_absorption_follows_beer_lambert_toward_blue_green(mi):
     from icefarm.scene.integrator import ice_integrator
 
@@ -194,6 +200,7 @@ def test_default_absorption_is_a_faint_tint_on_a_2cm_icicle():
     assert through[2] - through[0] > 0.05
 
 
+@pytest.mark.slow  # renders
 def test_scattering_clouds_the_ice_and_zero_scattering_is_no_medium(mi):
     from icefarm.scene.integrator import ice_integrator
 
@@ -214,6 +221,7 @@ def test_scattering_clouds_the_ice_and_zero_scattering_is_no_medium(mi):
 ABS = (2.0, 0.6, 0.4)
 
 
+@pytest.mark.slow  # renders
 def test_shadow_through_absorbing_ice_is_tinted(mi):
     from icefarm.scene.integrator import ice_integrator
 

@@ -22,8 +22,8 @@ def test_a_failure_between_steps_is_not_blamed_on_the_step_before(tmp_path, monk
 
     assert stage_phrase("surface") == "in stage surface"
     assert stage_phrase("after measure") == "after stage measure"
-    spec = JobSpec("roof", "generator:roof", 0.3, params.resolve({"drips.count": 2, "glaze.mode": "none"}),
-                   seed=0, render="no-such-config")
+    quick = {"drips.count": 2, "glaze.mode": "none", "surface.voxel_size": 0.003}
+    spec = JobSpec("roof", "generator:roof", 0.3, params.resolve(quick), seed=0, render="no-such-config")
     outcome = run_job(spec, tmp_path / "job")
     assert outcome.status == "failed" and outcome.failed_stage == "after measure"
     assert "no-such-config" in outcome.error

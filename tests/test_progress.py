@@ -37,6 +37,7 @@ def test_plain_lines_name_each_step_its_parts_and_its_time():
 def test_the_live_line_ticks_while_a_step_runs_and_goes_when_it_ends():
     out = _Tty()
     progress = step_progress(ProgressMode.BAR, out)
+    progress.REFRESH_S = 0.1  # five times a terminal's rate: a short wait
     with progress.step("surface"):
         progress.note("glaze coat")
         time.sleep(3 * progress.REFRESH_S)
@@ -59,6 +60,8 @@ def test_a_job_run_from_a_log_prints_each_step_and_the_surface_parts(tmp_path):
     from icefarm.cli import main
 
     result = CliRunner().invoke(main, ["run", "generator:roof", "--size-m", "0.4", "--no-render",
+                                       "--set", "storm.mode=relative", "--set", "drips.count=4",  # quick: four icicles
+                                       "--set", "surface.voxel_size=0.003", "--set", "glaze.voxel_size=0.012",
                                        "-o", str(tmp_path / "roof")])
     assert result.exit_code == 0, result.output
     lines = result.stdout.splitlines()

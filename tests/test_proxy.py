@@ -14,8 +14,6 @@ from icefarm.pipeline import JobSpec, Stage, run_job
 from icefarm.proxy import (ProxyMethod, boundary_loops, build_proxy, drop_voids, proxy_reason,
                            snap_to_surface)
 
-pytestmark = pytest.mark.slow  # real processes, clusters and renders: `pytest -m "not slow"` skips them
-
 SHARED_MESHES = Path(__file__).resolve().parents[1].parent / "shared" / "meshes"
 SIZE_M = 0.3
 DEFAULTS = params.resolve()["proxy"]
@@ -85,6 +83,7 @@ def built(problem_mesh):
 
 # --- detection ---------------------------------------------------------------------------
 
+@pytest.mark.slow  # reads ../shared/meshes
 def test_reason_none_for_clean_cow_and_given_for_the_chair(shared_mesh):
     cow = prepare(shared_mesh("cow.obj"), SIZE_M).problems
     assert cow.self_intersections > 0  # folds of the cow cross a few faces: not a reason
@@ -116,6 +115,7 @@ def test_bad_mode_is_refused():
 
 # --- the four problem meshes ---------------------------------------------------------------
 
+@pytest.mark.slow  # reads ../shared/meshes (boxes: pure, but a 1 s wrap)
 @pytest.mark.parametrize("name", PROBLEM_MESHES)
 def test_problem_mesh_gets_one_watertight_wrap(built, problem_mesh, name):
     mesh, result = problem_mesh(name), built(name)
@@ -132,12 +132,14 @@ def test_problem_mesh_gets_one_watertight_wrap(built, problem_mesh, name):
     assert np.all(proxy.extents <= mesh.extents + 2 * FAST["offset"] * diagonal(mesh) * 1.01)
 
 
+@pytest.mark.slow  # reads ../shared/meshes
 def test_soup_wrap_is_coarsened_to_fit_the_budget(built, problem_mesh):
     result = built("soup.stl")
     assert "wrap alpha raised" in result.reason
     assert result.alpha > FAST["alpha"] * diagonal(problem_mesh("soup.stl"))
 
 
+@pytest.mark.slow  # pure, but 3 s: a wrap at the default resolution
 def test_snapping_from_the_default_proxy_moves_points_less_than_one_percent():
     mesh = box_soup()
     result = build_proxy(mesh, DEFAULTS)
@@ -151,6 +153,7 @@ def test_snapping_from_the_default_proxy_moves_points_less_than_one_percent():
     assert np.all(np.einsum("ij,ij->i", normals, points - snapped) >= 0)
 
 
+@pytest.mark.slow  # reads ../shared/meshes
 @pytest.mark.parametrize("name", ["chair_model.obj", "soup.stl"])
 def test_snapped_points_lie_on_the_original_surface(built, problem_mesh, name):
     mesh, result = problem_mesh(name), built(name)
@@ -199,6 +202,7 @@ def test_small_holes_are_filled(sphere):
     assert "open boundary edges" in result.reason
 
 
+@pytest.mark.slow  # pure, but about 1 s: a fine wrap
 def test_wide_opening_is_wrapped_not_capped():
     bowl = trimesh.creation.icosphere(subdivisions=3, radius=0.15)
     bowl.update_faces(bowl.triangles_center[:, 1] < 0.05)
@@ -246,6 +250,7 @@ def test_flat_input_is_refused_clearly(mesh):
         build_proxy(mesh, DEFAULTS, problems)
 
 
+@pytest.mark.slow  # reads ../shared/meshes
 def test_absurd_wrap_resolution_is_refused(problem_mesh):
     # 100 large triangles crossing the box: within 200 faces alpha would exceed 10 %.
     with pytest.raises(InputError, match="proxy.face_budget"):
@@ -261,6 +266,7 @@ def test_bad_settings_name_the_parameter(sphere, key, value):
 
 # --- end to end through the pipeline --------------------------------------------------------
 
+@pytest.mark.slow  # reads ../shared/meshes (boxes: pure, but a 1 s wrap)
 @pytest.mark.parametrize("name", PROBLEM_MESHES)
 def test_problem_mesh_job_hangs_icicles_from_the_real_object(problem_mesh, tmp_path, name):
     if name == "boxes":

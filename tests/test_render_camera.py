@@ -61,7 +61,7 @@ def cone_widths(camera, cones, width, height):
     return out
 
 
-@pytest.mark.slow
+@pytest.mark.slow  # pure, but about 1 s: finely meshed icicles written twice
 def test_lookdev_has_an_ice_view_that_frames_the_icicles(tmp_path):
     import json
 
@@ -86,7 +86,6 @@ def test_lookdev_has_an_ice_view_that_frames_the_icicles(tmp_path):
     assert f"{zoomed.fov_x:.9g}" in files.xml.read_text() and f"angle {zoomed.fov_x:.9g}" in files.pov.read_text()
 
 
-@pytest.mark.slow
 def test_ice_view_without_ice_or_icicles_still_renders_a_view(tmp_path):
     import json
 

@@ -69,6 +69,7 @@ def test_povray_missing_is_a_clear_error(tmp_path, monkeypatch, box_with_icicles
     assert not (tmp_path / "render.png").exists()  # refused before any rendering
 
 
+@pytest.mark.slow  # renders
 def test_render_job_writes_linear_exr_and_srgb_png(tmp_path, box_with_icicles, tiny_config, assert_not_blank):
     box, ice = box_with_icicles()
     config = tiny_config(views=["three_quarter", "below"])
@@ -105,6 +106,7 @@ def test_a_process_pinned_to_one_core_renders(tmp_path, box_with_icicles, tiny_c
     assert_not_blank(read_image(tmp_path / "render.png"))
 
 
+@pytest.mark.slow  # renders
 def test_ice_changes_the_picture_where_it_projects(tmp_path, box_with_icicles, tiny_config):
     box, ice = box_with_icicles()
     config = tiny_config(resolution=[80, 60], spp=8, denoise="none")
@@ -126,6 +128,7 @@ def test_ice_changes_the_picture_where_it_projects(tmp_path, box_with_icicles, t
     assert diff[mask].mean() > 3 * diff[~mask].mean()
 
 
+@pytest.mark.slow  # renders
 def test_deferred_povray_files_are_whole_when_the_render_returns(tmp_path, box_with_icicles, tiny_config):
     box, ice = box_with_icicles()
     config = tiny_config()
@@ -173,6 +176,7 @@ def test_sample_passes_split_spp_without_losing_any(pixels, spp, budget, expecte
         sample_passes(0, 4)
 
 
+@pytest.mark.slow  # renders
 def test_render_in_passes_matches_one_pass(tmp_path, monkeypatch, box_with_icicles, tiny_config, assert_not_blank):
     """Passes with their own seeds average to the same picture as one pass (up to noise)."""
     import icefarm.scene.render as render_module
@@ -218,6 +222,7 @@ def _ice_mask(camera, ice, width, height):
     return mask
 
 
+@pytest.mark.slow  # renders
 def test_impurity_clouds_the_ice_and_impurity_zero_is_clear(tmp_path, box_with_icicles, tiny_config, assert_not_blank):
     from icefarm.scene.variants import pick_variant
 

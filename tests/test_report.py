@@ -167,6 +167,7 @@ def test_table2_rows_keep_the_papers_drip_points_and_the_jobs_ground():
     assert p["proxy"]["mode"] == "never" and p["drips"]["ground_clearance"] > 0 and p["drips"]["count"] == 20
 
 
+@pytest.mark.slow  # reads ../shared/meshes
 def test_table2_smoke_two_rows_reduced(tmp_path, shared_mesh):
     """Rows a (cow) and g (generated house) at 5 % size, one run each: the command cannot rot."""
     pytest.importorskip("icefarm.stages.surface")

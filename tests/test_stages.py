@@ -65,7 +65,6 @@ def test_spill_levels_are_the_lowest_pass_to_an_outlet():
     assert np.isinf(spill_levels(heights, edges[:1], outlets)[2])  # cut off from every outlet
 
 
-@pytest.mark.slow
 def test_a_full_cup_spills_its_depth_over_its_rim():
     mesh = cup()
     supply = mesh.vertex_normals @ G < -0.5  # rain on everything facing up
@@ -264,7 +263,7 @@ def crossing_segments(mesh, traj) -> int:
     return int((np.linalg.norm(loc - a[ray], axis=1) < length[ray]).sum())
 
 
-@pytest.mark.slow
+@pytest.mark.slow  # reads ../shared/meshes
 @pytest.mark.parametrize("name", ["cow.obj", "teapot.obj", "stanford-bunny.obj"])
 def test_no_trajectory_enters_the_object(shared_mesh, name):
     mesh = prepare(shared_mesh(name), 0.3).mesh

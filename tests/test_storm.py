@@ -155,7 +155,7 @@ def test_branch_growth_survives_the_job_files(tmp_path):
     assert trajectories_from_json(path).growth(0.01) == pytest.approx([0.0625, 0.2])
 
 
-@pytest.mark.slow
+@pytest.mark.slow  # pure, but about 18 s: a table at its real size, meshed
 def test_a_garden_table_at_its_real_size_carries_readable_ice():
     """Issue 23's figures on a real-size asset at every default (one job, no render)."""
     from icefarm.chain import unit_gravity
@@ -174,7 +174,7 @@ def test_a_garden_table_at_its_real_size_carries_readable_ice():
     assert np.nanmedian(taper) >= 3.0
 
 
-@pytest.mark.slow
+@pytest.mark.slow  # reads ../shared/meshes
 def test_the_bunny_at_3_m_gets_the_same_glaze_and_more_icicles_at_the_same_spacing(shared_mesh):
     from scipy.spatial import cKDTree
 
