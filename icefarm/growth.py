@@ -64,7 +64,7 @@ class FrameView:
     impurity : float
         The job's ``surface.impurity``.
     ground_level : float or None
-        As `icefarm.scene.render.write_scenes` takes it.
+        As `icefarm.scene.write.write_scenes` takes it.
     """
 
     object_mesh: trimesh.Trimesh
@@ -288,7 +288,8 @@ def render_frame(view: FrameView, ice: trimesh.Trimesh, scratch: Path, png: Path
     densest icicles of each frame: its camera would move), with Mitsuba when the config
     uses it (POV-Ray otherwise), at the config's resolution and samples.
     """
-    from .scene.render import render_job, write_scenes
+    from .scene.render import render_job
+    from .scene.write import write_scenes
 
     config = view.config
     main = dataclasses.replace(config.views[0], frame="all")

@@ -41,7 +41,8 @@ def render_again(job_dir: Path, render: str, out_dir: Path, progress: bool = Fal
     """
     from .scene.config import load_render_config
     from .scene.material import material_from_dict
-    from .scene.render import render_job, write_scenes
+    from .scene.render import render_job
+    from .scene.write import write_scenes
 
     job_dir, out_dir = Path(job_dir), Path(out_dir)
     job = read_job(job_dir)

@@ -11,7 +11,8 @@ from icefarm.errors import InputError
 from icefarm.scene.config import load_render_config, render_config_from_dict
 from icefarm.scene.denoise import denoise
 from icefarm.scene.images import read_image
-from icefarm.scene.render import render_job, write_scenes
+from icefarm.scene.render import render_job
+from icefarm.scene.write import write_scenes
 
 
 def _stripes(h=64, w=96):

@@ -27,7 +27,7 @@ from icefarm.cli import main
 from icefarm.pipeline import JobSpec, run_job
 from icefarm.scene.config import ABSORPTION_PER_M, render_config_from_dict
 from icefarm.scene.material import material_from_dict
-from icefarm.scene.render import write_scenes
+from icefarm.scene.write import write_scenes
 from icefarm.usd import up_axis, write_job_usd, write_usdz
 
 PLASTIC = material_from_dict({"type": "plastic", "color": (0.6, 0.1, 0.1), "roughness": 0.09})

@@ -8,7 +8,7 @@ import trimesh
 
 from icefarm.scene.camera import frame_view, world_frame
 from icefarm.scene.config import load_render_config, render_config_from_dict
-from icefarm.scene.render import write_scenes
+from icefarm.scene.write import write_scenes
 
 
 @pytest.mark.parametrize("gravity", [(0, -1, 0), (0, 0, -1), (1, 0, 0)])

@@ -17,7 +17,8 @@ from icefarm.errors import InputError
 from icefarm.scene import povray as pov
 from icefarm.scene.config import render_config_to_dict
 from icefarm.scene.images import read_image
-from icefarm.scene.render import render_job, write_scenes
+from icefarm.scene.render import render_job
+from icefarm.scene.write import write_scenes
 from icefarm.scene.variants import find_libllvm
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -14,7 +14,8 @@ import trimesh
 from icefarm.scene import povray as pov
 from icefarm.scene.config import load_render_config
 from icefarm.scene.images import read_image
-from icefarm.scene.render import render_job, write_scenes
+from icefarm.scene.render import render_job
+from icefarm.scene.write import write_scenes
 
 
 def test_scene_files_follow_the_contract(tmp_path, box_with_icicles, tiny_config):

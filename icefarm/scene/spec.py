@@ -1,6 +1,6 @@
 """``scene.json``: the rendered scene described once, for every writer that is not Mitsuba's.
 
-`icefarm.scene.render.write_scenes` writes it beside ``scene.xml`` from the same values
+`icefarm.scene.write.write_scenes` writes it beside ``scene.xml`` from the same values
 (cameras, views, sky, sun, ground, the ice's look, the object's material, gravity, the
 meshes' files); the USD and glTF exports (`icefarm.rendered.read_rendered`) read it instead
 of parsing ``scene.xml`` back. Values every writer shares (the sun's irradiance, the sky's

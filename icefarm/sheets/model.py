@@ -23,7 +23,7 @@ MIN_WIDTH = 640
 DEFAULT_ASPECT = 0.75  # cell height / width when no render can be read
 WRAP_AFTER = 8  # a one-parameter sweep longer than this wraps into a grid
 ICE_VIEW_BELOW_PX = 4.0  # icicles narrower than this in a cell: show the job's ice view there
-VIEWS_FILE = "views.json"  # written beside the renders (icefarm.scene.render.VIEWS_FILE)
+VIEWS_FILE = "views.json"  # written beside the renders (icefarm.scene.write.VIEWS_FILE)
 # fit's filter: no negative lobes (no ringing around highlights, no negative linear values)
 # and 4x faster than its default lanczos3 (40 ms against 170 ms for 320x240 into 160x120).
 FIT_FILTER = "blackman-harris"

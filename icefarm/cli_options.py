@@ -1,0 +1,40 @@
+"""Command-line values made into icefarm's: ``--set`` assignments, ``--exclude`` boxes, output folders."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from . import params
+from .errors import InputError
+
+
+def writable_folder(out: str | Path) -> Path:
+    """``out``, created when missing; refused in one line when it cannot be written."""
+    import tempfile
+
+    out = Path(out)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=out):
+            pass
+    except OSError as exc:
+        raise InputError(f"cannot write the output folder {out}: {exc.strerror or exc}") from None
+    return out
+
+
+def set_values(values: tuple[str, ...]) -> dict:
+    """``--set GROUP.PARAM=VALUE`` pairs as ``{"group.param": value}``."""
+    return dict(params.parse_assignment(v) for v in values)
+
+
+def exclusion_box(text: str):
+    """``--exclude``'s six numbers as a `icefarm.stages.drips.Box`."""
+    from .stages.drips import Box
+
+    try:
+        v = [float(x) for x in text.split(",")]
+    except ValueError:
+        v = []
+    if len(v) != 6:
+        raise InputError(f"--exclude takes xmin,ymin,zmin,xmax,ymax,zmax in meters, got {text!r}")
+    return Box(tuple(v[:3]), tuple(v[3:]))

@@ -1,0 +1,85 @@
+"""What ``icefarm run`` prints after a job: the storm, and the measures to judge its ice by."""
+
+from __future__ import annotations
+
+import statistics
+
+import click
+
+
+# A job whose icicles are fewer than this, or whose trunks are shorter than this (m), or whose
+# glaze is thinner than this (mm) reads as bare at lookdev: the run summary says so.
+FEW_ICICLES = 5
+SHORT_TRUNK_M = 0.01
+THIN_GLAZE_MM = 0.5
+
+
+def print_storm(timings: dict) -> None:
+    """What a physical storm did, and one warning line when it left almost nothing visible."""
+    kind = timings["storm_kind"].replace("_", " ")
+    icicles, per_m = timings.get("icicles", 0), timings.get("icicles_per_m", 0.0)
+    click.echo(f"  storm: {timings['storm_intensity']} {kind}, {timings['precipitation_mm']:.0f} mm of water: "
+               f"glaze {timings['storm_glaze_p50_mm']:.1f} mm (p50 where the rain lands); {icicles} icicles, "
+               f"{per_m:.0f} per m of drip rim ({timings.get('drip_rim_m', 0.0):.2f} m); the water: "
+               f"{100 * timings['water_frozen']:.0f} % glaze, {100 * timings['water_shed']:.0f} % dripped, "
+               f"{100 * timings['water_pooled']:.0f} % pooled")
+    lengths = timings.get("trunk_lengths_m") or []
+    longest = max([v for v in lengths if v is not None], default=0.0)
+    if icicles < FEW_ICICLES or (lengths and longest < SHORT_TRUNK_M):
+        size = "under 1 cm" if lengths and longest < SHORT_TRUNK_M else f"up to {100 * longest:.0f} cm"
+        what = "no icicles" if icicles == 0 else f"{icicles} icicles {size}"
+        click.echo(f"  warning: {what}: a {timings['storm_intensity']} storm on a small object or one with "
+                   "little rim; try storm.intensity=severe or a larger size_m")
+    elif timings["storm_glaze_p50_mm"] < THIN_GLAZE_MM:
+        click.echo(f"  warning: glaze {timings['storm_glaze_p50_mm']:.1f} mm: too thin to read; raise "
+                   "storm.precipitation or storm.freeze")
+
+
+def print_job_summary(timings: dict) -> None:
+    """The run's closing lines: trajectories, storm, ice, ground ice, curtains, tips and ripples, glaze,
+    the ground, and the icicles' shapes, each beside what real ones measure."""
+    if "upward_share" in timings:
+        share, spread, cv = (timings.get(k) for k in ("upward_share", "branch_spread_mm", "length_cv"))
+        click.echo(f"  trajectories: {'-' if share is None else f'{100 * share:.0f}'} % of segments upward "
+                   f"(real: 0); branches spread {'-' if spread is None else f'{spread:.0f}'} mm from their "
+                   f"parent; trunk lengths vary {'-' if cv is None else f'{100 * cv:.0f}'} % (std / mean)")
+    if "storm_kind" in timings:
+        print_storm(timings)
+    if "ice_faces" not in timings:
+        return
+    click.echo(f"  ice: {timings['ice_faces']} faces, {timings.get('icicles', 0)} icicles")
+    if "landing_points" in timings:
+        median, top = timings.get("stalagmite_median_mm"), timings.get("stalagmite_max_mm")
+        click.echo(f"  ground ice: {timings['landing_points']} landing points, {timings.get('stalagmites', 0)} "
+                   f"stalagmites ({timings.get('columns', 0)} columns)"
+                   + ("" if median is None else f", {median:.0f} mm high (median), {top:.0f} mm at most"))
+    if "curtain_area_m2" in timings:
+        click.echo(f"  curtains: {1e4 * timings['curtain_area_m2']:.0f} cm^2 of sheet between close icicles")
+    tip, amplitude, ripple = (timings.get(k) for k in ("tip_radius_mm", "ripple_amplitude_mm", "ripple_wavelength_cm"))
+    click.echo(f"  tip radius {'-' if tip is None else f'{tip:.2f}'} mm (real: 2.44 mm); ripples "
+               + ("none" if amplitude is None else f"{amplitude:.2f} mm deep, {ripple:.2f} cm apart")
+               + " (real: 0.5-1 mm, about 1 cm apart, where the water is impure)")
+    depth, corr, cv = (timings.get(k) for k in ("ripple_depth_mm", "ripple_correlation_3cm", "ripple_crest_cv"))
+    if depth is not None and corr is not None and cv is not None:
+        click.echo(f"  ripple texture on {timings.get('ripple_trunks', 0)} trunks of 10 cm and more: {depth:.2f} mm "
+                   f"deep, radius 3 cm apart correlates {corr:.2f}, crest spacing varies {cv:.2f} (CV) "
+                   "(natural: at most 0.6, and 0.1-0.35)")
+    coverage = timings.get("glaze_coverage")
+    if coverage is not None:
+        p10, p50, p90, ratio = (timings.get(k) for k in ("glaze_p10_mm", "glaze_p50_mm", "glaze_p90_mm",
+                                                        "glaze_top_bottom"))
+        click.echo(f"  glaze: covers {100 * coverage:.1f} % of the wet surface, "
+                   + ("-" if p50 is None else f"{p10:.1f} / {p50:.1f} / {p90:.1f} mm thick (p10/p50/p90)")
+                   + ("" if ratio is None else f", top/bottom {ratio:.2f}"))
+    gap = timings.get("ground_gap_mm")
+    if gap is not None:
+        click.echo(f"  ground: the object's lowest point {gap:.1f} mm above the ground plane"
+                   + (" (stands on it)" if timings.get("placement") == "ground" else " (hanging)"))
+    for key, what, real, fmt in (("taper", "taper (radius near the base / tip)", "a carrot: 3 and more", ".1f"),
+                                 ("growth_ratio", "growth ratio (base - tip diameter) / length",
+                                  "1/32-1/8, 0.03-0.13", ".3f"),
+                                 ("profile_exponent", "profile exponent n of r - tip ~ d^n", "3/4", ".2f")):
+        values = [v for v in timings.get(key) or [] if v is not None]  # None: too short to measure
+        if values:
+            click.echo(f"  {what}: median {statistics.median(values):{fmt}}, "
+                       f"range {min(values):{fmt}}-{max(values):{fmt}} (real: {real})")

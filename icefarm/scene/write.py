@@ -1,0 +1,274 @@
+"""Write a job's scenes: ``scene.xml`` (Mitsuba 3), ``scene.pov`` (POV-Ray 3.7) with its mesh
+includes, the meshes, the sky, ``scene.json`` (`icefarm.scene.spec`) and ``views.json``.
+
+`icefarm.scene.render` renders what is written here.
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import shutil
+import tempfile
+import time
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+from ..artifacts import write_mesh
+from . import camera as cam
+from . import geometry as geo
+from . import mitsuba as mx
+from . import povray as pov
+from .config import RenderConfig, ice_medium
+from .focus import ice_focus, pixel_size, surface_points, zoom_on_ice
+from .images import write_exr
+from .material import Material, material_from_dict
+from .sky import procedural_sky
+from .spec import SPEC_FILE, scene_spec, write_spec
+
+CREASE_ANGLE = 30.0  # degrees: sharper edges of the object stay sharp in shading
+VIEWS_FILE = "views.json"  # what each view shows and how wide its icicles are, for contact sheets
+
+
+def view_stem(index: int, prefix: str = "render") -> str:
+    """File stem of view ``index``: ``render`` for the main view, ``render_view<i>`` after."""
+    return prefix if index == 0 else f"{prefix}_view{index}"
+
+
+@dataclass(frozen=True)
+class SceneFiles:
+    """What `write_scenes` wrote into a job folder.
+
+    Attributes
+    ----------
+    xml, pov : Path
+        ``scene.xml`` (Mitsuba 3) and ``scene.pov`` (POV-Ray 3.7).
+    object_ply, ice_ply : Path
+        Meshes the XML names (``ice_ply`` None without ice).
+    sky : Path
+        Environment image.
+    cameras : tuple of Camera
+        One per view, the main view first.
+    icicle_px : tuple of (float or None)
+        Per view, how wide (pixels) the densest icicles are in it; None where not
+        measured (no ice view configured, or no icicles).
+    ground_height : float or None
+        Height of the ground plane along -gravity, meters (None: no ground).
+    seconds : float
+        Time taken to write everything written before `write_scenes` returned.
+    povray_writer : callable or None
+        Writes the POV-Ray files, when `write_scenes` was told to defer them: `render_job`
+        runs it in a thread once Mitsuba has loaded its scene, with the ice normals
+        Mitsuba computed (``ice_normals=``). None once they are written.
+    """
+
+    xml: Path
+    pov: Path
+    object_ply: Path
+    ice_ply: Path | None
+    sky: Path
+    cameras: tuple[cam.Camera, ...]
+    seconds: float
+    povray_writer: Callable[..., None] | None = None
+    icicle_px: tuple[float | None, ...] = ()
+    ground_height: float | None = None
+
+
+def _check_mesh(mesh: trimesh.Trimesh, what: str) -> None:
+    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
+        raise ValueError(f"{what} must be a trimesh.Trimesh with faces")
+    if not np.isfinite(mesh.vertices).all():
+        raise ValueError(f"{what} has non-finite vertices")
+
+
+@functools.lru_cache(maxsize=8)
+def _procedural_sky_exr(azimuth: float, elevation: float) -> bytes:
+    """The EXR file of a procedural sky, made once per process: every job of a sweep shares it."""
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "sky.exr"
+        write_exr(path, procedural_sky(512, 256, azimuth, elevation), half=True)
+        return path.read_bytes()
+
+
+def write_scenes(job_dir: str | Path, object_mesh: trimesh.Trimesh, ice_mesh: trimesh.Trimesh | None,
+                 config: RenderConfig, gravity: Sequence[float] = (0.0, -1.0, 0.0),
+                 object_material: Material | Mapping | None = None,
+                 frame_points: np.ndarray | None = None,
+                 defer_povray: bool = False, impurity: float = 0.0,
+                 ground_level: float | None = None) -> SceneFiles:
+    """Write ``object.ply``, ``scene.xml``, ``scene.pov`` (+ includes), the sky,
+    ``scene.json`` (the scene for every other writer, `icefarm.scene.spec`) and
+    ``views.json`` into ``job_dir``.
+
+    ``ice.ply`` is the pipeline's: it is written from ``ice_mesh`` only when missing.
+
+    Parameters
+    ----------
+    job_dir : path
+        The job folder (created if missing).
+    object_mesh : trimesh.Trimesh
+        The object in meters.
+    ice_mesh : trimesh.Trimesh or None
+        The ice in meters (watertight); None renders the object alone.
+    config : RenderConfig
+    gravity : (3,) float
+        Gravity direction: "up" is its opposite.
+    object_material : Material or mapping, optional
+        ``{type, color, roughness, metal}`` (see `material.material_from_dict`); diffuse clay by default.
+    frame_points : (n, 3) float, optional
+        What the cameras frame and the ground lies under; default the object's and the
+        ice's vertices. Pass the same points to every job of a sweep for identical cameras.
+    defer_povray : bool
+        Leave the POV-Ray files (``scene.pov``, ``object.inc``, ``ice.inc``: tens of
+        megabytes of text for million-face ice) to ``SceneFiles.povray_writer``, which
+        `render_job` runs alongside Mitsuba's render. Default: written before returning.
+    impurity : float
+        The job's ``surface.impurity`` in [0, 1]: the ice's scattering (its cloudy core)
+        is the config's ``ice.scattering`` times this; 0 gives clear ice.
+    ground_level : float, optional
+        Height (m, along minus gravity) of the ground plane: the lowest point of an
+        object standing on it. Default: just below the lowest framed point.
+
+    ``views.json`` lists each view: ``index``, ``name``, ``frame`` (``all`` or ``ice``),
+    ``stem`` (its image files' stem) and ``icicle_px``, the width in pixels of the
+    densest icicles in it (null where not measured).
+
+    Returns
+    -------
+    SceneFiles
+
+    Raises
+    ------
+    InputError
+        A bad material.
+    ValueError
+        Empty meshes, a zero gravity, an impurity outside [0, 1] or a ground level that
+        is not finite.
+    """
+    start = time.perf_counter()
+    medium = ice_medium(config.ice, impurity) if ice_mesh is not None else None
+    if ground_level is not None and not np.isfinite(ground_level):
+        raise ValueError(f"ground_level must be finite, got {ground_level!r}")
+    job_dir = Path(job_dir)
+    job_dir.mkdir(parents=True, exist_ok=True)
+    _check_mesh(object_mesh, "object_mesh")
+    if ice_mesh is not None:
+        _check_mesh(ice_mesh, "ice_mesh")
+    material = material_from_dict(object_material)
+    frame = cam.world_frame(gravity)
+    right, up, front = frame
+
+    # Sky: the configured image, or the procedural one; named by what it depends on.
+    env = config.environment
+    if env.sky == "procedural":
+        sky = job_dir / f"sky_az{env.sun_azimuth:g}_el{env.sun_elevation:g}.exr"
+        if not sky.is_file():
+            sky.write_bytes(_procedural_sky_exr(env.sun_azimuth, env.sun_elevation))
+    else:
+        src = Path(env.sky)
+        sky = job_dir / f"sky_{src.stem}{src.suffix.lower()}"
+        if not sky.is_file() or sky.stat().st_size != src.stat().st_size:
+            shutil.copyfile(src, sky)
+
+    # Cameras framed on object + ice, the ground under both.
+    if frame_points is not None:
+        points = np.asarray(frame_points, dtype=np.float64).reshape(-1, 3)
+        if len(points) == 0 or not np.isfinite(points).all():
+            raise ValueError("frame_points must be finite (n, 3) points, n > 0")
+    elif ice_mesh is None:
+        points = np.asarray(object_mesh.vertices)
+    else:
+        points = np.vstack([object_mesh.vertices, ice_mesh.vertices])
+    points = cam.framing_points(points)  # the hull's vertices frame the same, much faster
+    heights = points @ up
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    size = float(np.linalg.norm(hi - lo))
+    centre = (lo + hi) / 2
+    ground = None
+    if env.ground != "none":
+        level = heights.min() - 1e-4 * size if ground_level is None else float(ground_level)
+        ground_centre = centre + (level - centre @ up) * up
+        ground = mx.Ground(centre=ground_centre, half_size=15.0 * size, cell=size / 6, frame=frame)
+    ground_height = None if ground is None else float(ground.centre @ up)
+    cameras = [cam.frame_view(points, gravity, v.azimuth, v.elevation, config.width / config.height,
+                              fov_y=config.fov, ground=ground_height)
+               for v in config.views]
+    sun_dir = cam.direction(frame, env.sun_azimuth, env.sun_elevation)
+
+    # Views of the ice: the same camera turned and zoomed onto the densest icicles.
+    focus = None
+    if ice_mesh is not None and any(v.frame == "ice" for v in config.views):
+        focus = ice_focus(ice_mesh.vertices, ice_mesh.faces, surface_points(object_mesh), frame, size)
+    icicle_px: list[float | None] = [None] * len(cameras)
+    if focus is not None:
+        for i, v in enumerate(config.views):
+            if v.frame == "ice":
+                cameras[i] = zoom_on_ice(cameras[i], focus, config.width, config.height)
+        if focus.diameter:
+            # an ice view at the icicles it aims at (its target lies at their depth); others
+            # at the middle of all the icicles
+            spot = np.median(focus.points, axis=0)
+            icicle_px = [round(focus.diameter / pixel_size(c, c.target if v.frame == "ice" else spot,
+                                                           config.width), 2)
+                         for c, v in zip(cameras, config.views)]
+    cameras = tuple(cameras)
+
+    # Geometry: the object smooth with its creases kept; the ice as the pipeline wrote it.
+    obj_v, obj_n, obj_f = geo.crease_split(object_mesh, CREASE_ANGLE)
+    # Inward winding would make refraction run inside out.
+    ice_flip = ice_mesh is not None and geo.winds_inward(ice_mesh.vertices, ice_mesh.faces)
+    pov_file = job_dir / "scene.pov"
+    write_pov = functools.partial(
+        _write_povray, job_dir, pov_file, (obj_v, obj_n, obj_f), ice_mesh, ice_flip,
+        pov.scene_pov(config, cameras, frame, object_inc="object.inc",
+                      ice_inc=None if ice_mesh is None else "ice.inc", sky_file=sky.name,
+                      sun_dir=sun_dir, ground=ground, material=material, medium=medium))
+    if not defer_povray:
+        write_pov()
+
+    object_ply = job_dir / "object.ply"
+    geo.write_ply(object_ply, obj_v, obj_f, obj_n)
+    ice_ply = None
+    if ice_mesh is not None:
+        ice_ply = job_dir / "ice.ply"
+        if not ice_ply.is_file():  # as the pipeline writes it
+            write_mesh(ice_ply, ice_mesh)
+    xml = job_dir / "scene.xml"
+    xml.write_text(mx.scene_xml(config, cameras, frame, object_ply=object_ply.name,
+                                ice_ply=None if ice_ply is None else ice_ply.name, ice_flip=ice_flip,
+                                sky_file=sky.name, sun_dir=sun_dir, ground=ground, material=material,
+                                medium=medium))
+    write_spec(job_dir / SPEC_FILE, scene_spec(
+        config, cameras, frame, gravity=gravity, object_ply=object_ply.name,
+        ice_ply=None if ice_ply is None else ice_ply.name, ice_flip=ice_flip, sky_file=sky.name, sun_dir=sun_dir,
+        ground=ground, material=material, medium=medium))
+    (job_dir / VIEWS_FILE).write_text(json.dumps([
+        {"index": i, "name": v.name, "frame": v.frame, "stem": view_stem(i), "icicle_px": icicle_px[i]}
+        for i, v in enumerate(config.views)], indent=1) + "\n")
+    return SceneFiles(xml=xml, pov=pov_file, object_ply=object_ply, ice_ply=ice_ply, sky=sky,
+                      cameras=cameras, seconds=time.perf_counter() - start,
+                      povray_writer=write_pov if defer_povray else None, icicle_px=tuple(icicle_px),
+                      ground_height=ground_height)
+
+
+def _write_povray(job_dir: Path, pov_file: Path, object_geometry: tuple[np.ndarray, ...],
+                  ice_mesh: trimesh.Trimesh | None, ice_flip: bool,
+                  text: str, ice_normals: np.ndarray | None = None) -> None:
+    """``object.inc``, ``ice.inc`` and then ``scene.pov``: its presence means the includes are whole.
+
+    ``ice_normals`` ``(n, 3)``: the ice's vertex normals as Mitsuba computed them on load,
+    so nothing is computed twice; without them, `geometry.smooth_normals` computes the
+    same angle-weighted normals.
+    """
+    obj_v, obj_n, obj_f = object_geometry
+    pov.write_mesh2(job_dir / "object.inc", "Object_Mesh", obj_v, obj_n, obj_f)
+    if ice_mesh is not None:
+        if ice_normals is None or len(ice_normals) != len(ice_mesh.vertices):
+            ice_normals = geo.smooth_normals(ice_mesh.vertices, ice_mesh.faces)
+        normals = ice_normals * (-1.0 if ice_flip else 1.0)
+        pov.write_mesh2(job_dir / "ice.inc", "Ice_Mesh", ice_mesh.vertices, normals, ice_mesh.faces, inside=True)
+    pov_file.write_text(text)
