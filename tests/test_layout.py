@@ -112,6 +112,20 @@ def test_no_module_of_icefarm_imports_itself_back():
     assert not rings, "modules that import one another: " + "; ".join(rings)
 
 
+def test_packages_import_downward_only():
+    """Each subpackage (``stages``, ``scene``, ``farm``, ...) and each top-level module taken as
+    one unit: no two units import each other, directly or around a ring."""
+    units: dict[str, set[str]] = {}
+    for module, imported in import_graph(PACKAGE_DIR).items():
+        unit = ".".join(module.split(".")[:2])
+        units.setdefault(unit, set()).update(".".join(m.split(".")[:2]) for m in imported)
+    for unit, imported in units.items():
+        imported.discard(unit)
+    assert {"icefarm.stages", "icefarm.scene", "icefarm.farm", "icefarm.sheets", "icefarm.cli"} <= set(units)
+    rings = [" <-> ".join(sorted(ring)) for ring in cycles(units)]
+    assert not rings, "packages that import one another: " + "; ".join(rings)
+
+
 def test_a_cycle_through_an_import_inside_a_function_is_found(tmp_path):
     pkg = tmp_path / "pkg"
     (pkg / "sub").mkdir(parents=True)
