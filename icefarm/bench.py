@@ -16,6 +16,7 @@ import trimesh
 from .chain import Stage, run_stages
 from .jobdir import JobState, read_job
 from .mesh import prepare
+from .params import Params
 
 
 @dataclass(frozen=True)
@@ -27,7 +28,7 @@ class StageRuns:
     ice_faces_runs: tuple = ()  # ice faces of each run (surface timed only)
 
 
-def stage_timings(mesh_path: str | Path | trimesh.Trimesh, size_m: float, p: dict, repeat: int,
+def stage_timings(mesh_path: str | Path | trimesh.Trimesh, size_m: float, p: Params, repeat: int,
                   surface: bool = False, on_run: Callable[[], None] | None = None,
                   exclude: tuple = (), placement: str = "ground") -> StageRuns:
     """Time the stages as a job runs them (`icefarm.chain.run_stages`), ``repeat`` times.
@@ -40,7 +41,7 @@ def stage_timings(mesh_path: str | Path | trimesh.Trimesh, size_m: float, p: dic
     memory (see `icefarm.mesh.prepare`); ``on_run`` is called after each run (a progress
     bar's tick); ``exclude`` and ``placement`` are a job's.
     """
-    prepared = prepare(mesh_path, size_m, p["water"]["gravity"])
+    prepared = prepare(mesh_path, size_m, p.water.gravity)
     seconds: dict[str, list[float]] = {}
     icicles = ice_faces = 0
     ice_faces_runs: list[int] = []
@@ -191,16 +192,16 @@ class GrowthRuns:
     growth: float
 
 
-def growth_timings(mesh: str, size_m: float, p: dict, render_config: str | None, frames: int,
+def growth_timings(mesh: str, size_m: float, p: Params, render_config: str | None, frames: int,
                    seed: int = 0) -> GrowthRuns:
     """Run one job with ``frames`` growth frames in a scratch folder and time its frames
-    against the job's own stage 4 and render (``p`` is `icefarm.params.resolve` output)."""
+    against the job's own stage 4 and render (``p``: the resolved parameters)."""
     from .growth import read_frames
     from .pipeline import GENERATOR_PREFIX, JobSpec, run_job
 
     if not mesh.startswith(GENERATOR_PREFIX):
         mesh = str(Path(mesh).resolve())
-    p = {**p, "growth": {**p["growth"], "frames": frames}}
+    p = p.updated({"growth.frames": frames})
     spec = JobSpec(object_id=Path(mesh).stem, mesh=mesh, size_m=size_m, params=p, seed=seed, render=render_config)
     with tempfile.TemporaryDirectory(prefix="icefarm-bench-") as tmp:
         outcome = run_job(spec, Path(tmp))

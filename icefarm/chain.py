@@ -31,7 +31,7 @@ from .stages.trajectories import TrajectoryResult, grow_trajectories
 from .stages.icicle_size import growth_ratios, icicle_lengths, thickening_m
 from .stages.storm import refine, storm_water
 from .stages.water import WaterResult, compute_water
-from .params import typed
+from .params import GlazeParams, Params
 
 
 class Stage(enum.Enum):
@@ -101,17 +101,11 @@ def stops(until: Stage | None, stage: Stage) -> bool:
     return until is not None and STAGE_ORDER.index(stage) >= STAGE_ORDER.index(until)
 
 
-def unit_gravity(params: Mapping) -> np.ndarray:
-    """``water.gravity`` as a unit vector ``(3,)``."""
-    g = np.asarray(params["water"]["gravity"], dtype=np.float64)
-    return g / np.linalg.norm(g)
-
-
 def _plain(name: str, key: str | None, work: Work) -> Any:
     return work()
 
 
-def run_stages(prepared: PreparedMesh, params: Mapping, seed: int = 0, *, placement: str = "ground",
+def run_stages(prepared: PreparedMesh, params: Params, seed: int = 0, *, placement: str = "ground",
                exclude: tuple = (), overrides: Mapping[str, str | Path] | None = None,
                source: Callable[[], trimesh.Trimesh | None] | None = None, until: Stage | None = None,
                mesh_key: str = "", step: Step = _plain,
@@ -124,7 +118,7 @@ def run_stages(prepared: PreparedMesh, params: Mapping, seed: int = 0, *, placem
     prepared : PreparedMesh
         The object, cleaned and in meters (`icefarm.mesh.prepare`).
     params : mapping
-        `icefarm.params.resolve` output.
+        Resolved once (`icefarm.params.resolve`).
     seed : int
         Each stage draws from its own stream of this seed (`stage_rng`).
     placement : {"ground", "hanging"}
@@ -162,7 +156,7 @@ def run_stages(prepared: PreparedMesh, params: Mapping, seed: int = 0, *, placem
 
 def _run(prepared, p, seed, placement, exclude, overrides, source, until, mesh_key, step, on_stage, note):
     obj = prepared.mesh
-    gravity = unit_gravity(p)
+    gravity = p.gravity
     casters: dict[int, Callable] = {}
 
     def caster(mesh: trimesh.Trimesh) -> Callable:
@@ -188,34 +182,34 @@ def _run(prepared, p, seed, placement, exclude, overrides, source, until, mesh_k
 
     # The approximate surface stages 1-2 run on, for problem meshes (paper 5.1).
     proxy_key = "none"
-    if p["proxy"]["mode"] != "never":
+    if p.proxy.mode != "never":
         from .proxy import build_proxy, proxy_reason
 
-        reason = proxy_reason(prepared.problems, p["proxy"]["mode"], p["proxy"]["face_budget"])
+        reason = proxy_reason(prepared.problems, p.proxy.mode, p.proxy.face_budget)
         if reason:
-            proxy_key = digest(mesh_key, p["proxy"])
+            proxy_key = digest(mesh_key, p.proxy)
             results = dataclasses.replace(results, proxy_reason=reason)
-            proxy = advance("proxy", proxy_key, lambda: build_proxy(obj, p["proxy"], prepared.problems), "proxy")
+            proxy = advance("proxy", proxy_key, lambda: build_proxy(obj, p.proxy, prepared.problems), "proxy")
             results = dataclasses.replace(results, flow=proxy.mesh)
-    storm = typed("storm", p["storm"])
+    storm = p.storm
     physical = storm.mode == "physical"
     if physical and storm.flow_edge > 0 and results.flow.edges_unique_length.max() > storm.flow_edge:
         # Large flat faces (box-modelled assets) carry no water from their middle to their rims.
         results = dataclasses.replace(results, flow=refine(results.flow, storm.flow_edge))
     flow = results.flow
 
-    water_key = digest(mesh_key, proxy_key, p["water"], seed, override_digest("water"),
-                       *((p["storm"], p["glaze"]["lifetime"], p["drips"]["drip_limit"]) if physical else ()))
+    water_key = digest(mesh_key, proxy_key, p.water, seed, override_digest("water"),
+                       *((p.storm, p.glaze.lifetime, p.drips.drip_limit) if physical else ()))
 
     def water_stage() -> WaterResult:
         if physical:
-            result = storm_water(flow, gravity, storm, lifetime=p["glaze"]["lifetime"],
-                                 drip_limit=p["drips"]["drip_limit"], cast=caster(flow),
+            result = storm_water(flow, gravity, storm, lifetime=p.glaze.lifetime,
+                                 drip_limit=p.drips.drip_limit, cast=caster(flow),
                                  source=source() if source else None)
         else:
-            result = compute_water(flow, gravity, p["water"]["rays"], p["water"]["influence_radius"],
+            result = compute_water(flow, gravity, p.water.rays, p.water.influence_radius,
                                    stage_rng(seed, Stage.WATER), source() if source else None, caster(flow),
-                                   pools=p["water"]["pools"])
+                                   pools=p.water.pools)
         if "water" in overrides:  # painted water replaces the coefficients, keeps the walks
             supply, water = artifacts.read_water_ply(Path(overrides["water"]), len(flow.vertices))
             # Painted water replaces the storm too: drips and glaze follow the paint (relative).
@@ -226,34 +220,34 @@ def _run(prepared, p, seed, placement, exclude, overrides, source, until, mesh_k
     if stops(until, Stage.WATER):
         return results
 
-    drips_key = digest(water_key, p["drips"], exclude, placement, p["trajectories"]["length_scale"],
+    drips_key = digest(water_key, p.drips, exclude, placement, p.trajectories.length_scale,
                        override_digest("drips"),
-                       *((p["surface"]["tip_radius"], p["surface"]["growth_ratio"], p["surface"]["profile"])
+                       *((p.surface.tip_radius, p.surface.growth_ratio, p.surface.profile)
                          if physical else ()))
 
     def drips_stage() -> DripResult:
         if "drips" in overrides:
             return artifacts.drips_from_json(Path(overrides["drips"]))
-        d = p["drips"]
+        d = p.drips
         heights = flow.vertices @ -gravity
-        grounded = heights < heights.min() + d["ground_clearance"] * np.ptp(heights)
+        grounded = heights < heights.min() + d.ground_clearance * np.ptp(heights)
         if physical and placement != Placement.GROUND.value:
             grounded[:] = False  # a hanging sign's lowest rim is where it drips, not where it stands
-        kl = p["trajectories"]["length_scale"]
+        kl = p.trajectories.length_scale
         shed = to_water = None
         if physical and water.storm is not None:
             shed = water.storm.shed
-            to_water = lambda volume: icicle_lengths(volume, storm, p["surface"]) / kl  # noqa: E731
-        found = find_drips(flow, water.water, gravity, storm.max_icicles if physical else d["count"],
-                           d["drip_limit"], stage_rng(seed, Stage.DRIPS),
-                           exclude_boxes=exclude, exclude_vertices=grounded if d["ground_clearance"] > 0 else None,
-                           caster=caster(flow), spacing=d["spacing"], distribution=d["distribution"],
-                           min_fall=d["min_fall"], floor=ground_level(placement, obj, gravity),
-                           min_water=d["min_length"] / kl, shed=shed, to_water=to_water)
+            to_water = lambda volume: icicle_lengths(volume, storm, p.surface) / kl  # noqa: E731
+        found = find_drips(flow, water.water, gravity, storm.max_icicles if physical else d.count,
+                           d.drip_limit, stage_rng(seed, Stage.DRIPS),
+                           exclude_boxes=exclude, exclude_vertices=grounded if d.ground_clearance > 0 else None,
+                           caster=caster(flow), spacing=d.spacing, distribution=d.distribution,
+                           min_fall=d.min_fall, floor=ground_level(placement, obj, gravity),
+                           min_water=d.min_length / kl, shed=shed, to_water=to_water)
         if shed is not None and len(found.positions):
             # Each icicle thickens as the storm does, whatever its water; and the glaze at the
             # rim swallows its first centimetres: it hangs its length below the ice.
-            growth = growth_ratios(found.water * kl, thickening_m(storm), p["surface"]["growth_ratio"])
+            growth = growth_ratios(found.water * kl, thickening_m(storm), p.surface.growth_ratio)
             coat = water.storm.ice[flow.faces[found.faces]].max(axis=1)
             found = dataclasses.replace(found, water=found.water + coat / kl, growth=growth)
         if flow is obj:
@@ -269,8 +263,8 @@ def _run(prepared, p, seed, placement, exclude, overrides, source, until, mesh_k
         return results
 
     grounded = placement == Placement.GROUND.value
-    traj_key = digest(drips_key, p["trajectories"], p["drips"]["drip_limit"], placement,
-                      p["surface"]["tip_radius"] if grounded else None, override_digest("trajectories"))
+    traj_key = digest(drips_key, p.trajectories, p.drips.drip_limit, placement,
+                      p.surface.tip_radius if grounded else None, override_digest("trajectories"))
 
     def trajectory_stage() -> TrajectoryResult:
         if "trajectories" in overrides:
@@ -282,12 +276,12 @@ def _run(prepared, p, seed, placement, exclude, overrides, source, until, mesh_k
             lift = drips.normals if flow is not obj else np.where(
                 (drips.faces >= 0)[:, None], obj.face_normals[faces], drips.normals)
             result = grow_trajectories(obj, drips.positions, lift, drips.water, gravity,
-                                       stage_rng(seed, Stage.TRAJECTORIES), drip_limit=p["drips"]["drip_limit"],
-                                       caster=caster(obj), **p["trajectories"])
+                                       stage_rng(seed, Stage.TRAJECTORIES), drip_limit=p.drips.drip_limit,
+                                       caster=caster(obj), **dataclasses.asdict(p.trajectories))
         if drips.growth is not None and result.n_branches:
             result = dataclasses.replace(result, branch_growth=drips.growth[result.branch_icicle])
         if grounded:  # an icicle that reaches the ground stops at it
-            result = stop_at_ground(result, gravity, ground_height(obj.vertices, gravity), p["surface"]["tip_radius"])
+            result = stop_at_ground(result, gravity, ground_height(obj.vertices, gravity), p.surface.tip_radius)
         return result
 
     traj = advance("trajectories", traj_key, trajectory_stage, "trajectories")
@@ -295,39 +289,39 @@ def _run(prepared, p, seed, placement, exclude, overrides, source, until, mesh_k
         return results
 
     ground_balls, ground_key = None, None
-    gi = p["ground_ice"]
-    if gi["mode"] != "none":
+    gi = p.ground_ice
+    if gi.mode != "none":
         from .stages.landing import find_landings
         from .stages.surface.ground_ice import ground_ice_balls
 
         floor = ground_level(placement, obj, gravity)
-        landing_key = digest(traj_key, gi["runoff"], gi["merge"])
+        landing_key = digest(traj_key, gi.runoff, gi.merge)
         landing = advance("landing", landing_key, lambda: find_landings(
-            traj, drips.water, gravity, runoff=gi["runoff"], merge=gi["merge"], cast=caster(obj),
+            traj, drips.water, gravity, runoff=gi.runoff, merge=gi.merge, cast=caster(obj),
             face_normals=obj.face_normals, floor=floor), "landing")
         # Its own stream: the icicles, bases and glaze draw what they drew without it.
         ground = advance("ground_ice", None, lambda: ground_ice_balls(
-            landing, gi, p["surface"], gravity, stage_rng(seed, Stage.SURFACE, 1), cast=caster(obj), floor=floor),
+            landing, gi, p.surface, gravity, stage_rng(seed, Stage.SURFACE, 1), cast=caster(obj), floor=floor),
             "ground")
-        ground_balls, ground_key = ground.balls, digest(landing_key, gi, p["surface"])
+        ground_balls, ground_key = ground.balls, digest(landing_key, gi, p.surface)
 
-    surface_key = digest(traj_key, p["surface"], p["glaze"], ground_key)
+    surface_key = digest(traj_key, p.surface, p.glaze, ground_key)
     advance("surface", surface_key, lambda: build_surface(
         obj, flow, water, drips, traj, p, gravity, stage_rng(seed, Stage.SURFACE), placement=placement,
         cast=caster(flow), extra_balls=ground_balls, note=note), "ice")
     return results
 
 
-def sole(flow: trimesh.Trimesh, params: Mapping, gravity: np.ndarray, placement: str) -> np.ndarray | None:
+def sole(flow: trimesh.Trimesh, params: Params, gravity: np.ndarray, placement: str) -> np.ndarray | None:
     """``(n,) bool``: flow-mesh vertices a grounded object stands on (no ice there); None when hanging."""
-    clearance = params["drips"]["ground_clearance"]
+    clearance = params.drips.ground_clearance
     return (sole_vertices(flow.vertices, gravity, clearance)
             if placement == Placement.GROUND.value and clearance > 0 else None)
 
 
 def build_surface(obj: trimesh.Trimesh, flow: trimesh.Trimesh, water: WaterResult, drips: DripResult,
-                  traj: TrajectoryResult, params: Mapping, gravity: np.ndarray, rng: np.random.Generator, *,
-                  placement: str = "ground", glaze: Mapping | None = None, cast=None, extra_balls=None,
+                  traj: TrajectoryResult, params: Params, gravity: np.ndarray, rng: np.random.Generator, *,
+                  placement: str = "ground", glaze: GlazeParams | None = None, cast=None, extra_balls=None,
                   note=None):
     """Stage 4 as a job runs it (the sole kept dry, no measurements); growth frames pass
     their own drips, trajectories, ``glaze`` group and stream.
@@ -338,7 +332,7 @@ def build_surface(obj: trimesh.Trimesh, flow: trimesh.Trimesh, water: WaterResul
     """
     from .stages.surface import build_ice
 
-    ice = build_ice(obj, flow, water, drips, traj, params["surface"], params["glaze"] if glaze is None else glaze,
+    ice = build_ice(obj, flow, water, drips, traj, params.surface, params.glaze if glaze is None else glaze,
                     gravity, rng, exclude=sole(flow, params, gravity, placement), cast=cast, measure=False,
                     extra_balls=extra_balls, note=note)
     floor = ground_level(placement, obj, gravity)
@@ -354,7 +348,7 @@ def build_surface(obj: trimesh.Trimesh, flow: trimesh.Trimesh, water: WaterResul
     from .stages.surface.build import SLIVER
 
     # Flattening can squash the faces of a foot into slivers: clean them as stage 4 does.
-    tol = SLIVER * params["surface"]["voxel_size"]
+    tol = SLIVER * params.surface.voxel_size
     moved = below < 0  # only the faces at a flattened vertex can have become slivers
     vertices, faces = collapse_slivers(ice.vertices + below[:, None] * g, ice.faces, tol, near=moved)
     if len(vertices) != len(moved):  # renumbered: find the moved vertices again by height

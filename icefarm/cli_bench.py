@@ -83,8 +83,8 @@ def bench_proxy(mesh, size_m, repeat, assignments):
     from .proxy import build_proxy
 
     p = params.resolve({"proxy.mode": "always", **set_values(assignments)})
-    prepared = prepare(mesh, size_m, p["water"]["gravity"])
-    runs = [build_proxy(prepared.mesh, p["proxy"], prepared.problems) for _ in range(repeat)]
+    prepared = prepare(mesh, size_m, p.water.gravity)
+    runs = [build_proxy(prepared.mesh, p.proxy, prepared.problems) for _ in range(repeat)]
     click.echo(f"{mesh}: {prepared.problems.faces} faces, {prepared.problems.components} components")
     click.echo(f"  proxy: {runs[0].method.value}, {runs[0].faces} faces, {runs[0].components} component(s)")
     click.echo(f"  seconds: median {statistics.median(r.seconds for r in runs):.3f}, "

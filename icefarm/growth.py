@@ -26,7 +26,7 @@ import dataclasses
 import json
 import shutil
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -34,7 +34,7 @@ import numpy as np
 import trimesh
 
 from . import artifacts
-from .params import GlazeParams, SurfaceParams, typed
+from .params import GlazeParams, SurfaceParams
 from .scene.material import Material
 from .growth_usd import write_growth_usd
 from .stages.drips import DripResult
@@ -173,7 +173,7 @@ def trajectories_at(traj: TrajectoryResult, fraction: float) -> TrajectoryResult
                             branch_parent=traj.branch_parent, branch_cut=cut, branch_growth=traj.branch_growth)
 
 
-def stage4_inputs_at(drips: DripResult, glaze: GlazeParams | Mapping,
+def stage4_inputs_at(drips: DripResult, glaze: GlazeParams,
                      fraction: float) -> tuple[DripResult, GlazeParams]:
     """The water-driven sizes of stage 4 at ``fraction`` of the growth.
 
@@ -183,7 +183,6 @@ def stage4_inputs_at(drips: DripResult, glaze: GlazeParams | Mapping,
     then proportional to it). Positions, counts and the wet area do not change, so every
     random draw lands where the full growth's does. ``fraction`` 1 returns the inputs.
     """
-    glaze = typed("glaze", glaze)
     if fraction == 1.0:
         return drips, glaze
     scaled = dataclasses.replace(glaze, min_radius=glaze.min_radius * fraction, scale=glaze.scale * fraction)
@@ -197,8 +196,8 @@ def frame_fractions(frames: int) -> np.ndarray:
     return np.arange(1, frames + 1) / frames
 
 
-def grow_frames(folder: str | Path, traj: TrajectoryResult, drips: DripResult, surface: SurfaceParams | Mapping,
-                glaze: GlazeParams | Mapping, *,
+def grow_frames(folder: str | Path, traj: TrajectoryResult, drips: DripResult, surface: SurfaceParams,
+                glaze: GlazeParams, *,
                 frames: int, build: Callable, new_rng: Callable[[], np.random.Generator], gravity,
                 view: FrameView | None = None, progress: bool = False,
                 object_usd: str | Path | None = None, scene_usd: str | Path | None = None) -> GrowthResult:
@@ -211,7 +210,7 @@ def grow_frames(folder: str | Path, traj: TrajectoryResult, drips: DripResult, s
         ``growth.mp4`` with a ``view``, ``growth.usda``, ``frames.json``.
     traj, drips : TrajectoryResult, DripResult
         The job's stages 2-3 at full growth.
-    surface, glaze : SurfaceParams, GlazeParams or mapping
+    surface, glaze : SurfaceParams, GlazeParams
         The resolved ``surface`` and ``glaze`` groups.
     frames : int
         In [1, `MAX_FRAMES`].
@@ -230,8 +229,6 @@ def grow_frames(folder: str | Path, traj: TrajectoryResult, drips: DripResult, s
         The job's ``scene.usda``: ``growth.usda`` takes its materials, ground, cameras and
         lights when it exists.
     """
-    surface = typed("surface", surface)
-    glaze = typed("glaze", glaze)
     from tqdm import tqdm
 
     from .stages.surface.measure import measure_icicles

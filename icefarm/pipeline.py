@@ -23,8 +23,9 @@ from . import artifacts
 from .errors import InputError
 from .geometry import ray_caster
 from .jobdir import DONE, ERROR, PARAMS, TIMINGS, JobState
-from .chain import Stage, StageResults, build_surface, run_stages, sole, stage_rng, stops, unit_gravity
+from .chain import Stage, StageResults, build_surface, run_stages, sole, stage_rng, stops
 from .mesh import PreparedMesh, prepare
+from .params import Params, StormParams, SurfaceParams
 from .placement import ground_height, ground_level
 from .progress import ProgressMode, StepProgress, step_progress
 from .scene.camera import frame_boxes
@@ -41,8 +42,8 @@ from .stages.trajectory_stats import measure_trajectories
 class JobSpec:
     """Everything that defines one job; its hash is the job id.
 
-    ``mesh`` is an absolute path or ``generator:NAME``; ``params`` is
-    `icefarm.params.resolve` output; ``exclude`` holds `Box` es (meters, the object's
+    ``mesh`` is an absolute path or ``generator:NAME``; ``params`` are resolved
+    (`icefarm.params.resolve`); ``exclude`` holds `Box` es (meters, the object's
     frame) where no icicle hangs; ``overrides`` pairs a stage name with a file that
     replaces its result; ``render`` is a render config name or path, None for no render;
     ``material`` the object's (None: the default); ``placement`` is ``ground`` (the object
@@ -52,7 +53,7 @@ class JobSpec:
     object_id: str
     mesh: str
     size_m: float | None  # None: the size the mesh carries (USD, glTF, a real-size generator)
-    params: dict
+    params: Params
     seed: int = 0
     render: str | None = None
     exclude: tuple[Box, ...] = ()
@@ -96,7 +97,7 @@ def job_id(spec: JobSpec) -> str:
 
 def load_object(spec: JobSpec) -> PreparedMesh:
     """The job's mesh, cleaned and in meters (without ``size_m``: at the size it carries)."""
-    gravity = spec.params["water"]["gravity"]
+    gravity = spec.params.water.gravity
     if spec.mesh.startswith(GENERATOR_PREFIX):
         from .generators import generate, natural_size
 
@@ -110,7 +111,7 @@ def load_object(spec: JobSpec) -> PreparedMesh:
 
 def _load_source(spec: JobSpec, prepared: PreparedMesh) -> trimesh.Trimesh | None:
     """The rain source surface, in the object's frame (same scale and offset)."""
-    source = spec.params["water"]["source"]
+    source = spec.params.water.source
     if source == "auto":
         return None
     path = Path(source)
@@ -182,15 +183,15 @@ def run_job(spec: JobSpec, job_dir: Path, cache_dir: Path | None = None,
     return JobOutcome(JobState.DONE, dict(run.seconds), tuple(cache.reused))
 
 
-def _storm_stats(storm, group: dict) -> dict:
+def _storm_stats(storm, group: StormParams) -> dict:
     """What a physical storm did, for timings.json and the run summary: its kind, class and
     precipitation, the glaze's median thickness where the rain lands, and where the water went."""
     from .stages.storm import precipitation_m
 
     ice = storm.ice[storm.catch > 0]  # where the rain lands (films thinned by running are not the storm's glaze)
     caught = storm.budget.caught or 1.0
-    return {"storm_kind": group["kind"], "storm_intensity": group["intensity"],
-            "precipitation_mm": round(1000 * precipitation_m(group["intensity"], group["precipitation"]), 2),
+    return {"storm_kind": group.kind, "storm_intensity": group.intensity,
+            "precipitation_mm": round(1000 * precipitation_m(group.intensity, group.precipitation), 2),
             "storm_glaze_p50_mm": round(1000 * float(np.median(ice)), 2) if len(ice) else 0.0,
             "water_frozen": round(storm.budget.frozen / caught, 4), "water_shed": round(storm.budget.shed / caught, 4),
             "water_pooled": round(storm.budget.pooled / caught, 4)}
@@ -198,8 +199,8 @@ def _storm_stats(storm, group: dict) -> dict:
 
 def _run_stages(spec: JobSpec, job_dir: Path, run: _Run, cache: StageCache, until: Stage | None) -> dict:
     p = spec.params
-    gravity = unit_gravity(p)
-    artifacts.write_yaml(job_dir / PARAMS, p)
+    gravity = p.gravity
+    artifacts.write_yaml(job_dir / PARAMS, p.as_dict())
     prepared = run.timed("prepare", lambda: load_object(spec))
     stats: dict[str, Any] = {"input_faces": prepared.problems.faces, "problems": vars(prepared.problems),
                              "placement": spec.placement}
@@ -217,12 +218,12 @@ def _run_stages(spec: JobSpec, job_dir: Path, run: _Run, cache: StageCache, unti
             stats["flow_faces"] = len(r.flow.faces)
             artifacts.write_water_ply(job_dir / "water.ply", r.flow, r.water.supply, r.water.water)
             if r.water.storm is not None:
-                stats.update(_storm_stats(r.water.storm, p["storm"]))
+                stats.update(_storm_stats(r.water.storm, p.storm))
         elif name == "drips":
             artifacts.write_json(job_dir / "drips.json", artifacts.drips_to_json(r.drips))
             stats["icicles"] = len(r.drips.positions)
             if r.water.storm is not None:
-                rim = drip_rim_length(r.flow, r.drips.region_faces, gravity, p["drips"]["drip_limit"])
+                rim = drip_rim_length(r.flow, r.drips.region_faces, gravity, p.drips.drip_limit)
                 stats.update(drip_rim_m=round(rim, 4), icicles_per_m=round(len(r.drips.positions) / rim, 2) if rim else 0.0)
         elif name == "trajectories":
             artifacts.write_json(job_dir / "trajectories.json", artifacts.trajectories_to_json(r.trajectories))
@@ -244,11 +245,11 @@ def _run_stages(spec: JobSpec, job_dir: Path, run: _Run, cache: StageCache, unti
 
     results = run_stages(prepared, p, spec.seed, placement=spec.placement, exclude=spec.exclude,
                          overrides=dict(spec.overrides), source=lambda: _load_source(spec, prepared), until=until,
-                         mesh_key=_digest(mesh_digest(spec.mesh), spec.size_m, p["water"]["gravity"]),
+                         mesh_key=_digest(mesh_digest(spec.mesh), spec.size_m, p.water.gravity),
                          step=step, on_stage=on_stage, note=run.steps.note)
     if results.ice is not None:
         stats.update(_surface_and_render(spec, job_dir, run, until, results, gravity))
-        if p["growth"]["frames"] and until is None:  # growth/: stages 1-3 as they are, stage 4 per frame
+        if p.growth.frames and until is None:  # growth/: stages 1-3 as they are, stage 4 per frame
             stats.update(run.timed("growth", lambda: _growth(spec, job_dir, run, results, gravity)))
     return stats
 
@@ -264,9 +265,9 @@ def _surface_and_render(spec: JobSpec, job_dir: Path, run: _Run, until: Stage | 
     artifacts.write_mesh(job_dir / "ice.ply", ice_mesh)
     # Plausibility, measured on the mesh: timed apart from the modelling (Table 2 times that).
     m, glaze = run.timed("measure", lambda: (
-        measure_icicles(ice.vertices, ice.faces, r.trajectories, p["surface"]),
+        measure_icicles(ice.vertices, ice.faces, r.trajectories, p.surface),
         measure_glaze(ice.vertices, ice.faces, r.flow, r.water, gravity,
-                      exclude=_not_glaze(r.flow, r.drips, sole(r.flow, p, gravity, spec.placement), p["surface"]))))
+                      exclude=_not_glaze(r.flow, r.drips, sole(r.flow, p, gravity, spec.placement), p.surface))))
     stats = {
         "glaze_coverage": _finite(glaze.coverage), "glaze_p10_mm": _finite(glaze.p10_mm),
         "glaze_p50_mm": _finite(glaze.p50_mm), "glaze_p90_mm": _finite(glaze.p90_mm),
@@ -279,7 +280,7 @@ def _surface_and_render(spec: JobSpec, job_dir: Path, run: _Run, until: Stage | 
         "ripple_correlation_3cm": _finite(m.ripple_texture.correlation_3cm),
         "ripple_crest_cv": _finite(m.ripple_texture.crest_cv), "ripple_trunks": m.ripple_texture.trunks,
     }
-    if p["surface"]["curtain"] > 0:
+    if p.surface.curtain > 0:
         stats["curtain_area_m2"] = round(ice.curtain_area, 6)
     if spec.render is None or stops(until, Stage.SURFACE):
         return stats
@@ -293,7 +294,7 @@ def _surface_and_render(spec: JobSpec, job_dir: Path, run: _Run, until: Stage | 
     def render() -> Any:
         files = write_scenes(job_dir, obj, ice_mesh if len(ice.faces) else None, config, gravity, material,
                              frame_points=frame_boxes(obj, ice_mesh), defer_povray=True,
-                             impurity=p["surface"]["impurity"],  # impure water: a cloudy core
+                             impurity=p.surface.impurity,  # impure water: a cloudy core
                              ground_level=ground_level(spec.placement, obj, gravity))
         if files.ground_height is not None:  # 0 for a grounded object; a hanging one floats
             stats["ground_gap_mm"] = _finite((ground_height(obj.vertices, gravity) - files.ground_height) * 1000)
@@ -328,11 +329,11 @@ def _growth(spec: JobSpec, job_dir: Path, run: _Run, r: StageResults, gravity: n
 
         full = trimesh.load(job_dir / "ice.ply", process=False, force="mesh")
         view = FrameView(obj, load_render_config(spec.render), gravity, material_from_dict(spec.material),
-                         frame_boxes(obj, full), p["surface"]["impurity"], ground_level(spec.placement, obj, gravity))
+                         frame_boxes(obj, full), p.surface.impurity, ground_level(spec.placement, obj, gravity))
     cast = ray_caster(r.flow)
     extra_balls = r.ground.balls if r.ground is not None else None
     result = grow_frames(
-        job_dir / "growth", r.trajectories, r.drips, p["surface"], p["glaze"], frames=p["growth"]["frames"],
+        job_dir / "growth", r.trajectories, r.drips, p.surface, p.glaze, frames=p.growth.frames,
         build=lambda t, d, g, rng: build_surface(obj, r.flow, r.water, d, t, p, gravity, rng,
                                                  placement=spec.placement, glaze=g, cast=cast,
                                                  extra_balls=extra_balls),
@@ -341,14 +342,14 @@ def _growth(spec: JobSpec, job_dir: Path, run: _Run, r: StageResults, gravity: n
     return {"growth_frames": len(result.frames), "growth_seconds_per_frame": round(result.seconds_per_frame, 3)}
 
 
-def _not_glaze(flow: trimesh.Trimesh, drips: DripResult, sole: np.ndarray | None, surface: dict) -> np.ndarray:
+def _not_glaze(flow: trimesh.Trimesh, drips: DripResult, sole: np.ndarray | None, surface: SurfaceParams) -> np.ndarray:
     """Flow-mesh vertices whose ice is not glaze: the sole, and around each drip point the
     base and the icicle's root (within twice the base extent), which stand thicker."""
     out = np.zeros(len(flow.vertices), dtype=bool) if sole is None else sole.copy()
     if len(drips.positions):
         from scipy.spatial import cKDTree
 
-        out |= cKDTree(drips.positions).query(flow.vertices)[0] < 2 * max(surface["base_extent"], surface["tip_radius"])
+        out |= cKDTree(drips.positions).query(flow.vertices)[0] < 2 * max(surface.base_extent, surface.tip_radius)
     return out
 
 

@@ -32,7 +32,6 @@ from __future__ import annotations
 
 import enum
 import time
-from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -43,7 +42,7 @@ from .errors import InputError
 from .geometry import closest_point, signed_volume
 from .mesh import MeshProblems, detect_problems
 from .meshlab import current, meshset
-from .params import ProxyParams, typed
+from .params import ProxyParams
 
 MODES = ("auto", "always", "never")
 
@@ -313,7 +312,7 @@ def _fill_small_holes(mesh: trimesh.Trimesh, diag: float) -> trimesh.Trimesh | N
     return None if _problem_phrases(detect_problems(filled, self_intersections=True)) else filled
 
 
-def build_proxy(mesh: trimesh.Trimesh, proxy: ProxyParams | Mapping[str, Any],
+def build_proxy(mesh: trimesh.Trimesh, proxy: ProxyParams[str, Any],
                 problems: MeshProblems | None = None) -> ProxyResult:
     """Build the approximate surface stages 1-2 run on.
 
@@ -321,8 +320,8 @@ def build_proxy(mesh: trimesh.Trimesh, proxy: ProxyParams | Mapping[str, Any],
     ----------
     mesh : trimesh.Trimesh
         The prepared object, in meters.
-    proxy : ProxyParams or mapping
-        The ``proxy`` group (`icefarm.params.typed`; a mapping is validated here): ``face_budget`` (faces), ``alpha``, ``offset`` and
+    proxy : ProxyParams
+        The ``proxy`` group of the resolved parameters: ``face_budget`` (faces), ``alpha``, ``offset`` and
         ``edge_length`` (fractions of the bounding-box diagonal). Whether to build one at
         all is the caller's call (`proxy_reason`); ``mode: always`` wraps even a clean mesh.
     problems : MeshProblems, optional
@@ -341,7 +340,6 @@ def build_proxy(mesh: trimesh.Trimesh, proxy: ProxyParams | Mapping[str, Any],
         over `MAX_ALPHA` of the diagonal to stay within the face budget.
     """
     start = time.perf_counter()
-    proxy = typed("proxy", proxy)
     budget, alpha, offset, edge = proxy.face_budget, proxy.alpha, proxy.offset, proxy.edge_length
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
         raise InputError("the mesh has no faces to build an approximate surface from")

@@ -8,6 +8,7 @@ over surface parameters reuses stages 1-3 and a code change never reads stale re
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import hashlib
 import json
@@ -20,12 +21,19 @@ from .stage_codec import Unencodable, decode, encode
 
 
 def digest(*parts: Any) -> str:
-    """sha256 (hex) of ``parts``: bytes as they are, anything else as sorted JSON."""
+    """sha256 (hex) of ``parts``: bytes as they are, anything else as sorted JSON (a
+    parameter group as the mapping of its values, so keys do not depend on its type)."""
     h = hashlib.sha256()
     for part in parts:
-        h.update(part if isinstance(part, bytes) else json.dumps(part, sort_keys=True, default=str).encode())
+        h.update(part if isinstance(part, bytes) else json.dumps(part, sort_keys=True, default=_plain).encode())
         h.update(b"\0")
     return h.hexdigest()
+
+
+def _plain(value: Any) -> Any:
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        return dataclasses.asdict(value)
+    return str(value)
 
 
 def file_digest(path: str | Path) -> str:

@@ -164,7 +164,7 @@ def row_mesh(key: str, meshes_dir: Path | None, faces: int) -> trimesh.Trimesh:
 
 # --------------------------------------------------------------------------- measuring
 
-def _row_params(obj: RowObject, icicles: int, voxel_size: float) -> dict:
+def _row_params(obj: RowObject, icicles: int, voxel_size: float) -> params_mod.Params:
     # The glaze keeps the defaults' voxel ratio (4 mm : 1 mm), so calibration steers glaze rows too.
     defaults = params_mod.defaults()
     ratio = defaults["glaze"]["voxel_size"] / defaults["surface"]["voxel_size"]

@@ -59,7 +59,7 @@ def _groups(**changes):
     from icefarm import params
 
     p = params.resolve({k.replace("__", "."): v for k, v in changes.items()})
-    return p["surface"], p["glaze"]
+    return p.surface, p.glaze
 
 
 def _sphere(radius=0.15):

@@ -179,7 +179,7 @@ def test_manifest_size_m_is_optional_for_assets_with_units(stage, tmp_path, sphe
     assert post.size_m is None and post.params["water.gravity"] == [0.0, 0.0, -1.0]
     assert post2.size_m == 1.0 and post2.params["water.gravity"] == [0.0, -1.0, 0.0]  # set: kept
     assert table.size_m is None and "water.gravity" not in table.params
-    assert params.resolve(manifest.defaults, post.params)["water"]["gravity"] == [0.0, 0.0, -1.0]
+    assert params.resolve(manifest.defaults, post.params).water.gravity == (0.0, 0.0, -1.0)
 
     data["objects"].append({"id": "ball", "mesh": "ball.obj"})
     data["objects"].append({"id": "teapot", "mesh": "generator:teapot"})

@@ -113,7 +113,7 @@ def test_a_big_asset_meshes_fewer_faces_with_the_same_icicles_and_stays_watertig
     for error_px in (0.25, 0.0):
         p = params.resolve({"surface": {"error_px": error_px}})
         r = run_stages(prep, p, 0)
-        results[error_px] = r.ice, measure_icicles(r.ice.vertices, r.ice.faces, r.trajectories, p["surface"])
+        results[error_px] = r.ice, measure_icicles(r.ice.vertices, r.ice.faces, r.trajectories, p.surface)
     (budget, stats), (full, full_stats) = results[0.25], results[0.0]
     m = _closed(budget.vertices, budget.faces)
     assert len(budget.faces) < 0.6 * len(full.faces)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
@@ -123,7 +124,7 @@ def test_more_water_longer_icicles(wet_umbrella):
     assert 10 <= second.sum() <= 50
     assert drips.water[second].mean() > 1.5 * drips.water[~second].mean()
     traj = grow_trajectories(pair, drips.positions, drips.normals, drips.water, G, np.random.default_rng(0),
-                             drip_limit=75.0, **{**DEFAULTS["trajectories"], "curve_angle": 0.0,
+                             drip_limit=75.0, **{**dataclasses.asdict(DEFAULTS.trajectories), "curve_angle": 0.0,
                                                  "division_probability": 0.0})
     trunks = np.flatnonzero(traj.branch_parent == -1)
     length = np.array([np.linalg.norm(np.diff(traj.branch(b), axis=0), axis=1).sum() for b in trunks])
@@ -180,11 +181,11 @@ def table_boxes() -> list[trimesh.Trimesh]:
 def test_coarse_meshes_are_refined_and_dense_ones_left_alone(sphere):
     cylinder = trimesh.creation.cylinder(radius=0.3, height=0.1, sections=10)
     problems = detect_problems(cylinder)
-    assert "coarse" in proxy_reason(problems, "auto", DEFAULTS["proxy"]["face_budget"])
-    assert proxy_reason(problems, "never", DEFAULTS["proxy"]["face_budget"]) is None
-    assert proxy_reason(detect_problems(sphere), "auto", DEFAULTS["proxy"]["face_budget"]) is None
-    assert proxy_reason(detect_problems(generate("fountain")), "auto", DEFAULTS["proxy"]["face_budget"]) is None
-    proxy = build_proxy(cylinder, DEFAULTS["proxy"], problems)
+    assert "coarse" in proxy_reason(problems, "auto", DEFAULTS.proxy.face_budget)
+    assert proxy_reason(problems, "never", DEFAULTS.proxy.face_budget) is None
+    assert proxy_reason(detect_problems(sphere), "auto", DEFAULTS.proxy.face_budget) is None
+    assert proxy_reason(detect_problems(generate("fountain")), "auto", DEFAULTS.proxy.face_budget) is None
+    proxy = build_proxy(cylinder, DEFAULTS.proxy, problems)
     assert proxy.method is ProxyMethod.REFINE and proxy.mesh.is_watertight
     assert proxy.faces > 4 * len(cylinder.faces)
     # refining keeps the shape: every proxy vertex lies on the cylinder

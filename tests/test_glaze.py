@@ -25,7 +25,7 @@ BUNNY = Path(__file__).resolve().parents[1].parent / "shared" / "meshes" / "stan
 
 def _glaze(**changes):
     """The resolved glaze group with ``name=value`` changes."""
-    return params.resolve({f"glaze.{k}": v for k, v in changes.items()})["glaze"]
+    return params.resolve({f"glaze.{k}": v for k, v in changes.items()}).glaze
 
 
 def _by_height(mesh, wet):
@@ -125,8 +125,8 @@ def test_thickness_is_equation_3_on_a_flat_wet_plate():
         d, face = ray_caster(ice)(pts - 1e-4 * up, up)
         assert np.isfinite(d).all() and (ice.face_normals[face] @ -G > 0).all()  # leaving the ice
         expected = 0.001 + 0.02 * ((pts[:, 0] + 0.1) * lt + (0.1 - pts[:, 0]) * (1 - lt))
-        assert np.abs(d - 1e-4 - expected).max() <= glaze["voxel_size"]
-        assert np.abs(d - 1e-4 - expected).mean() <= 0.25 * glaze["voxel_size"]
+        assert np.abs(d - 1e-4 - expected).max() <= glaze.voxel_size
+        assert np.abs(d - 1e-4 - expected).mean() <= 0.25 * glaze.voxel_size
     assert np.allclose(glaze_thickness(water, glaze)[top], 0.001 + 0.02 * (x[top] * 1.0))
 
 
@@ -162,16 +162,16 @@ def test_excluded_vertices_get_no_ice():
 
 
 def test_legacy_zero_balls_means_no_glaze():
-    glaze = params.resolve({"glaze.balls": 0})["glaze"]
-    assert glaze["mode"] == "none" and "balls" not in glaze
-    assert params.resolve({"glaze": {"balls": 0}}, {"drips.count": 3})["glaze"]["mode"] == "none"
+    glaze = params.resolve({"glaze.balls": 0}).glaze
+    assert glaze.mode == "none" and not hasattr(glaze, "balls")
+    assert params.resolve({"glaze": {"balls": 0}}, {"drips.count": 3}).glaze.mode == "none"
     assert params.parse_assignment("glaze.balls=0") == ("glaze.balls", 0)
-    assert params.resolve({"glaze.balls": 0, "glaze.mode": "coat"})["glaze"]["mode"] == "coat"
+    assert params.resolve({"glaze.balls": 0, "glaze.mode": "coat"}).glaze.mode == "coat"
     with pytest.warns(FutureWarning, match="legacy"):
-        assert params.resolve({"glaze.balls": 5000})["glaze"]["mode"] == "coat"
+        assert params.resolve({"glaze.balls": 5000}).glaze.mode == "coat"
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        assert params.resolve()["glaze"]["mode"] == "coat"
+        assert params.resolve().glaze.mode == "coat"
     sphere = trimesh.creation.icosphere(subdivisions=3, radius=0.1)
     water = _by_height(sphere, np.ones(len(sphere.vertices), dtype=bool))
     assert glaze_field(sphere, water, glaze, np.random.default_rng(0)) is None

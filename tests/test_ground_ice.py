@@ -119,14 +119,14 @@ def test_no_stalagmite_passes_its_tip_and_the_close_ones_become_columns(eave_ici
     obj = _step()
     traj, water = eave_icicles
     land = _landings(obj, traj, water)
-    surface = _p(surface__voxel_size=0.0015)["surface"]
-    gi = {**params.defaults()["ground_ice"], "mode": "stalagmites", "height_scale": 2.5}
+    surface = _p(surface__voxel_size=0.0015).surface
+    gi = _p(ground_ice__mode="stalagmites", ground_ice__height_scale=2.5).ground_ice
     ice = ground_ice_balls(land, gi, surface, G, np.random.default_rng(0), cast=ray_caster(obj), floor=0.0)
     assert (ice.heights <= land.gaps + 1e-12).all()
     assert ice.columns.sum() == 3 and (~ice.columns & (ice.heights > 0)).sum() == 3
     assert np.allclose(ice.heights[ice.columns], land.gaps[ice.columns])
     assert ice.columns[~land.on_ground].all()  # the ledge's, 10 cm under its tip, with 15 cm of water
-    verts, faces = M.polygonize(ice.balls, surface["voxel_size"])
+    verts, faces = M.polygonize(ice.balls, surface.voxel_size)
     assert trimesh.Trimesh(verts, faces).is_watertight
     # On the mesh: the ice of each free stalagmite (alone: wide neighbours overlap) stops at
     # its height, under its tip.
@@ -134,11 +134,11 @@ def test_no_stalagmite_passes_its_tip_and_the_close_ones_become_columns(eave_ici
         one = dataclasses.replace(land, **{f: getattr(land, f)[k:k + 1] for f in
                                            ("positions", "normals", "water", "tips", "gaps", "icicles", "on_ground")})
         alone = ground_ice_balls(one, gi, surface, G, np.random.default_rng(0), cast=ray_caster(obj), floor=0.0)
-        verts, _ = M.polygonize(alone.balls, surface["voxel_size"])
+        verts, _ = M.polygonize(alone.balls, surface.voxel_size)
         rel = verts - land.positions[k]
         near = np.linalg.norm(rel - np.outer(rel @ UP, UP), axis=1) < STALAGMITE_TOP * TIP
         top = (rel[near] @ UP).max()
-        assert top == pytest.approx(ice.heights[k], abs=2 * surface["voxel_size"])
+        assert top == pytest.approx(ice.heights[k], abs=2 * surface.voxel_size)
         assert top < land.gaps[k] - TIP
     # A column is ice all the way up into the icicle's drop; a free one leaves the air under it.
     under_tip = land.tips - 1.5 * TIP * UP
@@ -155,10 +155,10 @@ def test_mounds_mode_spreads_caps_without_stalagmites(eave_icicles):
     obj = _step()
     traj, water = eave_icicles
     land = _landings(obj, traj, water)
-    gi = {**params.defaults()["ground_ice"], "mode": "mounds"}
-    ice = ground_ice_balls(land, gi, _p()["surface"], G, np.random.default_rng(0), cast=ray_caster(obj), floor=0.0)
+    gi = _p(ground_ice__mode="mounds").ground_ice
+    ice = ground_ice_balls(land, gi, _p().surface, G, np.random.default_rng(0), cast=ray_caster(obj), floor=0.0)
     assert len(ice.balls) > 0 and not ice.heights.any() and not ice.columns.any()
-    assert ice.mound_radius == pytest.approx(gi["spread"] * land.water) and ice.mound_radius.all()
+    assert ice.mound_radius == pytest.approx(gi.spread * land.water) and ice.mound_radius.all()
     # Caps stay low: within a quarter of their radius of the surface, above or below.
     centres = ice.balls.centers
     assert (centres @ UP).min() > -1e-9 and (centres @ UP).max() < 0.1 + 1e-6
@@ -167,16 +167,16 @@ def test_mounds_mode_spreads_caps_without_stalagmites(eave_icicles):
 def test_curtain_area_only_between_trunks_closer_than_the_curtain(surface_kit):
     starts = [[0.0, 0.3, 0.0], [0.025, 0.3, 0.0], [0.1, 0.3, 0.0]]
     traj = surface_kit.straight(starts, [0.12, 0.09, 0.12])
-    surface = _p(surface__growth_ratio=0.02, surface__voxel_size=0.0015)["surface"]
-    near = curtain_balls(traj, {**surface, "curtain": 0.03}, G)
+    surface = _p(surface__growth_ratio=0.02, surface__voxel_size=0.0015).surface
+    near = curtain_balls(traj, dataclasses.replace(surface, curtain=0.03), G)
     assert near.pairs == 1 and near.area > 0 and len(near.balls) > 0
     # About the span outside the trunks times the shorter reach, less the drape.
     assert near.area < 0.025 * 0.09
-    far = curtain_balls(traj, {**surface, "curtain": 0.02}, G)
+    far = curtain_balls(traj, dataclasses.replace(surface, curtain=0.02), G)
     assert far.pairs == 0 and far.area == 0 and len(far.balls) == 0
-    assert curtain_balls(traj, {**surface, "curtain": 0.0}, G).area == 0
+    assert curtain_balls(traj, dataclasses.replace(surface, curtain=0.0), G).area == 0
     # Neighbours only: with a reach over all three, the outer pair is left to the middle one.
-    assert curtain_balls(traj, {**surface, "curtain": 0.2}, G).pairs == 2
+    assert curtain_balls(traj, dataclasses.replace(surface, curtain=0.2), G).pairs == 2
 
 
 @pytest.fixture
@@ -184,7 +184,7 @@ def build(surface_kit):
     """``build(obj, traj, water, p, **kw)``: stage 4 on ``obj`` without glaze water, drips at the trunks' roots."""
 
     def ice(obj, traj, water, p, **kw):
-        return S.build_ice(obj, obj, surface_kit.dry(obj), _drips(obj, traj, water), traj, p["surface"], p["glaze"],
+        return S.build_ice(obj, obj, surface_kit.dry(obj), _drips(obj, traj, water), traj, p.surface, p.glaze,
                            G, np.random.default_rng(0), **kw)
 
     return ice
@@ -195,8 +195,8 @@ def test_ice_with_stalagmites_mounds_and_curtains_stays_one_watertight_mesh(eave
     traj, water = eave_icicles
     p = _p(surface__voxel_size=0.0015, surface__curtain=0.03, glaze__mode="none", surface__growth_ratio=0.03)
     land = _landings(obj, traj, water)
-    gi = {**p["ground_ice"], "mode": "stalagmites"}
-    ground = ground_ice_balls(land, gi, p["surface"], G, np.random.default_rng(1), cast=ray_caster(obj), floor=0.0)
+    gi = dataclasses.replace(p.ground_ice, mode="stalagmites")
+    ground = ground_ice_balls(land, gi, p.surface, G, np.random.default_rng(1), cast=ray_caster(obj), floor=0.0)
     ice = build(obj, traj, water, p, extra_balls=ground.balls)
     m = trimesh.Trimesh(ice.vertices, ice.faces, process=False)
     assert m.is_watertight and m.is_winding_consistent and m.volume > 0
@@ -210,9 +210,9 @@ def test_mode_none_and_no_curtain_leave_the_ice_exactly_unchanged(eave_icicles, 
     obj = _step()
     traj, water = eave_icicles
     p = _p(surface__voxel_size=0.002)
-    before = build(obj, traj, water, {**p, "surface": {k: v for k, v in p["surface"].items() if k != "curtain"}})
+    before = build(obj, traj, water, p.updated({"surface.curtain": params.defaults()["surface"]["curtain"]}))
     land = _landings(obj, traj, water)
-    none = ground_ice_balls(land, p["ground_ice"], p["surface"], G, np.random.default_rng(0))
+    none = ground_ice_balls(land, p.ground_ice, p.surface, G, np.random.default_rng(0))
     assert len(none.balls) == 0
     after = build(obj, traj, water, p, extra_balls=none.balls)
     assert np.array_equal(before.vertices, after.vertices) and np.array_equal(before.faces, after.faces)
@@ -221,7 +221,7 @@ def test_mode_none_and_no_curtain_leave_the_ice_exactly_unchanged(eave_icicles, 
 
 def test_parameters_are_declared_with_domains():
     p = params.resolve({})
-    assert p["ground_ice"]["mode"] == "none" and p["surface"]["curtain"] == 0.0
+    assert p.ground_ice.mode == "none" and p.surface.curtain == 0.0
     with pytest.raises(InputError, match="ground_ice.mode"):
         params.resolve({"ground_ice.mode": "pillars"})
     with pytest.raises(InputError, match="ground_ice.runoff"):

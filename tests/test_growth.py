@@ -78,11 +78,11 @@ def test_trajectories_at_grows_prefixes_from_nothing_to_the_whole(forked):
 
 def test_stage4_inputs_scale_the_water_driven_sizes():
     drips = DripResult(np.arange(3), np.zeros((2, 3)), np.ones((2, 3)), np.array([0.2, 0.4]), np.array([0, 1]))
-    glaze = P.resolve({"glaze.min_radius": 0.001})["glaze"]
+    glaze = P.resolve({"glaze.min_radius": 0.001}).glaze
     half, g = stage4_inputs_at(drips, glaze, 0.5)
     assert half.water == pytest.approx([0.1, 0.2]) and half.positions is drips.positions
-    assert g.min_radius == pytest.approx(0.0005) and g.scale == pytest.approx(glaze["scale"] / 2)
-    assert stage4_inputs_at(drips, glaze, 1.0) == (drips, P.typed("glaze", glaze))
+    assert g.min_radius == pytest.approx(0.0005) and g.scale == pytest.approx(glaze.scale / 2)
+    assert stage4_inputs_at(drips, glaze, 1.0) == (drips, glaze)
     assert frame_fractions(4)[-1] == 1.0 and len(frame_fractions(1)) == 1
 
 
@@ -90,7 +90,7 @@ def test_a_frame_stream_draws_for_the_bases_what_the_full_growth_draws(forked):
     """After the icicles' noise, every frame's stream stands where the full growth's does."""
     from icefarm.growth import _noise_draws
 
-    surface = P.typed("surface", P.resolve()["surface"])
+    surface = P.typed("surface", P.resolve().surface)
     states = []
     for f in (0.4, 0.7, 1.0):
         traj = trajectories_at(forked, f)
@@ -126,7 +126,7 @@ def test_each_frame_holds_the_one_before(grown):
         points = a.vertices[rng.choice(len(a.vertices), 1000, replace=False)]
         # inside the next frame, up to the icicles' noise (drawn anew for re-spaced balls)
         # and marching cubes
-        assert trimesh.proximity.signed_distance(b, points).min() > -(P.resolve()["surface"]["noise"] + VOXEL / 4)
+        assert trimesh.proximity.signed_distance(b, points).min() > -(P.resolve().surface.noise + VOXEL / 4)
     traj = trajectories_from_json(grown / "trajectories.json")
     frames = [trajectories_at(traj, r["fraction"]) for r in rows]
     assert all(_is_prefix(a, b) for a, b in zip(frames, frames[1:]))

@@ -63,7 +63,7 @@ def test_grounded_icicles_stop_at_the_ground_and_hanging_ones_do_not(tmp_path, p
     lowest = min(min(pt[1] for pt in b["points"]) for ic in icicles for b in ic["branches"] if b["points"])
     ground = -0.075  # the legs' feet: the stand is 0.15 m tall, centred on its bounding box
     if placement == "ground":
-        assert lowest >= ground + p["surface"]["tip_radius"] - 1e-9
+        assert lowest >= ground + p.surface.tip_radius - 1e-9
     else:
         assert lowest < ground  # long icicles hang past the feet
 

@@ -1,5 +1,6 @@
 """The approximate surface for problem meshes (paper 5.1): detection, build, snapping back."""
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -16,9 +17,9 @@ from icefarm.proxy import (ProxyMethod, boundary_loops, build_proxy, drop_voids,
 
 SHARED_MESHES = Path(__file__).resolve().parents[1].parent / "shared" / "meshes"
 SIZE_M = 0.3
-DEFAULTS = params.resolve()["proxy"]
+DEFAULTS = params.resolve().proxy
 # A coarser wrap keeps the suite fast; the snapping bound is checked at the defaults.
-FAST = {**DEFAULTS, "alpha": 0.02, "face_budget": 20000}
+FAST = dataclasses.replace(DEFAULTS, alpha=0.02, face_budget=20000)
 PROBLEM_MESHES = ["teapot.obj", "chair_model.obj", "soup.stl", "boxes"]
 
 
@@ -87,15 +88,15 @@ def built(problem_mesh):
 def test_reason_none_for_clean_cow_and_given_for_the_chair(shared_mesh):
     cow = prepare(shared_mesh("cow.obj"), SIZE_M).problems
     assert cow.self_intersections > 0  # folds of the cow cross a few faces: not a reason
-    assert proxy_reason(cow, "auto", DEFAULTS["face_budget"]) is None
-    assert proxy_reason(cow, "never", DEFAULTS["face_budget"]) is None
-    assert proxy_reason(cow, "always", DEFAULTS["face_budget"]) == "proxy.mode is always"
+    assert proxy_reason(cow, "auto", DEFAULTS.face_budget) is None
+    assert proxy_reason(cow, "never", DEFAULTS.face_budget) is None
+    assert proxy_reason(cow, "always", DEFAULTS.face_budget) == "proxy.mode is always"
     assert "faces over the budget of 1000" in proxy_reason(cow, "auto", 1000)
 
     chair = prepare(shared_mesh("chair_model.obj"), SIZE_M).problems
-    reason = proxy_reason(chair, "auto", DEFAULTS["face_budget"])
+    reason = proxy_reason(chair, "auto", DEFAULTS.face_budget)
     assert f"{chair.components} loose components" in reason and "non-manifold edges" in reason
-    assert proxy_reason(chair, "never", DEFAULTS["face_budget"]) is None
+    assert proxy_reason(chair, "never", DEFAULTS.face_budget) is None
 
 
 def test_detect_problems_of_intersecting_parts():
@@ -124,26 +125,26 @@ def test_problem_mesh_gets_one_watertight_wrap(built, problem_mesh, name):
     assert proxy.is_watertight and proxy.is_winding_consistent and proxy.volume > 0
     assert result.components == 1
     assert result.faces == len(proxy.faces)
-    assert 1000 <= result.faces <= FAST["face_budget"]
+    assert 1000 <= result.faces <= FAST.face_budget
     assert result.seconds > 0 and result.reason
     # Same frame as the input: the wrap encloses it, a little larger.
     assert np.all(proxy.bounds[0] <= mesh.bounds[0] + 1e-9)
     assert np.all(proxy.bounds[1] >= mesh.bounds[1] - 1e-9)
-    assert np.all(proxy.extents <= mesh.extents + 2 * FAST["offset"] * diagonal(mesh) * 1.01)
+    assert np.all(proxy.extents <= mesh.extents + 2 * FAST.offset * diagonal(mesh) * 1.01)
 
 
 @pytest.mark.slow  # reads ../shared/meshes
 def test_soup_wrap_is_coarsened_to_fit_the_budget(built, problem_mesh):
     result = built("soup.stl")
     assert "wrap alpha raised" in result.reason
-    assert result.alpha > FAST["alpha"] * diagonal(problem_mesh("soup.stl"))
+    assert result.alpha > FAST.alpha * diagonal(problem_mesh("soup.stl"))
 
 
 @pytest.mark.slow  # pure, but 3 s: a wrap at the default resolution
 def test_snapping_from_the_default_proxy_moves_points_less_than_one_percent():
     mesh = box_soup()
     result = build_proxy(mesh, DEFAULTS)
-    assert result.alpha == pytest.approx(DEFAULTS["alpha"] * diagonal(mesh))
+    assert result.alpha == pytest.approx(DEFAULTS.alpha * diagonal(mesh))
     points, _ = trimesh.sample.sample_surface(result.mesh, 2000, seed=3)
     snapped, normals, faces = snap_to_surface(points, mesh)
     assert np.linalg.norm(snapped - points, axis=1).max() <= 0.01 * diagonal(mesh)
@@ -184,7 +185,7 @@ def test_snap_input_checks(sphere):
 # --- the other ways to a proxy -------------------------------------------------------------
 
 def test_clean_but_detailed_mesh_is_decimated(sphere):
-    result = build_proxy(sphere, {**DEFAULTS, "face_budget": 1000})
+    result = build_proxy(sphere, dataclasses.replace(DEFAULTS, face_budget=1000))
     assert result.method is ProxyMethod.DECIMATE
     assert result.mesh.is_watertight and result.components == 1
     assert 900 <= result.faces <= 1000
@@ -206,7 +207,7 @@ def test_small_holes_are_filled(sphere):
 def test_wide_opening_is_wrapped_not_capped():
     bowl = trimesh.creation.icosphere(subdivisions=3, radius=0.15)
     bowl.update_faces(bowl.triangles_center[:, 1] < 0.05)
-    result = build_proxy(bowl, {**FAST, "alpha": 0.04})
+    result = build_proxy(bowl, dataclasses.replace(FAST, alpha=0.04))
     assert result.method is ProxyMethod.WRAP
     assert result.mesh.is_watertight and result.components == 1
     # A shell around both sides of the bowl, not a lid: far less volume than the capped bowl.
@@ -214,7 +215,7 @@ def test_wide_opening_is_wrapped_not_capped():
 
 
 def test_always_wraps_a_clean_mesh(sphere):
-    result = build_proxy(sphere, {**FAST, "alpha": 0.04, "mode": "always"})
+    result = build_proxy(sphere, dataclasses.replace(FAST, alpha=0.04, mode="always"))
     assert result.method is ProxyMethod.WRAP and result.mesh.is_watertight
 
 
@@ -254,14 +255,14 @@ def test_flat_input_is_refused_clearly(mesh):
 def test_absurd_wrap_resolution_is_refused(problem_mesh):
     # 100 large triangles crossing the box: within 200 faces alpha would exceed 10 %.
     with pytest.raises(InputError, match="proxy.face_budget"):
-        build_proxy(problem_mesh("soup.stl"), {**DEFAULTS, "face_budget": 200})
+        build_proxy(problem_mesh("soup.stl"), dataclasses.replace(DEFAULTS, face_budget=200))
 
 
 @pytest.mark.parametrize("key,value", [("alpha", 0.0), ("offset", -1.0), ("edge_length", float("nan")),
                                        ("face_budget", "many")])
-def test_bad_settings_name_the_parameter(sphere, key, value):
+def test_bad_settings_name_the_parameter(key, value):
     with pytest.raises(InputError, match=f"proxy.{key}"):
-        build_proxy(sphere, {**DEFAULTS, key: value})
+        params.resolve({f"proxy.{key}": value})
 
 
 # --- end to end through the pipeline --------------------------------------------------------
@@ -275,7 +276,7 @@ def test_problem_mesh_job_hangs_icicles_from_the_real_object(problem_mesh, tmp_p
     else:
         problem_mesh(name)  # skips when the shared meshes are absent
         path = SHARED_MESHES / name
-    p = params.resolve({"proxy": {"alpha": FAST["alpha"], "face_budget": FAST["face_budget"]}})
+    p = params.resolve({"proxy": {"alpha": FAST.alpha, "face_budget": FAST.face_budget}})
     spec = JobSpec(object_id=name.split(".")[0], mesh=str(path), size_m=SIZE_M, params=p, seed=3)
     job = tmp_path / "job"
     outcome = run_job(spec, job, until=Stage.TRAJECTORIES)
@@ -284,7 +285,7 @@ def test_problem_mesh_job_hangs_icicles_from_the_real_object(problem_mesh, tmp_p
     assert done["proxy_reason"] and done["proxy_components"] == 1
     assert (job / "proxy.ply").is_file()
 
-    gravity = np.asarray(p["water"]["gravity"], dtype=np.float64)
+    gravity = np.asarray(p.water.gravity, dtype=np.float64)
     gravity /= np.linalg.norm(gravity)
     mesh = prepare(path, SIZE_M, gravity).mesh
     drips = np.array([d["position"] for d in json.loads((job / "drips.json").read_text())["drip_points"]])

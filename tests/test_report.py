@@ -17,7 +17,7 @@ from icefarm.report import build_report
 def _job(sweep, obj, job, *, seconds=None, reused=(), stats=None, error=None, voxel=0.0008):
     path = sweep / "jobs" / obj / job
     path.mkdir(parents=True)
-    (path / "params.yaml").write_text(yaml.safe_dump(resolve({"surface.voxel_size": voxel})))
+    (path / "params.yaml").write_text(yaml.safe_dump(resolve({"surface.voxel_size": voxel}).as_dict()))
     if error is not None:
         (path / "error.json").write_text(json.dumps(error))
         return
@@ -163,8 +163,8 @@ def test_decimate_hits_the_face_count():
 
 def test_table2_rows_keep_the_papers_drip_points_and_the_jobs_ground():
     p = table2._row_params(table2.ROW_OBJECTS["d"], 20, 0.002)
-    assert p["drips"]["distribution"] == "area" and p["drips"]["spacing"] == 0 and p["drips"]["min_fall"] == 0
-    assert p["proxy"]["mode"] == "never" and p["drips"]["ground_clearance"] > 0 and p["drips"]["count"] == 20
+    assert p.drips.distribution == "area" and p.drips.spacing == 0 and p.drips.min_fall == 0
+    assert p.proxy.mode == "never" and p.drips.ground_clearance > 0 and p.drips.count == 20
 
 
 @pytest.mark.slow  # reads ../shared/meshes
@@ -179,7 +179,7 @@ def test_table2_smoke_two_rows_reduced(tmp_path, shared_mesh):
         assert abs(row.input_faces - table2.MIN_SCALED_POLYGONS) <= 5
         assert all(len(v) == 1 and v[0] >= 0 for v in row.seconds.values())
         assert row.seconds["total"][0] == pytest.approx(sum(row.seconds[s][0] for s in table2.STAGES))
-        assert row.voxel_size <= resolve()["surface"]["tip_radius"]
+        assert row.voxel_size <= resolve().surface.tip_radius
     lines = _csv_rows(tmp_path / "table2.csv")
     assert [(r["row"], r["status"]) for r in lines] == [("a", "done"), ("g", "done")]
     assert float(lines[1]["paper_surface_s"]) == 36 and float(lines[1]["surface_s"]) > 0
@@ -207,7 +207,7 @@ def test_the_report_and_the_sheets_list_jobs_in_the_order_of_jobs_csv(tmp_path):
 
     for obj, job in (("a", "j1"), ("a", "j2"), ("b", "j3"), ("a", "j9")):
         (tmp_path / "jobs" / obj / job).mkdir(parents=True)
-        (tmp_path / "jobs" / obj / job / "params.yaml").write_text(yaml.safe_dump(resolve()))
+        (tmp_path / "jobs" / obj / job / "params.yaml").write_text(yaml.safe_dump(resolve().as_dict()))
     (tmp_path / "jobs.csv").write_text("job_id,object,status\nj3,b,done\nj2,a,done\nj1,a,pending\n")
     assert [p.name for p in find_job_dirs(tmp_path)] == ["j3", "j2", "j1", "j9"]
     assert [j.job_id for j in scan_run(tmp_path).objects["a"]][:2] == ["j2", "j1"]

@@ -44,7 +44,7 @@ def write_render(job_dir: Path, colour, width: int = 64, height: int = 48) -> No
 def make_job(root: Path, obj: str, values: dict, colour=None, state="done", size=(64, 48)) -> Path:
     path = root / "jobs" / obj / job_id(obj, sorted(values.items()))
     path.mkdir(parents=True)
-    (path / "params.yaml").write_text(yaml.safe_dump(P.resolve({"surface.mode": "tubes"}, values)))
+    (path / "params.yaml").write_text(yaml.safe_dump(P.resolve({"surface.mode": "tubes"}, values).as_dict()))
     if state == "failed":
         (path / "error.json").write_text(json.dumps({
             "stage": "surface", "message": "ValueError: no icicle survived the collision test",

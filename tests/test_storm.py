@@ -117,7 +117,7 @@ def test_a_table_top_gets_icicles_along_every_rim_at_the_spacing():
     assert 0.025 - 1e-9 <= d[:, 1].min() and np.median(d[:, 1]) < 0.05
     top = prep.mesh.vertices[:, 1].max()
     assert (pts[:, 1] < top - 0.02).all()  # from the underside rim, not the top
-    lengths = r.drips.water * p["trajectories"]["length_scale"]
+    lengths = r.drips.water * p.trajectories.length_scale
     assert np.median(lengths) > 0.03
 
 
@@ -158,7 +158,6 @@ def test_branch_growth_survives_the_job_files(tmp_path):
 @pytest.mark.slow  # pure, but about 18 s: a table at its real size, meshed
 def test_a_garden_table_at_its_real_size_carries_readable_ice():
     """Issue 23's figures on a real-size asset at every default (one job, no render)."""
-    from icefarm.chain import unit_gravity
     from icefarm.generators import generate, natural_size
     from icefarm.stages.surface.measure import measure_icicles
     from icefarm.storm_figures import storm_figures
@@ -167,10 +166,10 @@ def test_a_garden_table_at_its_real_size_carries_readable_ice():
     p = params.resolve({})
     r = run_stages(prep, p)
     ice = trimesh.Trimesh(r.ice.vertices, r.ice.faces, process=False)
-    f = storm_figures(prep.mesh, ice, r.trajectories, unit_gravity(p), np.random.default_rng(0), count=2000)
+    f = storm_figures(prep.mesh, ice, r.trajectories, p.gravity, np.random.default_rng(0), count=2000)
     assert f.icicles >= 10 and f.median_trunk_m >= 0.03 and f.nearest_root_m <= 0.05
     assert f.glaze_coverage >= 0.9
-    taper = measure_icicles(r.ice.vertices, r.ice.faces, r.trajectories, p["surface"]).taper
+    taper = measure_icicles(r.ice.vertices, r.ice.faces, r.trajectories, p.surface).taper
     assert np.nanmedian(taper) >= 3.0
 
 

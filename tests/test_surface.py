@@ -25,7 +25,7 @@ TIP = 0.00244
 def _groups(**changes):
     """Resolved surface and glaze groups with ``group.name`` changes."""
     p = params.resolve({k.replace("__", "."): v for k, v in changes.items()})
-    return p["surface"], p["glaze"]
+    return p.surface, p.glaze
 
 
 def _sphere(radius=0.15):
@@ -132,7 +132,7 @@ def test_single_icicle_tip_radius_within_ten_percent_at_default_voxel():
     _closed_and_clean(ice)
     assert ice.icicles.tip_radius_mm == pytest.approx(2.44, rel=0.10)
     # Both profiles reach tip + t L at the base: (base - tip diameter) / L = 2 t.
-    assert ice.icicles.growth_ratio[0] == pytest.approx(2 * surface["growth_ratio"], rel=0.15)
+    assert ice.icicles.growth_ratio[0] == pytest.approx(2 * surface.growth_ratio, rel=0.15)
     # about 3 cm of ripple between the quiet tip and the base: the wavelength wanders (25 %) there
     assert ice.icicles.ripple_wavelength_cm == pytest.approx(1.0, rel=0.3)
 
@@ -213,7 +213,7 @@ def test_glaze_on_its_coarser_lattice_cuts_the_faces_and_keeps_mesh_and_tips(mon
     # The union runs only near the icicles: the boolean of the whole meshes is not needed.
     monkeypatch.setattr(fuse, "union_meshes", lambda parts: pytest.fail("fell back to the whole-mesh union"))
     surface, glaze = _groups(**small_bases)
-    assert glaze["voxel_size"] > surface["voxel_size"]
+    assert glaze.voxel_size > surface.voxel_size
     fused = _ice(obj, water, drips, traj, surface, glaze)
     m = _closed_and_clean(fused)
     assert len(fused.faces) < 0.4 * len(one_field.faces)
@@ -341,8 +341,8 @@ def test_real_meshes_through_stages_1_to_4_are_watertight(name):
 
     p = params.resolve({"storm.mode": "relative", "drips.count": 8, "water.rays": 800, "surface.voxel_size": 0.0015})
     result = run_stages(prepare(path, 0.3), p, 1)
-    ice = S.build_ice(result.mesh, result.flow, result.water, result.drips, result.trajectories, p["surface"],
-                      p["glaze"], G, np.random.default_rng(1))
+    ice = S.build_ice(result.mesh, result.flow, result.water, result.drips, result.trajectories, p.surface,
+                      p.glaze, G, np.random.default_rng(1))
     _closed_and_clean(ice)
     assert np.isfinite(ice.icicles.tip_radius_mm)
 
@@ -362,9 +362,9 @@ def test_a_cut_icicle_thickens_as_if_longer_and_rests_on_its_foot():
     cut = stop_at_ground(long, G, floor=floor, margin=0.00244)
     assert cut.cut[0] == pytest.approx(0.08) and cut.branch(0)[-1] == pytest.approx(free.branch(0)[-1])
     p = params.resolve({"surface.impurity": 0.0, "surface.base_balls": 0, "glaze.mode": "none"})
-    free_ice = S.build_ice(obj, obj, _dry(obj), _drips(obj, [start]), free, p["surface"], p["glaze"], G,
+    free_ice = S.build_ice(obj, obj, _dry(obj), _drips(obj, [start]), free, p.surface, p.glaze, G,
                            np.random.default_rng(0))
-    cut_ice = S.build_ice(obj, obj, _dry(obj), _drips(obj, [start]), cut, p["surface"], p["glaze"], G,
+    cut_ice = S.build_ice(obj, obj, _dry(obj), _drips(obj, [start]), cut, p.surface, p.glaze, G,
                           np.random.default_rng(0))
     assert cut_ice.icicles.taper[0] > 1.2 * free_ice.icicles.taper[0]
     assert cut_ice.vertices[:, 1].min() >= floor - 1e-6  # on the ground, not in it

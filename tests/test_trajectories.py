@@ -6,7 +6,7 @@ import trimesh
 
 from icefarm.chain import Stage, run_stages
 from icefarm.mesh import prepare
-from icefarm.params import defaults
+from icefarm.params import defaults, resolve
 from icefarm.stages.drips import find_drips
 from icefarm.stages.trajectories import TrajectoryResult, grow_trajectories, spread_steps
 from icefarm.stages.trajectory_stats import measure_trajectories
@@ -150,8 +150,7 @@ def test_branches_leave_at_30_degrees_even_from_a_leaning_parent(plate):
 
 def bunny_setup(shared_mesh):
     """The bunny's drip points as a job finds them (on the default parameters)."""
-    p = defaults()
-    p["storm"]["mode"] = "relative"  # the paper's 24 drip points, as the spreads were measured
+    p = resolve({"storm.mode": "relative"})  # the paper's 24 drip points, as the spreads were measured
     result = run_stages(prepare(shared_mesh("stanford-bunny.obj"), 0.3), p, 1, until=Stage.DRIPS)
     mesh, drips = result.mesh, result.drips
     return mesh, drips.positions, mesh.face_normals[drips.faces], drips.water

@@ -173,7 +173,7 @@ def manifest_to_dict(manifest: Manifest) -> dict[str, Any]:
         out["fixed"] = dict(manifest.fixed)
     out["objects"] = [
         {"id": o.id, "mesh": o.mesh, "size_m": o.size_m, "placement": o.placement,
-         "params": P.resolve(manifest.defaults, o.params, manifest.fixed),
+         "params": P.resolve(manifest.defaults, o.params, manifest.fixed).as_dict(),
          "exclude": [{"min": list(lo), "max": list(hi)} for lo, hi in o.exclude],
          "overrides": dict(o.overrides), "material": o.material.to_dict() if o.material else {}}
         for o in manifest.objects

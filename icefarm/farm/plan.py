@@ -6,7 +6,6 @@ share that stage through the cache; `leaders` and `private_stages` say which.
 from __future__ import annotations
 
 import hashlib
-import json
 from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -14,6 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from .. import params as P
+from ..stage_cache import digest
 from ..errors import InputError, short_repr
 from ..jobdir import JobState
 from .manifest_model import Manifest
@@ -149,8 +149,8 @@ def leaders(jobs: Sequence[PlannedJob]) -> dict[str, str]:
     out: dict[str, str] = {}
     for job in jobs:
         spec = job.spec
-        water = {g: spec.params.get(g) for g in WATER_GROUPS}
-        key = json.dumps([job.object_id, water, [list(o) for o in spec.overrides]], sort_keys=True, default=str)
+        water = {g: getattr(spec.params, g) for g in WATER_GROUPS}
+        key = digest(job.object_id, water, [list(o) for o in spec.overrides])
         if key in first:
             out[job.job_id] = first[key]
         else:
@@ -168,8 +168,7 @@ def private_stages(jobs: Sequence[PlannedJob]) -> list[str]:
     """
     out = []
     for stage, groups in STAGE_GROUPS:
-        signatures = Counter(json.dumps([j.object_id, [j.spec.params.get(g) for g in groups]],
-                                        sort_keys=True, default=str) for j in jobs)
+        signatures = Counter(digest(j.object_id, [getattr(j.spec.params, g) for g in groups]) for j in jobs)
         if signatures and max(signatures.values()) == 1:
             out.append(stage)
     return out

@@ -78,5 +78,5 @@ def icicle_lengths(volume, storm, surface) -> np.ndarray:
     ice's volume gives the length through the icicle's profile (`length_from_volume` with
     ``surface.tip_radius`` and ``profile``; each icicle thickens `thickening_m`)."""
     ice = np.asarray(volume, dtype=np.float64) * storm.icicle_share * WATER_TO_ICE
-    return length_from_volume(ice, surface["tip_radius"], surface["growth_ratio"], surface["profile"],
+    return length_from_volume(ice, surface.tip_radius, surface.growth_ratio, surface.profile,
                               thickening=thickening_m(storm))

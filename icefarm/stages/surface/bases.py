@@ -3,13 +3,12 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
 
 import numpy as np
 import trimesh
 from scipy.spatial import cKDTree
 
-from ...params import SurfaceParams, typed
+from ...params import SurfaceParams
 from ...geometry import random_barycentric, ray_caster
 from ...metaballs.balls import LEVEL, NO_BALLS, Balls
 from ..drips import DripResult
@@ -31,7 +30,7 @@ BASE_POOL = 256
 # slab) as a fillet instead of bulging past both of its faces as a glass knob.
 BASE_THICKNESS = 0.6
 
-def base_balls(object_mesh: trimesh.Trimesh, drips: DripResult, surface: SurfaceParams | Mapping,
+def base_balls(object_mesh: trimesh.Trimesh, drips: DripResult, surface: SurfaceParams,
                rng: np.random.Generator, icicle_radius: np.ndarray | None = None, cast=None,
                gravity: np.ndarray | None = None) -> Balls:
     """``nmb`` balls on the object around each drip point (paper 4.4.3, Equation 2).
@@ -53,7 +52,6 @@ def base_balls(object_mesh: trimesh.Trimesh, drips: DripResult, surface: Surface
     is an `icefarm.geometry.ray_caster` of ``object_mesh``, made here when not given), so a
     base is never thicker than the rim it sits on.
     """
-    surface = typed("surface", surface)
     eb, nmb, kb = surface.base_extent, surface.base_balls, surface.base_scale
     k = len(drips.positions)
     if k == 0 or eb <= 0 or nmb == 0 or kb <= 0:

@@ -3,14 +3,14 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 
 from dataclasses import dataclass
 
 import numpy as np
 import trimesh
 
-from ...params import GlazeParams, SurfaceParams, typed
+from ...params import GlazeParams, SurfaceParams
 from ...metaballs import Balls, concat_balls, fuse_fields, sample_field
 from ...metaballs.clean import collapse_slivers, flip_needles
 from ..drips import DripResult
@@ -65,8 +65,8 @@ class IceResult:
 
 
 def build_ice(object_mesh: trimesh.Trimesh, flow_mesh: trimesh.Trimesh, water: WaterResult,
-              drips: DripResult, trajectories: TrajectoryResult, surface: SurfaceParams | Mapping,
-              glaze: GlazeParams | Mapping, gravity: np.ndarray, rng: np.random.Generator, exclude: np.ndarray | None = None,
+              drips: DripResult, trajectories: TrajectoryResult, surface: SurfaceParams,
+              glaze: GlazeParams, gravity: np.ndarray, rng: np.random.Generator, exclude: np.ndarray | None = None,
               cast=None, measure: bool = True, extra_balls: Balls | None = None,
               note: Callable[[str], None] | None = None) -> IceResult:
     """Stage 4: icicles, their bases and glaze ice as one mesh (paper 4.4).
@@ -92,9 +92,8 @@ def build_ice(object_mesh: trimesh.Trimesh, flow_mesh: trimesh.Trimesh, water: W
         Drip points on ``object_mesh``.
     trajectories : TrajectoryResult
         Branch polylines, base to tip, in meters.
-    surface, glaze : SurfaceParams, GlazeParams or mapping
-        The two groups (`icefarm.params.typed`), or mappings such as
-        ``params.resolve()["surface"]``, validated here once.
+    surface, glaze : SurfaceParams, GlazeParams
+        The two groups of the resolved parameters (``params.surface``, ``params.glaze``).
     gravity : (3,) float
         Direction of gravity (orients the first frame of each tube).
     rng : numpy.random.Generator
@@ -125,8 +124,6 @@ def build_ice(object_mesh: trimesh.Trimesh, flow_mesh: trimesh.Trimesh, water: W
         A voxel size (``surface.voxel_size`` or ``glaze.voxel_size``) too fine for the
         extent of the ice.
     """
-    surface = typed("surface", surface)
-    glaze = typed("glaze", glaze)
     g = np.asarray(gravity, dtype=np.float64).reshape(-1)
     if g.shape != (3,) or not np.isfinite(g).all() or not g.any():
         raise ValueError(f"gravity must be 3 finite numbers, not all zero; got {gravity!r}")

@@ -12,14 +12,13 @@ edge drapes up between the trunks (`DRAPE`). Its balls join the icicles' field.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ...params import SurfaceParams, typed
+from ...params import SurfaceParams
 from ...geometry import unit
 from ...metaballs.balls import NO_BALLS, Balls, concat_balls, sheet_balls
 from ..trajectories import TrajectoryResult
@@ -60,15 +59,15 @@ class Curtains:
 NO_CURTAINS = Curtains(NO_BALLS, 0.0, 0)
 
 
-def curtain_balls(traj: TrajectoryResult, surface: SurfaceParams | Mapping, gravity) -> Curtains:
+def curtain_balls(traj: TrajectoryResult, surface: SurfaceParams, gravity) -> Curtains:
     """Sheets between icicle trunks closer than ``surface.curtain`` (meters; 0: none).
 
     Parameters
     ----------
     traj : TrajectoryResult
         Branch polylines, base to tip, in meters.
-    surface : SurfaceParams or mapping
-        ``params.resolve()["surface"]``: ``curtain``, ``voxel_size`` and the profile (the
+    surface : SurfaceParams
+        ``params.resolve().surface``: ``curtain``, ``voxel_size`` and the profile (the
         trunks' radii).
     gravity : (3,) float
 
@@ -76,7 +75,6 @@ def curtain_balls(traj: TrajectoryResult, surface: SurfaceParams | Mapping, grav
     -------
     Curtains
     """
-    surface = typed("surface", surface)
     distance = float(surface.curtain)
     off = np.asarray(traj.branch_offsets, dtype=np.int64)
     trunks = np.flatnonzero((np.asarray(traj.branch_parent) < 0) & (np.diff(off) >= 2))

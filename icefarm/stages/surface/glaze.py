@@ -19,13 +19,12 @@ where it lands), lt = 1 low down (it runs down before freezing), 0.5 evens it ou
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
 import trimesh
 
-from ...params import GlazeParams, typed
+from ...params import GlazeParams
 from ...geometry import random_barycentric, ray_caster, sample_faces, unit
 from ...metaballs import Field, sample_field
 from ...metaballs.balls import NO_BALLS, Balls, sheet_balls
@@ -59,10 +58,9 @@ def wet_vertices(water: WaterResult, exclude: np.ndarray | None = None) -> np.nd
     return wet
 
 
-def glaze_thickness(water: WaterResult, glaze: GlazeParams | Mapping) -> np.ndarray:
+def glaze_thickness(water: WaterResult, glaze: GlazeParams) -> np.ndarray:
     """(n,) float: Equation 3's ``rgi = minGI + s [dUp lt + dDown (1 - lt)]`` per vertex, in meters;
     under a physical storm, the ice it froze there (`icefarm.stages.storm`), plus minGI."""
-    glaze = typed("glaze", glaze)
     if water.storm is not None:
         return glaze.min_radius + np.asarray(water.storm.ice, dtype=np.float64)
     lt = glaze.lifetime
@@ -71,7 +69,7 @@ def glaze_thickness(water: WaterResult, glaze: GlazeParams | Mapping) -> np.ndar
     return glaze.min_radius + glaze.scale * (d_up * lt + d_down * (1 - lt))
 
 
-def glaze_field(flow_mesh: trimesh.Trimesh, water: WaterResult, glaze: GlazeParams | Mapping, rng: np.random.Generator,
+def glaze_field(flow_mesh: trimesh.Trimesh, water: WaterResult, glaze: GlazeParams, rng: np.random.Generator,
                 exclude: np.ndarray | None = None, cast=None, face_budget: float = 0.0) -> Field | None:
     """The glaze as a field on the ``glaze.voxel_size`` lattice, per ``glaze.mode``.
 
@@ -84,7 +82,7 @@ def glaze_field(flow_mesh: trimesh.Trimesh, water: WaterResult, glaze: GlazePara
         The surface stages 1-2 ran on, in meters, outward normals.
     water : WaterResult
         Per vertex of ``flow_mesh``.
-    glaze : GlazeParams or mapping
+    glaze : GlazeParams
         The resolved ``glaze`` group.
     rng : numpy.random.Generator
         Ball positions (``metaballs`` mode only; the coat is deterministic).
@@ -109,7 +107,6 @@ def glaze_field(flow_mesh: trimesh.Trimesh, water: WaterResult, glaze: GlazePara
     InputError
         ``glaze.voxel_size`` too fine for the extent of the glaze.
     """
-    glaze = typed("glaze", glaze)  # glaze.mode is none, metaballs or coat from here on
     if glaze.mode == "none":
         return None
     if glaze.mode == "metaballs":
@@ -127,7 +124,7 @@ def glaze_field(flow_mesh: trimesh.Trimesh, water: WaterResult, glaze: GlazePara
                       cast=cast)
 
 
-def glaze_balls(flow_mesh: trimesh.Trimesh, water: WaterResult, glaze: GlazeParams | Mapping,
+def glaze_balls(flow_mesh: trimesh.Trimesh, water: WaterResult, glaze: GlazeParams,
                 rng: np.random.Generator, min_sheet: float = 0.0,
                 exclude: np.ndarray | None = None) -> Balls:
     """``glaze.density`` balls per square meter spread at random over the wet surface
@@ -150,7 +147,7 @@ def glaze_balls(flow_mesh: trimesh.Trimesh, water: WaterResult, glaze: GlazePara
         In meters, outward normals.
     water : WaterResult
         Per vertex of ``flow_mesh``.
-    glaze : GlazeParams or mapping
+    glaze : GlazeParams
         The resolved ``glaze`` group (``density``, ``min_radius``, ``scale``, ``lifetime``;
         ``mode: none`` gives no balls).
     rng : numpy.random.Generator
@@ -163,7 +160,6 @@ def glaze_balls(flow_mesh: trimesh.Trimesh, water: WaterResult, glaze: GlazePara
     -------
     Balls
     """
-    glaze = typed("glaze", glaze)
     if glaze.mode == "none":
         return NO_BALLS
     wet = wet_vertices(water, exclude)

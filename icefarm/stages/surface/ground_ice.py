@@ -15,12 +15,11 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
 
-from ...params import GroundIceParams, SurfaceParams, typed
+from ...params import GroundIceParams, SurfaceParams
 from ...geometry import perpendicular_basis, unit
 from ...metaballs.balls import NO_BALLS, Balls, concat_balls, sheet_balls
 from ..landing import LandingResult
@@ -69,20 +68,20 @@ class GroundIce:
     mound_radius: np.ndarray
 
 
-def ground_ice_balls(landing: LandingResult, ground_ice: GroundIceParams | Mapping,
-                     surface: SurfaceParams | Mapping, gravity, rng: np.random.Generator, *, cast=None, floor: float | None = None) -> GroundIce:
+def ground_ice_balls(landing: LandingResult, ground_ice: GroundIceParams,
+                     surface: SurfaceParams, gravity, rng: np.random.Generator, *, cast=None, floor: float | None = None) -> GroundIce:
     """Mounds (and stalagmites) of ice at each landing point.
 
     Parameters
     ----------
     landing : LandingResult
-    ground_ice : GroundIceParams or mapping
-        ``params.resolve()["ground_ice"]``: ``mode`` (none, mounds, stalagmites),
+    ground_ice : GroundIceParams
+        ``params.resolve().ground_ice``: ``mode`` (none, mounds, stalagmites),
         ``spread`` (mound radius per meter of water, m/m), ``height_scale`` (stalagmite
         height per meter of water, m/m), ``width`` (stalagmite base radius per meter of
         height, m/m).
-    surface : SurfaceParams or mapping
-        ``params.resolve()["surface"]``: the tip radius, profile, noise and voxel size.
+    surface : SurfaceParams
+        ``params.resolve().surface``: the tip radius, profile, noise and voxel size.
     gravity : (3,) float
     rng : numpy.random.Generator
         The stalagmites' noise (``surface.noise``).
@@ -95,8 +94,6 @@ def ground_ice_balls(landing: LandingResult, ground_ice: GroundIceParams | Mappi
     -------
     GroundIce
     """
-    ground_ice = typed("ground_ice", ground_ice)
-    surface = typed("surface", surface)
     k = len(landing)
     zero = np.zeros(k)
     if ground_ice.mode == "none" or k == 0:

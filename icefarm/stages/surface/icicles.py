@@ -3,11 +3,10 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
 
 import numpy as np
 
-from ...params import SurfaceParams, typed
+from ...params import SurfaceParams
 from ...metaballs.balls import KAPPA, LEVEL, NO_BALLS, SPACING, TIP_WEIGHT, Balls
 from ..trajectories import TrajectoryResult
 from .profile import TIP_CALM, _branch_lengths, _points_along, grown_lengths, profile_args, smooth_radius
@@ -18,7 +17,7 @@ from .profile import TIP_CALM, _branch_lengths, _points_along, grown_lengths, pr
 FOOT_CLEARANCE = 0.1
 
 
-def icicle_balls(traj: TrajectoryResult, surface: SurfaceParams | Mapping, rng: np.random.Generator) -> Balls:
+def icicle_balls(traj: TrajectoryResult, surface: SurfaceParams, rng: np.random.Generator) -> Balls:
     """Metaball chains along every branch (paper 4.4.1-4.4.2).
 
     Balls are spaced ``SPACING * KAPPA * R(x)`` apart along each branch, from its base
@@ -31,7 +30,6 @@ def icicle_balls(traj: TrajectoryResult, surface: SurfaceParams | Mapping, rng: 
     -------
     Balls
     """
-    surface = typed("surface", surface)
     prof = profile_args(surface)
     tip = prof["tip"]
     branches = np.flatnonzero(np.diff(np.asarray(traj.branch_offsets)) > 0)

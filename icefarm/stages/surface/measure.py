@@ -4,13 +4,12 @@ from __future__ import annotations
 
 import itertools
 import math
-from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ...params import SurfaceParams, typed
+from ...params import SurfaceParams
 from ..trajectories import TrajectoryResult
 from .profile import _branch_lengths, _points_along, grown_lengths
 
@@ -162,7 +161,7 @@ def ripple_texture(vertices: np.ndarray, traj: TrajectoryResult, tree=None) -> R
 
 
 def measure_icicles(vertices: np.ndarray, faces: np.ndarray, traj: TrajectoryResult,
-                    surface: SurfaceParams | Mapping, sample_step: float = 0.001) -> IcicleStats:
+                    surface: SurfaceParams, sample_step: float = 0.001) -> IcicleStats:
     """Physical plausibility of the icicles, measured on the ice mesh.
 
     The radius of a trunk at arc length x is the distance from its axis point to the nearest
@@ -175,7 +174,7 @@ def measure_icicles(vertices: np.ndarray, faces: np.ndarray, traj: TrajectoryRes
         In meters.
     faces : (m, 3) int
     traj : TrajectoryResult
-    surface : SurfaceParams or mapping
+    surface : SurfaceParams
         The resolved ``surface`` group (tip radius, ripple amplitude, impurity, frequency).
     sample_step : float
         Spacing of the radius samples along each trunk, in meters.
@@ -184,7 +183,6 @@ def measure_icicles(vertices: np.ndarray, faces: np.ndarray, traj: TrajectoryRes
     -------
     IcicleStats
     """
-    surface = typed("surface", surface)
     nan = float("nan")
     off = np.asarray(traj.branch_offsets, dtype=np.int64)
     trunks = np.flatnonzero(np.asarray(traj.branch_parent) < 0)

@@ -2,11 +2,10 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 
 import numpy as np
 
-from ...params import SurfaceParams, typed
+from ...params import SurfaceParams
 from ..trajectories import TrajectoryResult
 
 # Ripples and noise fade out over this many tip radii above the tip, so the drop
@@ -22,13 +21,12 @@ PHYSICAL_EXPONENT = 0.75
 GROUND_THICKENING = 0.5
 
 
-def profile_args(surface: SurfaceParams | Mapping) -> dict:
+def profile_args(surface: SurfaceParams) -> dict:
     """The keyword arguments of `profile_radius` from a resolved ``surface`` group.
 
     The ripple amplitude is ``as * impurity``: ripples need dissolved salts, pure water
     grows smooth icicles (Chen & Morris, New J. Phys. 15, 2013).
     """
-    surface = typed("surface", surface)
     return {"tip": surface.tip_radius, "growth": surface.growth_ratio,
             "amplitude": surface.ripple_amplitude * surface.impurity,
             "frequency": surface.ripple_frequency, "shape": surface.profile}

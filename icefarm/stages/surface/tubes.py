@@ -3,16 +3,15 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
 
 import numpy as np
 
-from ...params import SurfaceParams, typed
+from ...params import SurfaceParams
 from ..trajectories import TrajectoryResult
 from .icicles import _perpendicular_frame
 from .profile import _branch_lengths, _points_along, grown_lengths, profile_args, profile_radius
 
-def tube_mesh(traj: TrajectoryResult, surface: SurfaceParams | Mapping, gravity=(0.0, -1.0, 0.0), ring: int = 12,
+def tube_mesh(traj: TrajectoryResult, surface: SurfaceParams, gravity=(0.0, -1.0, 0.0), ring: int = 12,
               cap_rings: int = 4):
     """Each branch as a closed tube: Equation 1's profile swept along the branch with
     rotation-minimising frames, a hemisphere of the tip radius at the tip and one of the
@@ -21,7 +20,7 @@ def tube_mesh(traj: TrajectoryResult, surface: SurfaceParams | Mapping, gravity=
     Parameters
     ----------
     traj : TrajectoryResult
-    surface : SurfaceParams or mapping
+    surface : SurfaceParams
         The resolved ``surface`` group.
     gravity : (3,) float
         Each tube's first frame starts from gravity (seams line up from run to run).
@@ -37,7 +36,6 @@ def tube_mesh(traj: TrajectoryResult, surface: SurfaceParams | Mapping, gravity=
     faces : (m, 3) int64
         Outward-wound; each branch's tube is closed (watertight) on its own.
     """
-    surface = typed("surface", surface)
     prof = profile_args(surface)
     tip = prof["tip"]
     x_pt, lengths = _branch_lengths(traj)

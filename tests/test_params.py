@@ -1,0 +1,40 @@
+"""The parameter boundary: `resolve` validates once into a frozen, typed `Params`."""
+
+from __future__ import annotations
+
+import dataclasses
+import pickle
+
+import numpy as np
+import pytest
+
+from icefarm import params
+from icefarm.errors import InputError
+from icefarm.stage_cache import digest
+
+
+def test_resolve_types_every_group_and_normalises_gravity_once():
+    p = params.resolve({"water.gravity": [0, 0, -4], "surface.noise": 0.001}, {"drips.count": 7})
+    assert isinstance(p, params.Params) and isinstance(p.surface, params.SurfaceParams)
+    assert p.surface.noise == 0.001 and p.drips.count == 7 and isinstance(p.drips.count, int)
+    assert p.water.gravity == (0.0, 0.0, -1.0) and np.allclose(p.gravity, [0, 0, -1])
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        p.surface.noise = 0.0  # type: ignore[misc]
+
+
+def test_as_dict_round_trips_and_hashes_like_the_params_it_holds():
+    p = params.resolve({"trajectories.wind": "1 0 0", "glaze.mode": "none"})
+    plain = p.as_dict()
+    assert set(plain) == set(params.GROUPS) and plain["trajectories"]["wind"] == [1.0, 0.0, 0.0]
+    assert params.resolve(plain) == p and pickle.loads(pickle.dumps(p)) == p
+    assert digest(p) == digest(plain) and digest(p.surface) == digest(plain["surface"])
+
+
+def test_updated_lays_values_over_and_validates_them_again():
+    p = params.resolve({"surface.noise": 0.001})
+    q = p.updated({"growth.frames": 4})
+    assert q.growth.frames == 4 and q.surface.noise == 0.001 and p.growth.frames != 4
+    with pytest.raises(InputError, match="growth.frames"):
+        p.updated({"growth.frames": -1})
+    with pytest.raises(InputError, match="did you mean surface.noise"):
+        params.resolve({"surface.nosie": 0.1})
