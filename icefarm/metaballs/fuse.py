@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import math
-from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 from scipy import ndimage
@@ -45,13 +44,11 @@ def fuse_fields(a: Field | None, b: Field | None, detail: Field | None = None):
     if detail is not None and a is None:
         return fuse_fields(detail, b)
     parts = []
-    fields = [f for f in (a, b) if f is not None]
-    # Both marched at once: most of the marching's numpy and skimage work releases the GIL.
-    with ThreadPoolExecutor(len(fields) or 1) as pool:
-        marched = list(pool.map(lambda f: _march(f.values, f.blocks, f.level), fields))
-    for f, (lattice, faces) in zip(fields, marched):
-        if len(faces):
-            parts.append((f, f.origin + lattice * f.voxel, lattice, faces))
+    for f in (a, b):
+        if f is not None:
+            lattice, faces = _march(f.values, f.blocks, f.level)
+            if len(faces):
+                parts.append((f, f.origin + lattice * f.voxel, lattice, faces))
     keeps_a = bool(parts) and parts[0][0] is a
     if len(parts) < 2:
         fused = (parts[0][1], parts[0][3], parts[0][2] if keeps_a else None) if parts else None
