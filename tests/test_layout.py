@@ -99,16 +99,12 @@ def cycles(graph: dict[str, set[str]]) -> list[set[str]]:
     return found
 
 
-# A ring in files that another change of issue 27 owns: `storm.constants()` imports
-# `icicle_size.GROWTH_MAX` inside the function, and `icicle_size` imports `storm`. Remove the entry
-# when it goes; add none.
-ALLOWED_CYCLES = [{"icefarm.stages.storm", "icefarm.stages.icicle_size"}]
 
 
 def test_no_module_of_icefarm_imports_itself_back():
     graph = import_graph(PACKAGE_DIR)
     assert len(graph) > 50 and graph["icefarm.sheets.draw"]  # the graph is read, not empty
-    rings = [" <-> ".join(sorted(ring)) for ring in cycles(graph) if ring not in ALLOWED_CYCLES]
+    rings = [" <-> ".join(sorted(ring)) for ring in cycles(graph)]
     assert not rings, "modules that import one another: " + "; ".join(rings)
 
 

@@ -7,11 +7,7 @@ import math
 
 import numpy as np
 
-from .storm import WATER_TO_ICE, precipitation_m
-
-# Largest growth ratio (base radius added per meter of length) of a storm's icicle: a stub
-# that thickened as the storm does is at most a cone half as wide as it is long.
-GROWTH_MAX = 0.25
+from .storm import GROWTH_MAX, WATER_TO_ICE, precipitation_m
 
 
 def icicle_volume(length, tip: float, growth, shape: str = "physical"):

@@ -76,6 +76,9 @@ GLAZE_MIN_M = 0.001
 # glaze.lifetime moves the freezing budget along the water's walk by at most this share
 # (lt 0: 1.5x at the top, 0.5x at the bottom; lt 0.5: even).
 LIFETIME_CONTRAST = 1.0
+# Largest growth ratio (base radius added per meter of length) of a storm's icicle: a stub
+# that thickened as the storm does is at most a cone half as wide as it is long.
+GROWTH_MAX = 0.25
 
 
 
@@ -92,8 +95,6 @@ class Constant:
 
 def constants() -> tuple[Constant, ...]:
     """The storm model's constants with their units, domains and sources."""
-    from .icicle_size import GROWTH_MAX
-
     return (
         Constant("RHO_WATER", RHO_WATER, "kg/m^3", "> 0", "liquid water"),
         Constant("RHO_ICE", RHO_ICE, "kg/m^3", "> 0", "glaze, clear dense ice (Makkonen 2000)"),
