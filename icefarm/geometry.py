@@ -6,6 +6,8 @@ from __future__ import annotations
 import numpy as np
 import trimesh
 
+from .tol import tol
+
 
 def unit(vectors: np.ndarray) -> np.ndarray:
     """Vectors ``(..., 3)`` scaled to unit length (zero vectors stay zero)."""
@@ -195,7 +197,7 @@ def inside(cast, points: np.ndarray, direction=(0.5773, 0.5774, 0.5774), max_cro
         hit = np.isfinite(distance)
         alive = alive[hit]
         crossings[alive] += 1
-        origin[alive] += (distance[hit] + 1e-7)[:, None] * d
+        origin[alive] += (distance[hit] + tol.parity_step_m)[:, None] * d
     return crossings % 2 == 1
 
 

@@ -10,6 +10,7 @@ import trimesh
 
 from .asset_io import Asset, read_asset
 from .errors import InputError
+from .tol import tol
 
 
 @dataclass(frozen=True)
@@ -84,7 +85,7 @@ def clean(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
     """Weld duplicate vertices, drop degenerate and duplicate faces and unused vertices."""
     mesh = mesh.copy()
     mesh.merge_vertices(merge_tex=True, merge_norm=True)
-    mesh.update_faces(mesh.nondegenerate_faces(height=1e-12))
+    mesh.update_faces(mesh.nondegenerate_faces(height=tol.degenerate))
     mesh.update_faces(mesh.unique_faces())
     mesh.remove_unreferenced_vertices()
     return mesh
@@ -134,10 +135,9 @@ def count_self_intersections(mesh: trimesh.Trimesh) -> int:
     return int(ms.current_mesh().selected_face_number())
 
 
-# A mesh thinner than this fraction of its diagonal is flat (a plane, a sign, a sheet, a
+# A mesh thinner than `tol.flat` of its diagonal is flat (a plane, a sign, a sheet, a
 # single triangle): it gets FLAT_THICKNESS_M of thickness, so that the water that falls on
 # it runs over its faces and round its rims as on any closed object.
-FLAT_FRACTION = 1e-6
 FLAT_THICKNESS_M = 0.002  # a sheet of metal, a sign's board (at most FLAT_THICKNESS_RATIO of the diagonal)
 FLAT_THICKNESS_RATIO = 0.01
 # A mesh whose height along gravity is under this fraction of its largest extent lies flat:
@@ -234,9 +234,9 @@ def _thin_axis(mesh: trimesh.Trimesh) -> tuple[np.ndarray, float]:
 
 
 def is_flat(mesh: trimesh.Trimesh) -> bool:
-    """All faces in one plane (to `FLAT_FRACTION` of the diagonal): no volume, no inside."""
+    """All faces in one plane (to `tol.flat` of the diagonal): no volume, no inside."""
     diagonal = float(np.linalg.norm(mesh.extents))
-    return diagonal > 0 and _thin_axis(mesh)[1] <= FLAT_FRACTION * diagonal
+    return diagonal > 0 and _thin_axis(mesh)[1] <= tol.flat * diagonal
 
 
 def solidify(mesh: trimesh.Trimesh, thickness: float) -> trimesh.Trimesh:

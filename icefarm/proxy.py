@@ -43,14 +43,13 @@ from .geometry import closest_point, signed_volume
 from .mesh import MeshProblems, detect_problems
 from .meshlab import current, meshset
 from .params import ProxyParams
+from .tol import tol
 
 MODES = ("auto", "always", "never")
 
 # Folds of otherwise clean meshes cross a few faces (cow.obj: 1.4 %, dragon: 0.02 %)
 # without hurting a flow along edges; parts passing through each other cross many more.
 SELF_INTERSECTING_FRACTION = 0.05
-# A mesh thinner than this fraction of its diagonal has no volume to wrap.
-FLAT_FRACTION = 1e-6
 # The wrap has about WRAP_FACE_FACTOR * area / alpha**2 faces (measured 1.3-2.4 on the
 # shared meshes); its time and memory grow with that count (about 1.2 kB and 0.15 ms a
 # face), so it is held under the face budget (finer would be remeshed away anyway) and
@@ -61,8 +60,6 @@ MAX_ALPHA = 0.1
 # Holes are filled only when each boundary loop spans at most this fraction of the
 # diagonal (the bunny's base: 0.18); a wider opening (a bowl's rim) is wrapped instead.
 HOLE_FRACTION = 0.25
-# A point this close to a surface (fraction of the diagonal) lies on it.
-ON_SURFACE_FRACTION = 1e-9
 # Isotropic remeshing: passes, and the area of an equilateral triangle of unit edge.
 REMESH_ITERATIONS = 3
 UNIT_TRIANGLE_AREA = np.sqrt(3.0) / 4.0
@@ -349,7 +346,7 @@ def build_proxy(mesh: trimesh.Trimesh, proxy: ProxyParams[str, Any],
     used = vertices[np.unique(mesh.faces)]
     diag = float(np.linalg.norm(np.ptp(used, axis=0)))
     thickness = _thickness(used)
-    if diag <= 0 or thickness <= FLAT_FRACTION * diag:
+    if diag <= 0 or thickness <= tol.flat * diag:
         raise InputError(
             f"the mesh is flat (thickness {thickness:.3g} m over a {diag:.3g} m diagonal): it has "
             "no volume to wrap an approximate surface around; set proxy.mode: never to let the "
@@ -430,7 +427,7 @@ def snap_to_surface(points: np.ndarray, mesh: trimesh.Trimesh) -> tuple[np.ndarr
     normals : (k, 3) float
         Unit normals of the faces there, turned towards the side each point came from (the
         proxy lies outside the object, so this is outward even on soups with random
-        winding); a point on the surface (within `ON_SURFACE_FRACTION` of the diagonal)
+        winding); a point on the surface (within `tol.on_surface` of the diagonal)
         keeps its face's own normal.
     faces : (k,) int
         Face holding each closest point.
@@ -448,6 +445,6 @@ def snap_to_surface(points: np.ndarray, mesh: trimesh.Trimesh) -> tuple[np.ndarr
     normals = np.asarray(mesh.face_normals, dtype=np.float64)[faces]
     facing = np.einsum("ij,ij->i", normals, points - closest)
     # Below this distance the side is rounding noise: the point is on the surface.
-    on_surface = distance <= ON_SURFACE_FRACTION * float(np.linalg.norm(mesh.extents))
+    on_surface = distance <= tol.on_surface * float(np.linalg.norm(mesh.extents))
     normals = np.where(((facing < 0) & ~on_surface)[:, None], -normals, normals)
     return np.asarray(closest, dtype=np.float64), normals, faces

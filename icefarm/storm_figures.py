@@ -24,14 +24,8 @@ import trimesh
 from .geometry import ray_caster, sample_faces, unit
 from .stages.trajectories import TrajectoryResult
 from .stages.trajectory_stats import measure_trajectories
+from .tol import tol
 
-# Rays against gravity leave from this far (m) off the face, along its normal, so they do
-# not hit the face they start on (Embree works in float32: 1e-4 m is ~100 ulps at 10 m).
-LIFT = 1e-4
-# Rays along the normal start this far (m) under the surface: inside a coat whose inner
-# side lies inside the object, so the first face they meet is where the ice ends (as
-# `icefarm.stages.surface.glaze.measure_glaze`).
-START = 2e-4
 # Issue 23: a point is glazed when more than this much ice (m) lies along its normal.
 GLAZED = 2e-4
 
@@ -72,7 +66,7 @@ def rain_reached_points(mesh: trimesh.Trimesh, gravity, count: int, rng: np.rand
 
     ``count`` points are drawn by area (`icefarm.geometry.sample_faces`) on the faces whose
     unit normal has a component against gravity over ``min_up``; those whose ray against
-    gravity, from `LIFT` off the face along its normal, hits the object are left out
+    gravity, from `tol.ray_lift_m` off the face along its normal, hits the object are left out
     (something above shades them).
 
     Parameters
@@ -105,7 +99,7 @@ def rain_reached_points(mesh: trimesh.Trimesh, gravity, count: int, rng: np.rand
         return points, normals.reshape(0, 3)
     if cast is None:
         cast = ray_caster(mesh)
-    distance, _ = cast(points + LIFT * normals, np.broadcast_to(up, points.shape))
+    distance, _ = cast(points + tol.ray_lift_m * normals, np.broadcast_to(up, points.shape))
     sky = ~np.isfinite(distance)
     return points[sky], normals[sky]
 
@@ -114,7 +108,7 @@ def ice_along_normals(ice_mesh: trimesh.Trimesh, points: np.ndarray, normals: np
                       reach: float = 0.1, *, cast=None) -> np.ndarray:
     """Thickness of the ice lying along each normal above a surface point, in meters.
 
-    A ray leaves each point from `START` under the surface along its normal, into a closed,
+    A ray leaves each point from `tol.ray_under_m` under the surface along its normal, into a closed,
     outward-facing ice mesh (the glaze coat fused with the icicles; the coat's inner side
     lies inside the object):
 
@@ -152,18 +146,19 @@ def ice_along_normals(ice_mesh: trimesh.Trimesh, points: np.ndarray, normals: np
         return thick
     if cast is None:
         cast = ray_caster(ice_mesh)
-    d1, f1 = cast(points - START * normals, normals)
+    start, past = tol.ray_under_m, tol.ray_past_m
+    d1, f1 = cast(points - start * normals, normals)
     hit = np.isfinite(d1)
     # Leaving the ice: the face met faces along the ray (outward-wound mesh).
     leaving = np.zeros(len(points), dtype=bool)
     leaving[hit] = np.einsum("kd,kd->k", ice_mesh.face_normals[f1[hit]], normals[hit]) > 0
-    under = leaving & (d1 > START)
-    thick[under] = d1[under] - START
-    enter = np.flatnonzero(hit & ~leaving & (d1 - START <= reach))
+    under = leaving & (d1 > start)
+    thick[under] = d1[under] - start
+    enter = np.flatnonzero(hit & ~leaving & (d1 - start <= reach))
     if len(enter):
         # Re-cast from just past the entry: the length of the stretch of ice.
-        d2, _ = cast(points[enter] + (d1[enter] - START + 1e-6)[:, None] * normals[enter], normals[enter])
-        thick[enter] = np.where(np.isfinite(d2), d2 + 1e-6, 0.0)
+        d2, _ = cast(points[enter] + (d1[enter] - start + past)[:, None] * normals[enter], normals[enter])
+        thick[enter] = np.where(np.isfinite(d2), d2 + past, 0.0)
     return thick
 
 

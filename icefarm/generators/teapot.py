@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 import trimesh
 
+from ..tol import tol
 from ._common import DEFAULT_DETAIL, _rest_on_ground, grid_faces
 
 
@@ -30,7 +31,7 @@ def teapot(detail: int = DEFAULT_DETAIL) -> trimesh.Trimesh:
     # Newell's patches all run so that dS/du x dS/dv points into the pot: reverse them.
     mesh = trimesh.Trimesh(vertices @ _Z_UP_TO_Y_UP.T, faces[:, ::-1], process=False)
     mesh.merge_vertices()  # patch seams share their control points, so they coincide
-    mesh.update_faces(mesh.nondegenerate_faces(height=1e-12))
+    mesh.update_faces(mesh.nondegenerate_faces(height=tol.degenerate))
     mesh.remove_unreferenced_vertices()
     return _rest_on_ground(mesh)
 

@@ -20,6 +20,7 @@ import numpy as np
 import trimesh
 
 from ..geometry import inside, ray_caster, sample_faces, unit
+from ..tol import tol
 from .rims import (RIM_REACH, SAMPLES_PER_SPACING, catchment_volume, catchment_water, compete, drip_flux,
                    rim_half_edges, rim_points)
 
@@ -145,7 +146,7 @@ def free_fall(cast, points: np.ndarray, normals: np.ndarray, gravity, floor: flo
     height ``floor`` along -gravity (inf without either)."""
     g = unit(np.asarray(gravity, dtype=np.float64))
     points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    distance, _ = cast(points + 1e-4 * unit(np.asarray(normals, dtype=np.float64).reshape(-1, 3)),
+    distance, _ = cast(points + tol.ray_lift_m * unit(np.asarray(normals, dtype=np.float64).reshape(-1, 3)),
                        np.tile(g, (len(points), 1)))
     if floor is not None:
         distance = np.minimum(distance, np.maximum(points @ -g - floor, 0.0))
@@ -295,7 +296,7 @@ def find_drips(mesh: trimesh.Trimesh, water: np.ndarray, gravity, count: int, dr
     points = np.einsum("ij,ijk->ik", bary, mesh.vertices[mesh.faces[face]])
     if len(face) and mesh.is_watertight:
         # Faces buried inside another part (a horn through a head) cannot drip.
-        lifted = points + 1e-4 * float(np.linalg.norm(mesh.extents)) * mesh.face_normals[face]
+        lifted = points + tol.offset * float(np.linalg.norm(mesh.extents)) * mesh.face_normals[face]
         free = ~inside(caster or ray_caster(mesh), lifted)
         face, bary, points = face[free], bary[free], points[free]
     if min_fall > 0:

@@ -15,10 +15,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ..geometry import unit
+from ..tol import tol
 from .trajectories import TrajectoryResult
-
-# Rays start this far above each tip (meters), so a tip resting on a surface still sees it.
-LIFT = 1e-4
 
 
 @dataclass(frozen=True)
@@ -135,9 +133,10 @@ def _find_landings(traj, off, icicle, drip_water, g, runoff, merge, cast, face_n
     fall = np.full(len(branches), np.inf)
     normals = np.tile(up, (len(branches), 1))
     if cast is not None and len(branches):
-        distance, face = cast(tips + LIFT * up, np.tile(g, (len(branches), 1)))
+        # Rays start tol.ray_lift_m above each tip, so a tip resting on a surface still sees it.
+        distance, face = cast(tips + tol.ray_lift_m * up, np.tile(g, (len(branches), 1)))
         hit = np.isfinite(distance)
-        fall[hit] = np.maximum(distance[hit] - LIFT, 0.0)
+        fall[hit] = np.maximum(distance[hit] - tol.ray_lift_m, 0.0)
         n = np.asarray(face_normals, dtype=np.float64)[face[hit]]
         normals[hit] = np.where((n @ up < 0)[:, None], -n, n)  # whatever the winding, facing up
     on_ground = np.zeros(len(branches), dtype=bool)

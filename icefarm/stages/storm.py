@@ -41,6 +41,7 @@ from scipy.sparse.csgraph import dijkstra
 from scipy.spatial import cKDTree
 
 from ..geometry import unit
+from ..tol import tol
 
 # Density of water and of glaze (clear, dense ice: 917 kg/m^3), kg/m^3; one meter of
 # frozen water is 1.09 m of glaze (clear glaze is solid ice: Makkonen 2000, Phil. Trans. R. Soc. A 358).
@@ -175,7 +176,7 @@ def open_sky(mesh: trimesh.Trimesh, gravity, cast) -> np.ndarray:
     """``(n,) bool``: a ray against gravity from each vertex (lifted a hair along its normal)
     leaves the object. ``cast`` is a `icefarm.geometry.ray_caster` of ``mesh``."""
     g = unit(np.asarray(gravity, dtype=np.float64))
-    eps = 1e-5 * float(np.linalg.norm(mesh.extents))
+    eps = tol.hair * float(np.linalg.norm(mesh.extents))
     lifted = mesh.vertices + eps * mesh.vertex_normals - eps * g
     return ~np.isfinite(cast(lifted, np.broadcast_to(-g, lifted.shape))[0])
 
@@ -296,19 +297,19 @@ def _routes(mesh: trimesh.Trimesh, g: np.ndarray, cos_up: np.ndarray, area: np.n
     heights = mesh.vertices @ -g
     edges = np.asarray(mesh.edges_unique)
     length = np.maximum(mesh.edges_unique_length, 1e-12)
-    tol = 1e-7 * float(np.linalg.norm(mesh.extents))
+    drop_tol = tol.drop * float(np.linalg.norm(mesh.extents))
     drop = heights[edges[:, 0]] - heights[edges[:, 1]]
     src = np.r_[edges[:, 0], edges[:, 1]]
     dst = np.r_[edges[:, 1], edges[:, 0]]
     slope = np.r_[drop, -drop] / np.r_[length, length]
     run = np.r_[length, length]
-    down = np.r_[drop, -drop] > tol
+    down = np.r_[drop, -drop] > drop_tol
     src, dst, slope, run = src[down], dst[down], slope[down], run[down]
     has_down = np.bincount(src, minlength=n) > 0
     flat_distance = np.zeros(n)
     # Level stretches: from upward vertices with no way down across level edges to one that has.
     upward_stuck = ~has_down & (cos_up > 0)
-    level = np.abs(drop) <= tol
+    level = np.abs(drop) <= drop_tol
     usable = level & (upward_stuck[edges[:, 0]] | upward_stuck[edges[:, 1]])
     if usable.any():
         a, b = edges[usable, 0], edges[usable, 1]

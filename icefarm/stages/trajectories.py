@@ -18,6 +18,7 @@ import numpy as np
 import trimesh
 
 from ..geometry import perpendicular_basis, unit
+from ..tol import tol
 from .turtles import BRANCH_ANGLE, _Grower, _Turtles
 
 
@@ -81,7 +82,7 @@ GOLDEN_ROLL = 137.5  # degrees: the plant-like spiral of the paper's roll (a = a
 def spread_steps(branch_spread: float, step_length: float) -> int:
     """F steps a branch holds its 30 degrees to lie ``branch_spread`` aside (1: the paper)."""
     aside = step_length * np.sin(np.radians(BRANCH_ANGLE))
-    return max(1, int(np.ceil(branch_spread / aside - 1e-9)))
+    return max(1, int(np.ceil(branch_spread / aside - tol.slack)))
 
 
 def grow_trajectories(mesh: trimesh.Trimesh, positions: np.ndarray, normals: np.ndarray,
@@ -159,7 +160,7 @@ def grow_trajectories(mesh: trimesh.Trimesh, positions: np.ndarray, normals: np.
     g = unit(np.asarray(gravity, dtype=np.float64).reshape(3))
     wind = np.asarray(wind, dtype=np.float64).reshape(3)
     wind = wind - (wind @ g) * g
-    blowing = bool(np.linalg.norm(wind) > 1e-9)
+    blowing = bool(np.linalg.norm(wind) > tol.zero)
     grower = _Grower(mesh, g, step_length, drip_limit, caster, max_tilt, unit(wind) if blowing else None,
                      slide=contact == "slide")
     generations = np.maximum(0, np.round((length_scale * water - step_length) / (3 * step_length))).astype(int)

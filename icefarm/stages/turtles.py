@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..geometry import perpendicular_basis, ray_caster, unit
+from ..tol import tol
 
 BRANCH_ANGLE = 30.0  # degrees: p1'' leaves the trunk at 30 degrees, then turns back parallel
 
@@ -50,7 +51,7 @@ def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 def _across(v: np.ndarray, h: np.ndarray) -> np.ndarray:
     """Unit part ``(k, 3)`` of ``v`` perpendicular to the unit rows ``h`` (any perpendicular if none)."""
     out = v - _dot(v, h)[:, None] * h
-    bad = np.linalg.norm(out, axis=1) < 1e-9
+    bad = np.linalg.norm(out, axis=1) < tol.zero
     if bad.any():
         out[bad] = [perpendicular_basis(x)[0] for x in h[bad]]
     return unit(out)
@@ -65,7 +66,7 @@ class _Grower:
         self.cos_dl = np.cos(np.radians(drip_limit))
         self.max_tilt = np.radians(max_tilt)
         self.wind = wind  # (3,) unit, perpendicular to gravity, or None for still air
-        self.eps = 1e-4 * float(np.linalg.norm(mesh.extents))
+        self.eps = tol.offset * float(np.linalg.norm(mesh.extents))
         # Slide points float this far off the surface so chords between them stay outside
         # curved parts (sagitta of a step on a 2 mm radius); the ice covers the gap.
         self.lift = max(self.eps, 0.25 * step)
@@ -86,7 +87,7 @@ class _Grower:
             new_h, new_l = _rotate(h, left, degrees)
         else:
             across = self.wind - (h @ self.wind)[:, None] * h
-            towards = np.where((np.linalg.norm(across, axis=1) > 1e-9)[:, None], unit(across), left)
+            towards = np.where((np.linalg.norm(across, axis=1) > tol.zero)[:, None], unit(across), left)
             new_h, new_t = _rotate(h, towards, degrees)
             # L's share of the turning plane turns with it (a rotation, so L stays unit and normal to H)
             new_l = left + _dot(left, towards)[:, None] * (new_t - towards)
@@ -116,7 +117,7 @@ class _Grower:
             h1 = h1.copy()
             side = h1[changed] - (h1[changed] @ self.g)[:, None] * self.g
             fallback = towards[changed] - (towards[changed] @ self.g)[:, None] * self.g
-            side = np.where((np.linalg.norm(side, axis=1) > 1e-9)[:, None], side, fallback)
+            side = np.where((np.linalg.norm(side, axis=1) > tol.zero)[:, None], side, fallback)
             side = _across(side, np.tile(self.g, (len(side), 1)))
             h1[changed] = (np.cos(tilt[changed])[:, None] * self.g + np.sin(tilt[changed])[:, None] * side)
         return h1, changed

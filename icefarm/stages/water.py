@@ -13,6 +13,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from ..geometry import chain_sums, perpendicular_basis, ray_caster, sample_faces, unit
+from ..tol import tol
 
 
 @dataclass(frozen=True)
@@ -100,7 +101,7 @@ def water_supply(mesh: trimesh.Trimesh, gravity: np.ndarray, rays: int, influenc
     distance, _ = cKDTree(hits).query(mesh.vertices, distance_upper_bound=influence_radius)
     candidates = np.flatnonzero((distance <= influence_radius) & (mesh.vertex_normals @ g < 0))
     # A vertex near a hit on an overhang above it is still in the overhang's shadow.
-    eps = 1e-5 * float(np.linalg.norm(mesh.extents))
+    eps = tol.hair * float(np.linalg.norm(mesh.extents))
     lifted = mesh.vertices[candidates] - eps * g + eps * mesh.vertex_normals[candidates]
     shadowed = np.isfinite(cast(lifted, np.broadcast_to(-g, lifted.shape))[0])
     supply[candidates[~shadowed]] = True
@@ -236,18 +237,18 @@ def overflow_heights(mesh: trimesh.Trimesh, supply: np.ndarray, gravity: np.ndar
     n = len(heights)
     if len(edges) == 0:
         return np.zeros(n)
-    tol = 1e-6 * float(np.ptp(mesh.vertices, axis=0).max())
+    level_tol = tol.level * float(np.ptp(mesh.vertices, axis=0).max())
     uses = np.bincount(mesh.edges_unique_inverse, minlength=len(edges))
-    outlets = heights <= heights.min() + tol
+    outlets = heights <= heights.min() + level_tol
     outlets[edges[uses == 1].ravel()] = True
     normals = np.asarray(mesh.vertex_normals)
     facing_down = np.flatnonzero(normals @ g > 0)
     if len(facing_down):
         cast = caster or ray_caster(mesh)
-        lifted = mesh.vertices[facing_down] + 1e-5 * float(np.linalg.norm(mesh.extents)) * normals[facing_down]
+        lifted = mesh.vertices[facing_down] + tol.hair * float(np.linalg.norm(mesh.extents)) * normals[facing_down]
         outlets[facing_down] |= ~np.isfinite(cast(lifted, np.broadcast_to(g, lifted.shape))[0])
     level = spill_levels(heights, edges, outlets)
-    wet = np.isfinite(level) & (level > heights + tol)
+    wet = np.isfinite(level) & (level > heights + level_tol)
     inside = wet[edges[:, 0]] & wet[edges[:, 1]]
     graph = coo_matrix((np.ones(inside.sum()), (edges[inside, 0], edges[inside, 1])), shape=(n, n))
     _, basin = connected_components(graph, directed=False)
@@ -261,9 +262,9 @@ def overflow_heights(mesh: trimesh.Trimesh, supply: np.ndarray, gravity: np.ndar
     depth = np.where(rained, top - bottom, 0.0)
     bonus = np.zeros(n)
     for a, b in (edges.T, edges[:, ::-1].T):  # rim: dry vertices at their basin's level, next to it
-        at_rim = wet[a] & ~wet[b] & (np.abs(heights[b] - level[a]) <= tol)
+        at_rim = wet[a] & ~wet[b] & (np.abs(heights[b] - level[a]) <= level_tol)
         np.maximum.at(bonus, b[at_rim], depth[basin[a[at_rim]]])
-    flat = ~wet[edges[:, 0]] & ~wet[edges[:, 1]] & (np.abs(heights[edges[:, 0]] - heights[edges[:, 1]]) <= tol)
+    flat = ~wet[edges[:, 0]] & ~wet[edges[:, 1]] & (np.abs(heights[edges[:, 0]] - heights[edges[:, 1]]) <= level_tol)
     a, b = edges[flat, 0], edges[flat, 1]
     while True:  # across the flat rim top, where the upward walks stop
         spread = bonus.copy()

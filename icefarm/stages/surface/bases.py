@@ -11,6 +11,7 @@ from scipy.spatial import cKDTree
 from ...params import SurfaceParams
 from ...geometry import random_barycentric, ray_caster
 from ...metaballs.balls import LEVEL, NO_BALLS, Balls
+from ...tol import tol
 from ..drips import DripResult
 
 # Width over radius of a base ball: a lone ball's surface sits at its radius rb, and wide
@@ -110,7 +111,7 @@ def object_thickness(mesh: trimesh.Trimesh, points: np.ndarray, normals: np.ndar
     mesh)."""
     if cast is None:
         cast = ray_caster(mesh)
-    nudge = 1e-6 * float(np.ptp(mesh.vertices, axis=0).max())
+    nudge = tol.inset * float(np.ptp(mesh.vertices, axis=0).max())
     start = points - nudge * normals
     thickness, _ = cast(start, -normals)
     thickness = thickness + nudge

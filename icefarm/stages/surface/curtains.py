@@ -21,6 +21,7 @@ from scipy.spatial import cKDTree
 from ...params import SurfaceParams
 from ...geometry import unit
 from ...metaballs.balls import NO_BALLS, Balls, concat_balls, sheet_balls
+from ...tol import tol
 from ..trajectories import TrajectoryResult
 from .profile import _branch_lengths, grown_lengths, profile_args, smooth_radius
 
@@ -109,7 +110,7 @@ def _neighbour_pairs(bases: np.ndarray, distance: float) -> np.ndarray:
     mid = 0.5 * (bases[pairs[:, 0]] + bases[pairs[:, 1]])
     half = 0.5 * np.linalg.norm(bases[pairs[:, 0]] - bases[pairs[:, 1]], axis=1)
     tree = cKDTree(bases)
-    keep = [len(tree.query_ball_point(m, h * (1 - 1e-9))) == 0 for m, h in zip(mid, half)]
+    keep = [len(tree.query_ball_point(m, h * (1 - tol.slack))) == 0 for m, h in zip(mid, half)]
     return pairs[np.asarray(keep, dtype=bool)]
 
 

@@ -26,6 +26,7 @@ from scipy.spatial import cKDTree
 
 from ...metaballs import Balls
 from ...metaballs.balls import KAPPA
+from ...tol import tol
 
 # Coarse voxel / fine voxel, when the budget allows a coarse lattice at all.
 COARSE = 3.0
@@ -61,7 +62,7 @@ def coarse_voxel(fine_voxel: float, extent: float, error_px: float, ripple_ampli
     voxel = min(8.0 * error, COARSE * fine_voxel)
     if ripple_amplitude > error and ripple_wavelength > 0:
         voxel = min(voxel, ripple_wavelength / RIPPLE_SAMPLES)
-    return voxel if voxel >= COARSE * fine_voxel * (1 - 1e-9) else None
+    return voxel if voxel >= COARSE * fine_voxel * (1 - tol.slack) else None
 
 
 def split_balls(balls: Balls, voxel: float, surface_points: np.ndarray, clearance: float,

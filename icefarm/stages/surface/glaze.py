@@ -28,6 +28,7 @@ from ...params import GlazeParams
 from ...geometry import random_barycentric, ray_caster, sample_faces, unit
 from ...metaballs import Field, sample_field
 from ...metaballs.balls import NO_BALLS, Balls, sheet_balls
+from ...tol import tol
 from ..water import WaterResult
 from .coat import coat_field
 
@@ -40,9 +41,8 @@ STORM_COAT_VOXELS = 4.0
 # The coat's mesh holds about this many faces per voxel face of the wet area (both its
 # sides, its rims and the creases it follows; 7.6 measured on the 3 m house).
 COAT_FACES_PER_VOXEL_AREA = 8.0
-# measure_glaze: rays start this far under the surface (m) and count ice that starts
+# measure_glaze: rays start `tol.ray_under_m` under the surface and count ice that starts
 # within REACH (m) above it.
-_START = 2e-4
 REACH = 0.01
 
 
@@ -306,20 +306,21 @@ def measure_glaze(ice_vertices: np.ndarray, ice_faces: np.ndarray, flow_mesh: tr
         ice_faces = np.asarray(ice_faces)
         if cast is None:
             cast = ray_caster(trimesh.Trimesh(ice_vertices, ice_faces, process=False))
-        d1, f1 = cast(pts - _START * normal, normal)
+        start, past = tol.ray_under_m, tol.ray_past_m
+        d1, f1 = cast(pts - start * normal, normal)
         hit = np.flatnonzero(np.isfinite(d1))
         tri = ice_vertices[ice_faces[f1[hit]]]
         facing = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])  # outward, unnormalised
         leaving = np.zeros(len(pts), dtype=bool)
         leaving[hit] = np.einsum("kd,kd->k", facing, normal[hit]) > 0
         # Inside the ice at the surface: the ice above it ends where the ray leaves.
-        inside = leaving & (d1 > _START)
-        thick[inside] = d1[inside] - _START
+        inside = leaving & (d1 > start)
+        thick[inside] = d1[inside] - start
         # Outside it: ice that starts within reach, as thick as the ray stays in it.
-        enter = np.flatnonzero(~leaving & np.isfinite(d1) & (d1 - _START <= reach))
+        enter = np.flatnonzero(~leaving & np.isfinite(d1) & (d1 - start <= reach))
         if len(enter):
-            d2, _ = cast(pts[enter] + (d1[enter] - _START + 1e-6)[:, None] * normal[enter], normal[enter])
-            thick[enter] = np.where(np.isfinite(d2), d2 + 1e-6, 0.0)
+            d2, _ = cast(pts[enter] + (d1[enter] - start + past)[:, None] * normal[enter], normal[enter])
+            thick[enter] = np.where(np.isfinite(d2), d2 + past, 0.0)
         covered = thick > 0
     h = pts @ -unit(np.asarray(gravity, dtype=np.float64).reshape(3))
     lo, hi = h.min() + np.ptp(h) / 3, h.max() - np.ptp(h) / 3

@@ -8,6 +8,7 @@ import numpy as np
 
 from ...params import SurfaceParams
 from ...metaballs.balls import KAPPA, LEVEL, NO_BALLS, SPACING, TIP_WEIGHT, Balls
+from ...tol import tol
 from ..trajectories import TrajectoryResult
 from .profile import TIP_CALM, _branch_lengths, _points_along, grown_lengths, profile_args, smooth_radius
 
@@ -62,7 +63,7 @@ def icicle_balls(traj: TrajectoryResult, surface: SurfaceParams, rng: np.random.
     du[fstart] = 0.0
     u = np.cumsum(du)
     u_len = u[fstart + nfine - 1] - u[fstart]
-    nint = np.ceil(u_len - 1e-9).astype(np.int64)  # intervals between balls; 0: one lone ball
+    nint = np.ceil(u_len - tol.slack).astype(np.int64)  # intervals between balls; 0: one lone ball
     nballs = nint + 1
     bb = np.repeat(np.arange(nb), nballs)
     bk = np.arange(nballs.sum()) - np.repeat(np.cumsum(nballs) - nballs, nballs)
