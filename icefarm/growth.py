@@ -35,7 +35,7 @@ import trimesh
 
 from . import artifacts
 from .params import GlazeParams, SurfaceParams
-from .scene.material import Material
+from .scene.write import JobScene
 from .growth_usd import write_growth_usd
 from .stages.drips import DripResult
 from .stages.trajectories import TrajectoryResult
@@ -52,28 +52,16 @@ class FrameView:
 
     Attributes
     ----------
-    object_mesh : trimesh.Trimesh
-        The object, in meters.
+    scene : icefarm.scene.write.JobScene
+        The job's scene with the fully grown ice (`icefarm.scene.write.job_scene`): its
+        cameras frame the object and all the ice, so nothing jumps; each frame puts its
+        own ice in it.
     config : icefarm.scene.config.RenderConfig
         The job's render config; frames use its main view only, framed on the whole scene.
-    gravity : (3,) float
-    material : Material
-        The object's material (`icefarm.scene.material.material_from_dict`).
-    frame_points : (n, 3) float
-        What the camera frames: the object and the fully grown ice, so nothing jumps.
-    impurity : float
-        The job's ``surface.impurity``.
-    ground_level : float or None
-        As `icefarm.scene.write.write_scenes` takes it.
     """
 
-    object_mesh: trimesh.Trimesh
+    scene: JobScene
     config: object
-    gravity: np.ndarray
-    material: Material
-    frame_points: np.ndarray
-    impurity: float = 0.0
-    ground_level: float | None = None
 
 
 @dataclass(frozen=True)
@@ -286,17 +274,14 @@ def render_frame(view: FrameView, ice: trimesh.Trimesh, scratch: Path, png: Path
     uses it (POV-Ray otherwise), at the config's resolution and samples.
     """
     from .scene.render import render_job
-    from .scene.write import write_scenes
 
     config = view.config
     main = dataclasses.replace(config.views[0], frame="all")
     config = dataclasses.replace(config, views=(main,), renderer="mitsuba" if config.uses_mitsuba else "povray")
     scratch.mkdir(parents=True, exist_ok=True)
     (scratch / "ice.ply").unlink(missing_ok=True)  # write_scenes keeps an ice.ply it finds
-    files = write_scenes(scratch, view.object_mesh, ice if len(ice.faces) else None, config, view.gravity,
-                         view.material, frame_points=view.frame_points, defer_povray=config.uses_mitsuba,
-                         impurity=view.impurity, ground_level=view.ground_level)
-    render_job(scratch, config, dataclasses.replace(files, povray_writer=None))  # no scene.pov per frame
+    scene = dataclasses.replace(view.scene, ice_mesh=ice if len(ice.faces) else None)
+    render_job(scratch, config, scene, povray_files=False)  # no scene.pov per frame unless POV-Ray renders it
     shutil.move(scratch / "render.png", png)
     return png
 

@@ -26,9 +26,8 @@ from .jobdir import DONE, ERROR, PARAMS, TIMINGS, JobState
 from .chain import Stage, StageResults, build_surface, run_stages, sole, stage_rng, stops
 from .mesh import PreparedMesh, prepare
 from .params import Params, StormParams, SurfaceParams
-from .placement import ground_height, ground_level
+from .placement import ground_height
 from .progress import ProgressMode, StepProgress, step_progress
-from .scene.camera import frame_boxes
 from .generators import GENERATOR_PREFIX
 from .stage_cache import StageCache, digest as _digest, file_digest as _file_digest
 from .scene.material import Material
@@ -285,22 +284,17 @@ def _surface_and_render(spec: JobSpec, job_dir: Path, run: _Run, until: Stage | 
     if spec.render is None or stops(until, Stage.SURFACE):
         return stats
     from .scene.config import load_render_config
-    from .scene.material import material_from_dict
-    from .scene.render import render_job, write_scenes
+    from .scene.render import render_job
+    from .scene.write import job_scene
 
     config = load_render_config(spec.render)
-    material = material_from_dict(spec.material)
-
-    def render() -> Any:
-        files = write_scenes(job_dir, obj, ice_mesh if len(ice.faces) else None, config, gravity, material,
-                             frame_points=frame_boxes(obj, ice_mesh), defer_povray=True,
-                             impurity=p.surface.impurity,  # impure water: a cloudy core
-                             ground_level=ground_level(spec.placement, obj, gravity))
-        if files.ground_height is not None:  # 0 for a grounded object; a hanging one floats
-            stats["ground_gap_mm"] = _finite((ground_height(obj.vertices, gravity) - files.ground_height) * 1000)
-        return render_job(job_dir, config, files, progress=run.progress)  # POV-Ray files written meanwhile
-
-    result = run.timed("render", render)
+    scene = job_scene(obj, ice_mesh, gravity, material=spec.material, placement=spec.placement,
+                      impurity=p.surface.impurity)  # impure water: a cloudy core
+    material = scene.material
+    # POV-Ray files written meanwhile
+    result = run.timed("render", lambda: render_job(job_dir, config, scene, progress=run.progress))
+    if result.scene.ground_height is not None:  # 0 for a grounded object; a hanging one floats
+        stats["ground_gap_mm"] = _finite((ground_height(obj.vertices, gravity) - result.scene.ground_height) * 1000)
     stats.update(object_material=material.to_dict(), render_variant=result.variant, render_integrator=result.integrator,
                  renderer=result.renderer,
                  render_seconds=result.seconds, scene_seconds=result.scene_seconds,
@@ -325,11 +319,11 @@ def _growth(spec: JobSpec, job_dir: Path, run: _Run, r: StageResults, gravity: n
     view = None
     if spec.render is not None:
         from .scene.config import load_render_config
-        from .scene.material import material_from_dict
+        from .scene.write import job_scene
 
         full = trimesh.load(job_dir / "ice.ply", process=False, force="mesh")
-        view = FrameView(obj, load_render_config(spec.render), gravity, material_from_dict(spec.material),
-                         frame_boxes(obj, full), p.surface.impurity, ground_level(spec.placement, obj, gravity))
+        view = FrameView(job_scene(obj, full, gravity, material=spec.material, placement=spec.placement,
+                                   impurity=p.surface.impurity), load_render_config(spec.render))
     cast = ray_caster(r.flow)
     extra_balls = r.ground.balls if r.ground is not None else None
     result = grow_frames(

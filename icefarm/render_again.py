@@ -8,8 +8,7 @@ import trimesh
 
 from .errors import InputError
 from .jobdir import JobState, read_job
-from .placement import Placement, ground_level
-from .scene.camera import frame_boxes
+from .placement import Placement
 
 
 def render_again(job_dir: Path, render: str, out_dir: Path, progress: bool = False):
@@ -18,12 +17,14 @@ def render_again(job_dir: Path, render: str, out_dir: Path, progress: bool = Fal
     For a contact-sheet cell worth a final frame: nothing is recomputed and the job folder
     is left as it is; ``out_dir`` gets its own scenes (``scene.xml``, ``scene.pov`` and
     their meshes) and renders. Needs a job that rendered (its ``object.ply`` is the object
-    in meters); the object's material is the job's.
+    in meters). Gravity and the object's material are those the job's scene records
+    (``scene.json``, `icefarm.rendered.read_rendered`); the cameras are framed anew for
+    the config's views.
 
     Parameters
     ----------
     job_dir : Path
-        A job folder with ``done.json``, ``params.yaml``, ``ice.ply`` and ``object.ply``.
+        A job folder with ``done.json``, ``params.yaml``, ``ice.ply``, ``object.ply`` and ``scene.xml``.
     render : str
         Render config name or YAML path.
     out_dir : Path
@@ -39,32 +40,27 @@ def render_again(job_dir: Path, render: str, out_dir: Path, progress: bool = Fal
     InputError
         Not a finished job, a job that never rendered, or a bad render config.
     """
+    from .rendered import read_rendered
     from .scene.config import load_render_config
-    from .scene.material import material_from_dict
     from .scene.render import render_job
-    from .scene.write import write_scenes
+    from .scene.write import job_scene
 
     job_dir, out_dir = Path(job_dir), Path(out_dir)
     job = read_job(job_dir)
     if job.state is not JobState.DONE:
         raise InputError(f"{job_dir} is not a finished job (no done.json): run it first")
-    for name in ("params.yaml", "ice.ply", "object.ply"):
+    for name in ("params.yaml", "ice.ply", "object.ply", "scene.xml"):
         if not (job_dir / name).is_file():
             raise InputError(f"{job_dir} has no {name}: only jobs that rendered can be rendered again "
                              "(run the job without --no-render)")
     if out_dir.resolve() == job_dir.resolve():
         raise InputError("render into a folder of its own, not the job folder: its files belong to the job")
     config = load_render_config(render)
-    values = job.params or {}
-    gravity = values["water.gravity"]
+    rendered = read_rendered(job_dir)
     obj = trimesh.load(job_dir / "object.ply", process=False)
     obj.merge_vertices(merge_norm=True)  # object.ply splits vertices along creases
     ice = trimesh.load(job_dir / "ice.ply", process=False)
-    has_ice = isinstance(ice, trimesh.Trimesh) and len(ice.faces) > 0
-    ice_mesh = ice if has_ice else trimesh.Trimesh()
-    files = write_scenes(out_dir, obj, ice_mesh if has_ice else None, config, gravity,
-                         material_from_dict(job.stats.get("object_material")),
-                         frame_points=frame_boxes(obj, ice_mesh), defer_povray=True,
-                         impurity=float(values.get("surface.impurity", 0.0)),  # 0 for jobs older than it
-                         ground_level=ground_level(job.stats.get("placement", Placement.HANGING.value), obj, gravity))
-    return render_job(out_dir, config, files, progress=progress)
+    scene = job_scene(obj, ice if isinstance(ice, trimesh.Trimesh) else None, rendered.gravity,
+                      material=rendered.material, placement=job.stats.get("placement", Placement.HANGING.value),
+                      impurity=float((job.params or {}).get("surface.impurity", 0.0)))  # 0 for jobs older than it
+    return render_job(out_dir, config, scene, progress=progress)

@@ -1,19 +1,19 @@
 """What a finished job rendered, read from its folder for the exporters (`usd`, `gltf`).
 
-``scene.json`` (`icefarm.scene.spec`) is the record of the render, written with
-``scene.xml`` from the same values: the cameras Mitsuba looked through, the sun, the sky and
-how it is turned, the ground, the ice's look (ior, roughness, tint, the medium inside) and
-the object's material. Reading it, rather than framing the cameras again from the render
-config, gives exactly what was rendered. Jobs from before ``scene.json`` are read from
-their ``scene.xml`` (and the material from ``done.json``'s ``object_material``). The
-object's mesh comes from ``object.ply`` (split along creases, with the normals it was
-rendered with), the ice from ``ice.ply``.
+``scene.json`` (`icefarm.scene.spec.SceneSpec`) is the record of the render, from which
+``scene.xml`` and ``scene.pov`` were written: the cameras Mitsuba looked through, the sun,
+the sky and how it is turned, the ground, the ice's look (ior, roughness, tint, the medium
+inside) and the object's material. Reading it, rather than framing the cameras again from
+the render config, gives exactly what was rendered. Jobs from before ``scene.json`` are read
+from their ``scene.xml`` by `icefarm.scene.legacy` (the material from ``done.json``'s
+``object_material``, gravity from ``params.yaml``). The object's mesh comes from
+``object.ply`` (split along creases, with the normals it was rendered with), the ice from
+``ice.ply``.
 """
 
 from __future__ import annotations
 
 import json
-import xml.etree.ElementTree as ET
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -26,9 +26,12 @@ from .errors import InputError
 from .jobdir import read_job
 from .scene import geometry as geo
 from .scene.camera import Camera
+from .scene.legacy import spec_from_xml
 from .scene.material import Material, material_from_dict
-from .scene.mitsuba import WATER_ICE_IOR
-from .scene.spec import SPEC_FILE, read_spec
+from .scene.spec import SPEC_FILE, TINT_DISTANCE_M, Ground, IceShading, read_spec
+
+__all__ = ["METAL_F0", "TINT_DISTANCE_M", "Ground", "IceShading", "Pbr", "Rendered", "Surface", "ice_surface",
+           "object_surface", "pbr", "read_ice", "read_rendered", "require", "water_at"]
 
 # Normal-incidence reflectance (linear RGB) of Mitsuba's conductors, as a PBR metal's base
 # colour: the usual table of F0 values (Hoffman, "Physically Based Shading", SIGGRAPH course).
@@ -39,46 +42,6 @@ METAL_F0 = {
     "Cu": (0.955, 0.638, 0.538),
     "Cr": (0.549, 0.556, 0.554),
 }
-# The ice's colour, where a format has no absorbing medium (UsdPreviewSurface): what white
-# light looks like after this much ice. 10 cm: the root of a long icicle, where ice shows colour.
-TINT_DISTANCE_M = 0.1
-
-
-@dataclass(frozen=True)
-class IceShading:
-    """The ice's look as rendered.
-
-    Attributes
-    ----------
-    ior : float
-        Index of refraction (1.31, water ice).
-    alpha : float
-        GGX roughness alpha of the surface (0: smooth).
-    tint : (3,) float
-        Transmittance per surface crossing, linear RGB.
-    absorption : (3,) float
-        Absorption inside the ice, per meter (R, G, B).
-    scattering : float
-        Scattering inside the ice, per meter.
-    flip : bool
-        ``ice.ply``'s faces wind inwards (Mitsuba flipped its normals).
-    """
-
-    ior: float
-    alpha: float
-    tint: tuple[float, float, float]
-    absorption: tuple[float, float, float]
-    scattering: float
-    flip: bool
-
-    @property
-    def roughness(self) -> float:
-        """Perceptual roughness of UsdPreviewSurface and glTF, whose square is the GGX alpha."""
-        return float(np.sqrt(self.alpha))
-
-    def color_at(self, distance: float = TINT_DISTANCE_M) -> np.ndarray:
-        """``(3,)`` linear RGB of white light after ``distance`` meters of ice (Beer-Lambert)."""
-        return np.asarray(self.tint) * np.exp(-np.asarray(self.absorption) * distance)
 
 
 @dataclass(frozen=True)
@@ -151,30 +114,6 @@ class Rendered:
     ground: "Ground | None" = None
 
 
-@dataclass(frozen=True)
-class Ground:
-    """The rendered ground plane: a square ``corners`` ``(4, 3)`` (meters, counter-clockwise
-    seen from above) of a matte ``color`` ``(3,)``, linear RGB (a checker's mean)."""
-
-    corners: np.ndarray
-    color: np.ndarray
-
-    @property
-    def normal(self) -> np.ndarray:
-        n = np.cross(self.corners[1] - self.corners[0], self.corners[2] - self.corners[0])
-        return n / np.linalg.norm(n)
-
-
-def _ground(shape) -> Ground | None:
-    """`Ground` from scene.xml's ``rectangle`` shape (Mitsuba's square -1..1 in its local XY)."""
-    if shape is None:
-        return None
-    m = _floats(shape.find("transform/matrix").get("value")).reshape(4, 4)
-    local = np.array([[-1.0, -1.0, 0.0, 1.0], [1.0, -1.0, 0.0, 1.0], [1.0, 1.0, 0.0, 1.0], [-1.0, 1.0, 0.0, 1.0]])
-    colors = [_floats(c.get("value").replace(",", " ")) for c in shape.iter("rgb")]
-    return Ground(corners=(local @ m.T)[:, :3], color=np.mean(colors, axis=0) if colors else np.full(3, 0.1))
-
-
 def require(job_dir: Path, *names: str) -> None:
     """`InputError` in one line naming the first of ``names`` missing from ``job_dir``."""
     for name in names:
@@ -202,58 +141,26 @@ def read_rendered(job_dir: str | Path, material: Material | Mapping | None = Non
     job_dir = Path(job_dir)
     require(job_dir, "scene.xml", "params.yaml")
     if (job_dir / SPEC_FILE).is_file():
-        return _from_spec(job_dir, material)
-    # a job from before scene.json: what scene.xml says
-    try:
-        root = ET.parse(job_dir / "scene.xml").getroot()
-        defaults = {d.get("name"): d.get("value") for d in root.iter("default")}
-        width, height = int(defaults["resx"]), int(defaults["resy"])
-        cameras = tuple(_camera(s, width / height) for s in root.iter("sensor"))
-        emitters = {e.get("type"): e for e in root.iter("emitter")}
-        envmap, sun = emitters["envmap"], emitters.get("directional")
-        shapes = {s.get("id"): s for s in root.iter("shape")}
-        sky_frame = _floats(envmap.find("transform/matrix").get("value")).reshape(4, 4)[:3, :3].T
-    except (ET.ParseError, KeyError, AttributeError, TypeError, ValueError) as exc:
-        raise InputError(f"{job_dir / 'scene.xml'}: not a scene.xml written by icefarm ({exc})") from None
-    gravity = np.asarray((yaml.safe_load((job_dir / "params.yaml").read_text()).get("water") or {})
-                         .get("gravity", (0.0, -1.0, 0.0)), dtype=np.float64)
-    if material is None:
-        material = read_job(job_dir).stats.get("object_material")
+        try:
+            spec = read_spec(job_dir / SPEC_FILE)
+        except (KeyError, TypeError, ValueError) as exc:
+            raise InputError(f"{job_dir / SPEC_FILE}: not a scene.json written by icefarm ({exc})") from None
+    else:  # a job from before scene.json: what scene.xml says
+        gravity = (yaml.safe_load((job_dir / "params.yaml").read_text()).get("water") or {}).get("gravity",
+                                                                                                (0.0, -1.0, 0.0))
+        own = material if material is not None else read_job(job_dir).stats.get("object_material")
+        try:
+            spec = spec_from_xml(job_dir / "scene.xml", gravity=gravity, material=material_from_dict(own),
+                                 view_names=_view_names(job_dir))
+        except ValueError as exc:
+            raise InputError(str(exc)) from None
     return Rendered(
-        cameras=cameras, view_names=_view_names(job_dir, len(cameras)), width=width, height=height,
-        sky=job_dir / _named(envmap, "string", "filename"),
-        sky_scale=float(_named(envmap, "float", "scale") or 1.0), sky_frame=sky_frame,
-        sun=None if sun is None else -_floats(_named(sun, "vector", "direction")),
-        sun_irradiance=np.zeros(3) if sun is None else _floats(_named(sun, "rgb", "irradiance")),
-        ice=_ice(shapes["ice"]) if "ice" in shapes else None,
-        gravity=gravity / np.linalg.norm(gravity), material=material_from_dict(material),
-        ground=_ground(shapes.get("ground")))
-
-
-def _from_spec(job_dir: Path, material: Material | Mapping | None) -> Rendered:
-    """`Rendered` from ``scene.json``."""
-    try:
-        spec = read_spec(job_dir / SPEC_FILE)
-        width, height = (int(v) for v in spec["resolution"])
-        cameras = tuple(Camera(origin=np.asarray(c["origin"]), target=np.asarray(c["target"]), up=np.asarray(c["up"]),
-                               fov_x=float(c["fov_x"]), fov_y=float(c["fov_y"]), near=float(c["near"]),
-                               far=float(c["far"])) for c in spec["cameras"])
-        sky, sun, ground, ice = spec["sky"], spec.get("sun"), spec.get("ground"), spec.get("ice")
-        rendered = Rendered(
-            cameras=cameras, view_names=tuple(v["name"] for v in spec["views"]), width=width, height=height,
-            sky=job_dir / sky["file"], sky_scale=float(sky["scale"]), sky_frame=np.asarray(sky["frame"]),
-            sun=None if sun is None else np.asarray(sun["direction"]),
-            sun_irradiance=np.zeros(3) if sun is None else np.asarray(sun["irradiance"]),
-            ice=None if ice is None else IceShading(
-                ior=float(ice["ior"]), alpha=float(ice["alpha"]), tint=tuple(float(t) for t in ice["tint"]),
-                absorption=tuple(float(a) for a in ice["absorption"]), scattering=float(ice["scattering"]),
-                flip=bool(ice["flip"])),
-            gravity=np.asarray(spec["gravity"]),
-            material=material_from_dict(material if material is not None else spec["object"]["material"]),
-            ground=None if ground is None else Ground(np.asarray(ground["corners"]), np.asarray(ground["color"])))
-    except (KeyError, TypeError, ValueError) as exc:
-        raise InputError(f"{job_dir / SPEC_FILE}: not a scene.json written by icefarm ({exc})") from None
-    return rendered
+        cameras=spec.cameras, view_names=tuple(v.name for v in spec.views), width=spec.resolution[0],
+        height=spec.resolution[1], sky=job_dir / spec.sky.file, sky_scale=spec.sky.scale, sky_frame=spec.frame,
+        sun=None if spec.sun is None else spec.sun.direction,
+        sun_irradiance=np.zeros(3) if spec.sun is None else spec.sun.irradiance, ice=spec.ice,
+        gravity=spec.gravity, material=spec.material if material is None else material_from_dict(material),
+        ground=spec.ground)
 
 
 @dataclass(frozen=True)
@@ -327,47 +234,9 @@ def water_at(job_dir: str | Path, points: np.ndarray) -> tuple[np.ndarray, np.nd
     return water[nearest], supply[nearest]
 
 
-def _floats(text: str) -> np.ndarray:
-    return np.array(text.replace(",", " ").split(), dtype=np.float64)
-
-
-def _named(element: ET.Element, tag: str, name: str) -> str | None:
-    found = element.find(f"{tag}[@name='{name}']")
-    return None if found is None else found.get("value")
-
-
-def _camera(sensor: ET.Element, aspect: float) -> Camera:
-    """A Mitsuba ``perspective`` sensor (``fov_axis`` x, a ``lookat``) as a `Camera`;
-    ``aspect`` is the image's width over its height."""
-    look = sensor.find("transform/lookat")
-    fov_x = float(_named(sensor, "float", "fov"))
-    fov_y = np.degrees(2 * np.arctan(np.tan(np.radians(fov_x) / 2) / aspect))
-    return Camera(origin=_floats(look.get("origin")), target=_floats(look.get("target")),
-                  up=_floats(look.get("up")), fov_x=fov_x, fov_y=float(fov_y),
-                  near=float(_named(sensor, "float", "near_clip")), far=float(_named(sensor, "float", "far_clip")))
-
-
-def _ice(shape: ET.Element) -> IceShading:
-    bsdf = shape.find("bsdf")
-    ior = _named(bsdf, "string", "int_ior")
-    ior = WATER_ICE_IOR if ior == "water ice" else float(_named(bsdf, "float", "int_ior"))
-    tint = _named(bsdf, "rgb", "specular_transmittance")
-    medium = shape.find("medium")
-    absorption, scattering = np.zeros(3), 0.0
-    if medium is not None:  # sigma_t (an RGB times a scale) and albedo: see `scene.mitsuba._medium_ice`
-        extinction = _floats(_named(medium, "rgb", "sigma_t")) * float(_named(medium, "float", "scale"))
-        albedo = _floats(_named(medium, "rgb", "albedo"))
-        absorption, scattering = extinction * (1.0 - albedo), float(np.mean(extinction * albedo))
-    return IceShading(ior=float(ior), alpha=float(_named(bsdf, "float", "alpha") or 0.0),
-                      tint=tuple(_floats(tint)) if tint else (1.0, 1.0, 1.0),
-                      absorption=tuple(float(a) for a in absorption), scattering=scattering,
-                      flip=_named(shape, "boolean", "flip_normals") == "true")
-
-
-def _view_names(job_dir: Path, count: int) -> tuple[str, ...]:
-    """The views' names from ``views.json``; ``view<i>`` where it is missing or does not match."""
+def _view_names(job_dir: Path) -> list[str] | None:
+    """The views' names from ``views.json``; None where it is missing or unreadable."""
     try:
-        names = [v["name"] for v in json.loads((job_dir / "views.json").read_text())]
+        return [v["name"] for v in json.loads((job_dir / "views.json").read_text())]
     except (OSError, ValueError, KeyError, TypeError):
-        names = []
-    return tuple(names) if len(names) == count else tuple(f"view{i}" for i in range(count))
+        return None

@@ -449,8 +449,9 @@ def test_scene_json_describes_what_scene_xml_renders(job, tmp_path):
 
     from icefarm.rendered import read_rendered
 
-    spec = json.loads((job / "scene.json").read_text())
-    assert spec["version"] == 1 and spec["object"]["file"] == "object.ply" and spec["ice"]["file"] == "ice.ply"
+    spec = json.loads((job / "scene.json").read_text())  # a rendered job has scene.json, listed as an artifact
+    assert "scene.json" in json.loads((job / "done.json").read_text())["artifacts"]
+    assert spec["version"] == 2 and spec["object"]["file"] == "object.ply" and spec["ice"]["file"] == "ice.ply"
     old = tmp_path / "old"
     shutil.copytree(job, old)
     (old / "scene.json").unlink()

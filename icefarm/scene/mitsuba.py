@@ -10,26 +10,14 @@ from __future__ import annotations
 
 import xml.etree.ElementTree as ET
 from collections.abc import Sequence
-from dataclasses import dataclass
 
 import numpy as np
 
-from .spec import sky_scale, sun_irradiance
-from .camera import Camera
-from .config import GROUND_CHECKER, GROUND_PLAIN, IceMedium, RenderConfig
+from .config import IceMedium
 from .material import Material
+from .spec import IceShading, SceneSpec
 
 WATER_ICE_IOR = 1.31  # Mitsuba's "water ice"
-
-
-@dataclass(frozen=True)
-class Ground:
-    """A square ground: centre ``(3,)``, half size (m), checker cell (m), frame rows (right, up, front)."""
-
-    centre: np.ndarray
-    half_size: float
-    cell: float
-    frame: np.ndarray
 
 
 def _vec(v: Sequence[float]) -> str:
@@ -71,17 +59,16 @@ def _bsdf_object(parent: ET.Element, material: Material) -> None:
             _add(b, "float", name="alpha", value=rough)
 
 
-def _bsdf_ice(parent: ET.Element, config: RenderConfig) -> None:
-    ice = config.ice
-    b = _add(parent, "bsdf", type="roughdielectric" if ice.roughness > 0 else "dielectric")
+def _bsdf_ice(parent: ET.Element, ice: IceShading) -> None:
+    b = _add(parent, "bsdf", type="roughdielectric" if ice.alpha > 0 else "dielectric")
     if abs(ice.ior - WATER_ICE_IOR) < 1e-9:
         _add(b, "string", name="int_ior", value="water ice")
     else:
         _add(b, "float", name="int_ior", value=ice.ior)
     _add(b, "string", name="ext_ior", value="air")
-    if ice.roughness > 0:
+    if ice.alpha > 0:
         _add(b, "string", name="distribution", value="ggx")
-        _add(b, "float", name="alpha", value=ice.roughness)
+        _add(b, "float", name="alpha", value=ice.alpha)
     if tuple(ice.tint) != (1.0, 1.0, 1.0):  # a per-crossing tint (thick ice gets its colour inside)
         _add(b, "rgb", name="specular_transmittance", value=_vec(ice.tint))
 
@@ -100,50 +87,32 @@ def _medium_ice(parent: ET.Element, medium: IceMedium) -> None:
     _add(m, "rgb", name="albedo", value=_vec(medium.albedo))
 
 
-def scene_xml(config: RenderConfig, cameras: Sequence[Camera], frame: np.ndarray, *,
-              object_ply: str, ice_ply: str | None, ice_flip: bool, sky_file: str,
-              sun_dir: np.ndarray, ground: Ground | None, material: Material,
-              medium: IceMedium | None = None) -> str:
-    """The text of ``scene.xml``.
+def scene_xml(spec: SceneSpec) -> str:
+    """The text of ``scene.xml``: ``spec`` (`icefarm.scene.spec.SceneSpec`) for Mitsuba 3.
 
-    Parameters
-    ----------
-    config : RenderConfig
-    cameras : sequence of Camera
-        One sensor each, in order (sensor 0 is the main view).
-    frame : (3, 3) float
-        World frame rows (right, up, front) from `camera.world_frame`: the sky's up.
-    object_ply, ice_ply : str
-        File names relative to the job folder; ``ice_ply`` None leaves the ice out.
-    ice_flip : bool
-        The ice's faces wind inwards: flip its normals so refraction enters the ice.
-    sky_file : str
-        Equirectangular environment image, relative path.
-    sun_dir : (3,) float
-        Unit vector towards the sun.
-    ground : Ground or None
-    material : Material
-        Validated object material (`material.material_from_dict`).
-    medium : IceMedium, optional
-        What fills the ice (absorption, scattering); the XML then names ``volpath``,
-        which renders media, instead of ``path``.
+    One sensor per camera, in order (sensor 0 is the main view); the sky turned to the
+    spec's frame; the ice's faces flipped where they wind inwards, so refraction enters the
+    ice; with a medium in the ice (absorption, scattering) the XML names ``volpath``, which
+    renders media, instead of ``path``. Sample count, resolution and depth are ``<default>``
+    parameters.
     """
-    env = config.environment
+    width, height = spec.resolution
+    sampling, ice = spec.sampling, spec.ice
     root = ET.Element("scene", version="3.0.0")
-    volumetric = ice_ply is not None and medium is not None
+    volumetric = ice is not None and ice.medium is not None
     root.append(ET.Comment(" icefarm renders scenes with ice with its own `icepath` integrator, a path "
                            "tracer that lets sunlight through the ice to what the glaze covers; the "
                            f"`{'volpath' if volumetric else 'path'}` below (for the mitsuba command) "
                            "leaves glazed surfaces darker "))
-    _add(root, "default", name="spp", value=config.spp)
-    _add(root, "default", name="resx", value=config.width)
-    _add(root, "default", name="resy", value=config.height)
-    _add(root, "default", name="max_depth", value=config.max_depth)
+    _add(root, "default", name="spp", value=sampling.spp)
+    _add(root, "default", name="resx", value=width)
+    _add(root, "default", name="resy", value=height)
+    _add(root, "default", name="max_depth", value=sampling.max_depth)
 
     integrator = _add(root, "integrator", type="volpath" if volumetric else "path")
     _add(integrator, "integer", name="max_depth", value="$max_depth")
 
-    for cam in cameras:
+    for cam in spec.cameras:
         sensor = _add(root, "sensor", type="perspective")
         _add(sensor, "string", name="fov_axis", value="x")
         _add(sensor, "float", name="fov", value=f"{cam.fov_x:.9g}")
@@ -153,7 +122,7 @@ def scene_xml(config: RenderConfig, cameras: Sequence[Camera], frame: np.ndarray
         _add(t, "lookat", origin=_vec(cam.origin), target=_vec(cam.target), up=_vec(cam.up))
         # A denoiser wants each pixel's own samples (a box filter) and gets less noise from
         # stratified ones (at 16 spp: +2.7 dB on the bunny's lookdev view, same time).
-        denoised = config.denoise != "none"
+        denoised = sampling.denoise != "none"
         sampler = _add(sensor, "sampler", type="multijitter" if denoised else "independent")
         _add(sampler, "integer", name="sample_count", value="$spp")
         film = _add(sensor, "film", type="hdrfilm")
@@ -163,33 +132,34 @@ def scene_xml(config: RenderConfig, cameras: Sequence[Camera], frame: np.ndarray
         _add(film, "rfilter", type="box" if denoised else "gaussian")
 
     envmap = _add(root, "emitter", type="envmap")
-    _add(envmap, "string", name="filename", value=sky_file)
-    _add(envmap, "float", name="scale", value=f"{sky_scale(env):.9g}")
+    _add(envmap, "string", name="filename", value=spec.sky.file)
+    _add(envmap, "float", name="scale", value=f"{spec.sky.scale:.9g}")
     t = _add(envmap, "transform", name="to_world")
-    _add(t, "matrix", value=_matrix(frame_matrix(frame)))
+    _add(t, "matrix", value=_matrix(frame_matrix(spec.frame)))
 
-    if env.sun_strength > 0:
+    if spec.sun is not None:
         sun = _add(root, "emitter", type="directional")
-        _add(sun, "vector", name="direction", value=_vec(-np.asarray(sun_dir)))
-        _add(sun, "rgb", name="irradiance", value=_vec(sun_irradiance(env)))
+        _add(sun, "vector", name="direction", value=_vec(-np.asarray(spec.sun.direction)))
+        _add(sun, "rgb", name="irradiance", value=_vec(spec.sun.irradiance))
 
     obj = _add(root, "shape", type="ply", id="object")
-    _add(obj, "string", name="filename", value=object_ply)
-    _bsdf_object(obj, material)
+    _add(obj, "string", name="filename", value=spec.object_file)
+    _bsdf_object(obj, spec.material)
 
-    if ice_ply is not None:
-        ice = _add(root, "shape", type="ply", id="ice")
-        _add(ice, "string", name="filename", value=ice_ply)
-        if ice_flip:
-            _add(ice, "boolean", name="flip_normals", value="true")
-        _bsdf_ice(ice, config)
-        if medium is not None:
-            _medium_ice(ice, medium)
+    if ice is not None:
+        shape = _add(root, "shape", type="ply", id="ice")
+        _add(shape, "string", name="filename", value=ice.file)
+        if ice.flip:
+            _add(shape, "boolean", name="flip_normals", value="true")
+        _bsdf_ice(shape, ice)
+        if ice.medium is not None:
+            _medium_ice(shape, ice.medium)
 
+    ground = spec.ground
     if ground is not None:
         shape = _add(root, "shape", type="rectangle", id="ground")
         # Rectangle: local XY plane, normal +Z. Local X -> front, Y -> right, Z -> up.
-        right, up, front = ground.frame
+        right, up, front = spec.frame
         m = np.eye(4)
         m[:3, 0], m[:3, 1], m[:3, 2] = front * ground.half_size, right * ground.half_size, up
         m[:3, 3] = ground.centre
@@ -197,15 +167,15 @@ def scene_xml(config: RenderConfig, cameras: Sequence[Camera], frame: np.ndarray
         _add(t, "matrix", value=_matrix(m))
         two = _add(shape, "bsdf", type="twosided")
         b = _add(two, "bsdf", type="diffuse")
-        if env.ground == "checker":
+        if ground.pattern == "checker":
             tex = _add(b, "texture", type="checkerboard", name="reflectance")
-            _add(tex, "rgb", name="color0", value=_vec(GROUND_CHECKER[0]))
-            _add(tex, "rgb", name="color1", value=_vec(GROUND_CHECKER[1]))
+            _add(tex, "rgb", name="color0", value=_vec(ground.colors[0]))
+            _add(tex, "rgb", name="color1", value=_vec(ground.colors[1]))
             checks = 2 * ground.half_size / ground.cell / 2  # the texture has 2 cells per uv unit
             tt = _add(tex, "transform", name="to_uv")
             _add(tt, "scale", x=f"{checks:.9g}", y=f"{checks:.9g}")
         else:
-            _add(b, "rgb", name="reflectance", value=_vec(GROUND_PLAIN))
+            _add(b, "rgb", name="reflectance", value=_vec(ground.colors[0]))
 
     ET.indent(root, space="    ")
     return '<?xml version="1.0" encoding="utf-8"?>\n' + ET.tostring(root, encoding="unicode") + "\n"

@@ -11,17 +11,15 @@ from __future__ import annotations
 import shutil
 import subprocess
 import time
-from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import InputError
-from .camera import Camera
 from .camera import direction as direction_of
-from .config import GROUND_CHECKER, GROUND_PLAIN, IceMedium, RenderConfig
+from .config import GROUND_PLAIN, IceMedium, RenderConfig
 from .material import Material
-from .mitsuba import Ground
+from .spec import IceShading, SceneSpec
 
 FLIP = np.array([1.0, 1.0, -1.0])  # right-handed world -> POV's left-handed one
 METAL_COLOURS = {"Al": (0.91, 0.92, 0.92), "Ag": (0.97, 0.96, 0.91), "Au": (1.0, 0.78, 0.34),
@@ -159,10 +157,10 @@ def _scattering_media(medium: IceMedium | None) -> str:
             f"scattering {{ 1, rgb {medium.scattering:.6g} }} }}")
 
 
-def _ice_material(config: RenderConfig, medium: IceMedium | None = None) -> str:
-    ice = config.ice
-    bumps = (f"\n    normal {{ bumps {min(ice.roughness * 2, 1):.4g} scale 0.0015 }}"
-             if ice.roughness > 0 else "")
+def _ice_material(ice: IceShading) -> str:
+    medium = ice.medium
+    bumps = (f"\n    normal {{ bumps {min(ice.alpha * 2, 1):.4g} scale 0.0015 }}"
+             if ice.alpha > 0 else "")
     filt = ", ".join(f"{float(t):.6g}" for t in ice.tint)
     return f"""material {{
   texture {{
@@ -174,26 +172,27 @@ def _ice_material(config: RenderConfig, medium: IceMedium | None = None) -> str:
 }}"""
 
 
-def scene_pov(config: RenderConfig, cameras: Sequence[Camera], frame: np.ndarray, *,
-              object_inc: str, ice_inc: str | None, sky_file: str, sun_dir: np.ndarray,
-              ground: Ground | None, material: Material, medium: IceMedium | None = None) -> str:
-    """The text of ``scene.pov`` (POV-Ray 3.7); arguments as in `mitsuba.scene_xml`.
+def scene_pov(spec: SceneSpec, *, object_inc: str, ice_inc: str | None) -> str:
+    """The text of ``scene.pov`` (POV-Ray 3.7): ``spec`` (`icefarm.scene.spec.SceneSpec`), its
+    meshes included from ``object_inc`` and ``ice_inc`` (None: no ice).
 
     The ice's absorption becomes its interior's exponential fade, its scattering an
-    isotropic scattering medium.
+    isotropic scattering medium. Without radiosity the sky lights nothing: fill lights
+    around and below stand in for it, from the spec's light terms.
     """
-    env = config.environment
-    gain = 2.0 ** env.exposure
-    aspect = config.width / config.height
-    right, up, front = frame
+    width, height = spec.resolution
+    sky, sun, ground = spec.sky, spec.sun, spec.ground
+    gain = 2.0 ** spec.exposure
+    aspect = width / height
+    right, up, front = spec.frame
     out = ["// icefarm scene for POV-Ray 3.7; render from this folder with\n",
-           f"// povray +Iscene.pov +Orender_povray.png +W{config.width} +H{config.height} +A0.3 -D -V\n",
+           f"// povray +Iscene.pov +Orender_povray.png +W{width} +H{height} +A0.3 -D -V\n",
            "#version 3.7;\n",
-           f"global_settings {{ assumed_gamma 1.0 max_trace_level {max(config.max_depth, 5)} "
+           f"global_settings {{ assumed_gamma 1.0 max_trace_level {max(spec.sampling.max_depth, 5)} "
            "ambient_light rgb 1 }\n",
            "#ifndef (View) #declare View = 0; #end\n",
            "#switch (View)\n"]
-    for i, cam in enumerate(cameras):
+    for i, cam in enumerate(spec.cameras):
         out.append(f"#case ({i})\n  camera {{ perspective location {_v(cam.origin)} "
                    f"right x*{aspect:.9g} up y sky {_v(cam.up)} angle {cam.fov_x:.9g} "
                    f"look_at {_v(cam.target)} }}\n  #break\n")
@@ -204,40 +203,40 @@ def scene_pov(config: RenderConfig, cameras: Sequence[Camera], frame: np.ndarray
     # right. The pattern is evaluated at (-front, up, right) components of the direction.
     m = np.column_stack([-front * FLIP, up * FLIP, right * FLIP])
     mat = ", ".join(f"{x:.9g}" for x in m.T.ravel()) + ", 0, 0, 0"
-    kind = "hdr" if sky_file.lower().endswith(".hdr") else "exr"
-    out.append(f"sky_sphere {{\n  pigment {{ image_map {{ {kind} \"{sky_file}\" map_type 1 "
+    kind = "hdr" if sky.file.lower().endswith(".hdr") else "exr"
+    out.append(f"sky_sphere {{\n  pigment {{ image_map {{ {kind} \"{sky.file}\" map_type 1 "
                f"interpolate 2 }} }}\n  matrix <{mat}>\n"
-               f"  emission rgb {env.sky_strength * gain:.6g}\n}}\n\n")
+               f"  emission rgb {sky.scale:.6g}\n}}\n\n")
 
     # POV's diffuse term is pigment * light * cos, Mitsuba's albedo / pi * irradiance:
     # lights are divided by pi so both pictures get the same exposure.
-    if env.sun_strength > 0:
-        sun = np.array([1.0, 0.93, 0.84]) * env.sun_strength * gain / np.pi
-        out.append(f"light_source {{ {_v(np.asarray(sun_dir) * 1e4)} color {_rgb(sun)} "
+    if sun is not None:
+        out.append(f"light_source {{ {_v(np.asarray(sun.direction) * 1e4)} color {_rgb(sun.irradiance / np.pi)} "
                    "parallel point_at <0, 0, 0> }\n")
     # Without radiosity the sky lights nothing: six shadowless lights around at 30 degrees
     # and one overhead stand in for it (about 1 W/m^2 on a level surface, like the sky map).
-    sky_rgb = np.array([0.85, 0.95, 1.3]) * env.sky_strength * gain / np.pi
+    sky_rgb = np.array([0.85, 0.95, 1.3]) * sky.strength * gain / np.pi
     for k in range(6):
-        d = direction_of(frame, 60.0 * k + 15.0, 30.0)
+        d = direction_of(spec.frame, 60.0 * k + 15.0, 30.0)
         out.append(f"light_source {{ {_v(d * 1e4)} color {_rgb(0.32 * sky_rgb)} parallel "
                    "point_at <0, 0, 0> shadowless }\n")
     out.append(f"light_source {{ {_v(up * 1e4)} color {_rgb(0.05 * sky_rgb)} parallel "
                "point_at <0, 0, 0> shadowless }\n")
     if ground is not None:  # light bounced off the ground onto faces that look down
-        level = env.sun_strength * max(np.sin(np.radians(env.sun_elevation)), 0.0) + env.sky_strength
+        level = (0.0 if sun is None else sun.strength * max(np.sin(np.radians(sun.elevation)), 0.0)) + sky.strength
         bounce = np.asarray(GROUND_PLAIN) * level * gain / np.pi
         out.append(f"light_source {{ {_v(-up * 1e4)} color {_rgb(bounce)} parallel "
                    "point_at <0, 0, 0> shadowless }\n")
     out.append("\n")
 
     out.append(f"#include \"{object_inc}\"\n")
-    out.append(f"object {{ Object_Mesh\n  {_finish_object(material)}\n}}\n\n")
+    out.append(f"object {{ Object_Mesh\n  {_finish_object(spec.material)}\n}}\n\n")
     if ice_inc is not None:
         out.append(f"#include \"{ice_inc}\"\n")
         # POV-Ray renders media only inside hollow objects.
+        medium = spec.ice.medium
         hollow = " hollow" if medium is not None and medium.scattering > 0 else ""
-        out.append(f"object {{ Ice_Mesh{hollow}\n  {_ice_material(config, medium)}\n}}\n\n")
+        out.append(f"object {{ Ice_Mesh{hollow}\n  {_ice_material(spec.ice)}\n}}\n\n")
 
     if ground is not None:
         h = ground.half_size
@@ -246,11 +245,11 @@ def scene_pov(config: RenderConfig, cameras: Sequence[Camera], frame: np.ndarray
         g[:3, 0], g[:3, 1], g[:3, 2] = front * FLIP, up * FLIP, right * FLIP
         g[:3, 3] = ground.centre * FLIP
         gm = ", ".join(f"{x:.9g}" for x in np.concatenate([g[:3, :3].T.ravel(), g[:3, 3]]))
-        if env.ground == "checker":
-            pigment = (f"checker color {_rgb(GROUND_CHECKER[0])} color {_rgb(GROUND_CHECKER[1])} "
+        if ground.pattern == "checker":
+            pigment = (f"checker color {_rgb(ground.colors[0])} color {_rgb(ground.colors[1])} "
                        f"translate <0, 0.5, 0> scale {ground.cell:.9g} matrix <{gm}>")
         else:
-            pigment = f"color {_rgb(GROUND_PLAIN)}"
+            pigment = f"color {_rgb(ground.colors[0])}"
         out.append(f"polygon {{ 5, {', '.join(_v(c) for c in corners)}, {_v(corners[0])}\n"
                    f"  texture {{ pigment {{ {pigment} }} finish {{ ambient 0.02 diffuse 1.0 }} }}\n}}\n")
     return "".join(out)

@@ -7,6 +7,7 @@ files written in `icefarm.scene.images`.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import shutil
 import time
@@ -24,10 +25,10 @@ from .config import RenderConfig
 from .denoise import denoise, denoiser_version
 from .images import _png_to_exr, write_exr, write_png
 from .variants import pick_variant
-from .write import SceneFiles, view_stem, write_scenes
+from .write import JobScene, SceneFiles, view_stem, write_scenes
 
 # write_scenes and SceneFiles live in icefarm.scene.write; callers that write and render meet them here too
-__all__ = ["MitsubaRun", "RenderResult", "SceneFiles", "render_job", "render_mitsuba", "sample_passes",
+__all__ = ["JobScene", "MitsubaRun", "RenderResult", "SceneFiles", "render_job", "render_mitsuba", "sample_passes",
            "write_scenes"]
 
 PASS_SAMPLES = 1 << 25  # camera samples per Mitsuba render call: bounded memory, visible progress
@@ -80,6 +81,8 @@ class RenderResult:
         Mitsuba's time per view (they add up to ``seconds``).
     denoise_seconds : float
         Of ``seconds``, the denoiser's (0 when the config does not denoise).
+    scene : SceneFiles or None
+        What was written and rendered, when `render_job` was given them or wrote them.
     """
 
     renderer: str
@@ -94,6 +97,7 @@ class RenderResult:
     files: tuple[Path, ...]
     view_seconds: tuple[float, ...] = ()
     denoise_seconds: float = 0.0
+    scene: SceneFiles | None = None
 
     @property
     def scene_seconds(self) -> float:
@@ -236,9 +240,15 @@ def _cpu_seconds(task: Callable[[], None]) -> float:
     return time.thread_time() - start
 
 
-def render_job(job_dir: str | Path, config: RenderConfig, scene: SceneFiles | None = None,
-               progress: bool = False) -> RenderResult:
-    """Render the scenes `write_scenes` put in ``job_dir`` with the config's renderer(s).
+def render_job(job_dir: str | Path, config: RenderConfig, scene: JobScene | SceneFiles | None = None,
+               progress: bool = False, povray_files: bool = True) -> RenderResult:
+    """Render a job's scene in ``job_dir`` with the config's renderer(s): the one way a job's
+    scene is rendered (the pipeline, ``icefarm render``, growth frames and the benchmarks).
+
+    Given a `JobScene`, the scene is written first (`write_scenes`: the spec, then
+    ``scene.xml``, ``scene.json``, the meshes; the POV-Ray files while Mitsuba renders).
+    Given `SceneFiles`, what `write_scenes` wrote is rendered; given nothing, what
+    ``job_dir`` holds.
 
     Mitsuba writes ``render.exr`` (linear) and ``render.png`` (sRGB), plus
     ``render_view<i>.*`` for further views; POV-Ray writes ``render_povray.png`` (and,
@@ -248,12 +258,16 @@ def render_job(job_dir: str | Path, config: RenderConfig, scene: SceneFiles | No
     ----------
     job_dir : path
     config : RenderConfig
-    scene : SceneFiles, optional
-        What `write_scenes` returned: its write time counts in ``scene_seconds``. POV-Ray
-        files it deferred are written in a thread while Mitsuba renders (after its load,
-        which is parallel already); waiting for them after the render counts too.
+    scene : JobScene or SceneFiles, optional
+        What the scene is made of, or what `write_scenes` returned: the write time counts
+        in ``scene_seconds``. POV-Ray files it deferred are written in a thread while
+        Mitsuba renders (after its load, which is parallel already); waiting for them
+        after the render counts too.
     progress : bool
         A progress bar over the samples of long renders (several passes or views).
+    povray_files : bool
+        Write the POV-Ray files of a `JobScene` even when the config renders with Mitsuba
+        alone (False: only when POV-Ray renders).
 
     Raises
     ------
@@ -261,6 +275,12 @@ def render_job(job_dir: str | Path, config: RenderConfig, scene: SceneFiles | No
         POV-Ray asked for but not installed, or a variant that cannot run here.
     """
     job_dir = Path(job_dir)
+    if isinstance(scene, JobScene):
+        scene = write_scenes(job_dir, scene.object_mesh, scene.ice_mesh, config, scene.gravity, scene.material,
+                             frame_points=scene.frame_points, defer_povray=True, impurity=scene.impurity,
+                             ground_level=scene.ground_level)
+        if not (povray_files or config.uses_povray):
+            scene = dataclasses.replace(scene, povray_writer=None)
     writer = scene.povray_writer if scene is not None else None
     pending: list[Future] = []
     with ThreadPoolExecutor(max_workers=1) as pool:
@@ -305,4 +325,4 @@ def render_job(job_dir: str | Path, config: RenderConfig, scene: SceneFiles | No
                         view_seconds=views, denoise_seconds=denoise_seconds,
                         write_seconds=scene.seconds if scene is not None else 0.0,
                         load_seconds=load_seconds, wait_seconds=waited, povray_write_cpu_seconds=writer_cpu,
-                        povray_seconds=pov_seconds, files=tuple(files))
+                        povray_seconds=pov_seconds, files=tuple(files), scene=scene)

@@ -1,24 +1,285 @@
-"""``scene.json``: the rendered scene described once, for every writer that is not Mitsuba's.
+"""``scene.json``: a job's rendered scene described once, for every writer and reader.
 
-`icefarm.scene.write.write_scenes` writes it beside ``scene.xml`` from the same values
-(cameras, views, sky, sun, ground, the ice's look, the object's material, gravity, the
-meshes' files); the USD and glTF exports (`icefarm.rendered.read_rendered`) read it instead
-of parsing ``scene.xml`` back. Values every writer shares (the sun's irradiance, the sky's
-scale, the ground's square and colour) come from the functions here, which ``scene.xml``'s
-writer calls too. Lengths in meters, colours linear RGB, angles in degrees.
+`SceneSpec` is the scene as a renderer-agnostic record: the image size and sampling, the
+views and their cameras, the world frame (from gravity), the sky, the sun, the ground, the
+object and its material, the ice and its look. `icefarm.scene.write.write_scenes` builds it
+from a render config and a job's meshes, then renders it to each format: ``scene.xml``
+(`icefarm.scene.mitsuba.scene_xml`), ``scene.pov`` (`icefarm.scene.povray.scene_pov`) and
+``scene.json`` itself (`SceneSpec.to_json`), which the USD and glTF exports read back
+(`icefarm.rendered.read_rendered`; jobs from before it through `icefarm.scene.legacy`).
+
+Lengths in meters, colours linear RGB, angles in degrees. The light keeps its terms as the
+render config gave them (strengths, sun elevation, exposure) beside what they make (the
+sky's scale, the sun's irradiance), so that a writer that approximates the sky (POV-Ray's
+fill lights) computes what it always did. Version 1 files (no sampling, exposure, light
+terms or ground square) still read; their missing values are None.
 """
 
 from __future__ import annotations
 
 import json
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
+from .camera import Camera
+from .config import IceMedium
+from .material import Material, material_from_dict
+
 SPEC_FILE = "scene.json"
-SPEC_VERSION = 1
+SPEC_VERSION = 2
 SUN_WARMTH = (1.0, 0.93, 0.84)  # the sun's colour (a late-morning white)
+# The ice's colour, where a format has no absorbing medium (UsdPreviewSurface): what white
+# light looks like after this much ice. 10 cm: the root of a long icicle, where ice shows colour.
+TINT_DISTANCE_M = 0.1
+
+
+@dataclass(frozen=True)
+class SpecView:
+    """One view: its ``name``, what it ``frame`` s (``all`` or ``ice``) and ``icicle_px``, how
+    wide (pixels) the densest icicles are in it (None where not measured)."""
+
+    name: str
+    frame: str = "all"
+    icicle_px: float | None = None
+
+
+@dataclass(frozen=True)
+class Sampling:
+    """How the renders sample: samples per pixel, path depth, denoiser (``none``, ``oidn``)."""
+
+    spp: int
+    max_depth: int
+    denoise: str
+
+
+@dataclass(frozen=True)
+class Sky:
+    """The environment image ``file`` (in the job folder), its radiance ``scale`` (``strength``
+    times the exposure's gain), turned so that its local X, Y, Z are the world frame's rows."""
+
+    file: str
+    scale: float
+    strength: float | None = None
+
+
+@dataclass(frozen=True)
+class Sun:
+    """A directional sun: unit ``direction`` towards it, ``irradiance`` (W/m^2, Mitsuba's scale,
+    the exposure's gain included), and the config's ``strength`` (W/m^2 before the gain and
+    the warm tint) and ``elevation`` (degrees above the horizon)."""
+
+    direction: np.ndarray
+    irradiance: np.ndarray
+    strength: float | None = None
+    elevation: float | None = None
+
+
+@dataclass(frozen=True)
+class Ground:
+    """The ground: a square of ``corners`` ``(4, 3)`` (counter-clockwise seen from above) of a
+    matte ``color`` ``(3,)`` (a checker's mean), for every format; and for the renderers
+    the square's ``centre``, ``half_size`` and checker ``cell`` (meters), its ``pattern``
+    (``checker`` or ``plain``) and its ``colors`` (the checker's two, or the plain one).
+    Those are None in version 1 files."""
+
+    corners: np.ndarray
+    color: np.ndarray
+    centre: np.ndarray | None = None
+    half_size: float | None = None
+    cell: float | None = None
+    pattern: str | None = None
+    colors: tuple = ()
+
+    @property
+    def normal(self) -> np.ndarray:
+        n = np.cross(self.corners[1] - self.corners[0], self.corners[2] - self.corners[0])
+        return n / np.linalg.norm(n)
+
+
+def square_ground(centre: np.ndarray, half_size: float, cell: float, frame: np.ndarray, pattern: str,
+                  colors: Sequence) -> Ground:
+    """`Ground` of a square of ``half_size`` around ``centre`` in ``frame`` (rows right, up,
+    front): corners as Mitsuba's rectangle has them (local X to front, Y to right, at +-1)."""
+    right, _, front = np.asarray(frame, dtype=np.float64)
+    centre = np.asarray(centre, dtype=np.float64)
+    local = np.array([[-1.0, -1.0], [1.0, -1.0], [1.0, 1.0], [-1.0, 1.0]])
+    corners = centre + local[:, :1] * front * half_size + local[:, 1:] * right * half_size
+    colors = tuple(tuple(float(c) for c in rgb) for rgb in colors)
+    return Ground(corners=corners, color=np.mean(colors, axis=0), centre=centre, half_size=float(half_size),
+                  cell=float(cell), pattern=pattern, colors=colors)
+
+
+@dataclass(frozen=True)
+class IceShading:
+    """The ice's look as rendered.
+
+    Attributes
+    ----------
+    ior : float
+        Index of refraction (1.31, water ice).
+    alpha : float
+        GGX roughness alpha of the surface (0: smooth).
+    tint : (3,) float
+        Transmittance per surface crossing, linear RGB.
+    absorption : (3,) float
+        Absorption inside the ice, per meter (R, G, B).
+    scattering : float
+        Scattering inside the ice, per meter.
+    flip : bool
+        The mesh's faces wind inwards (Mitsuba flips its normals).
+    file : str
+        The mesh, in the job folder.
+    """
+
+    ior: float
+    alpha: float
+    tint: tuple[float, float, float]
+    absorption: tuple[float, float, float]
+    scattering: float
+    flip: bool
+    file: str
+
+    @property
+    def roughness(self) -> float:
+        """Perceptual roughness of UsdPreviewSurface and glTF, whose square is the GGX alpha."""
+        return float(np.sqrt(self.alpha))
+
+    @property
+    def medium(self) -> IceMedium | None:
+        """What fills the ice, None when it neither absorbs nor scatters (as
+        `icefarm.scene.config.ice_medium` decides)."""
+        medium = IceMedium(tuple(self.absorption), self.scattering)
+        return medium if max(medium.extinction) > 0 else None
+
+    def color_at(self, distance: float = TINT_DISTANCE_M) -> np.ndarray:
+        """``(3,)`` linear RGB of white light after ``distance`` meters of ice (Beer-Lambert)."""
+        return np.asarray(self.tint) * np.exp(-np.asarray(self.absorption) * distance)
+
+
+@dataclass(frozen=True)
+class SceneSpec:
+    """A job's rendered scene (see the module docstring).
+
+    Attributes
+    ----------
+    resolution : (int, int)
+        Width and height, pixels.
+    views : tuple of SpecView
+        One per camera, the main view first.
+    cameras : tuple of Camera
+    frame : (3, 3) float
+        World frame rows right, up (minus gravity), front (`icefarm.scene.camera.world_frame`):
+        the sky is turned to it and the ground lies along it.
+    gravity : (3,) float
+        Unit gravity.
+    sky : Sky
+    sun : Sun or None
+        None without a sun.
+    ground : Ground or None
+        None without a ground.
+    object_file : str
+        The object's mesh, in the job folder.
+    material : Material
+        The object's validated material.
+    ice : IceShading or None
+        None without ice.
+    exposure : float or None
+        Stops every light is scaled by (None in version 1 files).
+    sampling : Sampling or None
+        None in version 1 files.
+    """
+
+    resolution: tuple[int, int]
+    views: tuple[SpecView, ...]
+    cameras: tuple[Camera, ...]
+    frame: np.ndarray
+    gravity: np.ndarray
+    sky: Sky
+    sun: Sun | None
+    ground: Ground | None
+    object_file: str
+    material: Material
+    ice: IceShading | None
+    exposure: float | None = None
+    sampling: Sampling | None = None
+
+    @property
+    def up(self) -> np.ndarray:
+        return self.frame[1]
+
+    def to_json(self) -> dict:
+        """The JSON-ready ``scene.json``."""
+        sun, ground, ice = self.sun, self.ground, self.ice
+        return {
+            "version": SPEC_VERSION,
+            "resolution": [int(v) for v in self.resolution],
+            "views": [{"name": v.name, "frame": v.frame, "icicle_px": v.icicle_px} for v in self.views],
+            "cameras": [{"origin": _list(c.origin), "target": _list(c.target), "up": _list(c.up), "fov_x": c.fov_x,
+                         "fov_y": c.fov_y, "near": c.near, "far": c.far} for c in self.cameras],
+            "gravity": _list(self.gravity),
+            "sky": {"file": self.sky.file, "scale": self.sky.scale, "frame": np.asarray(self.frame).tolist(),
+                    "strength": self.sky.strength},
+            "sun": None if sun is None else {  # the direction written as a unit vector
+                "direction": _list(sun.direction / np.linalg.norm(sun.direction)), "irradiance": _list(sun.irradiance), "strength": sun.strength,
+                "elevation": sun.elevation},
+            "ground": None if ground is None else {
+                "corners": np.asarray(ground.corners).tolist(), "color": _list(ground.color),
+                "centre": None if ground.centre is None else _list(ground.centre), "half_size": ground.half_size,
+                "cell": ground.cell, "pattern": ground.pattern, "colors": [list(c) for c in ground.colors]},
+            "object": {"file": self.object_file, "material": self.material.to_dict()},
+            "ice": None if ice is None else {
+                "file": ice.file, "flip": bool(ice.flip), "ior": ice.ior, "alpha": ice.alpha, "tint": list(ice.tint),
+                "absorption": list(ice.absorption), "scattering": ice.scattering},
+            "exposure": self.exposure,
+            "sampling": None if self.sampling is None else {
+                "spp": self.sampling.spp, "max_depth": self.sampling.max_depth, "denoise": self.sampling.denoise},
+        }
+
+    @classmethod
+    def from_json(cls, data: Mapping[str, Any]) -> SceneSpec:
+        """`SceneSpec` of a ``scene.json`` (version 1 or 2).
+
+        Raises
+        ------
+        KeyError, TypeError, ValueError
+            Not a ``scene.json`` written by icefarm.
+        """
+        sky, sun, ground, ice = data["sky"], data.get("sun"), data.get("ground"), data.get("ice")
+        sampling = data.get("sampling")
+        return cls(
+            resolution=tuple(int(v) for v in data["resolution"]),
+            views=tuple(SpecView(str(v["name"]), str(v.get("frame", "all")), v.get("icicle_px"))
+                        for v in data["views"]),
+            cameras=tuple(Camera(origin=np.asarray(c["origin"], dtype=np.float64),
+                                 target=np.asarray(c["target"], dtype=np.float64),
+                                 up=np.asarray(c["up"], dtype=np.float64), fov_x=float(c["fov_x"]),
+                                 fov_y=float(c["fov_y"]), near=float(c["near"]), far=float(c["far"]))
+                          for c in data["cameras"]),
+            frame=np.asarray(sky["frame"], dtype=np.float64).reshape(3, 3),
+            gravity=np.asarray(data["gravity"], dtype=np.float64).reshape(3),
+            sky=Sky(str(sky["file"]), float(sky["scale"]), sky.get("strength")),
+            sun=None if sun is None else Sun(np.asarray(sun["direction"], dtype=np.float64),
+                                             np.asarray(sun["irradiance"], dtype=np.float64),
+                                             sun.get("strength"), sun.get("elevation")),
+            ground=None if ground is None else Ground(
+                np.asarray(ground["corners"], dtype=np.float64).reshape(4, 3),
+                np.asarray(ground["color"], dtype=np.float64),
+                None if ground.get("centre") is None else np.asarray(ground["centre"], dtype=np.float64),
+                ground.get("half_size"), ground.get("cell"), ground.get("pattern"),
+                tuple(tuple(float(x) for x in c) for c in ground.get("colors") or ())),
+            object_file=str(data["object"]["file"]),
+            material=material_from_dict(data["object"]["material"]),
+            ice=None if ice is None else IceShading(
+                ior=float(ice["ior"]), alpha=float(ice["alpha"]), tint=tuple(float(t) for t in ice["tint"]),
+                absorption=tuple(float(a) for a in ice["absorption"]), scattering=float(ice["scattering"]),
+                flip=bool(ice["flip"]), file=str(ice["file"])),
+            exposure=data.get("exposure"),
+            sampling=None if sampling is None else Sampling(int(sampling["spp"]), int(sampling["max_depth"]),
+                                                            str(sampling["denoise"])))
 
 
 def sun_irradiance(environment) -> np.ndarray:
@@ -32,58 +293,23 @@ def sky_scale(environment) -> float:
     return float(environment.sky_strength * 2.0 ** environment.exposure)
 
 
-def ground_corners(ground) -> np.ndarray:
-    """(4, 3) corners of the ground square (`icefarm.scene.mitsuba.Ground`), counter-clockwise
-    seen from above: Mitsuba's rectangle (local X to front, Y to right) at (+-1, +-1)."""
-    right, _, front = np.asarray(ground.frame, dtype=np.float64)
-    hs, centre = ground.half_size, np.asarray(ground.centre, dtype=np.float64)
-    local = np.array([[-1.0, -1.0], [1.0, -1.0], [1.0, 1.0], [-1.0, 1.0]])
-    return centre + local[:, :1] * front * hs + local[:, 1:] * right * hs
-
-
-def ground_color(environment) -> np.ndarray:
-    """(3,) the ground's matte colour: the checker's mean, or the plain ground's."""
-    from .config import GROUND_CHECKER, GROUND_PLAIN
-
-    return np.mean(GROUND_CHECKER, axis=0) if environment.ground == "checker" else np.asarray(GROUND_PLAIN)
-
-
-def scene_spec(config, cameras: Sequence, frame: np.ndarray, *, gravity, object_ply: str, ice_ply: str | None,
-               ice_flip: bool, sky_file: str, sun_dir: np.ndarray, ground, material, medium) -> dict:
-    """The JSON-ready description of a job's rendered scene (see the module docstring)."""
-    env = config.environment
-    sun = env.sun_strength > 0
-    ice = None
-    if ice_ply is not None:
-        ice = {"file": ice_ply, "flip": bool(ice_flip), "ior": config.ice.ior, "alpha": config.ice.roughness,
-               "tint": list(config.ice.tint),
-               "absorption": list(medium.absorption) if medium is not None else [0.0, 0.0, 0.0],
-               "scattering": float(medium.scattering) if medium is not None else 0.0}
-    return {
-        "version": SPEC_VERSION,
-        "resolution": [config.width, config.height],
-        "views": [{"name": v.name, "frame": v.frame} for v in config.views],
-        "cameras": [{"origin": _list(c.origin), "target": _list(c.target), "up": _list(c.up), "fov_x": c.fov_x,
-                     "fov_y": c.fov_y, "near": c.near, "far": c.far} for c in cameras],
-        "gravity": _list(np.asarray(gravity, dtype=np.float64) / np.linalg.norm(gravity)),
-        "sky": {"file": sky_file, "scale": sky_scale(env), "frame": np.asarray(frame, dtype=np.float64).tolist()},
-        "sun": {"direction": _list(np.asarray(sun_dir) / np.linalg.norm(sun_dir)),
-                "irradiance": _list(sun_irradiance(env))} if sun else None,
-        "ground": {"corners": ground_corners(ground).tolist(), "color": _list(ground_color(env))}
-        if ground is not None else None,
-        "object": {"file": object_ply, "material": material.to_dict()},
-        "ice": ice,
-    }
-
-
-def write_spec(path: str | Path, spec: dict) -> None:
+def write_spec(path: str | Path, spec: SceneSpec) -> None:
     from ..artifacts import atomic_write
 
-    atomic_write(Path(path), json.dumps(spec, indent=1) + "\n")
+    atomic_write(Path(path), json.dumps(spec.to_json(), indent=1) + "\n")
 
 
-def read_spec(path: str | Path) -> dict:
-    return json.loads(Path(path).read_text())
+def read_spec(path: str | Path) -> SceneSpec:
+    """The `SceneSpec` of a ``scene.json``.
+
+    Raises
+    ------
+    OSError
+        The file cannot be read.
+    KeyError, TypeError, ValueError
+        Not a ``scene.json`` written by icefarm.
+    """
+    return SceneSpec.from_json(json.loads(Path(path).read_text()))
 
 
 def _list(v) -> list[float]:

@@ -23,12 +23,13 @@ from . import camera as cam
 from . import geometry as geo
 from . import mitsuba as mx
 from . import povray as pov
-from .config import RenderConfig, ice_medium
+from .config import GROUND_CHECKER, GROUND_PLAIN, RenderConfig, ice_medium
 from .focus import ice_focus, pixel_size, surface_points, zoom_on_ice
 from .images import write_exr
 from .material import Material, material_from_dict
 from .sky import procedural_sky
-from .spec import SPEC_FILE, scene_spec, write_spec
+from .spec import (SPEC_FILE, IceShading, Sampling, SceneSpec, Sky, SpecView, Sun, sky_scale, square_ground,
+                   sun_irradiance, write_spec)
 
 CREASE_ANGLE = 30.0  # degrees: sharper edges of the object stay sharp in shading
 VIEWS_FILE = "views.json"  # what each view shows and how wide its icicles are, for contact sheets
@@ -58,6 +59,8 @@ class SceneFiles:
         measured (no ice view configured, or no icicles).
     ground_height : float or None
         Height of the ground plane along -gravity, meters (None: no ground).
+    spec : SceneSpec
+        The scene every file was written from (``scene.json``).
     seconds : float
         Time taken to write everything written before `write_scenes` returned.
     povray_writer : callable or None
@@ -76,6 +79,51 @@ class SceneFiles:
     povray_writer: Callable[..., None] | None = None
     icicle_px: tuple[float | None, ...] = ()
     ground_height: float | None = None
+    spec: SceneSpec | None = None
+
+
+@dataclass(frozen=True)
+class JobScene:
+    """What a job's scene is made of, whatever renders it (`icefarm.scene.render.render_job`).
+
+    Attributes
+    ----------
+    object_mesh : trimesh.Trimesh
+        The object, meters.
+    ice_mesh : trimesh.Trimesh or None
+        The ice, meters; None without ice.
+    gravity : (3,) float
+    material : Material
+        The object's, validated.
+    frame_points : (n, 3) float
+        What the cameras frame and the ground lies under (`camera.frame_boxes`).
+    impurity : float
+        The job's ``surface.impurity``.
+    ground_level : float or None
+        As `write_scenes` takes it.
+    """
+
+    object_mesh: trimesh.Trimesh
+    ice_mesh: trimesh.Trimesh | None
+    gravity: np.ndarray
+    material: Material
+    frame_points: np.ndarray
+    impurity: float = 0.0
+    ground_level: float | None = None
+
+
+def job_scene(object_mesh: trimesh.Trimesh, ice_mesh: trimesh.Trimesh | None, gravity, *,
+              material: Material | Mapping | None = None, placement: str = "ground",
+              impurity: float = 0.0) -> JobScene:
+    """The `JobScene` of a job: the cameras frame the boxes of the object and the ice, the
+    ground lies under the object when it stands on it (`icefarm.placement.ground_level`).
+    Ice without faces counts as none."""
+    from ..placement import ground_level
+
+    ice = ice_mesh if ice_mesh is not None and len(ice_mesh.faces) else None
+    return JobScene(object_mesh, ice, gravity, material_from_dict(material),
+                    cam.frame_boxes(object_mesh, ice_mesh if ice_mesh is not None else trimesh.Trimesh()),
+                    float(impurity), ground_level(placement, object_mesh, gravity))
 
 
 def _check_mesh(mesh: trimesh.Trimesh, what: str) -> None:
@@ -150,6 +198,22 @@ def write_scenes(job_dir: str | Path, object_mesh: trimesh.Trimesh, ice_mesh: tr
         is not finite.
     """
     start = time.perf_counter()
+    spec = build_spec(job_dir, object_mesh, ice_mesh, config, gravity, object_material, frame_points=frame_points,
+                      impurity=impurity, ground_level=ground_level)
+    return write_spec_files(job_dir, spec, object_mesh, ice_mesh, defer_povray=defer_povray, start=start)
+
+
+def build_spec(job_dir: str | Path, object_mesh: trimesh.Trimesh, ice_mesh: trimesh.Trimesh | None,
+               config: RenderConfig, gravity: Sequence[float] = (0.0, -1.0, 0.0),
+               object_material: Material | Mapping | None = None, *, frame_points: np.ndarray | None = None,
+               impurity: float = 0.0, ground_level: float | None = None) -> SceneSpec:
+    """The `SceneSpec` of a job's scene, arguments as `write_scenes` takes them: the cameras
+    framed on ``frame_points``, the ground under them, the sun and sky from the config's
+    environment, the ice's look from its ``ice`` and the job's ``impurity``.
+
+    The sky's image is written into ``job_dir`` (created if missing) when it is not there
+    yet: the spec names it. Nothing else is written.
+    """
     medium = ice_medium(config.ice, impurity) if ice_mesh is not None else None
     if ground_level is not None and not np.isfinite(ground_level):
         raise ValueError(f"ground_level must be finite, got {ground_level!r}")
@@ -160,19 +224,9 @@ def write_scenes(job_dir: str | Path, object_mesh: trimesh.Trimesh, ice_mesh: tr
         _check_mesh(ice_mesh, "ice_mesh")
     material = material_from_dict(object_material)
     frame = cam.world_frame(gravity)
-    right, up, front = frame
-
-    # Sky: the configured image, or the procedural one; named by what it depends on.
+    up = frame[1]
     env = config.environment
-    if env.sky == "procedural":
-        sky = job_dir / f"sky_az{env.sun_azimuth:g}_el{env.sun_elevation:g}.exr"
-        if not sky.is_file():
-            sky.write_bytes(_procedural_sky_exr(env.sun_azimuth, env.sun_elevation))
-    else:
-        src = Path(env.sky)
-        sky = job_dir / f"sky_{src.stem}{src.suffix.lower()}"
-        if not sky.is_file() or sky.stat().st_size != src.stat().st_size:
-            shutil.copyfile(src, sky)
+    sky = _sky_file(job_dir, env)
 
     # Cameras framed on object + ice, the ground under both.
     if frame_points is not None:
@@ -192,12 +246,12 @@ def write_scenes(job_dir: str | Path, object_mesh: trimesh.Trimesh, ice_mesh: tr
     if env.ground != "none":
         level = heights.min() - 1e-4 * size if ground_level is None else float(ground_level)
         ground_centre = centre + (level - centre @ up) * up
-        ground = mx.Ground(centre=ground_centre, half_size=15.0 * size, cell=size / 6, frame=frame)
+        ground = square_ground(ground_centre, 15.0 * size, size / 6, frame, env.ground,
+                               GROUND_CHECKER if env.ground == "checker" else (GROUND_PLAIN,))
     ground_height = None if ground is None else float(ground.centre @ up)
     cameras = [cam.frame_view(points, gravity, v.azimuth, v.elevation, config.width / config.height,
                               fov_y=config.fov, ground=ground_height)
                for v in config.views]
-    sun_dir = cam.direction(frame, env.sun_azimuth, env.sun_elevation)
 
     # Views of the ice: the same camera turned and zoomed onto the densest icicles.
     focus = None
@@ -217,42 +271,76 @@ def write_scenes(job_dir: str | Path, object_mesh: trimesh.Trimesh, ice_mesh: tr
                          for c, v in zip(cameras, config.views)]
     cameras = tuple(cameras)
 
-    # Geometry: the object smooth with its creases kept; the ice as the pipeline wrote it.
-    obj_v, obj_n, obj_f = geo.crease_split(object_mesh, CREASE_ANGLE)
     # Inward winding would make refraction run inside out.
     ice_flip = ice_mesh is not None and geo.winds_inward(ice_mesh.vertices, ice_mesh.faces)
+    return SceneSpec(
+        resolution=(config.width, config.height),
+        views=tuple(SpecView(v.name, v.frame, icicle_px[i]) for i, v in enumerate(config.views)),
+        cameras=cameras, frame=frame, gravity=np.asarray(gravity, dtype=np.float64) / np.linalg.norm(gravity),
+        sky=Sky(sky.name, sky_scale(env), env.sky_strength),
+        sun=Sun(cam.direction(frame, env.sun_azimuth, env.sun_elevation), sun_irradiance(env), env.sun_strength,
+                env.sun_elevation) if env.sun_strength > 0 else None,
+        ground=ground, object_file="object.ply", material=material,
+        ice=None if ice_mesh is None else IceShading(
+            ior=config.ice.ior, alpha=config.ice.roughness, tint=tuple(config.ice.tint),
+            absorption=tuple(medium.absorption) if medium is not None else (0.0, 0.0, 0.0),
+            scattering=float(medium.scattering) if medium is not None else 0.0, flip=bool(ice_flip), file="ice.ply"),
+        exposure=env.exposure, sampling=Sampling(config.spp, config.max_depth, config.denoise))
+
+
+def _sky_file(job_dir: Path, env) -> Path:
+    """The sky in ``job_dir``: the configured image, or the procedural one; named by what it
+    depends on, written when missing."""
+    if env.sky == "procedural":
+        sky = job_dir / f"sky_az{env.sun_azimuth:g}_el{env.sun_elevation:g}.exr"
+        if not sky.is_file():
+            sky.write_bytes(_procedural_sky_exr(env.sun_azimuth, env.sun_elevation))
+    else:
+        src = Path(env.sky)
+        sky = job_dir / f"sky_{src.stem}{src.suffix.lower()}"
+        if not sky.is_file() or sky.stat().st_size != src.stat().st_size:
+            shutil.copyfile(src, sky)
+    return sky
+
+
+def write_spec_files(job_dir: str | Path, spec: SceneSpec, object_mesh: trimesh.Trimesh,
+                     ice_mesh: trimesh.Trimesh | None, *, defer_povray: bool = False,
+                     start: float | None = None) -> SceneFiles:
+    """Write ``spec`` (`build_spec`) into ``job_dir`` as every format has it: ``object.ply`` (the
+    object smooth with its creases kept), ``ice.ply`` when missing, ``scene.xml``
+    (`mitsuba.scene_xml`), ``scene.pov`` and its includes (`povray.scene_pov`; now, or
+    deferred as in `write_scenes`), ``scene.json`` and ``views.json``.
+
+    ``start`` (`time.perf_counter`) is when the work began, for ``SceneFiles.seconds``.
+    """
+    start = time.perf_counter() if start is None else start
+    job_dir = Path(job_dir)
+    object_geometry = geo.crease_split(object_mesh, CREASE_ANGLE)
     pov_file = job_dir / "scene.pov"
     write_pov = functools.partial(
-        _write_povray, job_dir, pov_file, (obj_v, obj_n, obj_f), ice_mesh, ice_flip,
-        pov.scene_pov(config, cameras, frame, object_inc="object.inc",
-                      ice_inc=None if ice_mesh is None else "ice.inc", sky_file=sky.name,
-                      sun_dir=sun_dir, ground=ground, material=material, medium=medium))
+        _write_povray, job_dir, pov_file, object_geometry, ice_mesh, spec.ice is not None and spec.ice.flip,
+        pov.scene_pov(spec, object_inc="object.inc", ice_inc=None if spec.ice is None else "ice.inc"))
     if not defer_povray:
         write_pov()
-
-    object_ply = job_dir / "object.ply"
+    obj_v, obj_n, obj_f = object_geometry
+    object_ply = job_dir / spec.object_file
     geo.write_ply(object_ply, obj_v, obj_f, obj_n)
     ice_ply = None
-    if ice_mesh is not None:
-        ice_ply = job_dir / "ice.ply"
+    if spec.ice is not None:
+        ice_ply = job_dir / spec.ice.file
         if not ice_ply.is_file():  # as the pipeline writes it
             write_mesh(ice_ply, ice_mesh)
     xml = job_dir / "scene.xml"
-    xml.write_text(mx.scene_xml(config, cameras, frame, object_ply=object_ply.name,
-                                ice_ply=None if ice_ply is None else ice_ply.name, ice_flip=ice_flip,
-                                sky_file=sky.name, sun_dir=sun_dir, ground=ground, material=material,
-                                medium=medium))
-    write_spec(job_dir / SPEC_FILE, scene_spec(
-        config, cameras, frame, gravity=gravity, object_ply=object_ply.name,
-        ice_ply=None if ice_ply is None else ice_ply.name, ice_flip=ice_flip, sky_file=sky.name, sun_dir=sun_dir,
-        ground=ground, material=material, medium=medium))
+    xml.write_text(mx.scene_xml(spec))
+    write_spec(job_dir / SPEC_FILE, spec)
     (job_dir / VIEWS_FILE).write_text(json.dumps([
-        {"index": i, "name": v.name, "frame": v.frame, "stem": view_stem(i), "icicle_px": icicle_px[i]}
-        for i, v in enumerate(config.views)], indent=1) + "\n")
-    return SceneFiles(xml=xml, pov=pov_file, object_ply=object_ply, ice_ply=ice_ply, sky=sky,
-                      cameras=cameras, seconds=time.perf_counter() - start,
-                      povray_writer=write_pov if defer_povray else None, icicle_px=tuple(icicle_px),
-                      ground_height=ground_height)
+        {"index": i, "name": v.name, "frame": v.frame, "stem": view_stem(i), "icicle_px": v.icicle_px}
+        for i, v in enumerate(spec.views)], indent=1) + "\n")
+    ground_height = None if spec.ground is None else float(spec.ground.centre @ spec.up)
+    return SceneFiles(xml=xml, pov=pov_file, object_ply=object_ply, ice_ply=ice_ply, sky=job_dir / spec.sky.file,
+                      cameras=spec.cameras, seconds=time.perf_counter() - start,
+                      povray_writer=write_pov if defer_povray else None,
+                      icicle_px=tuple(v.icicle_px for v in spec.views), ground_height=ground_height, spec=spec)
 
 
 def _write_povray(job_dir: Path, pov_file: Path, object_geometry: tuple[np.ndarray, ...],
