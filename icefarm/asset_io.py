@@ -19,6 +19,7 @@ import trimesh
 
 from .errors import InputError
 from .generators import GENERATOR_PREFIX
+from .geometry import ragged_arange
 
 USD_SUFFIXES = (".usd", ".usda", ".usdc", ".usdz")
 GLTF_SUFFIXES = (".glb", ".gltf")
@@ -214,7 +215,7 @@ def fan_triangulate(counts: np.ndarray, indices: np.ndarray, keep: np.ndarray | 
     starts = np.cumsum(counts) - counts
     triangles = np.maximum(counts - 2, 0) * (True if keep is None else keep)
     polygon = np.repeat(np.arange(len(counts)), triangles)
-    k = np.arange(triangles.sum()) - np.repeat(np.cumsum(triangles) - triangles, triangles)  # 0..n-3
+    k = ragged_arange(triangles)  # 0..n-3
     first = starts[polygon]
     indices = np.asarray(indices, dtype=np.int64)
     return np.column_stack([indices[first], indices[first + k + 1], indices[first + k + 2]])

@@ -1,5 +1,5 @@
 """Small geometric helpers shared by the stages: frames, face normals and volume, sampling,
-chain sums."""
+chain sums, ranges within groups laid end to end."""
 
 from __future__ import annotations
 
@@ -147,6 +147,32 @@ def chain_sums(parent: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.n
     return acc, ptr
 
 
+def ragged_arange(counts: np.ndarray, dtype=np.int64) -> np.ndarray:
+    """Each element's index within its group, for groups laid end to end.
+
+    Parameters
+    ----------
+    counts : (g,) int
+        Elements of each group (0 for an empty one).
+    dtype : numpy integer type
+        Of the result (``np.int32`` halves the memory of a long one).
+
+    Returns
+    -------
+    (counts.sum(),) int
+        ``0, 1, ..., counts[0] - 1, 0, 1, ..., counts[1] - 1, ...``; with the group of
+        each element, ``np.repeat(np.arange(g), counts)``, it addresses ragged rows.
+
+    Examples
+    --------
+    >>> ragged_arange(np.array([3, 0, 2]))
+    array([0, 1, 2, 0, 1])
+    """
+    counts = np.asarray(counts)
+    starts = np.cumsum(counts) - counts
+    return np.arange(int(counts.sum()), dtype=dtype) - np.repeat(starts.astype(dtype, copy=False), counts)
+
+
 def ray_caster(mesh: trimesh.Trimesh):
     """A first-hit ray caster over ``mesh`` (Embree), for many small batches of rays.
 
@@ -253,7 +279,7 @@ def closest_point(mesh: trimesh.Trimesh, points: np.ndarray) -> tuple[np.ndarray
     if int(degree.sum()) > 3 * CLOSEST_CANDIDATES_MAX:
         closest, distance, face = trimesh.proximity.closest_point(mesh, points)
         return np.asarray(closest, dtype=np.float64), np.asarray(distance), np.asarray(face, dtype=np.int64)
-    offset = np.arange(int(degree.sum())) - np.repeat(np.cumsum(degree) - degree, degree)
+    offset = ragged_arange(degree)
     pairs = np.unique(np.repeat(near_owner, degree) * len(faces) + faces_of[np.repeat(start[near], degree) + offset])
     owner, tried = pairs // len(faces), pairs % len(faces)
     on_face = trimesh.triangles.closest_point(vertices[faces[tried]], points[owner])

@@ -1,4 +1,5 @@
-"""Hand-written geometry kept for speed gives what trimesh gives (figures in the docstrings)."""
+"""Hand-written geometry kept for speed gives what trimesh, or a plain loop, gives (figures in the
+docstrings)."""
 
 from __future__ import annotations
 
@@ -7,7 +8,7 @@ import pytest
 import trimesh
 
 from icefarm import geometry
-from icefarm.geometry import closest_point, face_cross, sample_faces, signed_volume
+from icefarm.geometry import closest_point, face_cross, ragged_arange, sample_faces, signed_volume
 from icefarm.scene.geometry import smooth_normals
 
 
@@ -96,3 +97,13 @@ def test_flat_faces_test_agrees_with_the_heights():
     v[f[:40, 2]] = 0.5 * (v[f[:40, 0]] + v[f[:40, 1]]) + 1e-7  # needles: a corner on the opposite edge
     for height in (1e-6, 1e-3, 0.05):
         assert np.array_equal(_flat(v, f, height), _heights(v, f) < height)
+
+
+def test_ragged_arange_counts_within_each_group():
+    counts = np.array([3, 0, 1, 4, 0, 2])
+    expected = np.concatenate([np.arange(c) for c in counts])
+    np.testing.assert_array_equal(ragged_arange(counts), expected)
+    assert ragged_arange(counts).dtype == np.int64
+    np.testing.assert_array_equal(ragged_arange(counts, dtype=np.int32), expected)
+    assert ragged_arange(counts, dtype=np.int32).dtype == np.int32
+    assert ragged_arange(np.zeros(0, dtype=np.int64)).shape == (0,)

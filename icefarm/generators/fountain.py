@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 import trimesh
 
+from ..geometry import ragged_arange
 from ._common import DEFAULT_DETAIL, _rest_on_ground, grid_faces
 
 
@@ -101,7 +102,7 @@ def resample_polyline(points: np.ndarray, segments: int, weights: np.ndarray | N
     short = segments - counts.sum()
     counts[np.argsort(counts - ideal, kind="stable")[:short]] += 1
     piece = np.repeat(np.arange(pieces), counts)
-    step = np.arange(len(piece)) - np.repeat(np.cumsum(counts) - counts, counts)
+    step = ragged_arange(counts)
     t = (step / counts[piece])[:, None]
     inner = points[piece] * (1 - t) + points[piece + 1] * t
     return np.concatenate([inner, points[-1:]])

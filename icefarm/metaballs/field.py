@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import InputError
+from ..geometry import ragged_arange
 from .balls import LEVEL, Balls
 
 # Each ball is cut off where its field falls below this fraction of LEVEL.
@@ -118,7 +119,7 @@ def _ball_block_pairs(q, el, lo, hi, block):
     nbl = (bhi - blo + 1).astype(np.int32)
     per_ball = nbl.prod(axis=1)
     ball = np.repeat(np.arange(len(q), dtype=np.int32), per_ball)
-    k = np.arange(len(ball), dtype=np.int32) - np.repeat((np.cumsum(per_ball) - per_ball).astype(np.int32), per_ball)
+    k = ragged_arange(per_ball, dtype=np.int32)
     nb = nbl[ball]
     bc = np.empty((len(ball), 3), dtype=np.int32)
     bc[:, 2] = k % nb[:, 2]

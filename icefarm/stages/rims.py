@@ -14,7 +14,7 @@ import numpy as np
 import trimesh
 from scipy.spatial import cKDTree
 
-from ..geometry import unit
+from ..geometry import ragged_arange, unit
 from .water import steepest_neighbours
 
 # Below this length of the downhill direction (a surface within ~6 degrees of level) the
@@ -234,7 +234,7 @@ def rim_samples(mesh, face, cv, cu, step):
     step = max(step, float(half.sum()) / MAX_FLUX_SAMPLES)
     pieces = np.maximum(1, np.ceil(half / step)).astype(np.int64)
     h = np.repeat(rows, pieces)
-    i = np.arange(len(h)) - np.repeat(np.cumsum(pieces) - pieces, pieces)
+    i = ragged_arange(pieces)
     bary = edge_bary(cv[h], cu[h], 0.5 * (i + 0.5) / pieces[h])
     samples = np.einsum("ij,ijk->ik", bary, mesh.vertices[corners[h]])
     return samples, h, bary, corners, pieces

@@ -9,7 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..geometry import unit
+from ..geometry import ragged_arange, unit
 from .trajectories import TrajectoryResult
 from .turtles import _dot
 
@@ -94,7 +94,7 @@ def measure_trajectories(traj: TrajectoryResult, gravity) -> TrajectoryStats:
             continue
         c = counts[part]
         pair = np.repeat(np.arange(len(part)), c)
-        within = np.arange(c.sum()) - np.repeat(np.cumsum(c) - c, c)
+        within = ragged_arange(c)
         s = seg_start[parent[children[todo[part]]]][pair] + within
         a, ab, tip = seg_a[s], seg[s], tips[todo[part]][pair]
         f = np.clip(np.divide(_dot(tip - a, ab), _dot(ab, ab), out=np.zeros(len(s)), where=length[s] > 0), 0.0, 1.0)

@@ -9,7 +9,7 @@ import trimesh
 from scipy.spatial import cKDTree
 
 from ...params import SurfaceParams
-from ...geometry import random_barycentric, ray_caster
+from ...geometry import ragged_arange, random_barycentric, ray_caster
 from ...metaballs.balls import LEVEL, NO_BALLS, Balls
 from ...tol import tol
 from ..drips import DripResult
@@ -149,7 +149,7 @@ def _grow_from_drips(drip, face, drip_face, mesh):
         f = face[frontier]
         cnt = nbr_start[f + 1] - nbr_start[f]
         src = np.repeat(frontier, cnt)
-        off = np.arange(cnt.sum()) - np.repeat(np.cumsum(cnt) - cnt, cnt)
+        off = ragged_arange(cnt)
         cand = drip[src] * n_faces + nbr[nbr_start[face[src]] + off]
         i = np.minimum(np.searchsorted(key, cand), len(key) - 1)
         new = np.zeros(len(key), dtype=bool)

@@ -31,7 +31,7 @@ import trimesh
 from scipy.spatial import cKDTree
 
 from ...errors import InputError
-from ...geometry import ray_caster
+from ...geometry import ragged_arange, ray_caster
 from ...metaballs.field import Field, _block_keys
 from .coat_band import _MAX_POINTS, _sample_band
 
@@ -185,7 +185,7 @@ def _features(mesh: trimesh.Trimesh, faces: np.ndarray, kind: np.ndarray, spacin
     a, b = mesh.vertices[edges[:, 0]], mesh.vertices[edges[:, 1]]
     count = np.maximum(np.ceil(np.linalg.norm(b - a, axis=1) / spacing), 1).astype(np.int64)
     which = np.repeat(np.arange(len(edges)), count + 1)
-    u = (np.arange(len(which)) - np.repeat(np.cumsum(count + 1) - (count + 1), count + 1)) / count[which]
+    u = ragged_arange(count + 1) / count[which]
     return cKDTree(a[which] + u[:, None] * (b - a)[which])
 
 
@@ -237,7 +237,7 @@ def _rim(mesh: trimesh.Trimesh, is_wet, blocked, wet, thickness, spacing) -> _Ri
     ta, tb = np.where(wet[ends[:, 0]], ta, tb), np.where(wet[ends[:, 1]], tb, ta)
     count = np.maximum(np.ceil(np.linalg.norm(b - a, axis=1) / spacing), 1).astype(np.int64)
     seg = np.repeat(np.arange(len(e_of)), count + 1)
-    u = (np.arange(len(seg)) - np.repeat(np.cumsum(count + 1) - (count + 1), count + 1)) / count[seg]
+    u = ragged_arange(count + 1) / count[seg]
     return _Rim(cKDTree(a[seg] + u[:, None] * (b - a)[seg]), seg, a, b, ta, tb, mesh.face_normals[f_of])
 
 

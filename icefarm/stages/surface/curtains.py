@@ -19,7 +19,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ...params import SurfaceParams
-from ...geometry import unit
+from ...geometry import ragged_arange, unit
 from ...metaballs.balls import NO_BALLS, Balls, concat_balls, sheet_balls
 from ...tol import tol
 from ..trajectories import TrajectoryResult
@@ -143,7 +143,7 @@ def _sheet(trunks, distance, step):
     depth = (top - z) / (top - bottom)
     count = np.maximum(np.ceil(gap / step).astype(np.int64), 1) + 1
     row = np.repeat(np.arange(rows), count)
-    u = (np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count)) / (count - 1)[row]
+    u = ragged_arange(count) / (count - 1)[row]
     reach = 1.0 - DRAPE * 4.0 * u * (1.0 - u)
     fade = np.sqrt(np.clip((reach - depth[row]) / EDGE, 0.0, 1.0))  # a rounded lower edge
     # At least half again what the lattice resolves, so the sheet ends at its draped edge

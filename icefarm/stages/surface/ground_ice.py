@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...params import GroundIceParams, SurfaceParams
-from ...geometry import perpendicular_basis, unit
+from ...geometry import perpendicular_basis, ragged_arange, unit
 from ...metaballs.balls import NO_BALLS, Balls, concat_balls, sheet_balls
 from ..landing import LandingResult
 from ..trajectories import TrajectoryResult
@@ -172,7 +172,7 @@ def _stalagmites(landing: LandingResult, ground_ice: GroundIceParams, surface: S
     # A lumpy axis: points every two top radii, moved sideways at random (not the ends).
     count = np.maximum(np.ceil((heights[idx] - top) / (2 * top)).astype(np.int64), 1) + 1
     owner = np.repeat(np.arange(len(idx)), count)
-    k = np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count)
+    k = ragged_arange(count)
     t = (k / (count - 1)[owner])[:, None]
     points = landing.positions[idx][owner] * (1 - t) + ends[idx][owner] * t
     inner = (k > 0) & (k < count[owner] - 1)

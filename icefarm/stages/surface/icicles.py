@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 
+from ...geometry import ragged_arange
 from ...params import SurfaceParams
 from ...metaballs.balls import KAPPA, LEVEL, NO_BALLS, SPACING, TIP_WEIGHT, Balls
 from ...tol import tol
@@ -54,7 +55,7 @@ def icicle_balls(traj: TrajectoryResult, surface: SurfaceParams, rng: np.random.
     nfine = np.maximum(np.ceil(lengths / step_min).astype(np.int64), 1) + 1
     fb = np.repeat(np.arange(nb), nfine)
     fstart = np.cumsum(nfine) - nfine
-    fj = np.arange(nfine.sum()) - np.repeat(fstart, nfine)
+    fj = ragged_arange(nfine)
     fx = fj * (lengths / (nfine - 1))[fb]
     fr = smooth_radius(fx, grown[fb], growth=growth[fb], **prof)
     inv_h = 1.0 / (SPACING * KAPPA * fr)
@@ -66,7 +67,7 @@ def icicle_balls(traj: TrajectoryResult, surface: SurfaceParams, rng: np.random.
     nint = np.ceil(u_len - tol.slack).astype(np.int64)  # intervals between balls; 0: one lone ball
     nballs = nint + 1
     bb = np.repeat(np.arange(nb), nballs)
-    bk = np.arange(nballs.sum()) - np.repeat(np.cumsum(nballs) - nballs, nballs)
+    bk = ragged_arange(nballs)
     # Global monotone u with a gap of 1 between branches, so np.interp never mixes branches.
     gap = np.arange(nb, dtype=np.float64)
     ug = u + gap[fb]

@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
+from ...geometry import ragged_arange
 from ...params import SurfaceParams
 from ..trajectories import TrajectoryResult
 from .profile import _branch_lengths, _points_along, grown_lengths
@@ -135,7 +136,7 @@ def ripple_texture(vertices: np.ndarray, traj: TrajectoryResult, tree=None) -> R
     lo, hi = TEXTURE_SPAN
     n = ((hi - lo) * L / TEXTURE_STEP).astype(np.int64) + 1
     owner = np.repeat(np.arange(len(trunks)), n)
-    k = np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)
+    k = ragged_arange(n)
     x = (lo * L)[owner] + k * TEXTURE_STEP
     axis, tangent = _points_along(traj, x_pt, lengths, trunks[owner], x)
     r = _slab_radius(axis, tangent, vertices, tree, TEXTURE_SLAB, 0.002)
@@ -212,7 +213,7 @@ def measure_icicles(vertices: np.ndarray, faces: np.ndarray, traj: TrajectoryRes
     ok = n >= 4
     n = np.where(ok, n, 0)
     owner = np.repeat(np.arange(len(trunks)), n)
-    k = np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)
+    k = ragged_arange(n)
     x = (TAPER_AT * L)[owner] + k * sample_step
     axis, tangent = _points_along(traj, x_pt, lengths, trunks[owner], x)
     r = _slab_radius(axis, tangent, vertices, tree, sample_step,

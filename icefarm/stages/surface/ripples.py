@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
+from ...geometry import ragged_arange
 from ..trajectories import TrajectoryResult
 from .profile import TIP_CALM, _branch_lengths, _points_along, grown_lengths, smooth_radius
 
@@ -74,7 +75,7 @@ def carve_ripples(vertices: np.ndarray, traj: TrajectoryResult, prof: dict,
     step = min(2 * np.pi / frequency / SAMPLES_PER_WAVE, tip)
     n = np.ceil(L / step).astype(np.int64) + 1
     owner = np.repeat(np.arange(len(branches)), n)
-    k = np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)
+    k = ragged_arange(n)
     x = k * (L / np.maximum(n - 1, 1))[owner]
     axis, tangent = _points_along(traj, x_pt, lengths, branches[owner], x)
     radius = smooth_radius(x, grown[owner], growth=growth[owner], **prof)

@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 
+from ...geometry import ragged_arange
 from ...params import SurfaceParams
 from ..trajectories import TrajectoryResult
 from .icicles import _perpendicular_frame
@@ -49,7 +50,7 @@ def tube_mesh(traj: TrajectoryResult, surface: SurfaceParams, gravity=(0.0, -1.0
     n = np.maximum(np.ceil(L / step).astype(np.int64), 1) + 1  # body rings per tube
     rb = np.repeat(np.arange(len(branches)), n)
     first = np.cumsum(n) - n
-    rk = np.arange(n.sum()) - first[rb]
+    rk = ragged_arange(n)
     xr = rk * (L / (n - 1))[rb]
     centre, _ = _points_along(traj, x_pt, lengths, branches[rb], xr)
     growth = traj.growth(prof.pop("growth"))[branches]
