@@ -1,5 +1,5 @@
 """Small geometric helpers shared by the stages: frames, face normals and volume, sampling,
-chain sums, ranges within groups laid end to end."""
+chain sums, ranges within groups laid end to end, arc lengths of polylines laid end to end."""
 
 from __future__ import annotations
 
@@ -171,6 +171,44 @@ def ragged_arange(counts: np.ndarray, dtype=np.int64) -> np.ndarray:
     counts = np.asarray(counts)
     starts = np.cumsum(counts) - counts
     return np.arange(int(counts.sum()), dtype=dtype) - np.repeat(starts.astype(dtype, copy=False), counts)
+
+
+def arc_lengths(points: np.ndarray, offsets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Arc lengths along polylines laid end to end (a `TrajectoryResult`'s branches).
+
+    Parameters
+    ----------
+    points : (p, 3) float
+        The polylines' points, one polyline after the other, meters.
+    offsets : (b + 1,) int
+        Polyline ``i`` is ``points[offsets[i]:offsets[i + 1]]`` (it may be empty).
+
+    Returns
+    -------
+    x : (p,) float
+        Each point's distance from its polyline's first point along the polyline, meters.
+    lengths : (b,) float
+        Each polyline's length, meters (0 for an empty one or a single point).
+
+    Notes
+    -----
+    Differences of one running sum over all the polylines: a polyline's figures depend, in
+    their last bits, on the polylines before it.
+    """
+    pts = np.asarray(points, dtype=np.float64)
+    off = np.asarray(offsets, dtype=np.int64)
+    seg = np.zeros(len(pts))
+    if len(pts) > 1:
+        seg[1:] = np.linalg.norm(np.diff(pts, axis=0), axis=1)
+    seg[off[:-1][off[:-1] < len(pts)]] = 0.0  # no segment across a polyline's start
+    cum = np.cumsum(seg)
+    # (an empty polyline, e.g. a branch the ground cut away, may start at len(pts): clip its index)
+    start = np.repeat(cum[np.minimum(off[:-1], len(pts) - 1)] if len(pts) else np.zeros(0), np.diff(off))
+    x = cum - start
+    lengths = np.zeros(len(off) - 1)
+    nonempty = np.diff(off) > 0
+    lengths[nonempty] = x[off[1:][nonempty] - 1]
+    return x, lengths
 
 
 def ray_caster(mesh: trimesh.Trimesh):

@@ -83,6 +83,11 @@ def stop_at_ground(traj: TrajectoryResult, gravity, floor: float, margin: float)
 
 
 def _polyline_length(points: np.ndarray) -> float:
+    # One polyline on its own, not `icefarm.geometry.arc_lengths` of all branches: that
+    # differences a running sum over every branch, which would leave ~1e-13 m of cut on the
+    # branches the ground never reached (cut > 0 gives an icicle a foot); and arc_lengths of
+    # each branch alone sums in order, not pairwise as np.sum, which changes the cut lengths
+    # in their last bits, and the meshes with them.
     return float(np.linalg.norm(np.diff(points, axis=0), axis=1).sum()) if len(points) > 1 else 0.0
 
 

@@ -8,7 +8,7 @@ import pytest
 import trimesh
 
 from icefarm import geometry
-from icefarm.geometry import closest_point, face_cross, ragged_arange, sample_faces, signed_volume
+from icefarm.geometry import arc_lengths, closest_point, face_cross, ragged_arange, sample_faces, signed_volume
 from icefarm.scene.geometry import smooth_normals
 
 
@@ -107,3 +107,18 @@ def test_ragged_arange_counts_within_each_group():
     np.testing.assert_array_equal(ragged_arange(counts, dtype=np.int32), expected)
     assert ragged_arange(counts, dtype=np.int32).dtype == np.int32
     assert ragged_arange(np.zeros(0, dtype=np.int64)).shape == (0,)
+
+
+def test_arc_lengths_are_each_polylines_own():
+    """Polylines of 4, 0, 1 and 3 points, then an empty one that starts past the last point."""
+    rng = np.random.default_rng(2)
+    points = rng.random((8, 3))
+    offsets = np.array([0, 4, 4, 5, 8, 8])
+    x, lengths = arc_lengths(points, offsets)
+    for b in range(len(offsets) - 1):
+        line = points[offsets[b]:offsets[b + 1]]
+        steps = np.linalg.norm(np.diff(line, axis=0), axis=1)
+        np.testing.assert_allclose(x[offsets[b]:offsets[b + 1]], np.r_[0.0, np.cumsum(steps)][:len(line)], atol=1e-12)
+        assert lengths[b] == pytest.approx(steps.sum(), abs=1e-12)
+    x, lengths = arc_lengths(np.zeros((0, 3)), [0, 0])
+    assert x.shape == (0,) and lengths.tolist() == [0.0]

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ..geometry import unit
+from ..geometry import arc_lengths, unit
 from ..tol import tol
 from .trajectories import TrajectoryResult
 
@@ -181,12 +181,7 @@ def _find_landings(traj, off, icicle, drip_water, g, runoff, merge, cast, face_n
 def _tip_water(pts, off, branches, icicle, drip_water, runoff):
     """``(t,)`` water each branch tip sheds: ``runoff`` of its icicle's water, shared by
     branch length (equally when an icicle's branches have no length)."""
-    seg = np.zeros(len(pts))
-    if len(pts) > 1:
-        seg[1:] = np.linalg.norm(np.diff(pts, axis=0), axis=1)
-    seg[off[:-1][off[:-1] < len(pts)]] = 0.0  # no segment across a branch start
-    cum = np.r_[0.0, np.cumsum(seg)]
-    length = cum[off[branches + 1]] - cum[off[branches] + 1] if len(branches) else np.zeros(0)
+    length = arc_lengths(pts, off)[1][branches]
     ic = icicle[branches]
     n = max(len(drip_water), 1)
     per_icicle = np.bincount(ic, weights=length, minlength=n)

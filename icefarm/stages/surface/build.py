@@ -10,6 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 import trimesh
 
+from ...geometry import arc_lengths
 from ...params import GlazeParams, SurfaceParams
 from ...metaballs import Balls, concat_balls, fuse_fields, sample_field
 from ...metaballs.clean import collapse_slivers, flip_needles
@@ -22,7 +23,7 @@ from .detail import coarse_voxel, split_balls, surface_spacing
 from .glaze import glaze_field, glaze_thickness, wet_vertices
 from .icicles import icicle_balls
 from .measure import IcicleStats, measure_icicles
-from .profile import _branch_lengths, grown_lengths, profile_args, smooth_radius
+from .profile import grown_lengths, profile_args, smooth_radius
 from .ripples import carve_ripples
 from .tubes import tube_mesh
 
@@ -209,7 +210,7 @@ def budget_voxel(traj: TrajectoryResult, surface: SurfaceParams, faces: float) -
     holds about ``faces`` faces (`FACES_PER_VOXEL_AREA` per voxel face of their area, each
     branch a solid of its profile: mean radius ``tip + 4/7 t L``), never past the tip radius
     (a tip narrower than two voxels would break up)."""
-    _, lengths = _branch_lengths(traj)
+    _, lengths = arc_lengths(traj.points, traj.branch_offsets)
     growth = traj.growth(surface.growth_ratio)
     area = float((2.0 * np.pi * (surface.tip_radius + 4.0 / 7.0 * growth * lengths) * lengths).sum())
     if faces <= 0 or area <= 0:
@@ -221,7 +222,7 @@ def budget_voxel(traj: TrajectoryResult, surface: SurfaceParams, faces: float) -
 def _root_radius(traj: TrajectoryResult, k: int, surface: SurfaceParams) -> np.ndarray:
     """(k,) radius of each icicle's trunk where it leaves the object (the tip radius for a
     drip point without a trunk), meters."""
-    _, lengths = _branch_lengths(traj)
+    _, lengths = arc_lengths(traj.points, traj.branch_offsets)
     trunk_length = np.zeros(k)
     trunks = np.flatnonzero(np.asarray(traj.branch_parent) < 0)
     trunk_length[np.asarray(traj.branch_icicle)[trunks]] = grown_lengths(lengths[trunks], traj.cut[trunks])

@@ -19,11 +19,11 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ...params import SurfaceParams
-from ...geometry import ragged_arange, unit
+from ...geometry import arc_lengths, ragged_arange, unit
 from ...metaballs.balls import NO_BALLS, Balls, concat_balls, sheet_balls
 from ...tol import tol
 from ..trajectories import TrajectoryResult
-from .profile import _branch_lengths, grown_lengths, profile_args, smooth_radius
+from .profile import grown_lengths, profile_args, smooth_radius
 
 # Half the sheet's thickness over the mean radius of its two trunks at that height: thick
 # near the bases, thin towards the tips, as the icicles themselves.
@@ -83,7 +83,7 @@ def curtain_balls(traj: TrajectoryResult, surface: SurfaceParams, gravity) -> Cu
         return NO_CURTAINS
     up = -unit(np.asarray(gravity, dtype=np.float64).reshape(3))
     pts = np.asarray(traj.points, dtype=np.float64)
-    x_pt, lengths = _branch_lengths(traj)
+    x_pt, lengths = arc_lengths(traj.points, traj.branch_offsets)
     grown = grown_lengths(lengths, traj.cut)
     prof = profile_args(surface)
     growth = np.repeat(traj.growth(prof.pop("growth")), np.diff(off))

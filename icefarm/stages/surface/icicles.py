@@ -6,12 +6,12 @@ import math
 
 import numpy as np
 
-from ...geometry import ragged_arange
+from ...geometry import arc_lengths, ragged_arange
 from ...params import SurfaceParams
 from ...metaballs.balls import KAPPA, LEVEL, NO_BALLS, SPACING, TIP_WEIGHT, Balls
 from ...tol import tol
 from ..trajectories import TrajectoryResult
-from .profile import TIP_CALM, _branch_lengths, _points_along, grown_lengths, profile_args, smooth_radius
+from .profile import TIP_CALM, _points_along, grown_lengths, profile_args, smooth_radius
 
 
 # The blended end of a wide chain bulges a little past its last ball's radius (0.15 mm on
@@ -37,7 +37,7 @@ def icicle_balls(traj: TrajectoryResult, surface: SurfaceParams, rng: np.random.
     branches = np.flatnonzero(np.diff(np.asarray(traj.branch_offsets)) > 0)
     if len(branches) == 0:
         return NO_BALLS
-    x_pt, all_lengths = _branch_lengths(traj)
+    x_pt, all_lengths = arc_lengths(traj.points, traj.branch_offsets)
     grown = grown_lengths(all_lengths[branches], traj.cut[branches])
     growth = traj.growth(prof.pop("growth"))[branches]  # per branch under a physical storm
     # A cut branch ends on the ground in a foot wider than the tip's drop: its chain stops

@@ -9,10 +9,10 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ...geometry import ragged_arange
+from ...geometry import arc_lengths, ragged_arange
 from ...params import SurfaceParams
 from ..trajectories import TrajectoryResult
-from .profile import _branch_lengths, _points_along, grown_lengths
+from .profile import _points_along, grown_lengths
 
 # Radius samples along a trunk: from TAPER_AT of its length below its base to FIT_END; the
 # profile is fitted between FIT_START and FIT_END of the distance from the tip, clear of the
@@ -125,7 +125,7 @@ def ripple_texture(vertices: np.ndarray, traj: TrajectoryResult, tree=None) -> R
     trunks = np.flatnonzero((np.asarray(traj.branch_parent) < 0) & (np.diff(off) > 0))
     if len(trunks) == 0 or len(vertices) == 0:
         return RippleTexture.none()
-    x_pt, lengths = _branch_lengths(traj)
+    x_pt, lengths = arc_lengths(traj.points, traj.branch_offsets)
     trunks = trunks[lengths[trunks] >= TEXTURE_MIN_LENGTH]
     if len(trunks) > MAX_MEASURED:
         trunks = trunks[np.linspace(0, len(trunks) - 1, MAX_MEASURED).round().astype(np.int64)]
@@ -193,7 +193,7 @@ def measure_icicles(vertices: np.ndarray, faces: np.ndarray, traj: TrajectoryRes
     empty = np.full(len(trunks), np.nan)
     if len(trunks) == 0 or len(faces) == 0:
         return IcicleStats(nan, empty, empty.copy(), empty.copy(), nan, nan)
-    x_pt, lengths = _branch_lengths(traj)
+    x_pt, lengths = arc_lengths(traj.points, traj.branch_offsets)
     pts = np.asarray(traj.points, dtype=np.float64)
     tree = cKDTree(vertices, balanced_tree=False, compact_nodes=False)
 

@@ -98,27 +98,10 @@ def grown_lengths(lengths: np.ndarray, cut: np.ndarray) -> np.ndarray:
     return lengths + np.minimum(np.asarray(cut, dtype=np.float64), GROUND_THICKENING * lengths)
 
 
-def _branch_lengths(traj: TrajectoryResult):
-    """Per point: arc length from its branch base; per branch: total length (meters)."""
-    pts = np.asarray(traj.points, dtype=np.float64)
-    off = np.asarray(traj.branch_offsets, dtype=np.int64)
-    seg = np.zeros(len(pts))
-    if len(pts) > 1:
-        seg[1:] = np.linalg.norm(np.diff(pts, axis=0), axis=1)
-    seg[off[:-1][off[:-1] < len(pts)]] = 0.0  # no segment across a branch start
-    cum = np.cumsum(seg)
-    # (an empty branch, e.g. one the ground cut away, may start at len(pts): clip its index)
-    start = np.repeat(cum[np.minimum(off[:-1], len(pts) - 1)] if len(pts) else np.zeros(0), np.diff(off))
-    x = cum - start
-    lengths = np.zeros(len(off) - 1)
-    nonempty = np.diff(off) > 0
-    lengths[nonempty] = x[off[1:][nonempty] - 1]
-    return x, lengths
-
-
 def _points_along(traj: TrajectoryResult, x_pt, lengths, branch, x):
     """Points at arc length ``x`` (k,) along branches ``branch`` (k,), with the unit direction
-    of the polyline segment there.
+    of the polyline segment there; ``x_pt`` and ``lengths`` are `icefarm.geometry.arc_lengths`
+    of ``traj``'s branches.
 
     Returns
     -------

@@ -18,9 +18,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ...geometry import ragged_arange
+from ...geometry import arc_lengths, ragged_arange
 from ..trajectories import TrajectoryResult
-from .profile import TIP_CALM, _branch_lengths, _points_along, grown_lengths, smooth_radius
+from .profile import TIP_CALM, _points_along, grown_lengths, smooth_radius
 
 # Vertices farther from a branch's axis than this times its radius there (plus the ripple)
 # belong to something else: a neighbour, the base ice, the glaze.
@@ -67,7 +67,7 @@ def carve_ripples(vertices: np.ndarray, traj: TrajectoryResult, prof: dict,
     branches = np.flatnonzero(np.diff(np.asarray(traj.branch_offsets)) > 0)
     if amplitude <= 0 or frequency <= 0 or len(branches) == 0 or len(vertices) == 0:
         return vertices
-    x_pt, lengths = _branch_lengths(traj)
+    x_pt, lengths = arc_lengths(traj.points, traj.branch_offsets)
     L = lengths[branches]
     grown = grown_lengths(L, traj.cut[branches])
     prof = dict(prof)

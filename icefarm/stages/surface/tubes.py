@@ -6,11 +6,11 @@ import math
 
 import numpy as np
 
-from ...geometry import ragged_arange
+from ...geometry import arc_lengths, ragged_arange
 from ...params import SurfaceParams
 from ..trajectories import TrajectoryResult
 from .icicles import _perpendicular_frame
-from .profile import _branch_lengths, _points_along, grown_lengths, profile_args, profile_radius
+from .profile import _points_along, grown_lengths, profile_args, profile_radius
 
 def tube_mesh(traj: TrajectoryResult, surface: SurfaceParams, gravity=(0.0, -1.0, 0.0), ring: int = 12,
               cap_rings: int = 4):
@@ -39,7 +39,7 @@ def tube_mesh(traj: TrajectoryResult, surface: SurfaceParams, gravity=(0.0, -1.0
     """
     prof = profile_args(surface)
     tip = prof["tip"]
-    x_pt, lengths = _branch_lengths(traj)
+    x_pt, lengths = arc_lengths(traj.points, traj.branch_offsets)
     branches = np.flatnonzero(np.diff(np.asarray(traj.branch_offsets)) > 0)
     if len(branches) == 0:
         return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64)
