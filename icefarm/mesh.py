@@ -99,7 +99,8 @@ def detect_problems(mesh: trimesh.Trimesh, self_intersections: bool = True) -> M
     mesh : trimesh.Trimesh
         A welded mesh (see `clean`): unwelded seams count as open boundaries.
     self_intersections : bool
-        Also count faces that cross another face (about 10 us a face, via pymeshlab);
+        Also count faces that cross another face (via pymeshlab, in time that grows with
+        the faces);
         without it ``self_intersections`` is -1.
     """
     faces = len(mesh.faces)

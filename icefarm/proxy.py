@@ -51,8 +51,8 @@ MODES = ("auto", "always", "never")
 # without hurting a flow along edges; parts passing through each other cross many more.
 SELF_INTERSECTING_FRACTION = 0.05
 # The wrap has about WRAP_FACE_FACTOR * area / alpha**2 faces (measured 1.3-2.4 on the
-# shared meshes); its time and memory grow with that count (about 1.2 kB and 0.15 ms a
-# face), so it is held under the face budget (finer would be remeshed away anyway) and
+# shared meshes); its time and memory grow with that count (memory: about 1.2 kB a face),
+# so it is held under the face budget (finer would be remeshed away anyway) and
 # MAX_WRAP_FACES by raising alpha, up to MAX_ALPHA of the diagonal.
 WRAP_FACE_FACTOR = 2.0
 MAX_WRAP_FACES = 1_000_000

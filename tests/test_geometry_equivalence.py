@@ -1,5 +1,4 @@
-"""Hand-written geometry kept for speed gives what trimesh, or a plain loop, gives (figures in the
-docstrings)."""
+"""Hand-written geometry kept for speed gives what trimesh, or a plain loop, gives."""
 
 from __future__ import annotations
 

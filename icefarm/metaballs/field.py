@@ -26,7 +26,7 @@ BLOCK = 16
 # Most balls in one matrix product (see _block_fields).
 _SEGMENT = 64
 # Floats in one stacked product of block fields (small enough to stay in a core's L2
-# cache: 4x faster than 4M here).
+# cache: faster than batches of 4M).
 _FIELD_BATCH = 500_000
 # Refuse voxel sizes whose field (float32 over the blocks the balls reach) needs more,
 # or that pair balls with more blocks than this (about 100 bytes each on the way).

@@ -72,7 +72,7 @@ FLOW_CONVERGENCE = 4.0
 GLAZE_BLUR_M = 0.03
 MAX_BLUR_PASSES = 12
 # Glaze thinner than this (m) is left out of the coat: it reads as a wet sheen, and a coat far
-# thinner than its voxels tore into speckles and took 40 s on a fence.
+# thinner than its voxels tore into speckles and was slow to mesh on a fence.
 GLAZE_MIN_M = 0.001
 # glaze.lifetime moves the freezing budget along the water's walk by at most this share
 # (lt 0: 1.5x at the top, 0.5x at the bottom; lt 0.5: even).
@@ -337,8 +337,8 @@ def _routes(mesh: trimesh.Trimesh, g: np.ndarray, cos_up: np.ndarray, area: np.n
 
 
 def _flow(catch, capacity, passing, tilt, routes, order, outlet):
-    """Route the water in ``order`` (a Python loop: each vertex waits for all that feed it;
-    about 2 us a vertex). A vertex freezes its own catch up to its budget, then the share
+    """Route the water in ``order`` (a Python loop: each vertex waits for all that feed it).
+    A vertex freezes its own catch up to its budget, then the share
     ``passing`` of the water running through, within what is left of it; sheds as its tilt
     passes the tilt the water has seen (averaged over the water arriving: a maximum let a
     trickle that passed a steep spot stop the shedding of all the water it joined); passes the rest on along its ``routes``

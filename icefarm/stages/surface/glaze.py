@@ -281,7 +281,7 @@ def measure_glaze(ice_vertices: np.ndarray, ice_faces: np.ndarray, flow_mesh: tr
     seed : int
     cast : callable, optional
         An `icefarm.geometry.ray_caster` of the ice mesh, if one is at hand (building one
-        takes about 0.5 s per million faces).
+        takes time in proportion to the ice's faces).
 
     Returns
     -------

@@ -29,8 +29,8 @@ RIPPLE_BAND = (0.6, 1.6)
 _EXPONENTS = tuple(np.round(np.arange(0.2, 2.0001, 0.01), 2))
 
 
-# At most this many trunks are measured, evenly over the icicles (a 3 m bunny's 933 took 90 s
-# and 21 GB); and radius samples go through the slab query this many at a time.
+# At most this many trunks are measured, evenly over the icicles (all 933 of a 3 m bunny's
+# took 21 GB, and long); and radius samples go through the slab query this many at a time.
 MAX_MEASURED = 200
 SLAB_CHUNK = 2000
 
