@@ -51,6 +51,11 @@ def mi():
 # ------------------------------------------------------------------ stage 4 by hand
 # (icefarm's stages are imported when a helper runs, not when the tests are collected)
 
+# Gravity -Y (y up, as the generators and the shared meshes). The test modules keep their
+# own one-line `G = np.array([0.0, -1.0, 0.0])`: they use it at module level (helpers,
+# reference implementations, module-scoped fixtures), where a fixture does not reach, and
+# pytest advises against importing conftest; a module's own array also keeps an in-place
+# edit from leaking into other modules.
 G = np.array([0.0, -1.0, 0.0])
 
 
@@ -64,6 +69,18 @@ def _groups(**changes):
 
 def _sphere(radius=0.15):
     return trimesh.creation.icosphere(subdivisions=4, radius=radius)
+
+
+def _water(mesh, wet):
+    """Water on ``mesh`` by hand: ``wet`` vertices, dUp/dDown from their heights along ``G``."""
+    from icefarm.stages.water import WaterResult
+
+    h = mesh.vertices @ -G
+    top, bottom = h[wet].max(), h[wet].min()
+    n = len(h)
+    return WaterResult(supply=wet, water=np.where(wet, 0.1, 0.0), top=np.zeros(n, int),
+                       d_up=np.where(wet, top - h, 0.0), bottom=np.zeros(n, int),
+                       d_down=np.where(wet, h - bottom, 0.0), hits=np.zeros((0, 3)))
 
 
 def _dry(mesh):
@@ -100,6 +117,13 @@ def _straight(starts, lengths, step=0.004):
     return TrajectoryResult(np.concatenate(pts), np.array(off), np.arange(k), np.full(k, -1))
 
 
+def _no_icicles():
+    """Trajectories without a branch."""
+    from icefarm.stages.trajectories import TrajectoryResult
+
+    return TrajectoryResult(np.zeros((0, 3)), np.zeros(1, int), np.zeros(0, int), np.zeros(0, int))
+
+
 def _ice(obj, water, drips, traj, surface, glaze, seed=0):
     """Stage 4 on ``obj`` (its own collision mesh) under gravity -Y."""
     from icefarm.stages.surface import build_ice
@@ -111,13 +135,14 @@ def _ice(obj, water, drips, traj, surface, glaze, seed=0):
 def surface_kit() -> SimpleNamespace:
     """Stage 4's inputs made by hand, and stage 4 itself, under gravity ``G`` (-Y).
 
-    ``sphere(radius)``, ``dry(mesh)`` (a `WaterResult` that wets nothing), ``drips(mesh,
-    points, water)``, ``straight(starts, lengths)`` (one straight trunk per start),
+    ``sphere(radius)``, ``water(mesh, wet)`` (the ``wet`` vertices wet, dUp and dDown from
+    their heights), ``dry(mesh)`` (a `WaterResult` that wets nothing), ``drips(mesh, points,
+    water)``, ``straight(starts, lengths)`` (one straight trunk per start), ``no_icicles()``,
     ``groups(**changes)`` (resolved surface and glaze groups, ``surface__name=value``) and
     ``ice(obj, water, drips, traj, surface, glaze, seed)``.
     """
-    return SimpleNamespace(G=G, sphere=_sphere, dry=_dry, drips=_drips, straight=_straight, groups=_groups,
-                           ice=_ice)
+    return SimpleNamespace(G=G, sphere=_sphere, water=_water, dry=_dry, drips=_drips, straight=_straight,
+                           no_icicles=_no_icicles, groups=_groups, ice=_ice)
 
 
 # ------------------------------------------------------------------ scenes to render

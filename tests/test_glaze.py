@@ -28,16 +28,6 @@ def _glaze(**changes):
     return params.resolve({f"glaze.{k}": v for k, v in changes.items()}).glaze
 
 
-def _by_height(mesh, wet):
-    """Water by hand: ``wet`` vertices, dUp and dDown from their heights."""
-    h = mesh.vertices @ -G
-    top, bottom = h[wet].max(), h[wet].min()
-    n = len(h)
-    return WaterResult(supply=wet, water=np.where(wet, 0.1, 0.0), top=np.zeros(n, int),
-                       d_up=np.where(wet, top - h, 0.0), bottom=np.zeros(n, int),
-                       d_down=np.where(wet, h - bottom, 0.0), hits=np.zeros((0, 3)))
-
-
 def _coat(mesh, water, glaze, exclude=None):
     field = glaze_field(mesh, water, glaze, np.random.default_rng(0), exclude=exclude)
     return fuse_fields(None, field)
@@ -98,9 +88,9 @@ def test_lifetime_puts_the_ice_high_up_or_low_down(case, request):
     assert ratio[1.0] <= 1 / 3  # runs down first: thick low down
 
 
-def test_lifetime_on_a_sphere_with_water_by_height():
+def test_lifetime_on_a_sphere_with_water_by_height(surface_kit):
     sphere = trimesh.creation.icosphere(subdivisions=4, radius=0.15)
-    water = _by_height(sphere, np.ones(len(sphere.vertices), dtype=bool))
+    water = surface_kit.water(sphere, np.ones(len(sphere.vertices), dtype=bool))
     low, high = (measure_glaze(*_coat(sphere, water, _glaze(lifetime=lt)), sphere, water, G, samples=4000).top_bottom
                  for lt in (0.0, 1.0))
     assert low >= 3 and high <= 1 / 3
@@ -130,9 +120,9 @@ def test_thickness_is_equation_3_on_a_flat_wet_plate():
     assert np.allclose(glaze_thickness(water, glaze)[top], 0.001 + 0.02 * (x[top] * 1.0))
 
 
-def test_coat_fuses_with_an_icicle_into_one_watertight_mesh():
+def test_coat_fuses_with_an_icicle_into_one_watertight_mesh(surface_kit):
     sphere = trimesh.creation.icosphere(subdivisions=4, radius=0.1)
-    water = _by_height(sphere, sphere.vertices[:, 1] < 0.08)  # all but a dry cap: one surface
+    water = surface_kit.water(sphere, sphere.vertices[:, 1] < 0.08)  # all but a dry cap: one surface
     coat = glaze_field(sphere, water, _glaze(), np.random.default_rng(0))
     # An icicle: a chain of balls of radius 4 mm from inside the bottom down 6 cm.
     r = 0.004
@@ -144,11 +134,11 @@ def test_coat_fuses_with_an_icicle_into_one_watertight_mesh():
     assert ice.bounds[0, 1] < -0.155 and ice.bounds[1, 1] > 0.08  # icicle tip and coat top
 
 
-def test_excluded_vertices_get_no_ice():
+def test_excluded_vertices_get_no_ice(surface_kit):
     sphere = trimesh.creation.icosphere(subdivisions=4, radius=0.1)
     wet = np.ones(len(sphere.vertices), dtype=bool)
     sole = sphere.vertices[:, 1] < -0.07
-    water = _by_height(sphere, wet)
+    water = surface_kit.water(sphere, wet)
     v, f = _coat(sphere, water, _glaze(), exclude=sole)
     ice = _closed(v, f)
     cast = ray_caster(ice)
@@ -161,7 +151,7 @@ def test_excluded_vertices_get_no_ice():
     assert s.coverage >= 0.95
 
 
-def test_legacy_zero_balls_means_no_glaze():
+def test_legacy_zero_balls_means_no_glaze(surface_kit):
     glaze = params.resolve({"glaze.balls": 0}).glaze
     assert glaze.mode == "none" and not hasattr(glaze, "balls")
     assert params.resolve({"glaze": {"balls": 0}}, {"drips.count": 3}).glaze.mode == "none"
@@ -173,13 +163,13 @@ def test_legacy_zero_balls_means_no_glaze():
         warnings.simplefilter("error")
         assert params.resolve().glaze.mode == "coat"
     sphere = trimesh.creation.icosphere(subdivisions=3, radius=0.1)
-    water = _by_height(sphere, np.ones(len(sphere.vertices), dtype=bool))
+    water = surface_kit.water(sphere, np.ones(len(sphere.vertices), dtype=bool))
     assert glaze_field(sphere, water, glaze, np.random.default_rng(0)) is None
 
 
-def test_metaballs_mode_spreads_balls_by_density():
+def test_metaballs_mode_spreads_balls_by_density(surface_kit):
     sphere = trimesh.creation.icosphere(subdivisions=3, radius=0.1)
-    water = _by_height(sphere, sphere.vertices[:, 1] > 0)
+    water = surface_kit.water(sphere, sphere.vertices[:, 1] > 0)
     wet = wet_vertices(water)
     area = sphere.area_faces[wet[sphere.faces].sum(axis=1) >= 2].sum()
     balls = glaze_balls(sphere, water, _glaze(mode="metaballs", density=20000.0), np.random.default_rng(0))
@@ -189,14 +179,13 @@ def test_metaballs_mode_spreads_balls_by_density():
     _closed(*fuse_fields(None, field))
 
 
-def test_dry_surface_or_no_ice_measures_as_such():
+def test_dry_surface_or_no_ice_measures_as_such(surface_kit):
     sphere = trimesh.creation.icosphere(subdivisions=3, radius=0.1)
     n = len(sphere.vertices)
-    z = np.zeros(n)
-    dry = WaterResult(np.zeros(n, bool), z, z.astype(int), z, z.astype(int), z, np.zeros((0, 3)))
+    dry = surface_kit.dry(sphere)
     assert glaze_field(sphere, dry, _glaze(), np.random.default_rng(0)) is None
     s = measure_glaze(np.zeros((0, 3)), np.zeros((0, 3), int), sphere, dry, G)
     assert s.wet_area_m2 == 0 and math.isnan(s.coverage)
-    wet = _by_height(sphere, np.ones(n, dtype=bool))
+    wet = surface_kit.water(sphere, np.ones(n, dtype=bool))
     s = measure_glaze(np.zeros((0, 3)), np.zeros((0, 3), int), sphere, wet, G, samples=100)
     assert s.coverage == 0 and math.isnan(s.p50_mm)

@@ -1,8 +1,9 @@
-"""Stage 4 (paper 4.4): icicles, bases and glaze as one watertight mesh; tubes mode."""
+"""Stage 4 (paper 4.4): icicles, bases and glaze as one watertight mesh; tubes mode.
+
+Stage 4's inputs are made by hand with conftest's ``surface_kit``.
+"""
 
 from __future__ import annotations
-
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -13,67 +14,10 @@ from icefarm.metaballs import fuse
 from icefarm import params
 from icefarm.errors import InputError
 from icefarm.stages import surface as S
-from icefarm.stages.drips import DripResult
 from icefarm.stages.trajectories import TrajectoryResult
-from icefarm.stages.water import WaterResult
 
-MESHES = Path(__file__).parents[1].parent / "shared" / "meshes"
 G = np.array([0.0, -1.0, 0.0])
 TIP = 0.00244
-
-
-def _groups(**changes):
-    """Resolved surface and glaze groups with ``group.name`` changes."""
-    p = params.resolve({k.replace("__", "."): v for k, v in changes.items()})
-    return p.surface, p.glaze
-
-
-def _sphere(radius=0.15):
-    return trimesh.creation.icosphere(subdivisions=4, radius=radius)
-
-
-def _water(mesh, wet):
-    """Water on ``mesh`` by hand: ``wet`` vertices, dUp/dDown from their heights."""
-    h = mesh.vertices @ -G
-    top, bottom = h[wet].max(), h[wet].min()
-    n = len(h)
-    return WaterResult(supply=wet, water=np.where(wet, 0.1, 0.0), top=np.zeros(n, int),
-                       d_up=np.where(wet, top - h, 0.0), bottom=np.zeros(n, int),
-                       d_down=np.where(wet, h - bottom, 0.0), hits=np.zeros((0, 3)))
-
-
-def _dry(mesh):
-    n = len(mesh.vertices)
-    z = np.zeros(n)
-    return WaterResult(np.zeros(n, bool), z, z.astype(int), z, z.astype(int), z, np.zeros((0, 3)))
-
-
-def _drips(mesh, points, water=0.1):
-    points = np.asarray(points, dtype=float).reshape(-1, 3)
-    if len(points) == 0:
-        return DripResult(np.zeros(0, int), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), np.zeros(0, int))
-    closest, _, face = trimesh.proximity.closest_point(mesh, points)
-    return DripResult(np.zeros(0, int), closest, mesh.face_normals[face],
-                      np.full(len(points), water), face)
-
-
-def _straight(starts, lengths, step=0.004):
-    """One straight trunk per start, hanging along gravity."""
-    pts, off = [], [0]
-    for s, length in zip(np.asarray(starts, float).reshape(-1, 3), lengths):
-        n = max(int(np.ceil(length / step)), 1)
-        pts.append(s + np.linspace(0.0, length, n + 1)[:, None] * G)
-        off.append(off[-1] + n + 1)
-    k = len(off) - 1
-    return TrajectoryResult(np.concatenate(pts), np.array(off), np.arange(k), np.full(k, -1))
-
-
-def _no_icicles():
-    return TrajectoryResult(np.zeros((0, 3)), np.zeros(1, int), np.zeros(0, int), np.zeros(0, int))
-
-
-def _ice(obj, water, drips, traj, surface, glaze, seed=0):
-    return S.build_ice(obj, obj, water, drips, traj, surface, glaze, G, np.random.default_rng(seed))
 
 
 def _mesh(ice):
@@ -107,14 +51,15 @@ def test_profile_follows_equation_1():
     assert rippled[-1] == pytest.approx(TIP)
 
 
-def test_sphere_with_icicles_bases_and_glaze_is_one_watertight_mesh():
-    obj = _sphere()
+def test_sphere_with_icicles_bases_and_glaze_is_one_watertight_mesh(surface_kit):
+    kit = surface_kit
+    obj = kit.sphere()
     wet = obj.vertices[:, 1] > 0.02
     starts = [[0.0, -0.15, 0.0], [0.05, -0.14, 0.0], [-0.04, -0.14, 0.03]]
-    drips = _drips(obj, starts)
-    traj = _straight(drips.positions, [0.06, 0.04, 0.05])
-    surface, glaze = _groups()
-    ice = _ice(obj, _water(obj, wet), drips, traj, surface, glaze)
+    drips = kit.drips(obj, starts)
+    traj = kit.straight(drips.positions, [0.06, 0.04, 0.05])
+    surface, glaze = kit.groups()
+    ice = kit.ice(obj, kit.water(obj, wet), drips, traj, surface, glaze)
     _closed_and_clean(ice)
     assert len(ice.icicles.taper) == 3
     # The glaze covers the wet cap: ice vertices lie above the top of the sphere.
@@ -123,12 +68,13 @@ def test_sphere_with_icicles_bases_and_glaze_is_one_watertight_mesh():
     assert ice.vertices[:, 1].min() == pytest.approx(-0.15 - 0.06 - TIP, abs=0.002)
 
 
-def test_single_icicle_tip_radius_within_ten_percent_at_default_voxel():
-    obj = _sphere()
-    drips = _drips(obj, [[0.0, -0.15, 0.0]])
-    traj = _straight(drips.positions, [0.08])
-    surface, glaze = _groups(surface__base_balls=0)  # a base of 0.1 m of water would swell past 10 % of the trunk
-    ice = _ice(obj, _dry(obj), drips, traj, surface, glaze)
+def test_single_icicle_tip_radius_within_ten_percent_at_default_voxel(surface_kit):
+    kit = surface_kit
+    obj = kit.sphere()
+    drips = kit.drips(obj, [[0.0, -0.15, 0.0]])
+    traj = kit.straight(drips.positions, [0.08])
+    surface, glaze = kit.groups(surface__base_balls=0)  # a base of 0.1 m of water would swell past 10 % of the trunk
+    ice = kit.ice(obj, kit.dry(obj), drips, traj, surface, glaze)
     _closed_and_clean(ice)
     assert ice.icicles.tip_radius_mm == pytest.approx(2.44, rel=0.10)
     # Both profiles reach tip + t L at the base: (base - tip diameter) / L = 2 t.
@@ -137,51 +83,55 @@ def test_single_icicle_tip_radius_within_ten_percent_at_default_voxel():
     assert ice.icicles.ripple_wavelength_cm == pytest.approx(1.0, rel=0.3)
 
 
-def test_without_ripples_the_radius_only_shrinks_towards_the_tip():
-    obj = _sphere()
-    drips = _drips(obj, [[0.0, -0.15, 0.0]])
+def test_without_ripples_the_radius_only_shrinks_towards_the_tip(surface_kit):
+    kit = surface_kit
+    obj = kit.sphere()
+    drips = kit.drips(obj, [[0.0, -0.15, 0.0]])
     top, length = drips.positions[0], 0.08
-    traj = _straight(drips.positions, [length])
+    traj = kit.straight(drips.positions, [length])
     fractions = np.linspace(0.25, 0.9, 40)
-    smooth = _ice(obj, _dry(obj), drips, traj, *_groups(surface__ripple_amplitude=0.0, surface__noise=0.0))
+    smooth = kit.ice(obj, kit.dry(obj), drips, traj, *kit.groups(surface__ripple_amplitude=0.0, surface__noise=0.0))
     r = _radius_along(smooth, top, length, fractions)
     assert np.all(np.diff(r) <= 0.05 * 0.001)  # within a twentieth of a voxel
     assert np.isnan(smooth.icicles.ripple_wavelength_cm) and np.isnan(smooth.icicles.ripple_amplitude_mm)
-    rippled = _ice(obj, _dry(obj), drips, traj, *_groups(surface__ripple_amplitude=0.0005, surface__noise=0.0))
+    rippled = kit.ice(obj, kit.dry(obj), drips, traj, *kit.groups(surface__ripple_amplitude=0.0005, surface__noise=0.0))
     r = _radius_along(rippled, top, length, fractions)
     # twice the smooth one's tolerance: the ripples are quiet near the tip and fade around the trunk
     assert np.diff(r).max() > 0.0001
 
 
-def test_larger_growth_ratio_gives_a_wider_base():
-    obj = _sphere()
-    drips = _drips(obj, [[0.0, -0.15, 0.0]])
-    traj = _straight(drips.positions, [0.08])
-    ratios = [_ice(obj, _dry(obj), drips, traj, *_groups(surface__growth_ratio=t)).icicles.growth_ratio[0]
+def test_larger_growth_ratio_gives_a_wider_base(surface_kit):
+    kit = surface_kit
+    obj = kit.sphere()
+    drips = kit.drips(obj, [[0.0, -0.15, 0.0]])
+    traj = kit.straight(drips.positions, [0.08])
+    ratios = [kit.ice(obj, kit.dry(obj), drips, traj, *kit.groups(surface__growth_ratio=t)).icicles.growth_ratio[0]
               for t in (0.02, 0.06)]
     assert ratios[1] > 2 * ratios[0]
 
 
-def test_icicles_closer_than_their_radii_fuse_into_one_component():
-    obj = _sphere()
-    surface, glaze = _groups(surface__base_balls=0, surface__noise=0.0)
+def test_icicles_closer_than_their_radii_fuse_into_one_component(surface_kit):
+    kit = surface_kit
+    obj = kit.sphere()
+    surface, glaze = kit.groups(surface__base_balls=0, surface__noise=0.0)
     for gap, components in ((0.003, 1), (0.03, 2)):
-        drips = _drips(obj, [[-gap / 2, -0.15, 0.0], [gap / 2, -0.15, 0.0]])
-        traj = _straight(drips.positions, [0.05, 0.05])
-        ice = _ice(obj, _dry(obj), drips, traj, surface, glaze)
+        drips = kit.drips(obj, [[-gap / 2, -0.15, 0.0], [gap / 2, -0.15, 0.0]])
+        traj = kit.straight(drips.positions, [0.05, 0.05])
+        ice = kit.ice(obj, kit.dry(obj), drips, traj, surface, glaze)
         assert len(_mesh(ice).split(only_watertight=False)) == components
 
 
 @pytest.mark.slow
-def test_glaze_lifetime_moves_the_thickness_between_top_and_bottom():
-    obj = _sphere()
-    water = _water(obj, np.ones(len(obj.vertices), bool))  # wet all over: dUp, dDown span 0.3 m
-    drips = _drips(obj, np.zeros((0, 3)))
+def test_glaze_lifetime_moves_the_thickness_between_top_and_bottom(surface_kit):
+    kit = surface_kit
+    obj = kit.sphere()
+    water = kit.water(obj, np.ones(len(obj.vertices), bool))  # wet all over: dUp, dDown span 0.3 m
+    drips = kit.drips(obj, np.zeros((0, 3)))
     thick = {}
     for lt in (0.0, 1.0):
-        surface, glaze = _groups(glaze__lifetime=lt, glaze__min_radius=0.0005, glaze__scale=0.015,
-                                 surface__voxel_size=0.002)
-        ice = _ice(obj, water, drips, _no_icicles(), surface, glaze)
+        surface, glaze = kit.groups(glaze__lifetime=lt, glaze__min_radius=0.0005, glaze__scale=0.015,
+                                    surface__voxel_size=0.002)
+        ice = kit.ice(obj, water, drips, kit.no_icicles(), surface, glaze)
         _closed_and_clean(ice)
         out = np.linalg.norm(ice.vertices, axis=1) - 0.15
         y = ice.vertices[:, 1]
@@ -191,30 +141,32 @@ def test_glaze_lifetime_moves_the_thickness_between_top_and_bottom():
     assert thick[1.0][1] > 1.5 * thick[1.0][0]
 
 
-def test_glaze_thickness_is_the_equation_3_radius():
-    obj = _sphere()
-    water = _water(obj, np.ones(len(obj.vertices), bool))
-    surface, glaze = _groups(glaze__min_radius=0.002, glaze__scale=0.0,
-                             surface__voxel_size=0.0015)
-    ice = _ice(obj, water, _drips(obj, np.zeros((0, 3))), _no_icicles(), surface, glaze)
+def test_glaze_thickness_is_the_equation_3_radius(surface_kit):
+    kit = surface_kit
+    obj = kit.sphere()
+    water = kit.water(obj, np.ones(len(obj.vertices), bool))
+    surface, glaze = kit.groups(glaze__min_radius=0.002, glaze__scale=0.0,
+                                surface__voxel_size=0.0015)
+    ice = kit.ice(obj, water, kit.drips(obj, np.zeros((0, 3))), kit.no_icicles(), surface, glaze)
     out = np.linalg.norm(ice.vertices, axis=1) - 0.15
     assert np.median(out[out > 0]) == pytest.approx(0.002, rel=0.2)
 
 
 @pytest.mark.slow
-def test_glaze_on_its_coarser_lattice_cuts_the_faces_and_keeps_mesh_and_tips(monkeypatch):
-    obj = _sphere()
-    water = _water(obj, obj.vertices[:, 1] < -0.1)  # a wet cap where the icicles hang
+def test_glaze_on_its_coarser_lattice_cuts_the_faces_and_keeps_mesh_and_tips(monkeypatch, surface_kit):
+    kit = surface_kit
+    obj = kit.sphere()
+    water = kit.water(obj, obj.vertices[:, 1] < -0.1)  # a wet cap where the icicles hang
     starts = [[0.0, -0.15, 0.0], [0.03, -0.147, 0.0], [-0.02, -0.148, 0.02]]
-    drips = _drips(obj, starts)
-    traj = _straight(drips.positions, [0.06, 0.04, 0.05])
+    drips = kit.drips(obj, starts)
+    traj = kit.straight(drips.positions, [0.06, 0.04, 0.05])
     small_bases = {"surface__base_scale": 0.03}  # 0.1 m of water would swell bases past the glaze's faces
-    one_field = _ice(obj, water, drips, traj, *_groups(glaze__voxel_size=0.001, **small_bases))
+    one_field = kit.ice(obj, water, drips, traj, *kit.groups(glaze__voxel_size=0.001, **small_bases))
     # The union runs only near the icicles: the boolean of the whole meshes is not needed.
     monkeypatch.setattr(fuse, "union_meshes", lambda parts: pytest.fail("fell back to the whole-mesh union"))
-    surface, glaze = _groups(**small_bases)
+    surface, glaze = kit.groups(**small_bases)
     assert glaze.voxel_size > surface.voxel_size
-    fused = _ice(obj, water, drips, traj, surface, glaze)
+    fused = kit.ice(obj, water, drips, traj, surface, glaze)
     m = _closed_and_clean(fused)
     assert len(fused.faces) < 0.4 * len(one_field.faces)
     assert fused.balls == one_field.balls
@@ -266,39 +218,42 @@ def test_fusing_two_lattices_is_the_union_of_the_solids():
     assert M.fuse_fields(None, None)[1].shape == (0, 3)
 
 
-def test_coarse_glaze_apart_from_icicles_or_alone_stays_closed():
-    obj = _sphere()
+def test_coarse_glaze_apart_from_icicles_or_alone_stays_closed(surface_kit):
+    kit = surface_kit
+    obj = kit.sphere()
     top = obj.vertices[:, 1] > 0.1  # glaze on the top, icicles at the bottom: nothing to unite
-    drips = _drips(obj, [[0.0, -0.15, 0.0]])
-    traj = _straight(drips.positions, [0.04])
-    surface, glaze = _groups()
-    ice = _ice(obj, _water(obj, top), drips, traj, surface, glaze)
+    drips = kit.drips(obj, [[0.0, -0.15, 0.0]])
+    traj = kit.straight(drips.positions, [0.04])
+    surface, glaze = kit.groups()
+    ice = kit.ice(obj, kit.water(obj, top), drips, traj, surface, glaze)
     m = _closed_and_clean(ice)
     assert len(m.split(only_watertight=False)) >= 2
     assert ice.icicles.tip_radius_mm == pytest.approx(2.44, rel=0.10)
-    coat = _ice(obj, _water(obj, top), _drips(obj, np.zeros((0, 3))), _no_icicles(), surface, glaze)
+    coat = kit.ice(obj, kit.water(obj, top), kit.drips(obj, np.zeros((0, 3))), kit.no_icicles(), surface, glaze)
     _closed_and_clean(coat)
     assert np.isnan(coat.icicles.tip_radius_mm)
 
 
-def test_a_glaze_voxel_too_fine_is_refused_by_name():
-    obj = _sphere()
-    water = _water(obj, np.ones(len(obj.vertices), bool))
-    surface, glaze = _groups(surface__voxel_size=0.00001, glaze__voxel_size=0.00002)
+def test_a_glaze_voxel_too_fine_is_refused_by_name(surface_kit):
+    kit = surface_kit
+    obj = kit.sphere()
+    water = kit.water(obj, np.ones(len(obj.vertices), bool))
+    surface, glaze = kit.groups(surface__voxel_size=0.00001, glaze__voxel_size=0.00002)
     with pytest.raises(InputError, match="glaze.voxel_size"):
-        _ice(obj, water, _drips(obj, np.zeros((0, 3))), _no_icicles(), surface, glaze)
+        kit.ice(obj, water, kit.drips(obj, np.zeros((0, 3))), kit.no_icicles(), surface, glaze)
 
 
-def test_tubes_mode_gives_one_closed_tube_per_branch():
-    obj = _sphere()
-    drips = _drips(obj, [[0.0, -0.15, 0.0], [0.05, -0.14, 0.0]])
+def test_tubes_mode_gives_one_closed_tube_per_branch(surface_kit):
+    kit = surface_kit
+    obj = kit.sphere()
+    drips = kit.drips(obj, [[0.0, -0.15, 0.0], [0.05, -0.14, 0.0]])
     pts = drips.positions[0] + np.linspace(0, 0.06, 16)[:, None] * G
     bend = np.array([1.0, -1.0, 0.3]) / np.linalg.norm([1.0, -1.0, 0.3])
     branch = pts[5] + np.linspace(0, 0.03, 8)[:, None] * bend
     other = drips.positions[1] + np.linspace(0, 0.04, 11)[:, None] * G
     traj = TrajectoryResult(np.concatenate([pts, branch, other]), np.array([0, 16, 24, 35]),
                             np.array([0, 0, 1]), np.array([-1, 0, -1]))
-    ice = _ice(obj, _water(obj, obj.vertices[:, 1] > 0), drips, traj, *_groups(surface__mode="tubes"))
+    ice = kit.ice(obj, kit.water(obj, obj.vertices[:, 1] > 0), drips, traj, *kit.groups(surface__mode="tubes"))
     assert ice.balls == 0
     parts = _mesh(ice).split(only_watertight=False)
     assert len(parts) == traj.n_branches
@@ -307,35 +262,36 @@ def test_tubes_mode_gives_one_closed_tube_per_branch():
     assert ice.icicles.tip_radius_mm == pytest.approx(2.44, rel=0.1)
 
 
-def test_nothing_to_build_gives_an_empty_mesh():
-    obj = _sphere()
-    surface, glaze = _groups(glaze__mode="none")
-    ice = _ice(obj, _dry(obj), _drips(obj, np.zeros((0, 3))), _no_icicles(), surface, glaze)
+def test_nothing_to_build_gives_an_empty_mesh(surface_kit):
+    kit = surface_kit
+    obj = kit.sphere()
+    surface, glaze = kit.groups(glaze__mode="none")
+    ice = kit.ice(obj, kit.dry(obj), kit.drips(obj, np.zeros((0, 3))), kit.no_icicles(), surface, glaze)
     assert ice.vertices.shape == (0, 3) and ice.faces.shape == (0, 3)
     assert np.isnan(ice.icicles.tip_radius_mm) and len(ice.icicles.taper) == 0
 
 
-def test_a_voxel_too_fine_for_the_ice_is_refused_with_advice():
-    obj = _sphere()
-    drips = _drips(obj, [[0.0, -0.15, 0.0]])
-    surface, glaze = _groups(surface__voxel_size=0.00002)
+def test_a_voxel_too_fine_for_the_ice_is_refused_with_advice(surface_kit):
+    kit = surface_kit
+    obj = kit.sphere()
+    drips = kit.drips(obj, [[0.0, -0.15, 0.0]])
+    surface, glaze = kit.groups(surface__voxel_size=0.00002)
     with pytest.raises(InputError, match="voxel_size"):
-        _ice(obj, _dry(obj), drips, _straight(drips.positions, [0.1]), surface, glaze)
+        kit.ice(obj, kit.dry(obj), drips, kit.straight(drips.positions, [0.1]), surface, glaze)
 
 
-def test_inconsistent_inputs_are_refused():
-    obj = _sphere()
-    water = _dry(trimesh.creation.box())
+def test_inconsistent_inputs_are_refused(surface_kit):
+    kit = surface_kit
+    obj = kit.sphere()
+    water = kit.dry(trimesh.creation.box())
     with pytest.raises(ValueError, match="water"):
-        _ice(obj, water, _drips(obj, np.zeros((0, 3))), _no_icicles(), *_groups())
+        kit.ice(obj, water, kit.drips(obj, np.zeros((0, 3))), kit.no_icicles(), *kit.groups())
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("name", ["cow.obj", "teapot.obj"])
-def test_real_meshes_through_stages_1_to_4_are_watertight(name):
-    path = MESHES / name
-    if not path.is_file():
-        pytest.skip(f"{path} is absent")
+def test_real_meshes_through_stages_1_to_4_are_watertight(name, shared_mesh):
+    path = shared_mesh(name)
     from icefarm.chain import run_stages
     from icefarm.mesh import prepare
 
@@ -347,39 +303,41 @@ def test_real_meshes_through_stages_1_to_4_are_watertight(name):
     assert np.isfinite(ice.icicles.tip_radius_mm)
 
 
-def test_a_cut_icicle_thickens_as_if_longer_and_rests_on_its_foot():
+def test_a_cut_icicle_thickens_as_if_longer_and_rests_on_its_foot(surface_kit):
     """An icicle the ground stopped keeps its water: its profile follows a longer icicle
     (at most GROUND_THICKENING times its own length), so it tapers more than a free one of
     the same length, and its foot stands on the ground, not in it."""
     from icefarm.placement import stop_at_ground
     from icefarm.stages.surface.profile import GROUND_THICKENING, grown_lengths
 
+    kit = surface_kit
     assert grown_lengths(np.array([0.1, 0.1]), np.array([0.0, 1.0])) == pytest.approx([0.1, 0.1 * (1 + GROUND_THICKENING)])
     obj = trimesh.creation.box([0.2, 0.01, 0.2])
     start = [0.0, -0.005, 0.0]
     floor = -0.005 - 0.08 - 0.00244
-    free, long = _straight([start], [0.08]), _straight([start], [0.16])
+    free, long = kit.straight([start], [0.08]), kit.straight([start], [0.16])
     cut = stop_at_ground(long, G, floor=floor, margin=0.00244)
     assert cut.cut[0] == pytest.approx(0.08) and cut.branch(0)[-1] == pytest.approx(free.branch(0)[-1])
     p = params.resolve({"surface.impurity": 0.0, "surface.base_balls": 0, "glaze.mode": "none"})
-    free_ice = S.build_ice(obj, obj, _dry(obj), _drips(obj, [start]), free, p.surface, p.glaze, G,
+    free_ice = S.build_ice(obj, obj, kit.dry(obj), kit.drips(obj, [start]), free, p.surface, p.glaze, G,
                            np.random.default_rng(0))
-    cut_ice = S.build_ice(obj, obj, _dry(obj), _drips(obj, [start]), cut, p.surface, p.glaze, G,
+    cut_ice = S.build_ice(obj, obj, kit.dry(obj), kit.drips(obj, [start]), cut, p.surface, p.glaze, G,
                           np.random.default_rng(0))
     assert cut_ice.icicles.taper[0] > 1.2 * free_ice.icicles.taper[0]
     assert cut_ice.vertices[:, 1].min() >= floor - 1e-6  # on the ground, not in it
     assert np.isnan(cut_ice.icicles.tip_radius_mm)  # a foot, not a drop: no tip to measure
 
 
-def test_bases_are_never_thicker_than_the_rim_they_hang_from():
+def test_bases_are_never_thicker_than_the_rim_they_hang_from(surface_kit):
     """Issue 25: on an eave's 1 cm slab a base is a fillet, not a glass knob past both faces."""
+    kit = surface_kit
     from icefarm.metaballs.balls import LEVEL
     from icefarm.stages.surface.bases import BASE_SINK, BASE_THICKNESS, base_balls, object_thickness
 
     slab = trimesh.creation.box(extents=(0.4, 0.01, 0.3))  # 1 cm thick, faces at y = +-0.005
     rim = [[x, -0.005, 0.149] for x in np.linspace(-0.15, 0.15, 7)]  # on the underside, at the edge
-    drips = _drips(slab, rim, water=0.3)  # much water: bases that would swell to 15 mm and more
-    surface, _ = _groups(surface__base_scale=0.3)
+    drips = kit.drips(slab, rim, water=0.3)  # much water: bases that would swell to 15 mm and more
+    surface, _ = kit.groups(surface__base_scale=0.3)
     balls = base_balls(slab, drips, surface, np.random.default_rng(0), np.full(len(rim), 0.03),
                        gravity=np.array([0.0, -1.0, 0.0]))
     assert len(balls) > 0
