@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 import tempfile
@@ -14,7 +13,7 @@ import trimesh
 import yaml
 
 from .errors import InputError
-from .jobdir import DONE, ERROR
+from .jobdir import DONE, DRIPS, ERROR, LATER, TRAJECTORIES, WATER, file_digest
 from .stages.drips import DripResult
 from .stages.trajectories import TrajectoryResult
 
@@ -52,72 +51,23 @@ def atomic_write(path: Path, data: bytes | str) -> None:
         raise
 
 
-def file_digest(path: Path, chunk: int = 1 << 20) -> str:
-    """sha256 of a file's bytes, read in chunks."""
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        while block := f.read(chunk):
-            h.update(block)
-    return h.hexdigest()
-
-
 # Files of a job folder that done.json does not list: itself, a failure's report, and
 # what `icefarm render` and `icefarm export` add later (renders/, export/).
 _UNLISTED = (DONE, ERROR)
-_LATER = ("renders", "export")
 
 
 def list_artifacts(job_dir: Path) -> dict[str, dict]:
     """``{relative path: {"size": bytes, "sha256": hex}}`` for every file of a finished job,
-    for done.json: a later ``--resume`` checks them (`check_done`)."""
+    for done.json: a later ``--resume`` checks them (`icefarm.jobdir.check_done`)."""
     job_dir = Path(job_dir)
     out = {}
     for path in sorted(job_dir.rglob("*")):
         rel = path.relative_to(job_dir)
-        if (not path.is_file() or path.is_symlink() or rel.parts[0] in _LATER
+        if (not path.is_file() or path.is_symlink() or rel.parts[0] in LATER
                 or str(rel) in _UNLISTED or any(part.startswith(".") for part in rel.parts)):
             continue
         out[rel.as_posix()] = {"size": path.stat().st_size, "sha256": file_digest(path)}
     return out
-
-
-def check_done(job_dir: Path, digests: bool = True) -> str | None:
-    """Why the job in ``job_dir`` is not done, or None when it is.
-
-    Done means: done.json is there and reads as JSON, and every artifact it lists is there
-    with the size (and, with ``digests``, the sha256) it had when the job finished. A
-    done.json of an older icefarm, without the list, only has to read as JSON.
-    """
-    job_dir = Path(job_dir)
-    try:
-        text = (job_dir / DONE).read_text()
-    except FileNotFoundError:
-        return "no done.json"
-    except (OSError, UnicodeDecodeError) as exc:
-        return f"done.json unreadable ({exc})"
-    try:
-        done = json.loads(text)
-    except ValueError:
-        return "done.json is damaged (not JSON: truncated?)"
-    if not isinstance(done, dict):
-        return "done.json is damaged (not a JSON object)"
-    listed = done.get("artifacts")
-    if listed is None:
-        return None
-    if not isinstance(listed, dict):
-        return "done.json is damaged (its artifacts are not a mapping)"
-    for name, entry in listed.items():
-        path = job_dir / name
-        try:
-            size = path.stat().st_size
-        except OSError:
-            return f"{name} is missing"
-        if not isinstance(entry, dict) or size != entry.get("size"):
-            recorded = entry.get("size") if isinstance(entry, dict) else "?"
-            return f"{name} changed size ({size} bytes, done.json says {recorded})"
-        if digests and entry.get("sha256") and file_digest(path) != entry["sha256"]:
-            return f"{name} changed (its sha256 is not the one done.json recorded)"
-    return None
 
 
 def write_json(path: Path, value: Any) -> None:
@@ -172,7 +122,7 @@ def read_water_ply(path: Path, vertex_count: int) -> tuple[np.ndarray, np.ndarra
         data = loaded.metadata["_ply_raw"]["vertex"]["data"]
         supply, water = np.asarray(data["supply"]).astype(bool), np.asarray(data["water"], dtype=np.float64)
     except Exception as exc:
-        raise InputError(f"{path}: not a water.ply with vertex properties supply and water ({exc})") from None
+        raise InputError(f"{path}: not a {WATER} with vertex properties supply and water ({exc})") from None
     if len(water) != vertex_count:
         raise InputError(f"{path}: {len(water)} vertices, but the flow surface has {vertex_count}")
     return supply, water
@@ -204,7 +154,7 @@ def drips_from_json(path: Path) -> DripResult:
                     if points and all("growth" in p for p in points) else None),
         )
     except (OSError, ValueError, KeyError, TypeError) as exc:
-        raise InputError(f"{path}: not a drips.json ({exc})") from None
+        raise InputError(f"{path}: not a {DRIPS} ({exc})") from None
 
 
 def trajectories_to_json(traj: TrajectoryResult) -> dict:
@@ -250,7 +200,7 @@ def trajectories_from_json(path: Path) -> TrajectoryResult:
             branch_growth=np.asarray(growth, dtype=np.float64) if growth and None not in growth else None,
         )
     except (OSError, ValueError, KeyError, TypeError) as exc:
-        raise InputError(f"{path}: not a trajectories.json ({exc})") from None
+        raise InputError(f"{path}: not a {TRAJECTORIES} ({exc})") from None
 
 
 def landing_to_json(landing, heights=None, columns=None) -> dict:

@@ -13,7 +13,8 @@ from .cli_bench import bench
 from .cli_options import exclusion_box, set_values, writable_folder
 from .cli_summary import print_job_summary
 from .errors import InputError, Interrupted, one_line_each
-from .jobdir import JobState, read_job, stage_phrase
+from .jobdir import (ERROR, EXPORT_DIR, FRAMES, GROWTH_DIR, GROWTH_MP4, GROWTH_USDA, MANIFEST, RENDER_EXR, RENDERS_DIR,
+                     SCENE_USDA, SHEETS_DIR, JobState, growth_frame, growth_ice, read_job, stage_phrase)
 from .placement import PLACEMENTS
 
 
@@ -69,8 +70,8 @@ def main():
 @click.option("--growth-frames", type=int, metavar="N",
               help="Also grow the ice over time: N frames (1-240) from the first drip to full growth, "
                    "each containing the one before (icicles lengthen, branches appear, bases and glaze "
-                   "thicken), into OUT/growth/: ice_0001.ply..., frame_0001.png... (the job's render "
-                   "config and camera), growth.mp4, growth.usda (time-sampled for DCCs) and frames.json. "
+                   f"thicken), into OUT/{GROWTH_DIR}/: {growth_ice(1)}..., {growth_frame(1)}... (the job's render "
+                   f"config and camera), {GROWTH_MP4}, {GROWTH_USDA} (time-sampled for DCCs) and {FRAMES}. "
                    "Same as --set growth.frames=N.")
 def run(mesh, size_m, assignments, seed, out, until, render, no_render, placement, exclude, cache, growth_frames):
     """Run one job on MESH (USD, glTF/GLB, any format trimesh reads, or generator:NAME) into OUT.
@@ -116,7 +117,7 @@ def run(mesh, size_m, assignments, seed, out, until, render, no_render, placemen
                       progress=ProgressMode.for_stream(sys.stderr))
     if outcome.status is not JobState.DONE:
         click.echo(f"error: job failed {stage_phrase(outcome.failed_stage)}: {outcome.error} "
-                   f"(details in {Path(out) / 'error.json'})", err=True)
+                   f"(details in {Path(out) / ERROR})", err=True)
         sys.exit(1)
     timings = read_job(Path(out)).stats
     for stage, seconds in outcome.seconds.items():
@@ -142,7 +143,7 @@ def render_command(job_dir, render, out):
     """
     from .render_again import render_again
 
-    out = Path(out) if out else Path(job_dir) / "renders" / Path(render).stem
+    out = Path(out) if out else Path(job_dir) / RENDERS_DIR / Path(render).stem
     result = render_again(Path(job_dir), render, out, progress=sys.stderr.isatty())
     click.echo(f"  render        {result.seconds:8.3f} s ({result.variant}, {result.integrator})")
     click.echo(f"  scene         {result.scene_seconds:8.3f} s")
@@ -154,10 +155,10 @@ def render_command(job_dir, render, out):
 @main.command(name="export")
 @click.argument("job_dir", type=click.Path(file_okay=False, exists=True))
 @click.option("--format", "fmt", type=click.Choice(["glb", "usdz"]), default="glb", show_default=True,
-              help="glb: binary glTF 2.0 for viewers and game engines; usdz: the job's scene.usda, "
+              help=f"glb: binary glTF 2.0 for viewers and game engines; usdz: the job's {SCENE_USDA}, "
                    "meshes and sky packed in one USD file.")
 @click.option("-o", "--out", type=click.Path(dir_okay=False),
-              help="The file to write (default: JOB_DIR/export/scene.<format>).")
+              help=f"The file to write (default: JOB_DIR/{EXPORT_DIR}/scene.<format>).")
 def export_command(job_dir, fmt, out):
     """Export a job that rendered as one file: the object and the ice with their materials.
 
@@ -175,7 +176,7 @@ def export_command(job_dir, fmt, out):
     Maya's importer reads them as millimetres, which keeps the field of view but makes the
     film back 100 times smaller.
     """
-    out = Path(out) if out else Path(job_dir) / "export" / f"scene.{fmt}"
+    out = Path(out) if out else Path(job_dir) / EXPORT_DIR / f"scene.{fmt}"
     if fmt == "glb":
         from .gltf import write_glb as write
     else:
@@ -211,7 +212,7 @@ def params_command(as_json):
 @main.command()
 @click.argument("run_dir", type=click.Path(file_okay=False, exists=True))
 @click.option("--cell-width", type=int, default=320, show_default=True, help="Width of one cell in pixels.")
-@click.option("--name", help="Sweep name for the header (default: from manifest.resolved.yaml or the folder).")
+@click.option("--name", help=f"Sweep name for the header (default: from {MANIFEST} or the folder).")
 def sheet(run_dir, cell_width, name):
     """Build contact sheets (PNG and linear EXR, one per object) and sheets/index.html for RUN_DIR.
 
@@ -248,9 +249,9 @@ def _after_sweep(summary) -> None:
         return
     md, _ = build_report(summary.sweep_dir)
     click.echo(f"report: {md}")
-    if any(Path(r.job_dir, "render.exr").is_file() for r in summary.jobs if r.job_dir):
+    if any(Path(r.job_dir, RENDER_EXR).is_file() for r in summary.jobs if r.job_dir):
         build_sheets(summary.sweep_dir)
-        click.echo(f"sheets: {summary.sweep_dir / 'sheets' / 'index.html'}")
+        click.echo(f"sheets: {summary.sweep_dir / SHEETS_DIR / 'index.html'}")
 
 
 def _register_farm() -> None:

@@ -27,6 +27,7 @@ from trimesh.exchange.gltf import export_glb
 from trimesh.visual.material import PBRMaterial
 
 from .artifacts import atomic_write
+from .jobdir import ICE, OBJECT, PARAMS, SCENE_XML
 from .rendered import (TINT_DISTANCE_M, IceShading, Surface, object_surface, pbr, read_ice, read_rendered,
                        require)
 from .scene.camera import world_frame
@@ -61,7 +62,7 @@ def write_glb(job_dir: str | Path, out: str | Path, max_faces: int | None = None
         Not a job that rendered (names the missing file).
     """
     job_dir, out = Path(job_dir), Path(out)
-    require(job_dir, "ice.ply", "object.ply", "scene.xml", "params.yaml")
+    require(job_dir, ICE, OBJECT, SCENE_XML, PARAMS)
     rendered = read_rendered(job_dir)
     up = np.eye(4)
     up[:3, :3] = world_frame(rendered.gravity)  # rows right, up, front: to glTF's X, Y, Z

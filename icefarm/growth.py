@@ -34,6 +34,7 @@ import numpy as np
 import trimesh
 
 from . import artifacts
+from .jobdir import FRAMES, GROWTH_MP4, GROWTH_SCRATCH, GROWTH_USDA, RENDER_PNG, ICE, growth_frame, growth_ice
 from .params import GlazeParams, SurfaceParams
 from .scene.write import JobScene
 from .growth_usd import write_growth_usd
@@ -43,7 +44,6 @@ from .stages.trajectories import TrajectoryResult
 MAX_FRAMES = 240
 # The movie lasts about this long, at 1 to 24 frames per second.
 MOVIE_SECONDS = 3.0
-GROWTH_DIR, FRAMES_FILE, MOVIE_FILE, USD_FILE = "growth", "frames.json", "growth.mp4", "growth.usda"
 
 
 @dataclass(frozen=True)
@@ -237,13 +237,13 @@ def grow_frames(folder: str | Path, traj: TrajectoryResult, drips: DripResult, s
         rng.bit_generator.advance((full_draws - _noise_draws(traj_f, surface)) % 2**128)
         ice = build(traj_f, drips_f, glaze_f, rng)
         mesh = trimesh.Trimesh(ice.vertices, ice.faces, process=False)
-        plies.append(folder / f"ice_{i:04d}.ply")
+        plies.append(folder / growth_ice(i))
         artifacts.write_mesh(plies[-1], mesh)  # as the job writes ice.ply: the last frame is that file
         surface_seconds = time.perf_counter() - start
         render_seconds = 0.0
         if view is not None:
             start = time.perf_counter()
-            pngs.append(render_frame(view, mesh, folder / ".scene", folder / f"frame_{i:04d}.png"))
+            pngs.append(render_frame(view, mesh, folder / GROWTH_SCRATCH, folder / growth_frame(i)))
             render_seconds = time.perf_counter() - start
         m = measure_icicles(ice.vertices, ice.faces, traj_f, surface)
         long = _arc_lengths(traj_f.points, np.asarray(traj_f.branch_offsets))[1][trunks]
@@ -258,11 +258,11 @@ def grow_frames(folder: str | Path, traj: TrajectoryResult, drips: DripResult, s
             trunk_length_m=_median(long), tip_radius_mm=_median([m.tip_radius_mm]),
             taper=_median(m.taper), growth_ratio=_median(m.growth_ratio), length_per_width=_median(gained),
             surface_seconds=round(surface_seconds, 4), render_seconds=round(render_seconds, 4)))
-    shutil.rmtree(folder / ".scene", ignore_errors=True)
+    shutil.rmtree(folder / GROWTH_SCRATCH, ignore_errors=True)
     fps = float(np.clip(frames / MOVIE_SECONDS, 1.0, 24.0))
-    movie = write_movie(pngs, folder / MOVIE_FILE, fps) if pngs else None
-    usd = write_growth_usd(folder / USD_FILE, plies, gravity, fps, object_usd, scene_usd)
-    artifacts.write_json(folder / FRAMES_FILE, {"fps": fps, "frames": [dataclasses.asdict(r) for r in rows]})
+    movie = write_movie(pngs, folder / GROWTH_MP4, fps) if pngs else None
+    usd = write_growth_usd(folder / GROWTH_USDA, plies, gravity, fps, object_usd, scene_usd)
+    artifacts.write_json(folder / FRAMES, {"fps": fps, "frames": [dataclasses.asdict(r) for r in rows]})
     return GrowthResult(folder, tuple(rows), movie, usd)
 
 
@@ -279,10 +279,10 @@ def render_frame(view: FrameView, ice: trimesh.Trimesh, scratch: Path, png: Path
     main = dataclasses.replace(config.views[0], frame="all")
     config = dataclasses.replace(config, views=(main,), renderer="mitsuba" if config.uses_mitsuba else "povray")
     scratch.mkdir(parents=True, exist_ok=True)
-    (scratch / "ice.ply").unlink(missing_ok=True)  # write_scenes keeps an ice.ply it finds
+    (scratch / ICE).unlink(missing_ok=True)  # write_scenes keeps an ice.ply it finds
     scene = dataclasses.replace(view.scene, ice_mesh=ice if len(ice.faces) else None)
     render_job(scratch, config, scene, povray_files=False)  # no scene.pov per frame unless POV-Ray renders it
-    shutil.move(scratch / "render.png", png)
+    shutil.move(scratch / RENDER_PNG, png)
     return png
 
 
@@ -315,7 +315,7 @@ def write_movie(pngs: Sequence[Path], path: Path, fps: float) -> Path:
 
 def read_frames(folder: str | Path) -> list[dict]:
     """The rows of a growth folder's ``frames.json``."""
-    return json.loads((Path(folder) / FRAMES_FILE).read_text())["frames"]
+    return json.loads((Path(folder) / FRAMES).read_text())["frames"]
 
 
 def _arc_lengths(pts: np.ndarray, off: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -18,8 +18,8 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-CLIP_PATTERN = "ice_{:04d}.usdc"
-MANIFEST_FILE = "ice_manifest.usda"
+from .jobdir import GROWTH_CLIPS, GROWTH_ICE_USDC, GROWTH_MANIFEST, growth_clip
+
 CLIP_PRIM = "/Ice"
 # Attributes each clip holds, with their USD type names (the manifest declares them).
 CLIP_ATTRIBUTES = (("points", "point3f[]"), ("faceVertexCounts", "int[]"), ("faceVertexIndices", "int[]"),
@@ -57,10 +57,10 @@ def write_growth_usd(path: Path, plies: Sequence[Path], gravity, fps: float, obj
 
     folder = path.parent
     axis = UsdGeom.Tokens.z if up_axis(gravity) == "Z" else UsdGeom.Tokens.y
-    for old in [path, folder / MANIFEST_FILE, *folder.glob("ice_*.usdc"), folder / "growth_ice.usdc"]:
+    for old in [path, folder / GROWTH_MANIFEST, *folder.glob(GROWTH_CLIPS), folder / GROWTH_ICE_USDC]:
         old.unlink(missing_ok=True)
-    clips = [_write_clip(folder / CLIP_PATTERN.format(i), ply, i, axis) for i, ply in enumerate(plies, 1)]
-    _write_manifest(folder / MANIFEST_FILE)
+    clips = [_write_clip(folder / growth_clip(i), ply, i, axis) for i, ply in enumerate(plies, 1)]
+    _write_manifest(folder / GROWTH_MANIFEST)
 
     stage = Usd.Stage.CreateNew(str(path))
     root = UsdGeom.Xform.Define(stage, "/Growth")
@@ -79,7 +79,7 @@ def write_growth_usd(path: Path, plies: Sequence[Path], gravity, fps: float, obj
     api = Usd.ClipsAPI(ice.GetPrim())
     api.SetClipAssetPaths(Sdf.AssetPathArray([f"./{clip.name}" for clip in clips]))
     api.SetClipPrimPath(CLIP_PRIM)
-    api.SetClipManifestAssetPath(Sdf.AssetPath(f"./{MANIFEST_FILE}"))
+    api.SetClipManifestAssetPath(Sdf.AssetPath(f"./{GROWTH_MANIFEST}"))
     api.SetClipActive([(float(i), float(i - 1)) for i in range(1, len(clips) + 1)])
     api.SetClipTimes([(float(i), float(i)) for i in range(1, len(clips) + 1)])
 

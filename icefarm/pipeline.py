@@ -22,7 +22,8 @@ import trimesh
 from . import artifacts
 from .errors import InputError
 from .geometry import ray_caster
-from .jobdir import DONE, ERROR, PARAMS, TIMINGS, JobState
+from .jobdir import (DONE, DRIPS, ERROR, GROWTH_DIR, ICE, LANDING, OBJECT_USDC, PARAMS, PROXY, SCENE_USDA, TIMINGS,
+                     TRAJECTORIES, WATER, JobState)
 from .chain import Stage, StageResults, build_surface, run_stages, sole, stage_rng, stops
 from .mesh import PreparedMesh, prepare
 from .params import Params, StormParams, SurfaceParams
@@ -210,22 +211,22 @@ def _run_stages(spec: JobSpec, job_dir: Path, run: _Run, cache: StageCache, unti
     def on_stage(name: str, r: StageResults) -> None:
         """Each result's file and figures, as soon as it is there."""
         if name == "proxy":
-            artifacts.write_mesh(job_dir / "proxy.ply", r.proxy.mesh)
+            artifacts.write_mesh(job_dir / PROXY, r.proxy.mesh)
             stats.update(proxy_reason=r.proxy_reason, proxy_faces=r.proxy.faces,
                          proxy_components=r.proxy.components, proxy_build_seconds=r.proxy.seconds)
         elif name == "water":
             stats["flow_faces"] = len(r.flow.faces)
-            artifacts.write_water_ply(job_dir / "water.ply", r.flow, r.water.supply, r.water.water)
+            artifacts.write_water_ply(job_dir / WATER, r.flow, r.water.supply, r.water.water)
             if r.water.storm is not None:
                 stats.update(_storm_stats(r.water.storm, p.storm))
         elif name == "drips":
-            artifacts.write_json(job_dir / "drips.json", artifacts.drips_to_json(r.drips))
+            artifacts.write_json(job_dir / DRIPS, artifacts.drips_to_json(r.drips))
             stats["icicles"] = len(r.drips.positions)
             if r.water.storm is not None:
                 rim = drip_rim_length(r.flow, r.drips.region_faces, gravity, p.drips.drip_limit)
                 stats.update(drip_rim_m=round(rim, 4), icicles_per_m=round(len(r.drips.positions) / rim, 2) if rim else 0.0)
         elif name == "trajectories":
-            artifacts.write_json(job_dir / "trajectories.json", artifacts.trajectories_to_json(r.trajectories))
+            artifacts.write_json(job_dir / TRAJECTORIES, artifacts.trajectories_to_json(r.trajectories))
             t = measure_trajectories(r.trajectories, gravity)
             # a drop that falls straight onto the object grows no icicle (trajectories.contact)
             stats["icicles"] = int(np.count_nonzero((np.asarray(r.trajectories.branch_parent) < 0)
@@ -235,7 +236,7 @@ def _run_stages(spec: JobSpec, job_dir: Path, run: _Run, cache: StageCache, unti
                          trunk_lengths_m=_finite_list(t.trunk_lengths, 4))
         elif name == "ground_ice":
             ground = r.ground
-            artifacts.write_json(job_dir / "landing.json",
+            artifacts.write_json(job_dir / LANDING,
                                  artifacts.landing_to_json(r.landing, ground.heights, ground.columns))
             grown = ground.heights[ground.heights > 0] * 1000
             stats.update(landing_points=len(r.landing), stalagmites=len(grown), columns=int(ground.columns.sum()),
@@ -261,7 +262,7 @@ def _surface_and_render(spec: JobSpec, job_dir: Path, run: _Run, until: Stage | 
     p = spec.params
     obj, ice = r.mesh, r.ice
     ice_mesh = trimesh.Trimesh(ice.vertices, ice.faces, process=False)
-    artifacts.write_mesh(job_dir / "ice.ply", ice_mesh)
+    artifacts.write_mesh(job_dir / ICE, ice_mesh)
     # Plausibility, measured on the mesh: timed apart from the modelling (Table 2 times that).
     m, glaze = run.timed("measure", lambda: (
         measure_icicles(ice.vertices, ice.faces, r.trajectories, p.surface),
@@ -321,18 +322,18 @@ def _growth(spec: JobSpec, job_dir: Path, run: _Run, r: StageResults, gravity: n
         from .scene.config import load_render_config
         from .scene.write import job_scene
 
-        full = trimesh.load(job_dir / "ice.ply", process=False, force="mesh")
+        full = trimesh.load(job_dir / ICE, process=False, force="mesh")
         view = FrameView(job_scene(obj, full, gravity, material=spec.material, placement=spec.placement,
                                    impurity=p.surface.impurity), load_render_config(spec.render))
     cast = ray_caster(r.flow)
     extra_balls = r.ground.balls if r.ground is not None else None
     result = grow_frames(
-        job_dir / "growth", r.trajectories, r.drips, p.surface, p.glaze, frames=p.growth.frames,
+        job_dir / GROWTH_DIR, r.trajectories, r.drips, p.surface, p.glaze, frames=p.growth.frames,
         build=lambda t, d, g, rng: build_surface(obj, r.flow, r.water, d, t, p, gravity, rng,
                                                  placement=spec.placement, glaze=g, cast=cast,
                                                  extra_balls=extra_balls),
         new_rng=lambda: stage_rng(spec.seed, Stage.SURFACE), gravity=gravity, view=view, progress=run.progress,
-        object_usd=job_dir / "object.usdc", scene_usd=job_dir / "scene.usda")
+        object_usd=job_dir / OBJECT_USDC, scene_usd=job_dir / SCENE_USDA)
     return {"growth_frames": len(result.frames), "growth_seconds_per_frame": round(result.seconds_per_frame, 3)}
 
 

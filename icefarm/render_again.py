@@ -7,7 +7,7 @@ from pathlib import Path
 import trimesh
 
 from .errors import InputError
-from .jobdir import JobState, read_job
+from .jobdir import DONE, ICE, OBJECT, PARAMS, SCENE_XML, JobState, read_job
 from .placement import Placement
 
 
@@ -48,8 +48,8 @@ def render_again(job_dir: Path, render: str, out_dir: Path, progress: bool = Fal
     job_dir, out_dir = Path(job_dir), Path(out_dir)
     job = read_job(job_dir)
     if job.state is not JobState.DONE:
-        raise InputError(f"{job_dir} is not a finished job (no done.json): run it first")
-    for name in ("params.yaml", "ice.ply", "object.ply", "scene.xml"):
+        raise InputError(f"{job_dir} is not a finished job (no {DONE}): run it first")
+    for name in (PARAMS, ICE, OBJECT, SCENE_XML):
         if not (job_dir / name).is_file():
             raise InputError(f"{job_dir} has no {name}: only jobs that rendered can be rendered again "
                              "(run the job without --no-render)")
@@ -57,9 +57,9 @@ def render_again(job_dir: Path, render: str, out_dir: Path, progress: bool = Fal
         raise InputError("render into a folder of its own, not the job folder: its files belong to the job")
     config = load_render_config(render)
     rendered = read_rendered(job_dir)
-    obj = trimesh.load(job_dir / "object.ply", process=False)
+    obj = trimesh.load(job_dir / OBJECT, process=False)
     obj.merge_vertices(merge_norm=True)  # object.ply splits vertices along creases
-    ice = trimesh.load(job_dir / "ice.ply", process=False)
+    ice = trimesh.load(job_dir / ICE, process=False)
     scene = job_scene(obj, ice if isinstance(ice, trimesh.Trimesh) else None, rendered.gravity,
                       material=rendered.material, placement=job.stats.get("placement", Placement.HANGING.value),
                       impurity=float((job.params or {}).get("surface.impurity", 0.0)))  # 0 for jobs older than it

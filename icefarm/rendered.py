@@ -13,22 +13,20 @@ from their ``scene.xml`` by `icefarm.scene.legacy` (the material from ``done.jso
 
 from __future__ import annotations
 
-import json
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import trimesh
-import yaml
 
 from .errors import InputError
-from .jobdir import read_job
+from .jobdir import ICE, OBJECT, PARAMS, SCENE_SPEC, SCENE_XML, WATER, read_job, read_views
 from .scene import geometry as geo
 from .scene.camera import Camera
 from .scene.legacy import spec_from_xml
 from .scene.material import Material, material_from_dict
-from .scene.spec import SPEC_FILE, TINT_DISTANCE_M, Ground, IceShading, read_spec
+from .scene.spec import TINT_DISTANCE_M, Ground, IceShading, read_spec
 
 __all__ = ["METAL_F0", "TINT_DISTANCE_M", "Ground", "IceShading", "Pbr", "Rendered", "Surface", "ice_surface",
            "object_surface", "pbr", "read_ice", "read_rendered", "require", "water_at"]
@@ -139,19 +137,21 @@ def read_rendered(job_dir: str | Path, material: Material | Mapping | None = Non
         A file missing, or a ``scene.xml`` that is not icefarm's.
     """
     job_dir = Path(job_dir)
-    require(job_dir, "scene.xml", "params.yaml")
-    if (job_dir / SPEC_FILE).is_file():
+    require(job_dir, SCENE_XML, PARAMS)
+    if (job_dir / SCENE_SPEC).is_file():
         try:
-            spec = read_spec(job_dir / SPEC_FILE)
+            spec = read_spec(job_dir / SCENE_SPEC)
         except (KeyError, TypeError, ValueError) as exc:
-            raise InputError(f"{job_dir / SPEC_FILE}: not a scene.json written by icefarm ({exc})") from None
+            raise InputError(f"{job_dir / SCENE_SPEC}: not a {SCENE_SPEC} written by icefarm ({exc})") from None
     else:  # a job from before scene.json: what scene.xml says
-        gravity = (yaml.safe_load((job_dir / "params.yaml").read_text()).get("water") or {}).get("gravity",
-                                                                                                (0.0, -1.0, 0.0))
-        own = material if material is not None else read_job(job_dir).stats.get("object_material")
+        job = read_job(job_dir)
+        own = material if material is not None else job.stats.get("object_material")
+        views = read_views(job_dir)
+        names = [v["name"] for v in views] if views and all("name" in v for v in views) else None
+        gravity = (job.params or {}).get("water.gravity", (0.0, -1.0, 0.0))
         try:
-            spec = spec_from_xml(job_dir / "scene.xml", gravity=gravity, material=material_from_dict(own),
-                                 view_names=_view_names(job_dir))
+            spec = spec_from_xml(job_dir / SCENE_XML, gravity=gravity, material=material_from_dict(own),
+                                 view_names=names)
         except ValueError as exc:
             raise InputError(str(exc)) from None
     return Rendered(
@@ -175,7 +175,7 @@ class Surface:
 
 def object_surface(job_dir: str | Path) -> Surface:
     """``object.ply``: the object as rendered, split along its creases, with its normals."""
-    path = Path(job_dir) / "object.ply"
+    path = Path(job_dir) / OBJECT
     mesh = trimesh.load(path, process=False)
     vertex = mesh.metadata.get("_ply_raw", {}).get("vertex", {}).get("data")
     if vertex is not None and "nx" in vertex.dtype.names:
@@ -207,7 +207,7 @@ def ice_surface(vertices: np.ndarray, faces: np.ndarray, flip: bool) -> Surface:
 
 def read_ice(job_dir: str | Path, flip: bool) -> Surface:
     """`ice_surface` of ``ice.ply``."""
-    mesh = trimesh.load(Path(job_dir) / "ice.ply", process=False)
+    mesh = trimesh.load(Path(job_dir) / ICE, process=False)
     return ice_surface(mesh.vertices, mesh.faces, flip)
 
 
@@ -225,7 +225,7 @@ def water_at(job_dir: str | Path, points: np.ndarray) -> tuple[np.ndarray, np.nd
 
     from .artifacts import read_water_ply
 
-    path = Path(job_dir) / "water.ply"
+    path = Path(job_dir) / WATER
     if not path.is_file():
         return None
     flow = trimesh.load(path, process=False)
@@ -233,10 +233,3 @@ def water_at(job_dir: str | Path, points: np.ndarray) -> tuple[np.ndarray, np.nd
     nearest = cKDTree(np.asarray(flow.vertices)).query(np.asarray(points, dtype=np.float64))[1]
     return water[nearest], supply[nearest]
 
-
-def _view_names(job_dir: Path) -> list[str] | None:
-    """The views' names from ``views.json``; None where it is missing or unreadable."""
-    try:
-        return [v["name"] for v in json.loads((job_dir / "views.json").read_text())]
-    except (OSError, ValueError, KeyError, TypeError):
-        return None

@@ -1,6 +1,7 @@
 """Timing reports of a sweep: the paper's Table 2 columns per job and per object.
 
-`build_report` reads the artifacts of every job under a sweep folder (the job-folder contract of `icefarm.jobdir`, README "Job folders":
+`build_report` reads the artifacts of every job under a sweep folder (the job-folder contract of `icefarm.jobdir`,
+its folders found by `icefarm.jobdir.scan_sweep`:
 ``jobs/<object id>/<job id>/`` with ``timings.json``, ``params.yaml`` and ``done.json`` or
 ``error.json``) and writes ``report.md`` and ``report.csv`` beside them.
 
@@ -23,8 +24,8 @@ from pathlib import Path
 from typing import Any
 
 from .errors import InputError
-from .farm.sweep_folder import read_jobs_csv
-from .jobdir import DONE, ERROR, PARAMS, TIMINGS, JobFolder, JobState, error_line, read_job
+from .jobdir import (DONE, ERROR, JOBS_DIR, REPORT_CSV, REPORT_MD, SCENE_XML, TIMINGS, JobFolder, JobState, error_line,
+                     read_job, scan_sweep)
 
 #: The stages of the paper's Table 2, in its order; their sum is its "Total time".
 TABLE2_STAGES: tuple[str, ...] = ("water", "drips", "trajectories", "surface")
@@ -69,30 +70,14 @@ def _is_number(value: Any) -> bool:
     return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
 
 
-def _is_job_dir(path: Path) -> bool:
-    return any((path / name).is_file() for name in (DONE, ERROR, TIMINGS, PARAMS))
-
-
 def find_job_dirs(run_dir: Path) -> list[Path]:
-    """Job folders under a sweep folder, in the order of its jobs.csv when it lists them.
+    """Job folders under a sweep folder, in the order of its jobs.csv when it lists them
+    (`icefarm.jobdir.scan_sweep`, the sheets' order too).
 
     ``run_dir`` may be a sweep folder (``jobs/<object>/<job>/``), any folder above job folders,
     or one job folder.
     """
-    run_dir = Path(run_dir)
-    if (run_dir / "jobs").is_dir():  # a sweep folder: every job folder, started or not
-        found = sorted(p for p in (run_dir / "jobs").glob("*/*") if p.is_dir())
-    elif _is_job_dir(run_dir):
-        return [run_dir]
-    else:
-        found = sorted({p.parent for name in (DONE, ERROR, TIMINGS, PARAMS)
-                        for p in run_dir.rglob(name)})
-    rows, _ = read_jobs_csv(run_dir / "jobs.csv")
-    order = [f"jobs/{r.get('object') or ''}/{r['job_id']}" for r in rows]
-    if order:
-        rank = {d: i for i, d in enumerate(order)}
-        found.sort(key=lambda p: (rank.get(str(p.relative_to(run_dir)), len(rank)), str(p)))
-    return found
+    return list(scan_sweep(run_dir).job_dirs)
 
 
 def summarize(jobs: Sequence[JobFolder]) -> list[ObjectSummary]:
@@ -217,7 +202,7 @@ def report_markdown(run_dir: Path, jobs: Sequence[JobFolder], summaries: Sequenc
              "measurement; a job's total then counts only the stages it computed (`+ cached`). "
              "Summary medians are taken over the jobs that computed each stage; the summary total is "
              "the sum of those medians, the cost of one uncached run. `render s` is the whole render "
-             "step, `scene s` its scene overhead (writing the scenes, loading scene.xml, waiting for the "
+             f"step, `scene s` its scene overhead (writing the scenes, loading {SCENE_XML}, waiting for the "
              "POV-Ray files). `job s` is everything the job spent (mesh preparation, proxy, stages, "
              "render).", ""]
     lines += ["## Per object (medians)", ""]
@@ -238,7 +223,7 @@ def report_markdown(run_dir: Path, jobs: Sequence[JobFolder], summaries: Sequenc
                            [[j.object_id, j.job_id, _varied_text(j, varied), j.failed_stage or "-",
                              _first_line(j.message)] for j in failed])
     if pending:
-        lines += ["", "## Not finished (no done.json, no error.json)", ""]
+        lines += ["", f"## Not finished (no {DONE}, no {ERROR})", ""]
         lines += _md_table(("object", "job"), [[j.object_id, j.job_id] for j in pending])
     return "\n".join(lines) + "\n"
 
@@ -347,11 +332,11 @@ def build_report(run_dir: Path) -> tuple[Path, Path]:
         raise InputError(f"report: {run_dir} is not a folder; give a sweep folder (<out>/<sweep name>)")
     job_dirs = find_job_dirs(run_dir)
     if not job_dirs:
-        raise InputError(f"report: no job folders under {run_dir} (expected jobs/<object>/<job id>/ "
-                         "with timings.json, done.json or error.json); give a sweep folder")
+        raise InputError(f"report: no job folders under {run_dir} (expected {JOBS_DIR}/<object>/<job id>/ "
+                         f"with {TIMINGS}, {DONE} or {ERROR}); give a sweep folder")
     jobs = [read_job(d) for d in job_dirs]
     summaries = summarize(jobs)
-    md_path, csv_path = run_dir / "report.md", run_dir / "report.csv"
+    md_path, csv_path = run_dir / REPORT_MD, run_dir / REPORT_CSV
     atomic_write(md_path, report_markdown(run_dir, jobs, summaries))
     atomic_write(csv_path, report_csv(jobs, summaries))
     return md_path, csv_path

@@ -16,7 +16,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from . import artifacts
+from . import artifacts, jobdir
 from .stage_codec import Unencodable, decode, encode
 
 
@@ -37,7 +37,7 @@ def _plain(value: Any) -> Any:
 
 
 def file_digest(path: str | Path) -> str:
-    """`icefarm.artifacts.file_digest` of an input file, computed once per (path, mtime,
+    """`icefarm.jobdir.file_digest` of an input file, computed once per (path, mtime,
     size): a sweep hashes each mesh once; ``missing:PATH`` when it cannot be read."""
     try:
         stat = Path(path).stat()
@@ -49,7 +49,7 @@ def file_digest(path: str | Path) -> str:
 @functools.lru_cache(maxsize=256)
 def _content_digest(path: str, mtime_ns: int, size: int) -> str:
     try:
-        return artifacts.file_digest(Path(path))
+        return jobdir.file_digest(Path(path))
     except OSError:
         return f"missing:{path}"
 

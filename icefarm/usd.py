@@ -28,11 +28,12 @@ import trimesh
 from pxr import Gf, Sdf, Tf, Usd, UsdGeom, UsdLux, UsdShade, UsdUtils, Vt
 
 from .errors import InputError
+from .jobdir import ICE, ICE_USDC, OBJECT, OBJECT_USDC, SCENE_USDA
 from .scene.material import Material
 from .rendered import (TINT_DISTANCE_M, Rendered, Surface, ice_surface, object_surface, pbr, read_ice, read_rendered, require,
                        water_at)
 
-SCENE_FILE, OBJECT_FILE, ICE_FILE = "scene.usda", "object.usdc", "ice.usdc"
+SCENE_FILE, OBJECT_FILE, ICE_FILE = SCENE_USDA, OBJECT_USDC, ICE_USDC  # (`icefarm.jobdir`)
 # Film back of the cameras: 36 mm wide (full frame), in USD's tenths of a scene unit. Only
 # its ratio to the focal length (the field of view) matters for the picture.
 FILM_WIDTH = 0.36
@@ -105,7 +106,7 @@ def write_job_usd(job_dir: str | Path, *, material: Material | None = None,
     start = time.perf_counter()
     job_dir = Path(job_dir)
     out_dir = job_dir if out_dir is None else Path(out_dir)
-    require(job_dir, "ice.ply", "object.ply")
+    require(job_dir, ICE, OBJECT)
     rendered = read_rendered(job_dir, material)
     axis = up_axis(rendered.gravity)
     obj = object_surface(job_dir)

@@ -22,7 +22,7 @@ import yaml
 from click.testing import CliRunner
 
 from icefarm import params
-from icefarm.artifacts import check_done
+from icefarm.jobdir import check_done
 from icefarm.cli import main
 from icefarm.pipeline import JobSpec, run_job
 from icefarm.scene.config import ABSORPTION_PER_M, render_config_from_dict

@@ -137,3 +137,58 @@ def test_a_cycle_through_an_import_inside_a_function_is_found(tmp_path):
     (pkg / "middle.py").write_text("from .sub import low\n")
     graph = import_graph(pkg)
     assert graph["pkg.middle"] == {"pkg.sub", "pkg.sub.low"} and cycles(graph) == []
+
+
+# ------------------------------------------------------------------ the job-folder contract
+# The names the job-folder contract must keep to itself, whatever icefarm.jobdir lists.
+CONTRACT_NAMES = ("params.yaml", "timings.json", "done.json", "error.json", "ice.ply", "object.ply", "scene.xml",
+                  "scene.pov", "scene.json", "views.json", "render.exr", "render.png", "landing.json", "drips.json",
+                  "trajectories.json", "water.ply", "proxy.ply", "scene.usda", "growth.usda", "frames.json",
+                  "jobs.csv", "manifest.resolved.yaml")
+NAME_LITERALS_ALLOWED = 3
+
+
+def name_literals(package_dir: Path, names, skip: str = "jobdir.py") -> list[str]:
+    """``path:line: text`` for each occurrence of one of ``names`` in a string constant of the
+    package's code (f-strings' text included; docstrings, which explain, and the module
+    ``skip`` at the package's top left out). So does ``render_view`` as a file stem's start."""
+    import re
+
+    pattern = re.compile(r"(?<![a-z0-9_.])(" + "|".join(map(re.escape, sorted(names, key=len, reverse=True)))
+                         + r")(?!\w)|render_view(?![a-z_])")
+    found = []
+    for path in sorted(package_dir.rglob("*.py")):
+        if path.parent == package_dir and path.name == skip:
+            continue
+        tree = ast.parse(path.read_text(), str(path))
+        docstrings = {id(node.body[0].value) for node in ast.walk(tree)
+                      if isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef))
+                      and node.body and isinstance(node.body[0], ast.Expr)
+                      and isinstance(node.body[0].value, ast.Constant)}
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Constant) and isinstance(node.value, str) and id(node) not in docstrings:
+                found += [f"{path.relative_to(package_dir.parent)}:{node.lineno}: {m.group(0)}"
+                          for m in pattern.finditer(node.value)]
+    return found
+
+
+def test_artifact_names_are_written_once_in_the_job_folder_contract():
+    """Every job- and sweep-folder file name is a constant of icefarm.jobdir; other modules
+    use the constants (at most three literals elsewhere)."""
+    from icefarm import jobdir
+
+    assert set(CONTRACT_NAMES) <= set(jobdir.FILE_NAMES)
+    found = name_literals(PACKAGE_DIR, set(jobdir.FILE_NAMES) | set(CONTRACT_NAMES))
+    assert len(found) <= NAME_LITERALS_ALLOWED, "artifact names outside icefarm/jobdir.py:\n" + "\n".join(found)
+
+
+def test_the_name_literal_scan_finds_code_and_skips_docstrings(tmp_path):
+    pkg = tmp_path / "pkg"
+    pkg.mkdir()
+    (pkg / "jobdir.py").write_text('ICE = "ice.ply"\n')
+    (pkg / "a.py").write_text('"""Reads ice.ply."""\n\ndef f(d, i):\n    """ice.ply again."""\n'
+                              '    return (d / "ice.ply", f"{d}/render_view{i}.png", "slice.ply", "x_ice.ply",\n'
+                              '            "render_view_seconds")\n')
+    (pkg / "b.py").write_text('MESSAGE = f"no {1} in done.json"\n')
+    assert name_literals(pkg, {"ice.ply", "done.json"}) == [
+        "pkg/a.py:5: ice.ply", "pkg/a.py:5: render_view", "pkg/b.py:1: done.json"]

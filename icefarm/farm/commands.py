@@ -16,7 +16,7 @@ from pathlib import Path
 import click
 
 from ..errors import InputError, Interrupted, one_line_each
-from ..jobdir import JobState, error_line, stage_phrase
+from ..jobdir import DONE, JOBS_CSV, JOBS_DIR, JobState, error_line, stage_phrase
 from .manifest import load_manifest
 from .manifest_model import Manifest
 from .points import MAX_JOBS, apply_sets, check_job_count, count_points
@@ -196,14 +196,14 @@ def format_summary(summary: SweepSummary) -> str:
         lines.append(f"{summary.duplicates} sweep point(s) repeated an earlier job and were dropped")
     if summary.stale:
         lines.append(f"{len(summary.stale)} stale job folder(s) of an earlier manifest left in "
-                     f"{summary.sweep_dir / 'jobs'} (not jobs of this one): "
+                     f"{summary.sweep_dir / JOBS_DIR} (not jobs of this one): "
                      + ", ".join(str(p.relative_to(summary.sweep_dir)) for p in summary.stale[:10])
                      + (" ..." if len(summary.stale) > 10 else ""))
     for r in summary.jobs:
         if r.status is JobState.FAILED:
             stage = f" {stage_phrase(r.failed_stage)}" if r.failed_stage else ""
             lines.append(f"  FAILED {r.object_id}/{r.job_id}{stage}: {error_line(r.error, 'unknown error')}")
-    lines.append(f"results: {summary.sweep_dir}  (jobs.csv, jobs/<object>/<job>/)")
+    lines.append(f"results: {summary.sweep_dir}  ({JOBS_CSV}, {JOBS_DIR}/<object>/<job>/)")
     return "\n".join(lines)
 
 
@@ -283,7 +283,7 @@ def make_sweep_command(after: Callable[[SweepSummary], None] | None = None) -> c
             if stop.summary is not None:
                 click.echo(format_summary(stop.summary), err=True)
             click.echo(f"interrupted by {stop.name}: the workers were stopped; done jobs are kept, the others "
-                       f"have no done.json. Finish the sweep with: icefarm sweep {manifest} -o {out} --resume",
+                       f"have no {DONE}. Finish the sweep with: icefarm sweep {manifest} -o {out} --resume",
                        err=True)
             sys.exit(stop.exit_code)
         except OSError as exc:  # the disk filled up, a folder became read-only, ... while running

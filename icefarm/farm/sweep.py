@@ -29,9 +29,9 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Protocol
 
-from ..artifacts import atomic_write, check_done
+from ..artifacts import atomic_write
 from ..errors import InputError, Interrupted
-from ..jobdir import JobState, read_job, total_seconds
+from ..jobdir import CACHE_DIR, DONE, JOBS_CSV, JOBS_DIR, MANIFEST, JobState, check_done, read_job, total_seconds
 from .manifest import load_manifest
 from .manifest_model import Manifest
 from .plan import JobRecord, leaders, plan_jobs, private_stages
@@ -88,7 +88,7 @@ class SweepSummary:
 
     @property
     def jobs_csv(self) -> Path:
-        return self.sweep_dir / "jobs.csv"
+        return self.sweep_dir / JOBS_CSV
 
 
 class Progress(Protocol):
@@ -241,13 +241,13 @@ def run_sweep(manifest: Manifest | str | Path, out: str | Path = "out", *, worke
             if why is None:
                 records[j.job_id] = replace(records[j.job_id], status=JobState.DONE, resumed=True,
                                             seconds=read_job(path).total_seconds or 0.0)
-            elif path.is_dir() and why != "no done.json":
+            elif path.is_dir() and why != f"no {DONE}":
                 note(f"{path.relative_to(sweep_dir)}: {why}: {'would be' if dry_run else 'it is'} redone")
         stale = stale_folders(sweep_dir, jobs)
         if stale:
             shown = ", ".join(str(p.relative_to(sweep_dir)) for p in stale[:10])
             more = f" and {len(stale) - 10} more" if len(stale) > 10 else ""
-            note(f"{len(stale)} job folder(s) in {sweep_dir / 'jobs'} are not jobs of this manifest (it was "
+            note(f"{len(stale)} job folder(s) in {sweep_dir / JOBS_DIR} are not jobs of this manifest (it was "
                  f"edited since they were made, or --set differs); they are stale and left as they are: "
                  f"{shown}{more}")
 
@@ -267,8 +267,8 @@ def run_sweep(manifest: Manifest | str | Path, out: str | Path = "out", *, worke
         prepare_folder(sweep_dir, resume, overwrite)
         made = not sweep_dir.exists()  # by this run: removed again when it cannot be written
         running = sweep_dir / ".farm" / "running"
-        cache_dir = sweep_dir / "cache" if use_cache else None
-        csv_path = sweep_dir / "jobs.csv"
+        cache_dir = sweep_dir / CACHE_DIR if use_cache else None
+        csv_path = sweep_dir / JOBS_CSV
         try:
             shutil.rmtree(running, ignore_errors=True)  # markers of an earlier run that was stopped
             running.mkdir(parents=True, exist_ok=True)
@@ -277,7 +277,7 @@ def run_sweep(manifest: Manifest | str | Path, out: str | Path = "out", *, worke
                 from ..stage_cache import StageCache
 
                 atomic_write(cache_dir / StageCache.POLICY, json.dumps({"private": private_stages(jobs)}) + "\n")
-            atomic_write(sweep_dir / "manifest.resolved.yaml", resolved_yaml(manifest, jobs, sweep_dir, until))
+            atomic_write(sweep_dir / MANIFEST, resolved_yaml(manifest, jobs, sweep_dir, until))
             atomic_write(csv_path, jobs_csv_text(list(records.values()), swept))
         except OSError as exc:
             if made:

@@ -1,4 +1,4 @@
-"""The sweep folder on disk: job folders, jobs.csv, manifest.resolved.yaml, and the rules
+"""The sweep folder on disk (its files: `icefarm.jobdir`): job folders, jobs.csv, manifest.resolved.yaml, and the rules
 for an existing folder (``--resume``, ``--overwrite``) and the lock that keeps a second
 sweep out of it.
 """
@@ -16,15 +16,14 @@ from typing import Any
 
 import yaml
 
-from ..artifacts import check_done
 from ..errors import InputError
-from ..jobdir import error_line
+from ..jobdir import JOBS_DIR, MANIFEST, check_done, error_line
 from .manifest import manifest_to_dict
 from .manifest_model import Manifest
 from .plan import JobRecord, PlannedJob
 
 def job_dir(sweep_dir: Path, job: PlannedJob) -> Path:
-    return sweep_dir / "jobs" / job.object_id / job.job_id
+    return sweep_dir / JOBS_DIR / job.object_id / job.job_id
 
 
 def is_done(path: Path) -> bool:
@@ -35,7 +34,7 @@ def is_done(path: Path) -> bool:
 def stale_folders(sweep_dir: Path, jobs: Sequence[PlannedJob]) -> list[Path]:
     """Job folders in ``sweep_dir/jobs`` that are no job of ``jobs`` (an edited manifest)."""
     planned = {job_dir(sweep_dir, j) for j in jobs}
-    root = sweep_dir / "jobs"
+    root = sweep_dir / JOBS_DIR
     if not root.is_dir():
         return []
     return sorted(p for p in root.glob("*/*") if p.is_dir() and p not in planned)
@@ -59,24 +58,6 @@ def jobs_csv_text(records: Sequence[JobRecord], swept: Sequence[str]) -> str:
                          f"{r.seconds:.3f}", " ".join(r.reused), r.attempts, r.failed_stage or "",
                          error_line(r.error, "")])
     return buf.getvalue()
-
-
-def read_jobs_csv(path: Path) -> tuple[list[dict], tuple[str, ...]]:
-    """Rows of jobs.csv (`jobs_csv_text`) in job order, and its swept columns (those between
-    ``object`` and ``status``); none when it is missing or has no ``job_id`` column."""
-    try:
-        with open(path, newline="") as f:
-            reader = csv.DictReader(f)
-            rows = [r for r in reader if r.get("job_id")]
-            fields = reader.fieldnames or []
-    except OSError:
-        return [], ()
-    if "job_id" not in fields:
-        return [], ()
-    swept = ()
-    if "object" in fields and "status" in fields:
-        swept = tuple(fields[fields.index("object") + 1:fields.index("status")])
-    return rows, swept
 
 
 def resolved_yaml(manifest: Manifest, jobs: Sequence[PlannedJob], sweep_dir: Path, until: str | None) -> str:
@@ -114,9 +95,9 @@ def check_folder(sweep_dir: Path, resume: bool, overwrite: bool) -> bool:
     if not overwrite:
         raise InputError(f"output folder {sweep_dir} already exists: add --resume to finish its jobs "
                          f"(done ones are kept), --overwrite to delete it and start over, or choose -o")
-    if not ((sweep_dir / "manifest.resolved.yaml").exists() or (sweep_dir / "jobs").is_dir()):
+    if not ((sweep_dir / MANIFEST).exists() or (sweep_dir / JOBS_DIR).is_dir()):
         raise InputError(f"refusing to overwrite {sweep_dir}: it does not look like an icefarm sweep folder "
-                         f"(no manifest.resolved.yaml, no jobs/); remove it yourself or choose another -o")
+                         f"(no {MANIFEST}, no {JOBS_DIR}/); remove it yourself or choose another -o")
     return True
 
 

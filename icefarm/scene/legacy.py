@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..jobdir import SCENE_XML
 from .camera import Camera
 from .material import Material
 from .mitsuba import WATER_ICE_IOR
@@ -61,7 +62,7 @@ def spec_from_xml(path: str | Path, *, gravity, material: Material, view_names: 
             ground=_ground(shapes.get("ground")), object_file=_named(shapes["object"], "string", "filename"),
             material=material, ice=_ice(shapes["ice"]) if "ice" in shapes else None)
     except (ET.ParseError, KeyError, AttributeError, TypeError, ValueError) as exc:
-        raise ValueError(f"{path}: not a scene.xml written by icefarm ({exc})") from None
+        raise ValueError(f"{path}: not a {SCENE_XML} written by icefarm ({exc})") from None
 
 
 def _floats(text: str) -> np.ndarray:

@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
+from ..jobdir import POVRAY_STEM, SCENE_POV
 from .camera import direction as direction_of
 from .config import GROUND_PLAIN, IceMedium, RenderConfig
 from .material import Material
@@ -186,7 +187,7 @@ def scene_pov(spec: SceneSpec, *, object_inc: str, ice_inc: str | None) -> str:
     aspect = width / height
     right, up, front = spec.frame
     out = ["// icefarm scene for POV-Ray 3.7; render from this folder with\n",
-           f"// povray +Iscene.pov +Orender_povray.png +W{width} +H{height} +A0.3 -D -V\n",
+           f"// povray +I{SCENE_POV} +O{POVRAY_STEM}.png +W{width} +H{height} +A0.3 -D -V\n",
            "#version 3.7;\n",
            f"global_settings {{ assumed_gamma 1.0 max_trace_level {max(spec.sampling.max_depth, 5)} "
            "ambient_light rgb 1 }\n",
@@ -257,7 +258,7 @@ def scene_pov(spec: SceneSpec, *, object_inc: str, ice_inc: str | None) -> str:
 
 def povray_command(config: RenderConfig, view: int, output: str) -> list[str]:
     """The command line that renders view ``view`` of ``scene.pov`` into ``output``."""
-    return ["povray", "+Iscene.pov", f"+O{output}", f"+W{config.width}", f"+H{config.height}",
+    return ["povray", f"+I{SCENE_POV}", f"+O{output}", f"+W{config.width}", f"+H{config.height}",
             "+A0.3", "+R3", "+FN", "-D", "-V", "-GA", f"Declare=View={view}"]
 
 
@@ -272,7 +273,7 @@ def require_povray() -> str:
 
 
 def render_povray(job_dir: Path, config: RenderConfig, view: int = 0,
-                  output: str = "render_povray.png") -> float:
+                  output: str = f"{POVRAY_STEM}.png") -> float:
     """Render view ``view`` of ``job_dir/scene.pov`` with the povray command; seconds taken.
 
     Raises
@@ -289,5 +290,5 @@ def render_povray(job_dir: Path, config: RenderConfig, view: int = 0,
     seconds = time.perf_counter() - start
     if proc.returncode != 0 or not (Path(job_dir) / output).is_file():
         tail = (proc.stderr or proc.stdout)[-2000:]
-        raise RuntimeError(f"povray failed on {Path(job_dir) / 'scene.pov'} (exit {proc.returncode}):\n{tail}")
+        raise RuntimeError(f"povray failed on {Path(job_dir) / SCENE_POV} (exit {proc.returncode}):\n{tail}")
     return seconds

@@ -25,7 +25,8 @@ from .config import RenderConfig
 from .denoise import denoise, denoiser_version
 from .images import _png_to_exr, write_exr, write_png
 from .variants import pick_variant
-from .write import JobScene, SceneFiles, view_stem, write_scenes
+from ..jobdir import POVRAY_STEM, SCENE_XML, view_stem
+from .write import JobScene, SceneFiles, write_scenes
 
 # write_scenes and SceneFiles live in icefarm.scene.write; callers that write and render meet them here too
 __all__ = ["JobScene", "MitsubaRun", "RenderResult", "SceneFiles", "render_job", "render_mitsuba", "sample_passes",
@@ -143,7 +144,7 @@ def render_mitsuba(job_dir: Path, config: RenderConfig, variant: str,
     if mi.variant() != variant:
         mi.set_variant(variant)
     start = time.perf_counter()
-    scene = mi.load_file(str(job_dir / "scene.xml"))
+    scene = mi.load_file(str(job_dir / SCENE_XML))
     load_seconds = time.perf_counter() - start
     if on_loaded is not None:
         on_loaded(scene)
@@ -290,8 +291,8 @@ def render_job(job_dir: str | Path, config: RenderConfig, scene: JobScene | Scen
                 pending.append(pool.submit(_cpu_seconds, functools.partial(writer, ice_normals=normals)))
 
         try:
-            if config.uses_mitsuba and not (job_dir / "scene.xml").is_file():
-                raise InputError(f"no scene.xml in {job_dir}: write the scenes first")
+            if config.uses_mitsuba and not (job_dir / SCENE_XML).is_file():
+                raise InputError(f"no {SCENE_XML} in {job_dir}: write the scenes first")
             if config.uses_povray:
                 pov.require_povray()  # before spending time on Mitsuba
             files: list[Path] = []
@@ -311,7 +312,7 @@ def render_job(job_dir: str | Path, config: RenderConfig, scene: JobScene | Scen
     if config.uses_povray:
         n_views = len(config.views)
         for i in range(n_views):
-            out = f"{view_stem(i, 'render_povray')}.png"
+            out = f"{view_stem(i, POVRAY_STEM)}.png"
             pov_seconds += pov.render_povray(job_dir, config, view=i, output=out)
             files.append(job_dir / out)
             if not config.uses_mitsuba:

@@ -25,11 +25,12 @@ from typing import Any
 
 import numpy as np
 
+from ..jobdir import SCENE_SPEC
 from .camera import Camera
 from .config import IceMedium
 from .material import Material, material_from_dict
 
-SPEC_FILE = "scene.json"
+SPEC_FILE = SCENE_SPEC  # scene.json, in the job folder (`icefarm.jobdir`)
 SPEC_VERSION = 2
 SUN_WARMTH = (1.0, 0.93, 0.84)  # the sun's colour (a late-morning white)
 # The ice's colour, where a format has no absorbing medium (UsdPreviewSurface): what white

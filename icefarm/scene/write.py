@@ -7,7 +7,6 @@ includes, the meshes, the sky, ``scene.json`` (`icefarm.scene.spec`) and ``views
 from __future__ import annotations
 
 import functools
-import json
 import shutil
 import tempfile
 import time
@@ -18,6 +17,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
+from .. import jobdir as jd
 from ..artifacts import write_mesh
 from . import camera as cam
 from . import geometry as geo
@@ -28,16 +28,10 @@ from .focus import ice_focus, pixel_size, surface_points, zoom_on_ice
 from .images import write_exr
 from .material import Material, material_from_dict
 from .sky import procedural_sky
-from .spec import (SPEC_FILE, IceShading, Sampling, SceneSpec, Sky, SpecView, Sun, sky_scale, square_ground,
+from .spec import (IceShading, Sampling, SceneSpec, Sky, SpecView, Sun, sky_scale, square_ground,
                    sun_irradiance, write_spec)
 
 CREASE_ANGLE = 30.0  # degrees: sharper edges of the object stay sharp in shading
-VIEWS_FILE = "views.json"  # what each view shows and how wide its icicles are, for contact sheets
-
-
-def view_stem(index: int, prefix: str = "render") -> str:
-    """File stem of view ``index``: ``render`` for the main view, ``render_view<i>`` after."""
-    return prefix if index == 0 else f"{prefix}_view{index}"
 
 
 @dataclass(frozen=True)
@@ -280,24 +274,23 @@ def build_spec(job_dir: str | Path, object_mesh: trimesh.Trimesh, ice_mesh: trim
         sky=Sky(sky.name, sky_scale(env), env.sky_strength),
         sun=Sun(cam.direction(frame, env.sun_azimuth, env.sun_elevation), sun_irradiance(env), env.sun_strength,
                 env.sun_elevation) if env.sun_strength > 0 else None,
-        ground=ground, object_file="object.ply", material=material,
+        ground=ground, object_file=jd.OBJECT, material=material,
         ice=None if ice_mesh is None else IceShading(
             ior=config.ice.ior, alpha=config.ice.roughness, tint=tuple(config.ice.tint),
             absorption=tuple(medium.absorption) if medium is not None else (0.0, 0.0, 0.0),
-            scattering=float(medium.scattering) if medium is not None else 0.0, flip=bool(ice_flip), file="ice.ply"),
+            scattering=float(medium.scattering) if medium is not None else 0.0, flip=bool(ice_flip), file=jd.ICE),
         exposure=env.exposure, sampling=Sampling(config.spp, config.max_depth, config.denoise))
 
 
 def _sky_file(job_dir: Path, env) -> Path:
     """The sky in ``job_dir``: the configured image, or the procedural one; named by what it
     depends on, written when missing."""
+    sky = job_dir / jd.sky_name(env.sky, env.sun_azimuth, env.sun_elevation)
     if env.sky == "procedural":
-        sky = job_dir / f"sky_az{env.sun_azimuth:g}_el{env.sun_elevation:g}.exr"
         if not sky.is_file():
             sky.write_bytes(_procedural_sky_exr(env.sun_azimuth, env.sun_elevation))
     else:
         src = Path(env.sky)
-        sky = job_dir / f"sky_{src.stem}{src.suffix.lower()}"
         if not sky.is_file() or sky.stat().st_size != src.stat().st_size:
             shutil.copyfile(src, sky)
     return sky
@@ -316,10 +309,10 @@ def write_spec_files(job_dir: str | Path, spec: SceneSpec, object_mesh: trimesh.
     start = time.perf_counter() if start is None else start
     job_dir = Path(job_dir)
     object_geometry = geo.crease_split(object_mesh, CREASE_ANGLE)
-    pov_file = job_dir / "scene.pov"
+    pov_file = job_dir / jd.SCENE_POV
     write_pov = functools.partial(
         _write_povray, job_dir, pov_file, object_geometry, ice_mesh, spec.ice is not None and spec.ice.flip,
-        pov.scene_pov(spec, object_inc="object.inc", ice_inc=None if spec.ice is None else "ice.inc"))
+        pov.scene_pov(spec, object_inc=jd.OBJECT_INC, ice_inc=None if spec.ice is None else jd.ICE_INC))
     if not defer_povray:
         write_pov()
     obj_v, obj_n, obj_f = object_geometry
@@ -330,12 +323,10 @@ def write_spec_files(job_dir: str | Path, spec: SceneSpec, object_mesh: trimesh.
         ice_ply = job_dir / spec.ice.file
         if not ice_ply.is_file():  # as the pipeline writes it
             write_mesh(ice_ply, ice_mesh)
-    xml = job_dir / "scene.xml"
+    xml = job_dir / jd.SCENE_XML
     xml.write_text(mx.scene_xml(spec))
-    write_spec(job_dir / SPEC_FILE, spec)
-    (job_dir / VIEWS_FILE).write_text(json.dumps([
-        {"index": i, "name": v.name, "frame": v.frame, "stem": view_stem(i), "icicle_px": v.icicle_px}
-        for i, v in enumerate(spec.views)], indent=1) + "\n")
+    write_spec(job_dir / jd.SCENE_SPEC, spec)
+    jd.write_views(job_dir, [(v.name, v.frame, v.icicle_px) for v in spec.views])
     ground_height = None if spec.ground is None else float(spec.ground.centre @ spec.up)
     return SceneFiles(xml=xml, pov=pov_file, object_ply=object_ply, ice_ply=ice_ply, sky=job_dir / spec.sky.file,
                       cameras=spec.cameras, seconds=time.perf_counter() - start,
@@ -353,10 +344,10 @@ def _write_povray(job_dir: Path, pov_file: Path, object_geometry: tuple[np.ndarr
     same angle-weighted normals.
     """
     obj_v, obj_n, obj_f = object_geometry
-    pov.write_mesh2(job_dir / "object.inc", "Object_Mesh", obj_v, obj_n, obj_f)
+    pov.write_mesh2(job_dir / jd.OBJECT_INC, "Object_Mesh", obj_v, obj_n, obj_f)
     if ice_mesh is not None:
         if ice_normals is None or len(ice_normals) != len(ice_mesh.vertices):
             ice_normals = geo.smooth_normals(ice_mesh.vertices, ice_mesh.faces)
         normals = ice_normals * (-1.0 if ice_flip else 1.0)
-        pov.write_mesh2(job_dir / "ice.inc", "Ice_Mesh", ice_mesh.vertices, normals, ice_mesh.faces, inside=True)
+        pov.write_mesh2(job_dir / jd.ICE_INC, "Ice_Mesh", ice_mesh.vertices, normals, ice_mesh.faces, inside=True)
     pov_file.write_text(text)

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
-from ..jobdir import error_line
+from ..jobdir import DONE, ERROR, RENDER_EXR, error_line
 from ..scene.images import image_size
 from .model import (Arrangement, BACKGROUND_SRGB, COL_HEAD_H, DEFAULT_ASPECT, DIM_TEXT_SRGB, EMPTY_SRGB,
                     FAILED_SRGB, FIT_FILTER, FONT, FONT_BOLD, GAP, Grid, ICE_VIEW_BELOW_PX, JobInfo,
@@ -115,7 +115,7 @@ def _fitted(path: Path, width: int, height: int):
 
 def _cell_aspect(jobs: Sequence[JobInfo]) -> float:
     for job in jobs:
-        exr = job.file("render.exr")
+        exr = job.file(RENDER_EXR)
         size = image_size(exr) if exr is not None else None
         if size is not None:
             return size[1] / size[0]
@@ -129,7 +129,7 @@ def cell_render(job: JobInfo, cell_width: int) -> tuple[Path | None, str | None]
     ``views.json``) would be under `ICE_VIEW_BELOW_PX` pixels wide at the cell's size and
     the job has an ice view (``frame: ice``) rendered: then that view.
     """
-    exr = job.file("render.exr")
+    exr = job.file(RENDER_EXR)
     views = job.views()
     if exr is None or not views:
         return exr, None
@@ -169,14 +169,14 @@ def _draw_cell(buf, job: JobInfo, x: int, y: int, cw: int, ch: int, label_keys: 
     exr, view = cell_render(job, cw)
     drawn = "render"
     if job.state is JobState.FAILED:
-        message = error_line(job.folder.message, "no error.json message")
+        message = error_line(job.folder.message, f"no {ERROR} message")
         _placeholder(buf, x, y, cw, ch, FAILED_SRGB, "FAILED",
                      [_clip(f"stage: {job.folder.failed_stage}", inner, 12)]
                      + _wrap(message.split(), inner, 12, 3, sep=" "))
         drawn = "failed"
     elif exr is None:
         reason = ("done, but no render (no render config, or --until)" if job.state is JobState.DONE
-                  else "unfinished: no done.json" if job.path is not None else "not run: no job folder")
+                  else f"unfinished: no {DONE}" if job.path is not None else "not run: no job folder")
         _placeholder(buf, x, y, cw, ch, UNFINISHED_SRGB, "NOT RENDERED", _wrap(reason.split(), inner, 12, 2, sep=" "))
         drawn = "not rendered"
     else:

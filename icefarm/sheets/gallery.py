@@ -11,6 +11,7 @@ from typing import Any
 from urllib.parse import quote
 
 from .. import params as P
+from .. import jobdir as jd
 from ..artifacts import atomic_write
 from .model import JobInfo, JobState, RunInfo, SHEETS_DIR, SheetResult
 from .read import scan_run
@@ -131,7 +132,7 @@ def _params_html(job: JobInfo, varying: Sequence[str]) -> str:
         cls = ' class="changed"' if changed or key in varying else ""
         unit = index[key].unit if key in index and index[key].unit != "-" else ""
         rows.append(f"<tr{cls}><th>{_e(key)}</th><td>{_e(format_value('', value))}</td><td>{_e(unit)}</td></tr>")
-    source = "params.yaml" if job.has_params else "jobs.csv (no params.yaml)"
+    source = jd.PARAMS if job.has_params else f"{jd.JOBS_CSV} (no {jd.PARAMS})"
     return (f"<details><summary>all parameters ({_e(source)}; changed from default highlighted)</summary>"
             f"<table>{''.join(rows)}</table></details>")
 
@@ -139,7 +140,7 @@ def _params_html(job: JobInfo, varying: Sequence[str]) -> str:
 def _job_html(job: JobInfo, varying: Sequence[str], here: Path, models: Mapping[str, Path] | None = None,
               viewer: Path | None = None) -> str:
     state = job.state.value
-    png = job.file("render.png")
+    png = job.file(jd.RENDER_PNG)
     if png is not None:
         picture = (f'<a href="{_href(png, here)}"><img src="{_href(png, here)}" '
                    f'alt="render of {_e(job.job_id)}"></a>')
@@ -170,12 +171,11 @@ def _job_html(job: JobInfo, varying: Sequence[str], here: Path, models: Mapping[
         if folder.traceback:
             error += f"<details><summary>traceback</summary><pre>{_e(folder.traceback)}</pre></details>"
     links = []
-    for name in ("scene.xml", "ice.ply", "render.exr", "render.png", "scene.pov", "params.yaml",
-                 "timings.json", "error.json"):
+    for name in (jd.SCENE_XML, jd.ICE, jd.RENDER_EXR, jd.RENDER_PNG, jd.SCENE_POV, jd.PARAMS, jd.TIMINGS, jd.ERROR):
         path = job.file(name)
         if path is not None:
             links.append(f'<a href="{_href(path, here)}">{_e(name)}</a>')
-        elif name in ("scene.xml", "ice.ply"):
+        elif name in (jd.SCENE_XML, jd.ICE):
             links.append(f'<span class="muted">{_e(name)} (none)</span>')
     for view in job.views()[1:]:
         stem = view.get("stem")
@@ -198,7 +198,7 @@ def _gallery_html(run: RunInfo, sheets: Sequence[SheetResult], models: Mapping[s
     failed = sum(j.state is JobState.FAILED for jobs in run.objects.values() for j in jobs)
     unfinished = sum(j.state is JobState.PENDING for jobs in run.objects.values() for j in jobs)
     extra = [f'<a href="{_href(run.run_dir / n, here)}">{n}</a>'
-             for n in ("manifest.resolved.yaml", "jobs.csv", "report.md", "report.csv") if (run.run_dir / n).is_file()]
+             for n in (jd.MANIFEST, jd.JOBS_CSV, jd.REPORT_MD, jd.REPORT_CSV) if (run.run_dir / n).is_file()]
     nav = " · ".join(f'<a href="#{_e(o)}">{_e(o)}</a>' for o in run.objects)
     body = [f"<h1>{_e(run.name)}</h1>",
             f'<p class="muted">{_e(run.method + " sweep" if run.method else "sweep")} · {len(run.objects)} '

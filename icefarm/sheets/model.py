@@ -3,14 +3,12 @@
 from __future__ import annotations
 
 import enum
-import json
-from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..jobdir import JobFolder, JobState
+from ..jobdir import SHEETS_DIR, VIEWS, JobFolder, JobState, read_views
 
-__all__ = ["JobState"]  # a job's state is the job folder's (icefarm.jobdir)
+__all__ = ["JobState", "SHEETS_DIR"]  # a job's state and the sheets' folder are the job folder's (icefarm.jobdir)
 
 # Layout, in pixels.
 MARGIN = 16
@@ -23,7 +21,7 @@ MIN_WIDTH = 640
 DEFAULT_ASPECT = 0.75  # cell height / width when no render can be read
 WRAP_AFTER = 8  # a one-parameter sweep longer than this wraps into a grid
 ICE_VIEW_BELOW_PX = 4.0  # icicles narrower than this in a cell: show the job's ice view there
-VIEWS_FILE = "views.json"  # written beside the renders (icefarm.scene.write.VIEWS_FILE)
+VIEWS_FILE = VIEWS  # written beside the renders (`icefarm.jobdir.write_views`)
 # fit's filter: no negative lobes (no ringing around highlights, no negative linear values)
 # and 4x faster than its default lanczos3 (40 ms against 170 ms for 320x240 into 160x120).
 FIT_FILTER = "blackman-harris"
@@ -42,7 +40,6 @@ FAILED_SRGB = (0.50, 0.10, 0.10)
 UNFINISHED_SRGB = (0.30, 0.30, 0.34)
 EMPTY_SRGB = (0.18, 0.18, 0.19)
 
-SHEETS_DIR = "sheets"
 
 
 class Arrangement(enum.Enum):
@@ -111,15 +108,9 @@ class JobInfo:
         return self.path / name
 
     def views(self) -> list[dict]:
-        """The job's ``views.json`` (one entry per rendered view), or [] without a usable one."""
-        path = self.file(VIEWS_FILE)
-        if path is None:
-            return []
-        try:
-            views = json.loads(path.read_text())
-        except (OSError, ValueError):
-            return []
-        return [v for v in views if isinstance(v, Mapping)] if isinstance(views, list) else []
+        """The job's ``views.json`` (one entry per rendered view, `icefarm.jobdir.read_views`), or []
+        without a usable one."""
+        return [] if self.path is None else read_views(self.path)
 
     @property
     def seconds(self) -> float | None:

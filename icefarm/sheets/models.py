@@ -17,6 +17,7 @@ import tempfile
 from pathlib import Path
 
 from ..artifacts import atomic_write
+from ..jobdir import ICE, OBJECT, PARAMS, SCENE_XML
 from .model import JobInfo, RunInfo
 
 # Faces of a preview GLB, all meshes together (ice, object, ground): a few MB at most.
@@ -66,7 +67,7 @@ def write_models(run: RunInfo, sheets_dir: Path) -> tuple[Path | None, dict[str,
     models: dict[str, Path] = {}
     for jobs in run.objects.values():
         for job in jobs:
-            inputs = [job.file(n) for n in ("ice.ply", "object.ply", "scene.xml", "params.yaml")]
+            inputs = [job.file(n) for n in (ICE, OBJECT, SCENE_XML, PARAMS)]
             if any(p is None for p in inputs):
                 continue
             script = sheets_dir / MODELS_DIR / f"{model_id(job)}.js"

@@ -5,12 +5,9 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
-import yaml
-
 from .. import params as P
 from ..errors import InputError
-from ..farm.sweep_folder import read_jobs_csv
-from ..jobdir import read_job
+from ..jobdir import JOBS_DIR, read_job, scan_sweep
 from .model import JobInfo, JobState, RunInfo
 from .labels import varying_keys, sort_key
 
@@ -19,8 +16,9 @@ from .labels import varying_keys, sort_key
 def scan_run(run_dir: Path, sweep_name: str | None = None) -> RunInfo:
     """Read a sweep folder: every job of every object, in job order.
 
-    Job order is the order of ``jobs.csv`` when it exists (jobs it does not list follow,
-    sorted by their varying values); otherwise the jobs sorted by their varying values.
+    The folder is scanned as the report scans it (`icefarm.jobdir.scan_sweep`). Job order
+    is the order of ``jobs.csv`` when it exists (jobs it does not list follow, sorted by
+    their varying values); otherwise the jobs sorted by their varying values.
 
     Raises
     ------
@@ -28,29 +26,23 @@ def scan_run(run_dir: Path, sweep_name: str | None = None) -> RunInfo:
         ``run_dir`` has no ``jobs/`` folder.
     """
     run_dir = Path(run_dir)
-    jobs_root = run_dir / "jobs"
-    if not jobs_root.is_dir():
-        raise InputError(f"{run_dir} is not a sweep folder: it has no jobs/ folder "
+    found = scan_sweep(run_dir)
+    if not found.is_sweep:
+        raise InputError(f"{run_dir} is not a sweep folder: it has no {JOBS_DIR}/ folder "
                          f"(give the folder `icefarm sweep` wrote, <out>/<sweep name>)")
-    manifest = {}
-    if (run_dir / "manifest.resolved.yaml").is_file():
-        try:
-            loaded = yaml.safe_load((run_dir / "manifest.resolved.yaml").read_text())
-            manifest = loaded if isinstance(loaded, Mapping) else {}
-        except (OSError, yaml.YAMLError):
-            manifest = {}
+    manifest = found.manifest()
     name = sweep_name or str(manifest.get("name") or run_dir.name)
     sweep = manifest.get("sweep") if isinstance(manifest.get("sweep"), Mapping) else {}
     method = sweep.get("method") if isinstance(sweep.get("method"), str) else None
-    csv_rows, swept = read_jobs_csv(run_dir / "jobs.csv")
+    csv_rows, swept = found.rows, found.swept
 
     objects: dict[str, dict[str, JobInfo]] = {}
-    for obj_dir in sorted(p for p in jobs_root.iterdir() if p.is_dir()):
-        for job_dir in sorted(p for p in obj_dir.iterdir() if p.is_dir() and not p.name.startswith(".")):
-            folder = read_job(job_dir)
-            objects.setdefault(obj_dir.name, {})[job_dir.name] = JobInfo(
-                object_id=obj_dir.name, job_id=job_dir.name, path=job_dir, state=folder.state,
-                values=folder.params or {}, has_params=folder.params is not None, folder=folder)
+    for job_dir in sorted(found.job_dirs):  # by object, then job: the objects' order
+        folder = read_job(job_dir)
+        obj = job_dir.parent.name
+        objects.setdefault(obj, {})[job_dir.name] = JobInfo(
+            object_id=obj, job_id=job_dir.name, path=job_dir, state=folder.state,
+            values=folder.params or {}, has_params=folder.params is not None, folder=folder)
     csv_order: dict[str, list[str]] = {}
     for row in csv_rows:
         obj, job = row.get("object") or "", row["job_id"]
