@@ -9,7 +9,7 @@ from pathlib import Path
 import click
 
 from . import __version__, params
-from .cli_bench import bench
+from .bench.commands import bench
 from .cli_options import exclusion_box, set_values, writable_folder
 from .cli_summary import print_job_summary
 from .errors import InputError, Interrupted, one_line_each

@@ -9,7 +9,7 @@ import pytest
 import trimesh
 
 from icefarm import params
-from icefarm.bench import stage_timings
+from icefarm.bench.timings import stage_timings
 from icefarm.chain import Stage, run_stages
 from icefarm.mesh import prepare
 from icefarm.pipeline import JobSpec, run_job

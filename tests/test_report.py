@@ -8,7 +8,7 @@ import pytest
 import trimesh
 import yaml
 
-from icefarm import table2
+from icefarm.bench import table2
 from icefarm.errors import InputError
 from icefarm.params import resolve
 from icefarm.report import build_report

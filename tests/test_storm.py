@@ -160,7 +160,7 @@ def test_a_garden_table_at_its_real_size_carries_readable_ice():
     """Issue 23's figures on a real-size asset at every default (one job, no render)."""
     from icefarm.generators import generate, natural_size
     from icefarm.stages.surface.measure import measure_icicles
-    from icefarm.storm_figures import storm_figures
+    from icefarm.bench.storm_figures import storm_figures
 
     prep = prepare(generate("table"), natural_size("table"))
     p = params.resolve({})

@@ -7,7 +7,7 @@ import pytest
 import trimesh
 
 from icefarm.stages.trajectories import TrajectoryResult
-from icefarm.storm_figures import (StormFigures, glaze_coverage, ice_along_normals, nearest_root_distance,
+from icefarm.bench.storm_figures import (StormFigures, glaze_coverage, ice_along_normals, nearest_root_distance,
                                    rain_reached_points, storm_figures)
 
 DOWN = (0.0, -1.0, 0.0)

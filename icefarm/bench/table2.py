@@ -22,7 +22,7 @@ with the paper's relative storm and drip points (`PAPER_STAGES`: area-weighted, 
 room or water) and no proxy (the rows are clean meshes). The ice polygon count is then steered towards the paper's by the voxel size
 (marching-cubes faces grow as 1 / voxel**2): a coarse calibration run at the tip radius,
 then rescaled runs until the count is within `CALIBRATION_TOLERANCE`. Stage times are
-medians over repeated runs of the stage functions themselves (`icefarm.bench.stage_timings`:
+medians over repeated runs of the stage functions themselves (`icefarm.bench.timings.stage_timings`:
 mesh loading excluded; the ray-tracing BVH build counts, in stage 1).
 """
 
@@ -37,10 +37,10 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from . import params as params_mod
-from .bench import stage_timings
-from .errors import InputError
-from .report import TABLE2_STAGES as STAGES
+from .. import params as params_mod
+from .timings import stage_timings
+from ..errors import InputError
+from ..report import TABLE2_STAGES as STAGES
 from .table2_rows import PAPER_TABLE2, ROW_OBJECTS, RowObject, Table2Row
 from .table2_write import machine_info, table2_csv, table2_markdown
 
@@ -112,7 +112,7 @@ def decimate(mesh: trimesh.Trimesh, faces: int) -> trimesh.Trimesh:
         raise ValueError(f"decimate: target of {faces} faces is too small")
     if len(mesh.faces) <= faces:
         return mesh
-    from .meshlab import current, meshset
+    from ..meshlab import current, meshset
 
     ms = meshset(mesh)
     ms.meshing_decimation_quadric_edge_collapse(targetfacenum=int(faces), preservenormal=True,
@@ -122,7 +122,7 @@ def decimate(mesh: trimesh.Trimesh, faces: int) -> trimesh.Trimesh:
 
 def generated_mesh(name: str, faces: int) -> trimesh.Trimesh:
     """The generator's mesh at the lowest detail that reaches ``faces`` faces (or its most)."""
-    from .generators import DEFAULT_DETAIL, MAX_DETAIL, generate
+    from ..generators import DEFAULT_DETAIL, MAX_DETAIL, generate
 
     reference = len(generate(name).faces)
     detail = int(np.clip(math.ceil(DEFAULT_DETAIL * math.sqrt(faces / reference)), 1, MAX_DETAIL))
@@ -156,7 +156,7 @@ def row_mesh(key: str, meshes_dir: Path | None, faces: int) -> trimesh.Trimesh:
         path = Path(meshes_dir) / obj.source
         if not path.is_file():
             raise MeshUnavailable(f"needs {path}, which is missing")
-        from .mesh import load_mesh
+        from ..mesh import load_mesh
 
         mesh = load_mesh(path)
     return decimate(mesh, faces)
@@ -318,7 +318,7 @@ def run_table2(meshes_dir: Path | None, out_dir: Path, repeat: int = 3, rows: Se
         bar.close()
     machine_after = machine_info()
     text = table2_markdown(measured, skipped, repeat, scale, machine, machine_after)
-    from .artifacts import atomic_write
+    from ..artifacts import atomic_write
 
     md_path, csv_path = out_dir / "table2.md", out_dir / "table2.csv"
     atomic_write(md_path, text)

@@ -1,6 +1,6 @@
 """Table 2's rows: the paper's numbers, the objects that stand in for its Figure 16, and a measured row.
 
-Data and records only, so that measuring (`icefarm.table2`) and writing (`icefarm.table2_write`)
+Data and records only, so that measuring (`icefarm.bench.table2`) and writing (`icefarm.bench.table2_write`)
 both import them from here.
 """
 
@@ -10,7 +10,7 @@ import math
 import statistics
 from dataclasses import dataclass
 
-from .report import TABLE2_STAGES as STAGES
+from ..report import TABLE2_STAGES as STAGES
 
 
 STAGE_TITLES = {"water": "Water coefficients", "drips": "Drip points", "trajectories": "Trajectories",

@@ -21,10 +21,10 @@ from dataclasses import dataclass
 import numpy as np
 import trimesh
 
-from .geometry import ray_caster, sample_faces, unit
-from .stages.trajectories import TrajectoryResult
-from .stages.trajectory_stats import measure_trajectories
-from .tol import tol
+from ..geometry import ray_caster, sample_faces, unit
+from ..stages.trajectories import TrajectoryResult
+from ..stages.trajectory_stats import measure_trajectories
+from ..tol import tol
 
 # Issue 23: a point is glazed when more than this much ice (m) lies along its normal.
 GLAZED = 2e-4

@@ -13,10 +13,10 @@ from typing import Any
 
 import trimesh
 
-from .chain import Stage, run_stages
-from .jobdir import JobState, read_job
-from .mesh import prepare
-from .params import Params
+from ..chain import Stage, run_stages
+from ..jobdir import JobState, read_job
+from ..mesh import prepare
+from ..params import Params
 
 
 @dataclass(frozen=True)
@@ -126,9 +126,9 @@ def render_timings(mesh: str, size_m: float, p: dict, render_config: str, repeat
     render_config : str
         Render config name or YAML path.
     """
-    from .pipeline import GENERATOR_PREFIX, JobSpec, run_job
-    from .scene.config import load_render_config
-    from .scene.render import render_job
+    from ..pipeline import GENERATOR_PREFIX, JobSpec, run_job
+    from ..scene.config import load_render_config
+    from ..scene.render import render_job
 
     if not mesh.startswith(GENERATOR_PREFIX):
         mesh = str(Path(mesh).resolve())
@@ -196,8 +196,8 @@ def growth_timings(mesh: str, size_m: float, p: Params, render_config: str | Non
                    seed: int = 0) -> GrowthRuns:
     """Run one job with ``frames`` growth frames in a scratch folder and time its frames
     against the job's own stage 4 and render (``p``: the resolved parameters)."""
-    from .growth import read_frames
-    from .pipeline import GENERATOR_PREFIX, JobSpec, run_job
+    from ..growth import read_frames
+    from ..pipeline import GENERATOR_PREFIX, JobSpec, run_job
 
     if not mesh.startswith(GENERATOR_PREFIX):
         mesh = str(Path(mesh).resolve())

@@ -8,9 +8,9 @@ from pathlib import Path
 
 import click
 
-from . import params
-from .cli_options import set_values
-from .errors import InputError
+from .. import params
+from ..cli_options import set_values
+from ..errors import InputError
 
 
 # The options the benchmarks share.
@@ -44,7 +44,7 @@ def bench():
 @click.option("--surface", is_flag=True, help="Also time stage 4 (the ice surface).")
 def bench_stages(mesh, size_m, drips, repeat, assignments, surface):
     """Median seconds per stage on MESH (mesh loading excluded; the BVH build counts in water)."""
-    from .bench import peak_memory_gb, stage_timings
+    from .timings import peak_memory_gb, stage_timings
 
     values = {"drips.count": drips, **set_values(assignments)}
     runs = stage_timings(mesh, size_m, params.resolve(values), repeat, surface)
@@ -79,8 +79,8 @@ def bench_surface(ctx, mesh, size_m, drips, repeat, assignments):
 @SET
 def bench_proxy(mesh, size_m, repeat, assignments):
     """Median seconds to build the approximate surface (paper 5.1) of MESH."""
-    from .mesh import prepare
-    from .proxy import build_proxy
+    from ..mesh import prepare
+    from ..proxy import build_proxy
 
     p = params.resolve({"proxy.mode": "always", **set_values(assignments)})
     prepared = prepare(mesh, size_m, p.water.gravity)
@@ -109,8 +109,8 @@ def bench_render(mesh, size_m, drips, render, repeat, assignments):
     """
     from tqdm import tqdm
 
-    from .bench import peak_memory_gb, render_timings
-    from .pipeline import GENERATOR_PREFIX
+    from .timings import peak_memory_gb, render_timings
+    from ..pipeline import GENERATOR_PREFIX
 
     if not mesh.startswith(GENERATOR_PREFIX) and not Path(mesh).is_file():
         raise InputError(f"mesh file not found: {mesh}")
@@ -152,8 +152,8 @@ def bench_growth(mesh, size_m, drips, frames, render, assignments):
     Runs one job with FRAMES growth frames (stages 1-3 once; stage 4 and a render per
     frame) and prints the median frame's stage 4 and render next to the job's own.
     """
-    from .bench import growth_timings
-    from .pipeline import GENERATOR_PREFIX
+    from .timings import growth_timings
+    from ..pipeline import GENERATOR_PREFIX
 
     if not mesh.startswith(GENERATOR_PREFIX) and not Path(mesh).is_file():
         raise InputError(f"mesh file not found: {mesh}")
