@@ -141,7 +141,7 @@ def render_command(job_dir, render, out):
     For the contact-sheet cell worth a final frame: the job's object and ice get new
     scene.xml/scene.pov and renders in their own folder; the job folder is left as it is.
     """
-    from .render_again import render_again
+    from .export.render_again import render_again
 
     out = Path(out) if out else Path(job_dir) / RENDERS_DIR / Path(render).stem
     result = render_again(Path(job_dir), render, out, progress=sys.stderr.isatty())
@@ -178,9 +178,9 @@ def export_command(job_dir, fmt, out):
     """
     out = Path(out) if out else Path(job_dir) / EXPORT_DIR / f"scene.{fmt}"
     if fmt == "glb":
-        from .gltf import write_glb as write
+        from .export.gltf import write_glb as write
     else:
-        from .usd import write_usdz as write
+        from .export.usd import write_usdz as write
     click.echo(f"done: {write(Path(job_dir), out)}")
 
 

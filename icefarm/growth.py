@@ -37,7 +37,7 @@ from . import artifacts
 from .jobdir import FRAMES, GROWTH_MP4, GROWTH_SCRATCH, GROWTH_USDA, RENDER_PNG, ICE, growth_frame, growth_ice
 from .params import GlazeParams, SurfaceParams
 from .scene.write import JobScene
-from .growth_usd import write_growth_usd
+from .export.growth_usd import write_growth_usd
 from .stages.drips import DripResult
 from .stages.trajectories import TrajectoryResult
 
@@ -90,7 +90,7 @@ class GrowthFrame:
 @dataclass(frozen=True)
 class GrowthResult:
     """What `grow_frames` wrote into ``folder``: ``ice_####.ply``, ``frame_####.png`` (with a
-    view), ``growth.mp4`` (with a view), ``growth.usda`` (value clips ``ice_0001.usdc``..., `icefarm.growth_usd`), ``frames.json``."""
+    view), ``growth.mp4`` (with a view), ``growth.usda`` (value clips ``ice_0001.usdc``..., `icefarm.export.growth_usd`), ``frames.json``."""
 
     folder: Path
     frames: tuple[GrowthFrame, ...]

@@ -304,7 +304,7 @@ def _surface_and_render(spec: JobSpec, job_dir: Path, run: _Run, until: Stage | 
                  scene_write_seconds=result.write_seconds, scene_load_seconds=result.load_seconds,
                  scene_wait_seconds=result.wait_seconds,
                  povray_write_cpu_seconds=result.povray_write_cpu_seconds)
-    from .usd import write_job_usd
+    from .export.usd import write_job_usd
 
     # scene.usda (object.usdc, ice.usdc) for DCCs: the render's cameras, sun, sky, materials.
     run.timed("usd", lambda: write_job_usd(job_dir, material=material, ice_mesh=ice_mesh))

@@ -28,7 +28,7 @@ from icefarm.pipeline import JobSpec, run_job
 from icefarm.scene.config import ABSORPTION_PER_M, render_config_from_dict
 from icefarm.scene.material import material_from_dict
 from icefarm.scene.write import write_scenes
-from icefarm.usd import up_axis, write_job_usd, write_usdz
+from icefarm.export.usd import up_axis, write_job_usd, write_usdz
 
 PLASTIC = material_from_dict({"type": "plastic", "color": (0.6, 0.1, 0.1), "roughness": 0.09})
 
@@ -269,7 +269,7 @@ def test_glb_export_has_the_ice_with_transmission_and_ior(job):
 @pytest.mark.slow  # a rendered job (module fixture)
 def test_glb_is_a_complete_scene_with_ground_cameras_and_sun(job):
     """The ground the render stood on, the rendered cameras and the sun: what a viewer needs."""
-    from icefarm.rendered import read_rendered
+    from icefarm.export.rendered import read_rendered
     from icefarm.scene.camera import world_frame
 
     out = job.parent / "complete.glb"
@@ -362,7 +362,7 @@ def test_z_up_gravity_gives_a_z_up_stage_and_a_y_up_glb(tmp_path):
     points, normals = np.load(usd["dir"] / "Ice_points.npy"), np.load(usd["dir"] / "Ice_normals.npy")
     assert normals[np.argmin(points[:, 2]), 2] < -0.5  # the tip's normal points down, the way gravity does
     # glTF is +Y up: the root turns minus gravity (+Z here) to +Y.
-    from icefarm.gltf import write_glb
+    from icefarm.export.gltf import write_glb
 
     (job / "done.json").write_text(json.dumps({"object_material": PLASTIC.to_dict()}))
     tree = glb_json(write_glb(job, tmp_path / "z.glb"))
@@ -380,8 +380,8 @@ def test_ice_carries_a_materialx_openpbr_glass_and_the_object_is_double_sided(jo
     """Readers of MaterialX (usdview, Houdini, Maya, Omniverse) get glass, not a faint shell."""
     from pxr import Usd, UsdGeom, UsdShade
 
-    from icefarm.rendered import TINT_DISTANCE_M
-    from icefarm.usd import OPENPBR_ID
+    from icefarm.export.rendered import TINT_DISTANCE_M
+    from icefarm.export.usd import OPENPBR_ID
 
     stage = Usd.Stage.Open(str(job / "scene.usda"))
     material = UsdShade.Material(stage.GetPrimAtPath("/World/Looks/IceMaterial"))
@@ -447,7 +447,7 @@ def test_scene_json_describes_what_scene_xml_renders(job, tmp_path):
     for jobs from before scene.json)."""
     import shutil
 
-    from icefarm.rendered import read_rendered
+    from icefarm.export.rendered import read_rendered
 
     spec = json.loads((job / "scene.json").read_text())  # a rendered job has scene.json, listed as an artifact
     assert "scene.json" in json.loads((job / "done.json").read_text())["artifacts"]

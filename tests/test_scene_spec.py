@@ -92,8 +92,8 @@ def test_write_scenes_writes_scene_json_and_views_from_the_spec(tmp_path, box_wi
 
 def test_a_folder_without_scene_json_reads_from_scene_xml_and_exports(tmp_path, box_with_icicles, tiny_config):
     """Jobs rendered before scene.json: the exporters read scene.xml (icefarm.scene.legacy)."""
-    from icefarm.gltf import write_glb
-    from icefarm.rendered import read_rendered
+    from icefarm.export.gltf import write_glb
+    from icefarm.export.rendered import read_rendered
 
     box, ice = box_with_icicles()
     write_scenes(tmp_path, box, ice, tiny_config(views=["three_quarter", "front"]), impurity=0.5)

@@ -1,6 +1,6 @@
 """The `SceneSpec` of a job from before ``scene.json``, read back from its ``scene.xml``.
 
-Only the scene package parses a renderer's file: `icefarm.rendered.read_rendered` calls
+Only the scene package parses a renderer's file: `icefarm.export.rendered.read_rendered` calls
 `spec_from_xml` for such a job and supplies what the XML does not hold (gravity, the
 object's material, the views' names). The XML is icefarm's own (`icefarm.scene.mitsuba`):
 sensors with a ``lookat``, an ``envmap`` and a ``directional`` emitter, ``ply`` shapes

@@ -6,7 +6,7 @@ object and its material, the ice and its look. `icefarm.scene.write.write_scenes
 from a render config and a job's meshes, then renders it to each format: ``scene.xml``
 (`icefarm.scene.mitsuba.scene_xml`), ``scene.pov`` (`icefarm.scene.povray.scene_pov`) and
 ``scene.json`` itself (`SceneSpec.to_json`), which the USD and glTF exports read back
-(`icefarm.rendered.read_rendered`; jobs from before it through `icefarm.scene.legacy`).
+(`icefarm.export.rendered.read_rendered`; jobs from before it through `icefarm.scene.legacy`).
 
 Lengths in meters, colours linear RGB, angles in degrees. The light keeps its terms as the
 render config gave them (strengths, sun elevation, exposure) beside what they make (the

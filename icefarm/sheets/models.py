@@ -1,7 +1,7 @@
 """Light 3D previews of a sweep's jobs for the gallery, and the viewer that shows them.
 
 The gallery opens straight from disk (``file://``), where a browser fetches no file, so a
-job's preview GLB (`icefarm.gltf.write_glb` with its meshes decimated to `PREVIEW_FACES`)
+job's preview GLB (`icefarm.export.gltf.write_glb` with its meshes decimated to `PREVIEW_FACES`)
 travels as a base64 ``data:`` URI inside a small script, ``sheets/models/<object>-<job>.js``,
 that the page loads only when asked to orbit that job. The viewer is Google's
 ``<model-viewer>`` (the ``@google/model-viewer`` npm package, `.ci/setup.sh` installs it
@@ -55,7 +55,7 @@ def write_models(run: RunInfo, sheets_dir: Path) -> tuple[Path | None, dict[str,
         `model_id` to its ``sheets/models/<id>.js``; a script newer than its job's
         ``ice.ply`` and ``scene.xml`` is kept as it is.
     """
-    from ..gltf import write_glb
+    from ..export.gltf import write_glb
 
     viewer = None
     source = model_viewer_js()

@@ -27,9 +27,9 @@ import numpy as np
 import trimesh
 from pxr import Gf, Sdf, Tf, Usd, UsdGeom, UsdLux, UsdShade, UsdUtils, Vt
 
-from .errors import InputError
-from .jobdir import ICE, ICE_USDC, OBJECT, OBJECT_USDC, SCENE_USDA
-from .scene.material import Material
+from ..errors import InputError
+from ..jobdir import ICE, ICE_USDC, OBJECT, OBJECT_USDC, SCENE_USDA
+from ..scene.material import Material
 from .rendered import (TINT_DISTANCE_M, Rendered, Surface, ice_surface, object_surface, pbr, read_ice, read_rendered, require,
                        water_at)
 

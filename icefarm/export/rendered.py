@@ -20,13 +20,13 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from .errors import InputError
-from .jobdir import ICE, OBJECT, PARAMS, SCENE_SPEC, SCENE_XML, WATER, read_job, read_views
-from .scene import geometry as geo
-from .scene.camera import Camera
-from .scene.legacy import spec_from_xml
-from .scene.material import Material, material_from_dict
-from .scene.spec import TINT_DISTANCE_M, Ground, IceShading, read_spec
+from ..errors import InputError
+from ..jobdir import ICE, OBJECT, PARAMS, SCENE_SPEC, SCENE_XML, WATER, read_job, read_views
+from ..scene import geometry as geo
+from ..scene.camera import Camera
+from ..scene.legacy import spec_from_xml
+from ..scene.material import Material, material_from_dict
+from ..scene.spec import TINT_DISTANCE_M, Ground, IceShading, read_spec
 
 __all__ = ["METAL_F0", "TINT_DISTANCE_M", "Ground", "IceShading", "Pbr", "Rendered", "Surface", "ice_surface",
            "object_surface", "pbr", "read_ice", "read_rendered", "require", "water_at"]
@@ -223,7 +223,7 @@ def water_at(job_dir: str | Path, points: np.ndarray) -> tuple[np.ndarray, np.nd
     """
     from scipy.spatial import cKDTree
 
-    from .artifacts import read_water_ply
+    from ..artifacts import read_water_ply
 
     path = Path(job_dir) / WATER
     if not path.is_file():

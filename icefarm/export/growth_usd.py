@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from .jobdir import GROWTH_CLIPS, GROWTH_ICE_USDC, GROWTH_MANIFEST, growth_clip
+from ..jobdir import GROWTH_CLIPS, GROWTH_ICE_USDC, GROWTH_MANIFEST, growth_clip
 
 CLIP_PRIM = "/Ice"
 # Attributes each clip holds, with their USD type names (the manifest declares them).
@@ -37,7 +37,7 @@ def write_growth_usd(path: Path, plies: Sequence[Path], gravity, fps: float, obj
     plies : sequence of Path
         The frames' ice meshes, in order; frame i is time code i (1..N).
     gravity : (3,) float
-        The up axis follows it (`icefarm.usd.up_axis`).
+        The up axis follows it (`icefarm.export.usd.up_axis`).
     fps : float
         ``timeCodesPerSecond``, the movie's.
     object_usd : path, optional
@@ -95,7 +95,7 @@ def _write_clip(path: Path, ply: Path, time_code: int, axis: str) -> Path:
     """One frame's ice as ``/Ice`` with its values at ``time_code``, in its own layer."""
     from pxr import Gf, Usd, UsdGeom, Vt
 
-    from .scene.geometry import smooth_normals
+    from ..scene.geometry import smooth_normals
 
     mesh = trimesh.load(ply, process=False, force="mesh")
     points = np.ascontiguousarray(mesh.vertices, dtype=np.float32).reshape(-1, 3)

@@ -26,11 +26,11 @@ import trimesh
 from trimesh.exchange.gltf import export_glb
 from trimesh.visual.material import PBRMaterial
 
-from .artifacts import atomic_write
-from .jobdir import ICE, OBJECT, PARAMS, SCENE_XML
+from ..artifacts import atomic_write
+from ..jobdir import ICE, OBJECT, PARAMS, SCENE_XML
 from .rendered import (TINT_DISTANCE_M, IceShading, Surface, object_surface, pbr, read_ice, read_rendered,
                        require)
-from .scene.camera import world_frame
+from ..scene.camera import world_frame
 
 # Thickness hint of KHR_materials_volume (meters): a typical icicle's diameter. Viewers that
 # refract by rasterising offset the background by it; path tracers use the real mesh.
@@ -167,7 +167,7 @@ def _finish(tree: dict, materials: dict, rendered=None, frame: np.ndarray | None
     (``KHR_lights_punctual``) join the scene. The asset names icefarm as its generator and
     every bufferView its target (vertex data or indices).
     """
-    from . import __version__
+    from .. import __version__
 
     tree.setdefault("asset", {})["generator"] = f"icefarm {__version__}"
     _buffer_targets(tree)

@@ -6,9 +6,9 @@ from pathlib import Path
 
 import trimesh
 
-from .errors import InputError
-from .jobdir import DONE, ICE, OBJECT, PARAMS, SCENE_XML, JobState, read_job
-from .placement import Placement
+from ..errors import InputError
+from ..jobdir import DONE, ICE, OBJECT, PARAMS, SCENE_XML, JobState, read_job
+from ..placement import Placement
 
 
 def render_again(job_dir: Path, render: str, out_dir: Path, progress: bool = False):
@@ -18,7 +18,7 @@ def render_again(job_dir: Path, render: str, out_dir: Path, progress: bool = Fal
     is left as it is; ``out_dir`` gets its own scenes (``scene.xml``, ``scene.pov`` and
     their meshes) and renders. Needs a job that rendered (its ``object.ply`` is the object
     in meters). Gravity and the object's material are those the job's scene records
-    (``scene.json``, `icefarm.rendered.read_rendered`); the cameras are framed anew for
+    (``scene.json``, `icefarm.export.rendered.read_rendered`); the cameras are framed anew for
     the config's views.
 
     Parameters
@@ -41,9 +41,9 @@ def render_again(job_dir: Path, render: str, out_dir: Path, progress: bool = Fal
         Not a finished job, a job that never rendered, or a bad render config.
     """
     from .rendered import read_rendered
-    from .scene.config import load_render_config
-    from .scene.render import render_job
-    from .scene.write import job_scene
+    from ..scene.config import load_render_config
+    from ..scene.render import render_job
+    from ..scene.write import job_scene
 
     job_dir, out_dir = Path(job_dir), Path(out_dir)
     job = read_job(job_dir)
