@@ -183,7 +183,7 @@ def _run(prepared, p, seed, placement, exclude, overrides, source, until, mesh_k
     # The approximate surface stages 1-2 run on, for problem meshes (paper 5.1).
     proxy_key = "none"
     if p.proxy.mode != "never":
-        from .proxy import build_proxy, proxy_reason
+        from .stages.proxy import build_proxy, proxy_reason
 
         reason = proxy_reason(prepared.problems, p.proxy.mode, p.proxy.face_budget)
         if reason:
@@ -252,7 +252,7 @@ def _run(prepared, p, seed, placement, exclude, overrides, source, until, mesh_k
             found = dataclasses.replace(found, water=found.water + coat / kl, growth=growth)
         if flow is obj:
             return found
-        from .proxy import snap_to_surface
+        from .stages.proxy import snap_to_surface
 
         # Icicles hang from the real object: move each drip point onto it.
         points, normals, faces = snap_to_surface(found.positions, obj)

@@ -80,7 +80,7 @@ def bench_surface(ctx, mesh, size_m, drips, repeat, assignments):
 def bench_proxy(mesh, size_m, repeat, assignments):
     """Median seconds to build the approximate surface (paper 5.1) of MESH."""
     from ..mesh import prepare
-    from ..proxy import build_proxy
+    from ..stages.proxy import build_proxy
 
     p = params.resolve({"proxy.mode": "always", **set_values(assignments)})
     prepared = prepare(mesh, size_m, p.water.gravity)

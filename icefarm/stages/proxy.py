@@ -38,12 +38,12 @@ from typing import Any
 import numpy as np
 import trimesh
 
-from .errors import InputError
-from .geometry import closest_point, signed_volume
-from .mesh import MeshProblems, detect_problems
-from .meshlab import current, meshset
-from .params import ProxyParams
-from .tol import tol
+from ..errors import InputError
+from ..geometry import closest_point, signed_volume
+from ..mesh import MeshProblems, detect_problems
+from ..meshlab import current, meshset
+from ..params import ProxyParams
+from ..tol import tol
 
 MODES = ("auto", "always", "never")
 
