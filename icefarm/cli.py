@@ -141,7 +141,7 @@ def render_command(job_dir, render, out):
     For the contact-sheet cell worth a final frame: the job's object and ice get new
     scene.xml/scene.pov and renders in their own folder; the job folder is left as it is.
     """
-    from .export.render_again import render_again
+    from .export.rerender import render_again
 
     out = Path(out) if out else Path(job_dir) / RENDERS_DIR / Path(render).stem
     result = render_again(Path(job_dir), render, out, progress=sys.stderr.isatty())
