@@ -192,3 +192,38 @@ def test_the_name_literal_scan_finds_code_and_skips_docstrings(tmp_path):
     (pkg / "b.py").write_text('MESSAGE = f"no {1} in done.json"\n')
     assert name_literals(pkg, {"ice.ply", "done.json"}) == [
         "pkg/a.py:5: ice.ply", "pkg/a.py:5: render_view", "pkg/b.py:1: done.json"]
+
+
+# ------------------------------------------------------------------ the packages' faces
+FACES = ("bench", "export", "stages", "stages.surface", "scene", "farm", "sheets", "metaballs")
+
+
+def imported_from(package_dir: Path, package: str) -> set[str]:
+    """The public names modules outside ``package`` (dotted, under the package's root) import
+    from it or from its modules with ``from ... import``."""
+    root = package_dir.name
+    full = f"{root}.{package}"
+    names = set()
+    for name, path in module_files(package_dir).items():
+        if name == full or name.startswith(full + "."):
+            continue
+        here = name.split(".") if path.name == "__init__.py" else name.split(".")[:-1]
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            if isinstance(node, ast.ImportFrom):
+                base = here[:len(here) - node.level + 1] if node.level else []
+                module = ".".join(base + ([node.module] if node.module else []))
+                if module == full or module.startswith(full + "."):
+                    submodules = {f"{module}.{alias.name}" for alias in node.names} & set(module_files(package_dir))
+                    names |= {alias.name for alias in node.names if not alias.name.startswith("_")
+                              and f"{module}.{alias.name}" not in submodules}
+    return names
+
+
+def test_each_package_face_lists_the_names_the_rest_of_icefarm_imports_from_it():
+    import importlib
+
+    for package in FACES:
+        module = importlib.import_module(f"icefarm.{package}")
+        assert all(getattr(module, name) is not None for name in module.__all__), package
+        missing = imported_from(PACKAGE_DIR, package) - set(module.__all__)
+        assert not missing, f"icefarm.{package}.__all__ lacks {sorted(missing)}"

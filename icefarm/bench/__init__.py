@@ -5,4 +5,14 @@
 paper's), `table2` and `table2_write` (Table 2 measured and written), `storm_figures`
 (issue 23's figures of a finished job) and `commands` (``icefarm bench``, the command line's
 face of the package, as `farm.commands` is the sweep's).
+
+The package's face: the names the rest of icefarm imports from it, listed in `__all__` and
+loaded on first use (`lazy_loader`, as scikit-image does), so that importing one module of
+the package imports no other.
 """
+
+import lazy_loader as _lazy
+
+__getattr__, __dir__, __all__ = _lazy.attach(__name__, submod_attrs={
+    "commands": ["bench"],
+})

@@ -4,4 +4,18 @@
 ``scene.json``, or from the ``scene.xml`` of a job from before it through `icefarm.scene.legacy`),
 `usd` (``scene.usda`` and USDZ), `gltf` (GLB), `growth_usd` (the growth's time-sampled USD) and
 `rerender` (`render_again`, ``icefarm render``: a finished job's scene written and rendered anew).
+
+The package's face: the names the rest of icefarm imports from it, listed in `__all__` and
+loaded on first use (`lazy_loader`, as scikit-image does), so that importing one module of
+the package imports no other.
 """
+
+import lazy_loader as _lazy
+
+__getattr__, __dir__, __all__ = _lazy.attach(__name__, submod_attrs={
+    "gltf": ["write_glb"],
+    "growth_usd": ["write_growth_usd"],
+    "rerender": ["render_again"],
+    "usd": ["write_job_usd", "write_usdz"],
+})
+

@@ -5,10 +5,12 @@ It knows nothing of icicles: balls in, one watertight mesh in meters out.
 
 from __future__ import annotations
 
-from .balls import KAPPA, LEVEL, NO_BALLS, SPACING, Balls, concat_balls, sheet_balls
-from .field import Field, sample_field
+from .balls import KAPPA, LEVEL, NO_BALLS, SPACING, TIP_WEIGHT, Balls, concat_balls, sheet_balls
+from .clean import collapse_slivers, flip_needles
+from .field import BLOCK, CUTOFF, Field, sample_field
 from .fuse import fuse_fields, union_meshes
 from .march import polygonize
 
-__all__ = ["KAPPA", "LEVEL", "NO_BALLS", "SPACING", "Balls", "Field", "concat_balls", "fuse_fields",
-           "polygonize", "sample_field", "sheet_balls", "union_meshes"]
+__all__ = ["BLOCK", "CUTOFF", "KAPPA", "LEVEL", "NO_BALLS", "SPACING", "TIP_WEIGHT", "Balls", "Field",
+           "collapse_slivers", "concat_balls", "flip_needles", "fuse_fields", "polygonize", "sample_field",
+           "sheet_balls", "union_meshes"]

@@ -1,0 +1,25 @@
+"""The stages of a job (paper 4.1-4.4 and 5.1): pure functions of meshes, arrays and parameters.
+
+`proxy` (the approximate surface stages 1-2 run on, 5.1), `storm` (the weather in physical
+units), `water` (stage 1), `drips` (stage 2), `rims`, `icicle_size`, `trajectories` (stage 3)
+with `turtles` and `trajectory_stats`, `landing` (where the water off the tips lands) and
+`surface` (stage 4).
+
+The package's face: the names the rest of icefarm imports from it, listed in `__all__` and
+loaded on first use (`lazy_loader`, as scikit-image does), so that importing one module of
+the package imports no other.
+"""
+
+import lazy_loader as _lazy
+
+__getattr__, __dir__, __all__ = _lazy.attach(__name__, submod_attrs={
+    "drips": ["Box", "DripResult", "find_drips"],
+    "icicle_size": ["growth_ratios", "icicle_lengths", "thickening_m"],
+    "landing": ["find_landings"],
+    "proxy": ["build_proxy", "proxy_reason", "snap_to_surface"],
+    "storm": ["constants", "drip_rim_length", "precipitation_m", "refine", "storm_water"],
+    "surface": ["SLIVER", "build_ice", "ground_ice_balls", "icicle_balls", "measure_glaze", "measure_icicles"],
+    "trajectories": ["TrajectoryResult", "grow_trajectories"],
+    "trajectory_stats": ["measure_trajectories"],
+    "water": ["WaterResult", "compute_water"],
+})
