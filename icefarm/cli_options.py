@@ -28,8 +28,8 @@ def set_values(values: tuple[str, ...]) -> dict:
 
 
 def exclusion_box(text: str):
-    """``--exclude``'s six numbers as a `icefarm.stages.drips.Box`."""
-    from .stages.drips import Box
+    """``--exclude``'s six numbers as a `icefarm.pipeline.Box`."""
+    from .pipeline import Box
 
     try:
         v = [float(x) for x in text.split(",")]

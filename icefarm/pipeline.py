@@ -14,7 +14,7 @@ import traceback
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import trimesh
@@ -32,10 +32,19 @@ from .progress import ProgressMode, StepProgress, step_progress
 from .generators import GENERATOR_PREFIX
 from .stage_cache import StageCache, digest as _digest, file_digest as _file_digest
 from .scene.material import Material
-from .stages.drips import Box, DripResult
+from .stages.drips import DripResult
 from .stages.storm import drip_rim_length
 from .stages.trajectory_stats import measure_trajectories
 
+
+
+class Box(NamedTuple):
+    """An axis-aligned box where no icicle may hang (a manifest's ``exclude``, ``--exclude``):
+    its lowest and highest corners, in meters, in the prepared object's frame. A pair, so
+    ``lo, hi = box`` and plain ``((lo), (hi))`` pairs work alike."""
+
+    lo: tuple[float, float, float]
+    hi: tuple[float, float, float]
 
 
 @dataclass(frozen=True)

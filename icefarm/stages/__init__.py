@@ -13,7 +13,7 @@ the package imports no other.
 import lazy_loader as _lazy
 
 __getattr__, __dir__, __all__ = _lazy.attach(__name__, submod_attrs={
-    "drips": ["Box", "DripResult", "find_drips"],
+    "drips": ["DripResult", "find_drips"],
     "icicle_size": ["growth_ratios", "icicle_lengths", "thickening_m"],
     "landing": ["find_landings"],
     "proxy": ["build_proxy", "proxy_reason", "snap_to_surface"],

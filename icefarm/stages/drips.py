@@ -14,7 +14,6 @@ its stretch of the rim sheds (`icefarm.stages.rims`), so icicles that drain more
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import NamedTuple
 
 import numpy as np
 import trimesh
@@ -61,17 +60,9 @@ def drip_criterion(normals: np.ndarray, gravity: np.ndarray, drip_limit: float) 
     return normals @ unit(gravity) >= np.cos(np.radians(drip_limit))
 
 
-class Box(NamedTuple):
-    """An axis-aligned box where no icicle may hang (a manifest's ``exclude``, ``--exclude``):
-    its lowest and highest corners, in meters, in the prepared object's frame. A pair, so
-    ``lo, hi = box`` and plain ``((lo), (hi))`` pairs work alike."""
-
-    lo: tuple[float, float, float]
-    hi: tuple[float, float, float]
-
-
 def excluded_vertices(vertices: np.ndarray, boxes=()) -> np.ndarray:
-    """``(n,) bool``: vertices inside any `Box` (or ``((xmin, ymin, zmin), (xmax, ymax, zmax))``)."""
+    """``(n,) bool``: vertices inside any box ``((xmin, ymin, zmin), (xmax, ymax, zmax))`` (a job's
+    `icefarm.pipeline.Box` is such a pair)."""
     inside = np.zeros(len(vertices), dtype=bool)
     for lo, hi in boxes:
         inside |= np.all((vertices >= np.asarray(lo)) & (vertices <= np.asarray(hi)), axis=1)
