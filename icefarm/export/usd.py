@@ -6,11 +6,9 @@ the job folder moves as a whole. Everything is in meters (``metersPerUnit`` 1) i
 own frame, the points exactly those of ``object.ply`` and ``ice.ply``; the cameras, sun and
 sky are the ones Mitsuba rendered (`rendered.read_rendered`).
 
-Written with Pixar's ``usd-core`` (``pxr``), never by hand. Measured once for 3.5 M ice faces
-(the roof at 1 m, 20 icicles; 2 cores): 1.1 s, of which 0.4 s are the normals and 0.55 s the
-crate writer compressing the 10.5 M face indices (to a quarter of their size); as the job's
-``usd`` step 1.7-2.9 s, where the process first touches that much memory. Scaled: about
-0.65 s for 2 M faces.
+Written with Pixar's ``usd-core`` (``pxr``), never by hand. Most of the time goes to the
+normals and to the crate writer compressing the face indices (to a quarter of their size);
+a job's ``timings.json`` reports its ``usd`` step.
 """
 
 from __future__ import annotations

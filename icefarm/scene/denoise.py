@@ -16,7 +16,7 @@ as long for no gain here).
 
 Measured on the 0.3 m bunny at lookdev, 16 spp, against 512 spp undenoised: PSNR 42.9 dB
 (main view) and 39.8 dB (ice view), against 43.1 and 38.6 dB at 96 spp without
-denoising; denoising takes 0.45 s a view on 2 cores.
+denoising (`icefarm bench render` reports the denoiser's seconds per view).
 """
 
 from __future__ import annotations
@@ -80,7 +80,7 @@ def _f32(a) -> np.ndarray:
 @functools.cache
 def _filters():
     """One OIDN device and its ``RT`` filters by role, per process: a filter's first commit
-    builds its network (0.35 s); later commits with new images of the same size are cheap."""
+    builds its network, the slow part; later commits with new images of the same size are cheap."""
     import pyoidn
 
     device = pyoidn.Device()
