@@ -34,6 +34,7 @@ import numpy as np
 import trimesh
 
 from . import artifacts
+from .geometry import arc_lengths
 from .jobdir import FRAMES, GROWTH_MP4, GROWTH_SCRATCH, GROWTH_USDA, RENDER_PNG, ICE, growth_frame, growth_ice
 from .params import GlazeParams, SurfaceParams
 from .scene.write import JobScene
@@ -136,7 +137,7 @@ def trajectories_at(traj: TrajectoryResult, fraction: float) -> TrajectoryResult
     pts = np.asarray(traj.points, dtype=np.float64)
     off = np.asarray(traj.branch_offsets, dtype=np.int64)
     counts = np.diff(off)
-    x, lengths = _arc_lengths(pts, off)
+    x, lengths = arc_lengths(pts, off)
     full = lengths + traj.cut
     birth = _births(traj, x, full)
     span = 1.0 - birth
@@ -246,7 +247,7 @@ def grow_frames(folder: str | Path, traj: TrajectoryResult, drips: DripResult, s
             pngs.append(render_frame(view, mesh, folder / GROWTH_SCRATCH, folder / growth_frame(i)))
             render_seconds = time.perf_counter() - start
         m = measure_icicles(ice.vertices, ice.faces, traj_f, surface)
-        long = _arc_lengths(traj_f.points, np.asarray(traj_f.branch_offsets))[1][trunks]
+        long = arc_lengths(traj_f.points, np.asarray(traj_f.branch_offsets))[1][trunks]
         wide = 2 * m.taper * surface.tip_radius
         gained = np.divide(long - was_long, wide - was_wide, out=np.full(len(long), np.nan),
                            where=wide - was_wide > 0)
@@ -316,20 +317,6 @@ def write_movie(pngs: Sequence[Path], path: Path, fps: float) -> Path:
 def read_frames(folder: str | Path) -> list[dict]:
     """The rows of a growth folder's ``frames.json``."""
     return json.loads((Path(folder) / FRAMES).read_text())["frames"]
-
-
-def _arc_lengths(pts: np.ndarray, off: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``(p,)`` arc length of each point from its branch's base and ``(b,)`` branch lengths, meters."""
-    seg = np.zeros(len(pts))
-    if len(pts) > 1:
-        seg[1:] = np.linalg.norm(np.diff(pts, axis=0), axis=1)
-    counts = np.diff(off)
-    seg[off[:-1][counts > 0]] = 0.0  # no segment across a branch start
-    cum = np.cumsum(seg)
-    x = cum - np.repeat(cum[off[:-1][counts > 0]], counts[counts > 0])
-    lengths = np.zeros(len(counts))
-    lengths[counts > 0] = x[off[1:][counts > 0] - 1]
-    return x, lengths
 
 
 def _births(traj: TrajectoryResult, x: np.ndarray, full: np.ndarray) -> np.ndarray:
