@@ -87,7 +87,7 @@ def run(mesh, size_m, assignments, seed, out, until, render, no_render, placemen
 
     values = set_values(assignments)
     if growth_frames is not None:
-        from .growth import MAX_FRAMES
+        from .stages.growth import MAX_FRAMES
 
         if not 1 <= growth_frames <= MAX_FRAMES:
             raise InputError(f"--growth-frames {growth_frames}: expected 1 to {MAX_FRAMES} frames")

@@ -14,7 +14,8 @@ from icefarm import params as P
 from icefarm.artifacts import trajectories_from_json
 from icefarm.cli import main
 from icefarm.farm.manifest import load_manifest
-from icefarm.growth import frame_fractions, read_frames, stage4_inputs_at, trajectories_at
+from icefarm.growth import read_frames
+from icefarm.stages.growth import frame_fractions, stage4_inputs_at, trajectories_at
 from icefarm.pipeline import JobSpec, run_job
 from icefarm.stages.drips import DripResult
 from icefarm.stages.surface.icicles import icicle_balls
@@ -88,14 +89,14 @@ def test_stage4_inputs_scale_the_water_driven_sizes():
 
 def test_a_frame_stream_draws_for_the_bases_what_the_full_growth_draws(forked):
     """After the icicles' noise, every frame's stream stands where the full growth's does."""
-    from icefarm.growth import _noise_draws
+    from icefarm.stages.growth import noise_draws
 
     surface = P.typed("surface", P.resolve().surface)
     states = []
     for f in (0.4, 0.7, 1.0):
         traj = trajectories_at(forked, f)
         rng = np.random.default_rng([5, 3])
-        rng.bit_generator.advance((_noise_draws(forked, surface) - _noise_draws(traj, surface)) % 2**128)
+        rng.bit_generator.advance((noise_draws(forked, surface) - noise_draws(traj, surface)) % 2**128)
         icicle_balls(traj, surface, rng)
         states.append(rng.bit_generator.state["state"])
     assert states[0] == states[1] == states[2]

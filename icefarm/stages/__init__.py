@@ -2,8 +2,8 @@
 
 `proxy` (the approximate surface stages 1-2 run on, 5.1), `storm` (the weather in physical
 units), `water` (stage 1), `drips` (stage 2), `rims`, `icicle_size`, `trajectories` (stage 3)
-with `turtles` and `trajectory_stats`, `landing` (where the water off the tips lands) and
-`surface` (stage 4).
+with `turtles` and `trajectory_stats`, `landing` (where the water off the tips lands),
+`surface` (stage 4) and `growth` (the inputs of stage 4 at a fraction of the growth).
 
 The package's face: the names the rest of icefarm imports from it, listed in `__all__` and
 loaded on first use (`lazy_loader`, as scikit-image does), so that importing one module of
@@ -14,6 +14,7 @@ import lazy_loader as _lazy
 
 __getattr__, __dir__, __all__ = _lazy.attach(__name__, submod_attrs={
     "drips": ["DripResult", "find_drips"],
+    "growth": ["MAX_FRAMES", "frame_fractions", "noise_draws", "stage4_inputs_at", "trajectories_at"],
     "icicle_size": ["growth_ratios", "icicle_lengths", "thickening_m"],
     "landing": ["find_landings"],
     "proxy": ["build_proxy", "proxy_reason", "snap_to_surface"],
