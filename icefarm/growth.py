@@ -156,7 +156,7 @@ def grow_frames(folder: str | Path, traj: TrajectoryResult, drips: DripResult, s
             start = time.perf_counter()
             pngs.append(render_frame(view, mesh, folder / GROWTH_SCRATCH, folder / growth_frame(i)))
             render_seconds = time.perf_counter() - start
-        m = measure_icicles(ice.vertices, ice.faces, traj_f, surface)
+        m = measure_icicles(ice.vertices, ice.faces, ice.axes if ice.axes is not None else traj_f, surface)
         long = arc_lengths(traj_f.points, np.asarray(traj_f.branch_offsets))[1][trunks]
         wide = 2 * m.taper * surface.tip_radius
         gained = np.divide(long - was_long, wide - was_wide, out=np.full(len(long), np.nan),

@@ -274,7 +274,7 @@ def _surface_and_render(spec: JobSpec, job_dir: Path, run: _Run, until: Stage | 
     artifacts.write_mesh(job_dir / ICE, ice_mesh)
     # Plausibility, measured on the mesh: timed apart from the modelling (Table 2 times that).
     m, glaze = run.timed("measure", lambda: (
-        measure_icicles(ice.vertices, ice.faces, r.trajectories, p.surface),
+        measure_icicles(ice.vertices, ice.faces, ice.axes if ice.axes is not None else r.trajectories, p.surface),
         measure_glaze(ice.vertices, ice.faces, r.flow, r.water, gravity,
                       exclude=_not_glaze(r.flow, r.drips, sole(r.flow, p, gravity, spec.placement), p.surface))))
     stats = {

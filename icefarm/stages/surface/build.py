@@ -10,18 +10,18 @@ from dataclasses import dataclass
 import numpy as np
 import trimesh
 
-from ...geometry import arc_lengths
+from ...geometry import arc_lengths, ray_caster
 from ...params import GlazeParams, SurfaceParams
 from ...metaballs import Balls, concat_balls, fuse_fields, sample_field
 from ...metaballs.clean import collapse_slivers, flip_needles
 from ..drips import DripResult
 from ..trajectories import TrajectoryResult
 from ..water import WaterResult
-from .bases import base_balls
+from .bases import BASE_THICKNESS, base_balls, object_thickness
 from .curtains import curtain_balls
 from .detail import coarse_voxel, split_balls, surface_spacing
 from .glaze import glaze_field, glaze_thickness, wet_vertices
-from .icicles import icicle_balls
+from .icicles import hang_roots, icicle_balls, root_shifts
 from .measure import IcicleStats, measure_icicles
 from .profile import grown_lengths, profile_args, smooth_radius
 from .ripples import carve_ripples
@@ -56,6 +56,9 @@ class IceResult:
         the coat has none).
     curtain_area : float
         Area of the curtains between close trunks (`curtain_balls`), square meters.
+    axes : TrajectoryResult or None
+        The branches the icicles were built on: stage 3's, with roots on a rim moved in
+        under the object (`hang_roots`); what measures of the ice take as axes.
     """
 
     vertices: np.ndarray
@@ -63,6 +66,7 @@ class IceResult:
     icicles: IcicleStats | None
     balls: int
     curtain_area: float = 0.0
+    axes: TrajectoryResult | None = None
 
 
 def build_ice(object_mesh: trimesh.Trimesh, flow_mesh: trimesh.Trimesh, water: WaterResult,
@@ -149,10 +153,14 @@ def build_ice(object_mesh: trimesh.Trimesh, flow_mesh: trimesh.Trimesh, water: W
         if budget:
             voxel = budget_voxel(trajectories, surface, ICICLE_SHARE * budget)
         note = note or (lambda text: None)
+        own_cast = cast if flow_mesh is object_mesh and cast is not None else ray_caster(object_mesh)
+        if k:  # roots on a rim move in under the object: stage 4 builds and measures on these axes
+            trajectories = hang_roots(trajectories, surface, root_shifts(drips.normals, g, BASE_THICKNESS * object_thickness(
+                object_mesh, drips.positions, drips.normals, own_cast)))
         chains = icicle_balls(trajectories, surface, rng)
         ice = concat_balls(chains,
                            base_balls(object_mesh, drips, surface, rng, _root_radius(trajectories, k, surface),
-                                      cast=cast if flow_mesh is object_mesh else None, gravity=g))
+                                      cast=own_cast, gravity=g))
         curtains = curtain_balls(trajectories, surface, g)
         more = [b for b in (curtains.balls, extra_balls) if b is not None and len(b)]
         if more:  # nothing appended otherwise: the field's sums stay bit for bit
@@ -184,7 +192,7 @@ def build_ice(object_mesh: trimesh.Trimesh, flow_mesh: trimesh.Trimesh, water: W
         faces = flip_needles(verts, faces, SLIVER * voxel)
         n_balls, curtain_area = len(ice), curtains.area
     return IceResult(verts, faces, measure_icicles(verts, faces, trajectories, surface) if measure else None,
-                     n_balls, curtain_area)
+                     n_balls, curtain_area, trajectories)
 
 
 def _ripple(surface: SurfaceParams) -> tuple[float, float]:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -102,3 +103,56 @@ def _perpendicular_frame(tangent: np.ndarray):
     e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
     return e1, np.cross(tangent, e1)
 
+
+
+# A drip point whose face leans at least this much off horizontal (sine of the angle between
+# its normal and gravity) sits on or near a rim: its icicle's root moves in under the object.
+ROOT_LEAN = 0.2
+
+
+def root_shifts(normals: np.ndarray, gravity: np.ndarray, thickness: np.ndarray) -> np.ndarray:
+    """``(k, 3)`` where each icicle's root goes so that it hangs from the object rather than
+    standing proud of it, meters: horizontally into the object (away from the face its drip
+    point's normal leans towards), as far as ``thickness`` (k,) allows; zero under a face
+    that looks down (the ball's top is inside the object there already), or where the
+    thickness is not finite.
+
+    A ball centred on an eave's rim put a glass dome in front of the fascia, above the edge;
+    moved in by its radius, its front is flush with the fascia and its top inside the eave.
+    """
+    g = np.asarray(gravity, dtype=np.float64) / np.linalg.norm(gravity)
+    n = np.asarray(normals, dtype=np.float64).reshape(-1, 3)
+    across = n - (n @ g)[:, None] * g
+    lean = np.linalg.norm(across, axis=1)
+    inward = -across / np.maximum(lean, 1e-300)[:, None]
+    # a ray that never left (an open mesh) says nothing of how thick it is there: no move
+    room = np.asarray(thickness, dtype=np.float64)
+    room = np.where(np.isfinite(room), room, 0.0)
+    return np.where((lean >= ROOT_LEAN)[:, None], inward * room[:, None], 0.0)
+
+
+def hang_roots(traj: TrajectoryResult, surface: SurfaceParams, shift: np.ndarray) -> TrajectoryResult:
+    """The trajectories with each trunk's points within their radius of the drip point moved
+    along ``shift`` (icicles, 3) by ``R(x) - x``, at most its length: the axes stage 4 builds
+    and measures the ice on (stage 3's own stay as they are).
+
+    Only trunks move; a branch keeps its points (it leaves the trunk below its root).
+    """
+    off = np.asarray(traj.branch_offsets, dtype=np.int64)
+    counts = np.diff(off)
+    if len(traj.points) == 0:
+        return traj
+    prof = profile_args(surface)
+    x, lengths = arc_lengths(traj.points, off)
+    grown = grown_lengths(lengths, traj.cut)
+    growth = traj.growth(prof.pop("growth"))
+    owner = np.repeat(np.arange(len(counts)), counts)
+    radius = smooth_radius(x, grown[owner], growth=growth[owner], **prof)
+    move = np.asarray(shift, dtype=np.float64)[np.asarray(traj.branch_icicle)[owner]]
+    reach = np.linalg.norm(move, axis=1)
+    trunk = np.asarray(traj.branch_parent)[owner] < 0
+    step = np.where(trunk, np.minimum(np.maximum(radius - x, 0.0), reach), 0.0)
+    if not step.any():
+        return traj
+    points = traj.points + (step / np.maximum(reach, 1e-300))[:, None] * move
+    return dataclasses.replace(traj, points=points)
