@@ -7,10 +7,10 @@ from __future__ import annotations
 
 from .balls import KAPPA, LEVEL, NO_BALLS, SPACING, TIP_WEIGHT, Balls, concat_balls, sheet_balls
 from .clean import collapse_slivers, flip_needles
-from .field import BLOCK, CUTOFF, Field, sample_field
+from .field import BLOCK, CUTOFF, Field, block_keys, sample_field
 from .fuse import fuse_fields, union_meshes
-from .march import polygonize
+from .march import MARCH_POWER, polygonize
 
-__all__ = ["BLOCK", "CUTOFF", "KAPPA", "LEVEL", "NO_BALLS", "SPACING", "TIP_WEIGHT", "Balls", "Field",
-           "collapse_slivers", "concat_balls", "flip_needles", "fuse_fields", "polygonize", "sample_field",
-           "sheet_balls", "union_meshes"]
+__all__ = ["BLOCK", "CUTOFF", "KAPPA", "LEVEL", "MARCH_POWER", "NO_BALLS", "SPACING", "TIP_WEIGHT", "Balls",
+           "Field", "block_keys", "collapse_slivers", "concat_balls", "flip_needles", "fuse_fields", "polygonize",
+           "sample_field", "sheet_balls", "union_meshes"]

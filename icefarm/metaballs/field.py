@@ -47,7 +47,7 @@ class Field:
     voxel : float
     level : float
     blocks : (k, 3) int64
-        In `_block_keys` order.
+        In `block_keys` order.
     values : (k, B, B, B) float32
     """
 
@@ -136,7 +136,7 @@ def _ball_block_pairs(q, el, lo, hi, block):
         dist2 += gap * gap
     reach = dist2 <= (el.astype(np.float32) ** 2)[ball]
     ball, bc = ball[reach], bc[reach]
-    key = _block_keys(bc)
+    key = block_keys(bc)
     order = np.argsort(key, kind="stable")
     key, ball, bc = key[order], ball[order], bc[order]
     starts = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
@@ -144,7 +144,7 @@ def _ball_block_pairs(q, el, lo, hi, block):
     return ball, bc.astype(np.int64), starts, counts
 
 
-def _block_keys(bc):
+def block_keys(bc):
     """One sortable int64 per block coordinate (k, 3) (coordinates are >= 0 and < 2^20)."""
     bc = np.asarray(bc, dtype=np.int64)
     return (bc[:, 0] << 42) | (bc[:, 1] << 21) | bc[:, 2]

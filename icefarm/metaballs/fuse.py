@@ -7,7 +7,7 @@ import math
 import numpy as np
 from scipy import ndimage
 
-from .field import Field, _block_keys
+from .field import Field, block_keys
 from .march import _march
 
 # Most tiles in the dense grid of a region where two lattices are fused.
@@ -250,8 +250,8 @@ def _inside(field: Field, points: np.ndarray) -> np.ndarray:
     s = np.rint((points - field.origin) / field.voxel).astype(np.int64)
     bc = s // block
     ok = ((bc >= 0) & (bc < 2**20)).all(axis=1)
-    keys = _block_keys(field.blocks)
-    key = _block_keys(np.where(ok[:, None], bc, 0))
+    keys = block_keys(field.blocks)
+    key = block_keys(np.where(ok[:, None], bc, 0))
     i = np.minimum(np.searchsorted(keys, key), len(keys) - 1)
     ok &= keys[i] == key
     r = s - bc * block

@@ -8,10 +8,10 @@ import numpy as np
 from skimage.measure import marching_cubes
 
 from .balls import KAPPA, LEVEL, Balls
-from .field import BLOCK, CUTOFF, _block_keys, sample_field
+from .field import BLOCK, CUTOFF, block_keys, sample_field
 
-# Marching cubes runs on field**_POWER (see polygonize).
-_POWER = KAPPA**2 / 2
+# Marching cubes runs on field**MARCH_POWER (see polygonize).
+MARCH_POWER = KAPPA**2 / 2
 # Field samples closer than this (relative) to the level are pushed off it, so no
 # marching-cubes vertex lands on a grid corner (which would make zero-area faces).
 _NUDGE = 1e-3
@@ -69,7 +69,7 @@ def _march(values: np.ndarray, blocks: np.ndarray, level: float):
     ----------
     values : (k, B, B, B) float32
     blocks : (k, 3) int
-        Block coordinates, in `_block_keys` order.
+        Block coordinates, in `block_keys` order.
     level : float
 
     Returns
@@ -83,7 +83,7 @@ def _march(values: np.ndarray, blocks: np.ndarray, level: float):
     verts, faces, nverts = [], [], 0
     if len(values):
         for fields, where in _halo_blocks(values, blocks, level):
-            v, f = _march_packed(_march_domain(fields, level), where, level**_POWER, block)
+            v, f = _march_packed(_march_domain(fields, level), where, level**MARCH_POWER, block)
             verts.append(v)
             faces.append(f + nverts)
             nverts += len(v)
@@ -93,7 +93,7 @@ def _march(values: np.ndarray, blocks: np.ndarray, level: float):
 
 
 def _march_domain(fields, level):
-    """``fields ** _POWER`` in place, pushed at least ``_NUDGE`` (relative) off the level.
+    """``fields ** MARCH_POWER`` in place, pushed at least ``_NUDGE`` (relative) off the level.
 
     Marching cubes interpolates linearly along cell edges; F^p with p = KAPPA^2 / 2 has its
     inflection at the surface of a chain, so there it is nearly exact. The nudge keeps every
@@ -102,10 +102,10 @@ def _march_domain(fields, level):
     """
     np.maximum(fields, np.float32(CUTOFF * level), out=fields)
     np.log(fields, out=fields)
-    fields *= np.float32(_POWER)
+    fields *= np.float32(MARCH_POWER)
     np.exp(fields, out=fields)
-    t_level = np.float32(level**_POWER)
-    nudge = np.float32(_NUDGE * level**_POWER)
+    t_level = np.float32(level**MARCH_POWER)
+    nudge = np.float32(_NUDGE * level**MARCH_POWER)
     near = np.abs(fields - t_level) < nudge
     fields[near] = np.where(fields[near] < t_level, t_level - nudge, t_level + nudge)
     return fields
@@ -126,7 +126,7 @@ def _halo_blocks(own, blocks, level):
         Block coordinates.
     """
     n, b = len(own), own.shape[1]
-    keys = _block_keys(blocks)  # sorted: blocks come from _ball_block_pairs
+    keys = block_keys(blocks)  # sorted: blocks come from _ball_block_pairs
     offsets = ((1, 0, 0), (0, 1, 0), (0, 0, 1), (1, 1, 0), (1, 0, 1), (0, 1, 1), (1, 1, 1))
     # A lower neighbour (face, edge or corner) without field still has cells to march where
     # our first plane, line or corner sample along its offset rises above the level.
@@ -139,12 +139,12 @@ def _halo_blocks(own, blocks, level):
     extra = extra[(extra >= 0).all(axis=1)]
     if len(extra):
         extra = np.unique(extra, axis=0)
-        extra = extra[~np.isin(_block_keys(extra), keys)]
+        extra = extra[~np.isin(block_keys(extra), keys)]
     cand = np.concatenate([blocks, extra]) if len(extra) else blocks
     slot_self = np.r_[np.arange(n), np.full(len(cand) - n, -1)]
 
     def slot(offset):
-        k = _block_keys(cand + offset)
+        k = block_keys(cand + offset)
         i = np.minimum(np.searchsorted(keys, k), n - 1)
         return np.where(keys[i] == k, i, -1)
 
@@ -220,7 +220,7 @@ def _weld_lattice(lattice: np.ndarray, faces: np.ndarray, block: int):
     if len(seam):
         fs, bs = frac[seam], base[seam].astype(np.int64)
         nfrac = (fs > 0).sum(axis=1)
-        key = (_block_keys(bs - bs.min(axis=0)) << 2) | np.where(nfrac == 1, np.argmax(fs, axis=1), 3)
+        key = (block_keys(bs - bs.min(axis=0)) << 2) | np.where(nfrac == 1, np.argmax(fs, axis=1), 3)
         key = np.where(nfrac >= 2, -1 - np.arange(len(key)), key)
         _, first, inverse = np.unique(key, return_index=True, return_inverse=True)
         index[seam] = seam[first][inverse.reshape(-1)]

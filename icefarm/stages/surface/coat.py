@@ -32,7 +32,7 @@ from scipy.spatial import cKDTree
 
 from ...errors import InputError
 from ...geometry import ragged_arange, ray_caster
-from ...metaballs.field import Field, _block_keys
+from ...metaballs.field import Field, block_keys
 from .coat_band import _MAX_POINTS, _sample_band
 
 # Depth of the coat's hidden inner face under the surface, in voxels: a coat of any
@@ -132,12 +132,12 @@ def coat_field(flow_mesh: trimesh.Trimesh, thickness: np.ndarray, wet: np.ndarra
     if len(dpts):  # those in or next to a cell of that size with wet samples
         cell = 2.0 * reach + 2.0 * h
         lo = pts.min(axis=0) - 2 * cell
-        wet_cells = np.unique(_block_keys(np.floor((pts - lo) / cell).astype(np.int64) + 1))
+        wet_cells = np.unique(block_keys(np.floor((pts - lo) / cell).astype(np.int64) + 1))
         step = np.array([(a << 42) | (b << 21) | c for a in (-1, 0, 1) for b in (-1, 0, 1) for c in (-1, 0, 1)])
         near = np.unique((wet_cells[:, None] + step[None, :]).ravel())
         cells = np.floor((dpts - lo) / cell).astype(np.int64) + 1
         ok = (cells >= 0).all(axis=1)
-        keep = np.flatnonzero(ok)[np.isin(_block_keys(cells[ok]), near)]
+        keep = np.flatnonzero(ok)[np.isin(block_keys(cells[ok]), near)]
         dpts, dface = dpts[keep], dface[keep]
     rim = _rim(flow_mesh, is_wet, blocked, wet, thickness, 0.5 * voxel) if edge > 0 else None
     kind = np.where(is_wet, 1, np.where(blocked, -1, 0)).astype(np.int8)
@@ -304,7 +304,7 @@ def _faces_near(mesh: trimesh.Trimesh, wet_faces: np.ndarray, wet_points: np.nda
         return cand
     # Coarse points of the wet region (one per distance-sized cell) bound the search.
     cell = max(distance, 1e-9)
-    key = _block_keys(np.floor((wet_points - wet_points.min(axis=0)) / cell).astype(np.int64))
+    key = block_keys(np.floor((wet_points - wet_points.min(axis=0)) / cell).astype(np.int64))
     _, first = np.unique(key, return_index=True)
     coarse = cKDTree(wet_points[first])
     d, _ = coarse.query(centroid[cand], k=1, distance_upper_bound=np.inf, workers=-1)

@@ -6,7 +6,7 @@ kept where its centre's distance says the coat may come within a voxel of it; wh
 crease or change of wet/dry/excluded comes near, the samples of a tile share their
 centre's nearest surface sample (one plane: the same distance, exactly). The result has
 the block layout of `icefarm.metaballs.Field` and is stored so that marching cubes,
-which interpolates ``value ** _POWER`` linearly (`icefarm.metaballs.march._march_domain`),
+which interpolates ``value ** MARCH_POWER`` linearly (`icefarm.metaballs.march._march_domain`),
 interpolates the signed distance itself: the iso-surface lies where the distance says,
 to a fraction of a voxel, and fuses with the icicles' field through
 `icefarm.metaballs.fuse_fields`.
@@ -22,11 +22,11 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ...errors import InputError
-from ...metaballs.field import BLOCK, CUTOFF, Field, _block_keys
-from ...metaballs.march import _POWER
+from ...metaballs.field import BLOCK, CUTOFF, Field, block_keys
+from ...metaballs.march import MARCH_POWER
 
 # Signed distance (in voxels) over which the stored field goes from the level to twice
-# it (after ``** _POWER``): marching cubes sees a linear ramp through the surface.
+# it (after ``** MARCH_POWER``): marching cubes sees a linear ramp through the surface.
 _RAMP = 2.0
 # Edge of a tile (lattice samples) of the narrow band: tiles far from the coat are skipped.
 _TILE = 2
@@ -67,7 +67,7 @@ def _sample_band(pts, normals, thick, kind, depth, rim, features, sole, edge, vo
     # within reach of it (dry and excluded samples count as 0) ...
     size = _TILE * 2 ** _LEVELS
     k = int(math.ceil(reach / (size * voxel)))
-    keys = _block_keys(np.floor((pts - origin) / (size * voxel)).astype(np.int64))
+    keys = block_keys(np.floor((pts - origin) / (size * voxel)).astype(np.int64))
     keys, t_lo, t_hi, has_wet = _reduce(keys, np.where(wet, thick, 0.0), np.where(wet, thick, 0.0), wet)
     for shift in (42, 21, 0):  # separable dilation by k tiles, one axis at a time
         step = np.arange(-k, k + 1) << shift
@@ -155,10 +155,10 @@ def _sample_band(pts, normals, thick, kind, depth, rim, features, sole, edge, vo
         values = np.r_[values, np.full(len(solid) * _TILE**3, _encode(np.array([voxel]), voxel)[0])]
     if len(tiles) == 0:
         return None
-    # Tiles into blocks (_block_keys order); absent tiles of a block stay 0 (outside).
+    # Tiles into blocks (block_keys order); absent tiles of a block stay 0 (outside).
     per = BLOCK // _TILE
     bc = tiles // per
-    keys = _block_keys(bc)
+    keys = block_keys(bc)
     ukeys, first, inverse = np.unique(keys, return_index=True, return_inverse=True)
     if len(ukeys) * BLOCK**3 * 4 > _MAX_FIELD_BYTES:
         raise InputError(
@@ -250,8 +250,8 @@ def _phi(tree, points, normals, thick, kind, rim, edge, depth, reach, tol, neare
 
 
 def _encode(phi: np.ndarray, voxel: float) -> np.ndarray:
-    """Field values whose ``** _POWER`` is linear in ``phi`` around the level 1."""
+    """Field values whose ``** MARCH_POWER`` is linear in ``phi`` around the level 1."""
     ramp = _RAMP * voxel
-    low = CUTOFF**_POWER  # march clamps the field at CUTOFF * level (level 1)
+    low = CUTOFF**MARCH_POWER  # march clamps the field at CUTOFF * level (level 1)
     g = np.clip(1.0 + phi / ramp, low, 2.0)
-    return (g ** (1.0 / _POWER)).astype(np.float32)
+    return (g ** (1.0 / MARCH_POWER)).astype(np.float32)
