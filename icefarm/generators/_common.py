@@ -30,7 +30,7 @@ def grid_faces(rows: int, cols: int, wrap: bool = False) -> np.ndarray:
     return np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
 
 
-def _remesh(mesh: trimesh.Trimesh, faces: int) -> trimesh.Trimesh:
+def remesh_to_faces(mesh: trimesh.Trimesh, faces: int) -> trimesh.Trimesh:
     """Isotropic remeshing to about ``faces`` triangles; creases over 30 degrees are kept."""
     import pymeshlab
 
@@ -42,7 +42,7 @@ def _remesh(mesh: trimesh.Trimesh, faces: int) -> trimesh.Trimesh:
     return current(ms)
 
 
-def _rest_on_ground(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
+def rest_on_ground(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
     """Shift the mesh so its lowest point is on y = 0; plain float64 / int64 arrays."""
     vertices = np.asarray(mesh.vertices, dtype=np.float64).copy()
     vertices[:, 1] -= vertices[:, 1].min()

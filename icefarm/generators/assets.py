@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 import trimesh
 
-from ._common import DEFAULT_DETAIL, _rest_on_ground
+from ._common import DEFAULT_DETAIL, rest_on_ground
 from .roof import prism
 
 # Parts that meet overlap by this much (m), so the union never meets coplanar faces.
@@ -97,7 +97,7 @@ def frustum(bottom, top, y0: float, y1: float) -> trimesh.Trimesh:
 def fuse(parts: list[trimesh.Trimesh]) -> trimesh.Trimesh:
     """Boolean union of overlapping closed parts, set on the ground; raises if the result is
     not one closed volume (parts that do not touch)."""
-    mesh = _rest_on_ground(trimesh.boolean.union(parts, engine="manifold"))
+    mesh = rest_on_ground(trimesh.boolean.union(parts, engine="manifold"))
     if not mesh.is_volume or mesh.body_count != 1:
         raise ValueError("asset parts do not fuse into one closed volume")
     return mesh

@@ -10,7 +10,7 @@ import numpy as np
 import trimesh
 
 from ..geometry import unit
-from ._common import DEFAULT_DETAIL, _rest_on_ground, grid_faces
+from ._common import DEFAULT_DETAIL, rest_on_ground, grid_faces
 
 
 def branch(detail: int = DEFAULT_DETAIL) -> trimesh.Trimesh:
@@ -37,7 +37,7 @@ def branch(detail: int = DEFAULT_DETAIL) -> trimesh.Trimesh:
         radius = 0.6 * main_radius[k] * (1 - twig_t) + 0.005 * twig_t
         tubes.append(tube(path, radius, max(6, round(1.5 * detail))))
     mesh = trimesh.boolean.union(tubes, engine="manifold")
-    return _rest_on_ground(mesh)
+    return rest_on_ground(mesh)
 
 
 # (where along the branch, second control point, end point; both relative to the start)

@@ -8,7 +8,7 @@ import numpy as np
 import trimesh
 
 from ..geometry import ragged_arange
-from ._common import DEFAULT_DETAIL, _rest_on_ground, grid_faces
+from ._common import DEFAULT_DETAIL, rest_on_ground, grid_faces
 
 
 def fountain(detail: int = DEFAULT_DETAIL) -> trimesh.Trimesh:
@@ -25,7 +25,7 @@ def fountain(detail: int = DEFAULT_DETAIL) -> trimesh.Trimesh:
     pieces = max(len(_FOUNTAIN_PROFILE) - 1, round(41 * detail / 8))
     profile = resample_polyline(_FOUNTAIN_PROFILE, pieces, weights=_FOUNTAIN_WEIGHTS)
     vertices, faces = lathe(profile, around)
-    return _rest_on_ground(trimesh.Trimesh(vertices, faces, process=False))
+    return rest_on_ground(trimesh.Trimesh(vertices, faces, process=False))
 
 
 def lathe(profile: np.ndarray, segments: int) -> tuple[np.ndarray, np.ndarray]:

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import trimesh
 
-from ._common import DEFAULT_DETAIL, _remesh, _rest_on_ground
+from ._common import DEFAULT_DETAIL, remesh_to_faces, rest_on_ground
 
 
 def roof(detail: int = DEFAULT_DETAIL) -> trimesh.Trimesh:
@@ -35,7 +35,7 @@ def roof(detail: int = DEFAULT_DETAIL) -> trimesh.Trimesh:
     chimney = prism([(0.35, 1.2), (0.6, 1.2), (0.6, 2.05), (0.35, 2.05)],
                     [[0, 1, 2], [0, 2, 3]], 0.55, 0.85)
     mesh = trimesh.boolean.union([house, slab, chimney], engine="manifold")
-    return _rest_on_ground(_remesh(mesh, 60 * detail ** 2))
+    return rest_on_ground(remesh_to_faces(mesh, 60 * detail ** 2))
 
 
 def prism(profile, cap_triangles, z0: float, z1: float) -> trimesh.Trimesh:

@@ -8,7 +8,7 @@ import numpy as np
 import trimesh
 
 from ..tol import tol
-from ._common import DEFAULT_DETAIL, _rest_on_ground, grid_faces
+from ._common import DEFAULT_DETAIL, rest_on_ground, grid_faces
 
 
 def teapot(detail: int = DEFAULT_DETAIL) -> trimesh.Trimesh:
@@ -33,7 +33,7 @@ def teapot(detail: int = DEFAULT_DETAIL) -> trimesh.Trimesh:
     mesh.merge_vertices()  # patch seams share their control points, so they coincide
     mesh.update_faces(mesh.nondegenerate_faces(height=tol.degenerate))
     mesh.remove_unreferenced_vertices()
-    return _rest_on_ground(mesh)
+    return rest_on_ground(mesh)
 
 
 def bezier_patches(control: np.ndarray, resolution: int) -> tuple[np.ndarray, np.ndarray]:

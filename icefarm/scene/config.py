@@ -21,8 +21,8 @@ from typing import Any, Callable
 import yaml
 
 from ..errors import InputError
-from .config_checks import (MAX_ABSORPTION, _absorption, _choice, _number, _refuse, _resolution, _sky,
-                            _triple)
+from .config_checks import (MAX_ABSORPTION, check_absorption, choice_check, number_check, refusal, check_resolution, check_sky,
+                            triple_check)
 
 RENDERERS = ("mitsuba", "povray", "both")
 VARIANTS = ("auto", "scalar_rgb", "llvm_ad_rgb", "cuda_ad_rgb")
@@ -235,26 +235,26 @@ def parse_view(key: str, value: Any) -> View:
     if isinstance(value, str):
         if value not in NAMED_VIEWS:
             hint = difflib.get_close_matches(value, list(NAMED_VIEWS), n=1, cutoff=0.5)
-            raise _refuse(key, value, expected + (f"; did you mean {hint[0]!r}?" if hint else ""))
+            raise refusal(key, value, expected + (f"; did you mean {hint[0]!r}?" if hint else ""))
         return View(value, *NAMED_VIEWS[value], frame=NAMED_FRAMES.get(value, "all"))
     frame = "all"
     if isinstance(value, Mapping):
         unknown = set(value) - {"azimuth", "elevation", "name", "frame"}
         if unknown or not {"azimuth", "elevation"} <= set(value):
-            raise _refuse(key, value, expected)
+            raise refusal(key, value, expected)
         az, el, name = value["azimuth"], value["elevation"], value.get("name")
         frame = value.get("frame", "all")
         if frame not in FRAMES:
-            raise _refuse(f"{key}.frame", frame, "one of " + " | ".join(FRAMES))
+            raise refusal(f"{key}.frame", frame, "one of " + " | ".join(FRAMES))
     elif isinstance(value, Sequence) and not isinstance(value, (str, bytes)) and len(value) == 2:
         (az, el), name = value, None
     else:
-        raise _refuse(key, value, expected)
+        raise refusal(key, value, expected)
     for v in (az, el):
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-            raise _refuse(key, value, expected)
+            raise refusal(key, value, expected)
     if not -89.0 <= el <= 89.0:
-        raise _refuse(key, value, expected)
+        raise refusal(key, value, expected)
     name = str(name) if name else f"az{az:g}_el{el:g}" + ("_ice" if frame == "ice" else "")
     return View(name, float(az), float(el), frame)
 
@@ -263,35 +263,35 @@ def _views(key, value):
     if isinstance(value, (str, Mapping)):
         value = [value]
     if not isinstance(value, Sequence) or not value or len(value) > 16:
-        raise _refuse(key, value, "a list of 1 to 16 views")
+        raise refusal(key, value, "a list of 1 to 16 views")
     return tuple(parse_view(f"{key}[{i}]", v) for i, v in enumerate(value))
 
 
 _ICE: dict[str, Callable] = {
-    "ior": _number(1.0, 3.0),
-    "roughness": _number(0.0, 1.0),
-    "tint": _triple(0.0, 1.0),
-    "absorption": _absorption,
-    "scattering": _number(0.0, MAX_ABSORPTION),
+    "ior": number_check(1.0, 3.0),
+    "roughness": number_check(0.0, 1.0),
+    "tint": triple_check(0.0, 1.0),
+    "absorption": check_absorption,
+    "scattering": number_check(0.0, MAX_ABSORPTION),
 }
 _ENVIRONMENT: dict[str, Callable] = {
-    "sky": _sky,
-    "sky_strength": _number(0.0, 1000.0),
-    "sun_strength": _number(0.0, 1000.0),
-    "sun_azimuth": _number(-360.0, 360.0),
-    "sun_elevation": _number(-90.0, 90.0),
-    "ground": _choice(GROUNDS),
-    "exposure": _number(-20.0, 20.0),
+    "sky": check_sky,
+    "sky_strength": number_check(0.0, 1000.0),
+    "sun_strength": number_check(0.0, 1000.0),
+    "sun_azimuth": number_check(-360.0, 360.0),
+    "sun_elevation": number_check(-90.0, 90.0),
+    "ground": choice_check(GROUNDS),
+    "exposure": number_check(-20.0, 20.0),
 }
 _TOP: dict[str, Callable] = {
-    "renderer": _choice(RENDERERS),
-    "variant": _choice(VARIANTS),
-    "resolution": _resolution,
-    "spp": _number(1, 1 << 16, integer=True),
-    "max_depth": _number(1, 1000, integer=True),
-    "denoise": _choice(DENOISERS),
+    "renderer": choice_check(RENDERERS),
+    "variant": choice_check(VARIANTS),
+    "resolution": check_resolution,
+    "spp": number_check(1, 1 << 16, integer=True),
+    "max_depth": number_check(1, 1000, integer=True),
+    "denoise": choice_check(DENOISERS),
     "views": _views,
-    "fov": _number(1.0, 170.0),
+    "fov": number_check(1.0, 170.0),
 }
 _GROUPS = {"ice": _ICE, "environment": _ENVIRONMENT}
 ALL_KEYS = tuple(_TOP) + tuple(f"{g}.{k}" for g, checks in _GROUPS.items() for k in checks)
@@ -312,7 +312,7 @@ def _flatten(values: Mapping[str, Any]) -> dict[str, Any]:
         key = str(key)
         if key in _GROUPS:
             if not isinstance(value, Mapping):
-                raise _refuse(key, value, f"a mapping of {', '.join(_GROUPS[key])}")
+                raise refusal(key, value, f"a mapping of {', '.join(_GROUPS[key])}")
             for sub, v in value.items():
                 flat[f"{key}.{sub}"] = v
         else:

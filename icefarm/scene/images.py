@@ -64,7 +64,7 @@ def image_size(path: str | Path) -> tuple[int, int] | None:
     return (spec.width, spec.height) if spec.width > 0 and spec.height > 0 else None
 
 
-def _png_to_exr(png: Path, exr: Path) -> None:
+def png_to_exr(png: Path, exr: Path) -> None:
     """Linearise an sRGB PNG (POV-Ray's output) into an EXR."""
     import OpenImageIO as oiio
 

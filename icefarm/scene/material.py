@@ -12,15 +12,15 @@ from collections.abc import Mapping
 from typing import Any, Callable
 
 from ..errors import InputError
-from .config_checks import _choice, _number, _triple
+from .config_checks import choice_check, number_check, triple_check
 
 MATERIAL_TYPES = ("diffuse", "plastic", "metal")
 METALS = ("Al", "Ag", "Au", "Cu", "Cr")
 _MATERIAL: dict[str, Callable] = {
-    "type": _choice(MATERIAL_TYPES),
-    "color": _triple(0.0, 1.0),
-    "roughness": _number(0.0, 1.0),
-    "metal": _choice(METALS),
+    "type": choice_check(MATERIAL_TYPES),
+    "color": triple_check(0.0, 1.0),
+    "roughness": number_check(0.0, 1.0),
+    "metal": choice_check(METALS),
 }
 # A darker, warm object (weathered wood, terracotta): clear ice over it reads by its
 # highlights and its blue-green depth; over a pale grey one it disappears.

@@ -23,7 +23,7 @@ from ..errors import InputError
 from . import povray as pov
 from .config import RenderConfig
 from .denoise import denoise, denoiser_version
-from .images import _png_to_exr, write_exr, write_png
+from .images import png_to_exr, write_exr, write_png
 from .variants import pick_variant
 from ..jobdir import POVRAY_STEM, SCENE_XML, view_stem
 from .write import JobScene, SceneFiles, write_scenes
@@ -318,7 +318,7 @@ def render_job(job_dir: str | Path, config: RenderConfig, scene: JobScene | Scen
             if not config.uses_mitsuba:
                 stem = view_stem(i)
                 shutil.copyfile(job_dir / out, job_dir / f"{stem}.png")
-                _png_to_exr(job_dir / out, job_dir / f"{stem}.exr")
+                png_to_exr(job_dir / out, job_dir / f"{stem}.exr")
                 files += [job_dir / f"{stem}.exr", job_dir / f"{stem}.png"]
     if not config.uses_mitsuba:  # keep render.exr, render.png first
         files.sort(key=lambda p: (not p.name.startswith("render."), p.name))

@@ -43,14 +43,14 @@ def _rotate(a: np.ndarray, b: np.ndarray, degrees) -> tuple[np.ndarray, np.ndarr
     return a * np.cos(t) + b * np.sin(t), b * np.cos(t) - a * np.sin(t)
 
 
-def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+def row_dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Row-wise dot products ``(k,)`` of ``(k, 3)`` arrays."""
     return np.einsum("ij,ij->i", a, b)
 
 
 def _across(v: np.ndarray, h: np.ndarray) -> np.ndarray:
     """Unit part ``(k, 3)`` of ``v`` perpendicular to the unit rows ``h`` (any perpendicular if none)."""
-    out = v - _dot(v, h)[:, None] * h
+    out = v - row_dot(v, h)[:, None] * h
     bad = np.linalg.norm(out, axis=1) < tol.zero
     if bad.any():
         out[bad] = [perpendicular_basis(x)[0] for x in h[bad]]
@@ -90,7 +90,7 @@ class _Grower:
             towards = np.where((np.linalg.norm(across, axis=1) > tol.zero)[:, None], unit(across), left)
             new_h, new_t = _rotate(h, towards, degrees)
             # L's share of the turning plane turns with it (a rotation, so L stays unit and normal to H)
-            new_l = left + _dot(left, towards)[:, None] * (new_t - towards)
+            new_l = left + row_dot(left, towards)[:, None] * (new_t - towards)
         new_h, changed = self.saturate(h, new_h, towards, soft=True)
         new_l[changed] = _across(new_l[changed], new_h[changed])
         t.heading[rows], t.left[rows] = new_h, new_l

@@ -33,7 +33,7 @@ from scipy.spatial import cKDTree
 from ...errors import InputError
 from ...geometry import ragged_arange, ray_caster
 from ...metaballs.field import Field, block_keys
-from .coat_band import _MAX_POINTS, _sample_band
+from .coat_band import MAX_BAND_POINTS, sample_band
 
 # Depth of the coat's hidden inner face under the surface, in voxels: a coat of any
 # thickness makes a sheet at least this thick, which marching cubes cannot tear.
@@ -86,7 +86,7 @@ def coat_field(flow_mesh: trimesh.Trimesh, thickness: np.ndarray, wet: np.ndarra
     ------
     InputError
         A voxel so fine that the field would need more than ``_MAX_FIELD_BYTES`` or
-        ``_MAX_POINTS`` lattice samples.
+        ``MAX_BAND_POINTS`` lattice samples.
     """
     faces = np.asarray(flow_mesh.faces, dtype=np.int64)
     nv = len(flow_mesh.vertices)
@@ -111,10 +111,10 @@ def coat_field(flow_mesh: trimesh.Trimesh, thickness: np.ndarray, wet: np.ndarra
     inner = INNER * voxel
     # Refuse before sampling: the band holds at least this many lattice samples.
     band = flow_mesh.area_faces[wet_faces].sum() / voxel**2 * (INNER + 2.0 + thickness[wet].max() / voxel)
-    if band > _MAX_POINTS:
+    if band > MAX_BAND_POINTS:
         raise InputError(
             f"{name} = {voxel:g} m is too fine for this much glaze (about {band:.3g} lattice samples "
-            f"near the coat, at most {_MAX_POINTS}); raise {name}")
+            f"near the coat, at most {MAX_BAND_POINTS}); raise {name}")
 
     # Samples on the wet faces, with the thickness interpolated from their wet vertices.
     pts, face, bary = surface_samples(flow_mesh, wet_faces, h)
@@ -147,7 +147,7 @@ def coat_field(flow_mesh: trimesh.Trimesh, thickness: np.ndarray, wet: np.ndarra
     all_t = np.r_[t_wet, np.zeros(len(dpts))]
     depth = _inner_depth(flow_mesh, all_pts, normals, all_t, kind, inner, voxel, cast)
     sole = flow_mesh.vertices[exclude] if exclude is not None else np.zeros((0, 3))
-    return _sample_band(all_pts, normals, all_t, kind[all_face], depth, rim, features, sole, edge, voxel, reach,
+    return sample_band(all_pts, normals, all_t, kind[all_face], depth, rim, features, sole, edge, voxel, reach,
                         h, name)
 
 

@@ -37,12 +37,12 @@ _SHIFT = 1.0 + (math.sqrt(5.0) - 2.0) / BLOCK
 # Refuse coats whose field would need more memory than this, or more lattice samples
 # evaluated than this (about 100 bytes each on the way).
 _MAX_FIELD_BYTES = 2 * 2**30
-_MAX_POINTS = 60_000_000
+MAX_BAND_POINTS = 60_000_000
 # Lattice samples evaluated at once (a thread's share: memory stays bounded).
 _CHUNK_POINTS = 1_000_000
 
 
-def _sample_band(pts, normals, thick, kind, depth, rim, features, sole, edge, voxel, reach, h,
+def sample_band(pts, normals, thick, kind, depth, rim, features, sole, edge, voxel, reach, h,
                  name) -> Field | None:
     """The coat's field on the lattice tiles near the wet samples.
 
@@ -74,7 +74,7 @@ def _sample_band(pts, normals, thick, kind, depth, rim, features, sole, edge, vo
         keys, t_lo, t_hi, has_wet = _reduce((keys[:, None] + step[None, :]).ravel(), *(
             np.repeat(a, len(step)) for a in (t_lo, t_hi, has_wet)))
     keys, t_lo, t_hi = keys[has_wet], t_lo[has_wet], t_hi[has_wet]
-    if len(keys) * size**3 > 8 * _MAX_POINTS:
+    if len(keys) * size**3 > 8 * MAX_BAND_POINTS:
         raise InputError(
             f"{name} = {voxel:g} m is too fine for this much glaze ({len(keys) * size**3} lattice "
             f"samples within reach of the coat); raise {name}")
@@ -123,10 +123,10 @@ def _sample_band(pts, normals, thick, kind, depth, rim, features, sole, edge, vo
         tiles = (2 * tiles[:, None, :] + children[None]).reshape(-1, 3)
         t_lo, t_hi = np.repeat(t_lo, 8), np.repeat(t_hi, 8)
     npoints = len(tiles) * _TILE**3
-    if npoints > _MAX_POINTS or npoints * 4 > _MAX_FIELD_BYTES:
+    if npoints > MAX_BAND_POINTS or npoints * 4 > _MAX_FIELD_BYTES:
         raise InputError(
             f"{name} = {voxel:g} m is too fine for this much glaze ({npoints} lattice samples "
-            f"near the coat, at most {_MAX_POINTS}); raise {name}")
+            f"near the coat, at most {MAX_BAND_POINTS}); raise {name}")
     o = np.arange(_TILE)
     local = np.stack(np.meshgrid(o, o, o, indexing="ij"), axis=-1).reshape(-1, 3)
     values = np.empty(npoints, dtype=np.float32)
@@ -195,12 +195,12 @@ def _signed(v, n, dist, tol):
 
 def _phi(tree, points, normals, thick, kind, rim, edge, depth, reach, tol, nearest=None, seg=None, wall=None,
          workers=-1):
-    """``phi`` (meters, positive inside the coat) at ``points`` (see `_sample_band`), from
+    """``phi`` (meters, positive inside the coat) at ``points`` (see `sample_band`), from
     their nearest samples (``nearest``, -1 for none; queried when not given).
 
     The points of a dry sample lie past the rim: the coat there tapers with the distance
     to the nearest rim segment, found per point or given (``seg``, -1: none near; the
-    samples of a tile sharing one, `_sample_band`). With ``wall`` (wet sample indices,
+    samples of a tile sharing one, `sample_band`). With ``wall`` (wet sample indices,
     a tree of the wet samples, one of the excluded ones), the coat stops at the bisector
     between wet and excluded samples. ``workers``: threads of each tree query.
     """

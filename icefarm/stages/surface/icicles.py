@@ -12,7 +12,7 @@ from ...params import SurfaceParams
 from ...metaballs.balls import KAPPA, LEVEL, NO_BALLS, SPACING, TIP_WEIGHT, Balls
 from ...tol import tol
 from ..trajectories import TrajectoryResult
-from .profile import TIP_CALM, _points_along, grown_lengths, profile_args, smooth_radius
+from .profile import TIP_CALM, points_along, grown_lengths, profile_args, smooth_radius
 
 
 # The blended end of a wide chain bulges a little past its last ball's radius (0.15 mm on
@@ -77,11 +77,11 @@ def icicle_balls(traj: TrajectoryResult, surface: SurfaceParams, rng: np.random.
     bx[bk == nint[bb]] = lengths[bb][bk == nint[bb]]  # the last ball exactly at the tip
     radius = smooth_radius(bx, grown[bb], growth=growth[bb], **prof)
 
-    pos, tangent = _points_along(traj, x_pt, all_lengths, branches[bb], bx)
+    pos, tangent = points_along(traj, x_pt, all_lengths, branches[bb], bx)
 
     noise = surface.noise
     if noise > 0:
-        e1, e2 = _perpendicular_frame(tangent)
+        e1, e2 = perpendicular_frame(tangent)
         calm = np.clip((grown[bb] - bx) / (TIP_CALM * tip), 0.0, 1.0)
         rad = noise * np.sqrt(rng.random(len(bx))) * calm
         ang = rng.random(len(bx)) * (2 * math.pi)
@@ -96,7 +96,7 @@ def icicle_balls(traj: TrajectoryResult, surface: SurfaceParams, rng: np.random.
     return Balls(pos, KAPPA * radius, weight)
 
 
-def _perpendicular_frame(tangent: np.ndarray):
+def perpendicular_frame(tangent: np.ndarray):
     """Two unit vectors perpendicular to each unit ``tangent`` (k, 3) and to each other."""
     helper = np.where(np.abs(tangent[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
     e1 = np.cross(tangent, helper)

@@ -12,7 +12,7 @@ from scipy.spatial import cKDTree
 from ...geometry import arc_lengths, ragged_arange
 from ...params import SurfaceParams
 from ..trajectories import TrajectoryResult
-from .profile import _points_along, grown_lengths
+from .profile import points_along, grown_lengths
 
 # Radius samples along a trunk: from TAPER_AT of its length below its base to FIT_END; the
 # profile is fitted between FIT_START and FIT_END of the distance from the tip, clear of the
@@ -138,7 +138,7 @@ def ripple_texture(vertices: np.ndarray, traj: TrajectoryResult, tree=None) -> R
     owner = np.repeat(np.arange(len(trunks)), n)
     k = ragged_arange(n)
     x = (lo * L)[owner] + k * TEXTURE_STEP
-    axis, tangent = _points_along(traj, x_pt, lengths, trunks[owner], x)
+    axis, tangent = points_along(traj, x_pt, lengths, trunks[owner], x)
     r = _slab_radius(axis, tangent, vertices, tree, TEXTURE_SLAB, 0.002)
     lag = int(round(TEXTURE_LAG / TEXTURE_STEP))
     depth, corr, cv = [], [], []
@@ -215,7 +215,7 @@ def measure_icicles(vertices: np.ndarray, faces: np.ndarray, traj: TrajectoryRes
     owner = np.repeat(np.arange(len(trunks)), n)
     k = ragged_arange(n)
     x = (TAPER_AT * L)[owner] + k * sample_step
-    axis, tangent = _points_along(traj, x_pt, lengths, trunks[owner], x)
+    axis, tangent = points_along(traj, x_pt, lengths, trunks[owner], x)
     r = _slab_radius(axis, tangent, vertices, tree, sample_step,
                      2 * surface.ripple_amplitude * surface.impurity)
 

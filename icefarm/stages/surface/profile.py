@@ -98,7 +98,7 @@ def grown_lengths(lengths: np.ndarray, cut: np.ndarray) -> np.ndarray:
     return lengths + np.minimum(np.asarray(cut, dtype=np.float64), GROUND_THICKENING * lengths)
 
 
-def _points_along(traj: TrajectoryResult, x_pt, lengths, branch, x):
+def points_along(traj: TrajectoryResult, x_pt, lengths, branch, x):
     """Points at arc length ``x`` (k,) along branches ``branch`` (k,), with the unit direction
     of the polyline segment there; ``x_pt`` and ``lengths`` are `icefarm.geometry.arc_lengths`
     of ``traj``'s branches.

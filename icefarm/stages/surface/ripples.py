@@ -20,7 +20,7 @@ from scipy.spatial import cKDTree
 
 from ...geometry import arc_lengths, ragged_arange
 from ..trajectories import TrajectoryResult
-from .profile import TIP_CALM, _points_along, grown_lengths, smooth_radius
+from .profile import TIP_CALM, points_along, grown_lengths, smooth_radius
 
 # Vertices farther from a branch's axis than this times its radius there (plus the ripple)
 # belong to something else: a neighbour, the base ice, the glaze.
@@ -77,7 +77,7 @@ def carve_ripples(vertices: np.ndarray, traj: TrajectoryResult, prof: dict,
     owner = np.repeat(np.arange(len(branches)), n)
     k = ragged_arange(n)
     x = k * (L / np.maximum(n - 1, 1))[owner]
-    axis, tangent = _points_along(traj, x_pt, lengths, branches[owner], x)
+    axis, tangent = points_along(traj, x_pt, lengths, branches[owner], x)
     radius = smooth_radius(x, grown[owner], growth=growth[owner], **prof)
     # Natural ripples (`_texture`): a wandering wavelength, quiet above the tip, and crests
     # that tilt and fade around the trunk, each branch its own (seeded by its index: no

@@ -9,8 +9,8 @@ import numpy as np
 from ...geometry import arc_lengths, ragged_arange
 from ...params import SurfaceParams
 from ..trajectories import TrajectoryResult
-from .icicles import _perpendicular_frame
-from .profile import _points_along, grown_lengths, profile_args, profile_radius
+from .icicles import perpendicular_frame
+from .profile import points_along, grown_lengths, profile_args, profile_radius
 
 def tube_mesh(traj: TrajectoryResult, surface: SurfaceParams, gravity=(0.0, -1.0, 0.0), ring: int = 12,
               cap_rings: int = 4):
@@ -52,7 +52,7 @@ def tube_mesh(traj: TrajectoryResult, surface: SurfaceParams, gravity=(0.0, -1.0
     first = np.cumsum(n) - n
     rk = ragged_arange(n)
     xr = rk * (L / (n - 1))[rb]
-    centre, _ = _points_along(traj, x_pt, lengths, branches[rb], xr)
+    centre, _ = points_along(traj, x_pt, lengths, branches[rb], xr)
     growth = traj.growth(prof.pop("growth"))[branches]
     radius = profile_radius(xr, grown_lengths(L, traj.cut[branches])[rb], growth=growth[rb], **prof)
     # Tangents by central differences within each tube (one-sided at its ends).
@@ -118,7 +118,7 @@ def _transport_frames(centre, tangent, first, n, gravity) -> np.ndarray:
     n0 = g - (t0 @ g)[:, None] * t0
     bad = np.linalg.norm(n0, axis=1) < 1e-6
     if bad.any():
-        n0[bad] = _perpendicular_frame(t0[bad])[0]
+        n0[bad] = perpendicular_frame(t0[bad])[0]
     normal = np.empty_like(centre)
     normal[first] = n0 / np.linalg.norm(n0, axis=1, keepdims=True)
     for step in range(int(n.max()) - 1):
