@@ -22,7 +22,8 @@ def test_a_failure_between_steps_is_not_blamed_on_the_step_before(tmp_path, monk
 
     assert stage_phrase("surface") == "in stage surface"
     assert stage_phrase("after measure") == "after stage measure"
-    quick = {"drips.count": 2, "glaze.mode": "none", "surface.voxel_size": 0.003}
+    # the physical storm's rims take max_icicles, not drips.count; a coarse flow mesh: quick
+    quick = {"storm.max_icicles": 2, "storm.flow_edge": 0.05, "glaze.mode": "none", "surface.voxel_size": 0.003}
     spec = JobSpec("roof", "generator:roof", 0.3, params.resolve(quick), seed=0, render="no-such-config")
     outcome = run_job(spec, tmp_path / "job")
     assert outcome.status == "failed" and outcome.failed_stage == "after measure"

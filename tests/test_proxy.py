@@ -20,7 +20,11 @@ SIZE_M = 0.3
 DEFAULTS = params.resolve().proxy
 # A coarser wrap keeps the suite fast; the snapping bound is checked at the defaults.
 FAST = dataclasses.replace(DEFAULTS, alpha=0.02, face_budget=20000)
-PROBLEM_MESHES = ["teapot.obj", "chair_model.obj", "soup.stl", "boxes"]
+# Coarser still for the boxes, which run in the quick loop: the wrap's time grows as alpha
+# shrinks (1 s at 0.02, 0.4 s at 0.03); the shared meshes' wraps leave their bounds at 0.03.
+WRAPS = {"boxes": dataclasses.replace(FAST, alpha=0.03, face_budget=5000)}
+_SHARED = pytest.mark.slow  # reads ../shared/meshes
+PROBLEM_MESHES = [pytest.param(name, marks=_SHARED) for name in ("teapot.obj", "chair_model.obj", "soup.stl")] + ["boxes"]
 
 
 def box_soup() -> trimesh.Trimesh:
@@ -76,7 +80,7 @@ def built(problem_mesh):
 
     def get(name: str):
         if name not in cache:
-            cache[name] = build_proxy(problem_mesh(name), FAST)
+            cache[name] = build_proxy(problem_mesh(name), WRAPS.get(name, FAST))
         return cache[name]
 
     return get
@@ -116,7 +120,6 @@ def test_bad_mode_is_refused():
 
 # --- the four problem meshes ---------------------------------------------------------------
 
-@pytest.mark.slow  # reads ../shared/meshes (boxes: pure, but a 1 s wrap)
 @pytest.mark.parametrize("name", PROBLEM_MESHES)
 def test_problem_mesh_gets_one_watertight_wrap(built, problem_mesh, name):
     mesh, result = problem_mesh(name), built(name)
@@ -125,7 +128,7 @@ def test_problem_mesh_gets_one_watertight_wrap(built, problem_mesh, name):
     assert proxy.is_watertight and proxy.is_winding_consistent and proxy.volume > 0
     assert result.components == 1
     assert result.faces == len(proxy.faces)
-    assert 1000 <= result.faces <= FAST.face_budget
+    assert 1000 <= result.faces <= WRAPS.get(name, FAST).face_budget
     assert result.seconds > 0 and result.reason
     # Same frame as the input: the wrap encloses it, a little larger.
     assert np.all(proxy.bounds[0] <= mesh.bounds[0] + 1e-9)
@@ -140,7 +143,7 @@ def test_soup_wrap_is_coarsened_to_fit_the_budget(built, problem_mesh):
     assert result.alpha > FAST.alpha * diagonal(problem_mesh("soup.stl"))
 
 
-@pytest.mark.slow  # pure, but 3 s: a wrap at the default resolution
+@pytest.mark.slow  # pure, but 3 s: a wrap at the default alpha (1-2 s even on two crossing boxes)
 def test_snapping_from_the_default_proxy_moves_points_less_than_one_percent():
     mesh = box_soup()
     result = build_proxy(mesh, DEFAULTS)
@@ -203,11 +206,10 @@ def test_small_holes_are_filled(sphere):
     assert "open boundary edges" in result.reason
 
 
-@pytest.mark.slow  # pure, but about 1 s: a fine wrap
 def test_wide_opening_is_wrapped_not_capped():
     bowl = trimesh.creation.icosphere(subdivisions=3, radius=0.15)
     bowl.update_faces(bowl.triangles_center[:, 1] < 0.05)
-    result = build_proxy(bowl, dataclasses.replace(FAST, alpha=0.04))
+    result = build_proxy(bowl, dataclasses.replace(FAST, alpha=0.06))  # still a shell: 3 % of the hull
     assert result.method is ProxyMethod.WRAP
     assert result.mesh.is_watertight and result.components == 1
     # A shell around both sides of the bowl, not a lid: far less volume than the capped bowl.
@@ -267,7 +269,6 @@ def test_bad_settings_name_the_parameter(key, value):
 
 # --- end to end through the pipeline --------------------------------------------------------
 
-@pytest.mark.slow  # reads ../shared/meshes (boxes: pure, but a 1 s wrap)
 @pytest.mark.parametrize("name", PROBLEM_MESHES)
 def test_problem_mesh_job_hangs_icicles_from_the_real_object(problem_mesh, tmp_path, name):
     if name == "boxes":
@@ -276,7 +277,8 @@ def test_problem_mesh_job_hangs_icicles_from_the_real_object(problem_mesh, tmp_p
     else:
         problem_mesh(name)  # skips when the shared meshes are absent
         path = SHARED_MESHES / name
-    p = params.resolve({"proxy": {"alpha": FAST.alpha, "face_budget": FAST.face_budget}})
+    wrap = WRAPS.get(name, FAST)
+    p = params.resolve({"proxy": {"alpha": wrap.alpha, "face_budget": wrap.face_budget}})
     spec = JobSpec(object_id=name.split(".")[0], mesh=str(path), size_m=SIZE_M, params=p, seed=3)
     job = tmp_path / "job"
     outcome = run_job(spec, job, until=Stage.TRAJECTORIES)

@@ -45,6 +45,12 @@ def dense_icicles(count: int = 5, spacing: float = 0.05):
     return box, trimesh.Trimesh(v, f, process=False), cones
 
 
+@pytest.fixture(scope="module")
+def dense():
+    """`dense_icicles()` once for the module: its fine meshing is most of a test's time."""
+    return dense_icicles()
+
+
 def cone_widths(camera, cones, width, height):
     """Width in pixels of each cone halfway down, and whether that point is in the frame."""
     right = np.cross(camera.forward, camera.up)
@@ -61,14 +67,13 @@ def cone_widths(camera, cones, width, height):
     return out
 
 
-@pytest.mark.slow  # pure, but about 1 s: finely meshed icicles written twice
-def test_lookdev_has_an_ice_view_that_frames_the_icicles(tmp_path):
+def test_lookdev_has_an_ice_view_that_frames_the_icicles(tmp_path, dense):
     import json
 
     lookdev = load_render_config("lookdev")
     assert [v.frame for v in lookdev.views] == ["all", "ice"]
     config = render_config_from_dict({"resolution": [160, 120]}, base=lookdev)
-    box, ice, cones = dense_icicles()
+    box, ice, cones = dense
     files = write_scenes(tmp_path, box, ice, config)
     full, zoomed = files.cameras
     assert np.allclose(full.origin, zoomed.origin) and zoomed.fov_x < full.fov_x / 2
@@ -86,11 +91,11 @@ def test_lookdev_has_an_ice_view_that_frames_the_icicles(tmp_path):
     assert f"{zoomed.fov_x:.9g}" in files.xml.read_text() and f"angle {zoomed.fov_x:.9g}" in files.pov.read_text()
 
 
-def test_ice_view_without_ice_or_icicles_still_renders_a_view(tmp_path):
+def test_ice_view_without_ice_or_icicles_still_renders_a_view(tmp_path, dense):
     import json
 
     config = render_config_from_dict({"resolution": [64, 48]}, base=load_render_config("lookdev"))
-    box, _, _ = dense_icicles()
+    box, _, _ = dense
     files = write_scenes(tmp_path / "bare", box, None, config)
     assert len(files.cameras) == 2 and np.allclose(files.cameras[0].origin, files.cameras[1].origin)
     assert [v["icicle_px"] for v in json.loads((tmp_path / "bare" / "views.json").read_text())] == [None, None]

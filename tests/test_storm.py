@@ -155,7 +155,7 @@ def test_branch_growth_survives_the_job_files(tmp_path):
     assert trajectories_from_json(path).growth(0.01) == pytest.approx([0.0625, 0.2])
 
 
-@pytest.mark.slow  # pure, but about 18 s: a table at its real size, meshed
+@pytest.mark.slow  # pure, but about 18 s: every default on a real-size table is 3 M faces to mesh and measure
 def test_a_garden_table_at_its_real_size_carries_readable_ice():
     """Issue 23's figures on a real-size asset at every default (one job, no render)."""
     from icefarm.generators import generate, natural_size
