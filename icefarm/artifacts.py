@@ -13,7 +13,7 @@ import trimesh
 import yaml
 
 from .errors import InputError
-from .jobdir import DONE, DRIPS, ERROR, LATER, TRAJECTORIES, WATER, file_digest
+from .jobdir import DONE, DRIPS, ERROR, ICE_BANDS, LATER, TRAJECTORIES, WATER, file_digest
 from .stages.drips import DripResult
 from .stages.trajectories import TrajectoryResult
 
@@ -87,7 +87,19 @@ def _plain(value: Any) -> Any:
 
 
 def write_mesh(path: Path, mesh: trimesh.Trimesh) -> None:
+    """PLY, with the mesh's ``vertex_attributes`` as extra vertex properties."""
     atomic_write(path, mesh.export(file_type="ply"))
+
+
+def read_ice(path: Path):
+    """A job's ice.ply as `trimesh.load` reads it, with its ripple bands (`ICE_BANDS`, which
+    trimesh leaves in the raw PLY data) back in ``vertex_attributes`` when it has them."""
+    mesh = trimesh.load(path, process=False)
+    raw = mesh.metadata.get("_ply_raw", {}).get("vertex", {}).get("data")
+    if isinstance(mesh, trimesh.Trimesh) and raw is not None and ICE_BANDS in (raw.dtype.names or ()) \
+            and len(raw) == len(mesh.vertices):
+        mesh.vertex_attributes[ICE_BANDS] = np.asarray(raw[ICE_BANDS], dtype=np.float32)
+    return mesh
 
 
 def water_colors(supply: np.ndarray, water: np.ndarray) -> np.ndarray:

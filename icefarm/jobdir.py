@@ -71,6 +71,9 @@ DRIPS = "drips.json"
 TRAJECTORIES = "trajectories.json"
 LANDING = "landing.json"
 ICE = "ice.ply"
+# ice.ply's per-vertex float property: how far under a ripple crest, 0 to 1 (milky bands).
+# Mitsuba reads it as the mesh attribute "vertex_crest": it takes "NAME_x" for a component.
+ICE_BANDS = "crest_x"
 OBJECT = "object.ply"
 SCENE_SPEC = "scene.json"
 SCENE_XML = "scene.xml"

@@ -471,5 +471,6 @@ def test_scene_json_describes_what_scene_xml_renders(job, tmp_path):
     assert a.ice.flip == b.ice.flip and a.ice.tint == pytest.approx(b.ice.tint)
     np.testing.assert_allclose(a.ice.absorption, b.ice.absorption, rtol=1e-6)
     assert a.ice.scattering == pytest.approx(b.ice.scattering, rel=1e-6)
+    assert a.ice.shimmer == pytest.approx(b.ice.shimmer) and a.ice.shimmer > 0  # the job's ice is impure
     np.testing.assert_allclose(a.gravity, b.gravity)
     assert a.material == b.material

@@ -74,6 +74,11 @@ ABSORPTION_PER_M = (8.0, 2.5, 1.75)
 # about 1-8 /m on average; the core of a tap-water icicle, where the inclusions gather,
 # is far cloudier. A job's scattering is this times its impurity (0: clear).
 SCATTERING_PER_M = 15.0
+# Impure icicles hold milky inclusions under their ripple crests (Ladan & Morris, Phys. Rev.
+# E 106, 2022): seen through the ice the ripples are a shimmer of bands, not grooves. Under a
+# full crest of ice from the most impure water (surface.impurity = 1) this share of the
+# light goes through a frosted surface instead of a clear one (`IceShading.shimmer`).
+SHIMMER = 1.0
 
 
 @dataclass(frozen=True)
@@ -94,6 +99,9 @@ class IceLook:
     scattering : float
         Scattering coefficient per meter at ``surface.impurity`` 1 (the job's impurity
         scales it): the milky core of ice grown from impure water.
+    shimmer : float
+        Share of the light frosted under a full ripple crest at ``surface.impurity`` 1 (the
+        job's impurity scales it; 0: clear ripples): milky bands along rippled icicles.
     """
 
     ior: float = 1.31
@@ -101,6 +109,7 @@ class IceLook:
     tint: tuple[float, float, float] = (1.0, 1.0, 1.0)
     absorption: tuple[float, float, float] = ABSORPTION_PER_M
     scattering: float = SCATTERING_PER_M
+    shimmer: float = SHIMMER
 
 
 @dataclass(frozen=True)
@@ -273,6 +282,7 @@ _ICE: dict[str, Callable] = {
     "tint": triple_check(0.0, 1.0),
     "absorption": check_absorption,
     "scattering": number_check(0.0, MAX_ABSORPTION),
+    "shimmer": number_check(0.0, 1.0),
 }
 _ENVIRONMENT: dict[str, Callable] = {
     "sky": check_sky,

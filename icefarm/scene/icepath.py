@@ -285,8 +285,10 @@ class IcePathMethods:
 
             if dr.hint(self.features, mode="scalar"):
                 # the first diffuse or glossy vertex seen through any mirror or refraction
-                # chain, weighted by what that chain lets through; the sky where it escapes
-                hit = real & si.is_valid() & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
+                # chain, weighted by what that chain lets through; the sky where it escapes.
+                # Frosted ice (a rough surface, the milky bands) is seen through too: the
+                # denoiser keeps what lies behind it sharp.
+                hit = real & si.is_valid() & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth) & ~ice
                 sky = real & ~si.is_valid()
                 take = ~featured & (hit | sky | scatter)
                 seen = dr.select(hit, bsdf.eval_diffuse_reflectance(si, hit),

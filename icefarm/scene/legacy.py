@@ -97,6 +97,10 @@ def _ground(shape) -> Ground | None:
 
 def _ice(shape: ET.Element) -> IceShading:
     bsdf = shape.find("bsdf")
+    shimmer = 0.0
+    if bsdf.get("type") == "blendbsdf":  # milky bands: the clear surface is the first of the two
+        shimmer = float(_named(bsdf.find("texture[@name='weight']"), "float", "scale"))
+        bsdf = bsdf.find("bsdf")
     ior = _named(bsdf, "string", "int_ior")
     ior = WATER_ICE_IOR if ior == "water ice" else float(_named(bsdf, "float", "int_ior"))
     tint = _named(bsdf, "rgb", "specular_transmittance")
@@ -110,4 +114,4 @@ def _ice(shape: ET.Element) -> IceShading:
                       tint=tuple(_floats(tint)) if tint else (1.0, 1.0, 1.0),
                       absorption=tuple(float(a) for a in absorption), scattering=scattering,
                       flip=_named(shape, "boolean", "flip_normals") == "true",
-                      file=_named(shape, "string", "filename"))
+                      file=_named(shape, "string", "filename"), shimmer=shimmer)

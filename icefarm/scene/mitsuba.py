@@ -15,7 +15,7 @@ import numpy as np
 
 from .config import IceMedium
 from .material import Material
-from .spec import IceShading, SceneSpec
+from .spec import BAND_ATTRIBUTE, BAND_ALPHA, IceShading, SceneSpec
 
 WATER_ICE_IOR = 1.31  # Mitsuba's "water ice"
 
@@ -60,15 +60,27 @@ def _bsdf_object(parent: ET.Element, material: Material) -> None:
 
 
 def _bsdf_ice(parent: ET.Element, ice: IceShading) -> None:
-    b = _add(parent, "bsdf", type="roughdielectric" if ice.alpha > 0 else "dielectric")
+    if ice.shimmer > 0:  # milky bands: the clear surface blended, per vertex, with a frosted one
+        blend = _add(parent, "bsdf", type="blendbsdf")
+        weight = _add(blend, "texture", type="mesh_attribute", name="weight")
+        _add(weight, "string", name="name", value=BAND_ATTRIBUTE)
+        _add(weight, "float", name="scale", value=ice.shimmer)
+        _dielectric(blend, ice, ice.alpha)
+        _dielectric(blend, ice, max(ice.alpha, BAND_ALPHA))
+    else:
+        _dielectric(parent, ice, ice.alpha)
+
+
+def _dielectric(parent: ET.Element, ice: IceShading, alpha: float) -> None:
+    b = _add(parent, "bsdf", type="roughdielectric" if alpha > 0 else "dielectric")
     if abs(ice.ior - WATER_ICE_IOR) < 1e-9:
         _add(b, "string", name="int_ior", value="water ice")
     else:
         _add(b, "float", name="int_ior", value=ice.ior)
     _add(b, "string", name="ext_ior", value="air")
-    if ice.alpha > 0:
+    if alpha > 0:
         _add(b, "string", name="distribution", value="ggx")
-        _add(b, "float", name="alpha", value=ice.alpha)
+        _add(b, "float", name="alpha", value=alpha)
     if tuple(ice.tint) != (1.0, 1.0, 1.0):  # a per-crossing tint (thick ice gets its colour inside)
         _add(b, "rgb", name="specular_transmittance", value=_vec(ice.tint))
 

@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from ..jobdir import SCENE_SPEC
+from ..jobdir import ICE_BANDS, SCENE_SPEC
 from .camera import Camera
 from .config import IceMedium
 from .material import Material, material_from_dict
@@ -36,6 +36,11 @@ SUN_WARMTH = (1.0, 0.93, 0.84)  # the sun's colour (a late-morning white)
 # The ice's colour, where a format has no absorbing medium (UsdPreviewSurface): what white
 # light looks like after this much ice. 10 cm: the root of a long icicle, where ice shows colour.
 TINT_DISTANCE_M = 0.1
+# GGX alpha of the milky bands (`IceShading.shimmer`): chosen by eye on the bench's and the
+# table's ice views, where the ripples refracted the brown seat above as a zebra of dark
+# stripes: at 0.3 they stayed; at 0.5 they blur into pale bands without painting the ice white.
+BAND_ALPHA = 0.5
+BAND_ATTRIBUTE = "vertex_" + ICE_BANDS.rsplit("_", 1)[0]  # that PLY property as Mitsuba names it
 
 
 @dataclass(frozen=True)
@@ -134,6 +139,9 @@ class IceShading:
         The mesh's faces wind inwards (Mitsuba flips its normals).
     file : str
         The mesh, in the job folder.
+    shimmer : float
+        Share of the light frosted (GGX alpha `BAND_ALPHA`) where the mesh's `ICE_BANDS`
+        vertex property is 1, under a full ripple crest; 0: clear everywhere.
     """
 
     ior: float
@@ -143,6 +151,7 @@ class IceShading:
     scattering: float
     flip: bool
     file: str
+    shimmer: float = 0.0
 
     @property
     def roughness(self) -> float:
@@ -234,7 +243,7 @@ class SceneSpec:
             "object": {"file": self.object_file, "material": self.material.to_dict()},
             "ice": None if ice is None else {
                 "file": ice.file, "flip": bool(ice.flip), "ior": ice.ior, "alpha": ice.alpha, "tint": list(ice.tint),
-                "absorption": list(ice.absorption), "scattering": ice.scattering},
+                "absorption": list(ice.absorption), "scattering": ice.scattering, "shimmer": ice.shimmer},
             "exposure": self.exposure,
             "sampling": None if self.sampling is None else {
                 "spp": self.sampling.spp, "max_depth": self.sampling.max_depth, "denoise": self.sampling.denoise},
@@ -277,7 +286,7 @@ class SceneSpec:
             ice=None if ice is None else IceShading(
                 ior=float(ice["ior"]), alpha=float(ice["alpha"]), tint=tuple(float(t) for t in ice["tint"]),
                 absorption=tuple(float(a) for a in ice["absorption"]), scattering=float(ice["scattering"]),
-                flip=bool(ice["flip"]), file=str(ice["file"])),
+                flip=bool(ice["flip"]), file=str(ice["file"]), shimmer=float(ice.get("shimmer", 0.0))),
             exposure=data.get("exposure"),
             sampling=None if sampling is None else Sampling(int(sampling["spp"]), int(sampling["max_depth"]),
                                                             str(sampling["denoise"])))

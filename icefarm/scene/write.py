@@ -278,8 +278,17 @@ def build_spec(job_dir: str | Path, object_mesh: trimesh.Trimesh, ice_mesh: trim
         ice=None if ice_mesh is None else IceShading(
             ior=config.ice.ior, alpha=config.ice.roughness, tint=tuple(config.ice.tint),
             absorption=tuple(medium.absorption) if medium is not None else (0.0, 0.0, 0.0),
-            scattering=float(medium.scattering) if medium is not None else 0.0, flip=bool(ice_flip), file=jd.ICE),
+            scattering=float(medium.scattering) if medium is not None else 0.0, flip=bool(ice_flip), file=jd.ICE,
+            shimmer=_shimmer(ice_mesh, config.ice.shimmer * float(impurity))),
         exposure=env.exposure, sampling=Sampling(config.spp, config.max_depth, config.denoise))
+
+
+def _shimmer(ice_mesh: trimesh.Trimesh, shimmer: float) -> float:
+    """``shimmer`` where the ice mesh says where its ripple crests are (`jd.ICE_BANDS`), else 0."""
+    bands = ice_mesh.vertex_attributes.get(jd.ICE_BANDS)
+    if shimmer <= 0 or bands is None or len(bands) != len(ice_mesh.vertices) or not np.any(bands > 0):
+        return 0.0
+    return float(shimmer)
 
 
 def _sky_file(job_dir: Path, env) -> Path:

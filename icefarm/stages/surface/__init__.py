@@ -25,7 +25,8 @@ from .glaze import measure_glaze
 from .ground_ice import ground_ice_balls
 from .icicles import icicle_balls
 from .measure import measure_icicles
-from .profile import TIP_CALM, profile_radius
+from .profile import TIP_CALM, profile_args, profile_radius
+from .ripples import ripple_bands
 
 __all__ = ["SLIVER", "IceResult", "TIP_CALM", "build_ice", "ground_ice_balls", "icicle_balls", "measure_glaze",
-           "measure_icicles", "profile_radius"]
+           "measure_icicles", "profile_args", "profile_radius", "ripple_bands"]

@@ -35,6 +35,10 @@ RIPPLE_SEED = 0x1C1C1E  # each branch's ripple texture: its own stream, not the 
 # its own arc length (its nearest sample's plus its offset along the axis), so the ripple's
 # phase needs no finer samples; the amplitude's envelope is smooth at this spacing.
 SAMPLES_PER_WAVE = 4
+# The milky bands (`ripple_bands`) reach down the crests' flanks: at a trough they keep this
+# share of a crest's milkiness, so the steep flanks, which refract what lies above into dark
+# stripes, are frosted too.
+BAND_FLOOR = 0.5
 
 
 def carve_ripples(vertices: np.ndarray, traj: TrajectoryResult, prof: dict,
@@ -63,10 +67,56 @@ def carve_ripples(vertices: np.ndarray, traj: TrajectoryResult, prof: dict,
     (n, 3) float
         The moved vertices (a copy); the same array when there is no ripple.
     """
+    waves = _waves(vertices, traj, prof, max_radius)
+    if waves is None:
+        return vertices
+    sel, wave, radial, dist, *_ = waves
+    out = np.array(vertices, dtype=np.float64, copy=True)
+    out[sel] += (wave / dist)[:, None] * radial
+    return out
+
+
+def ripple_bands(vertices: np.ndarray, traj: TrajectoryResult, prof: dict) -> np.ndarray | None:
+    """How far under a ripple crest each ice vertex lies, 0 to 1: where impure icicles hold
+    their milky inclusions (Ladan & Morris 2022), for the renderer's shimmer.
+
+    The crest's own height at the vertex (`carve_ripples`' displacement, without the fade
+    where the mesh is too coarse to carry it: the inclusions are a look, not geometry) over
+    the whole crest's depth; 0 in the troughs and off the icicles.
+
+    Parameters
+    ----------
+    vertices : (n, 3) float
+        Ice mesh vertices (ripples carved or not: they move across the axis only), meters.
+    traj : TrajectoryResult
+        The axes the ripples were carved around.
+    prof : dict
+        `profile_args` of the surface group.
+
+    Returns
+    -------
+    (n,) float32 or None
+        None where there is no ripple (``amplitude`` 0, no branch).
+    """
+    waves = _waves(vertices, traj, prof, None)
+    if waves is None:
+        return None
+    sel, _, _, _, depth, crest = waves
+    bands = np.zeros(len(vertices), dtype=np.float32)
+    bands[sel] = np.clip(depth / prof["amplitude"] * (BAND_FLOOR + (1 - BAND_FLOOR) * 0.5 * (1 + crest)), 0.0, 1.0)
+    return bands
+
+
+def _waves(vertices: np.ndarray, traj: TrajectoryResult, prof: dict, max_radius: float | None):
+    """The ripple at the vertices near the branches: their indices ``sel`` (k,), the radial
+    displacement ``wave`` (k,) in meters, the offsets ``radial`` (k, 3) from the axis and
+    their lengths ``dist`` (k,), and ``wave`` as ``depth * crest``: the crest's local depth
+    (meters) and where on the crest the vertex lies (-1 trough to 1 top); None where there
+    is no ripple."""
     amplitude, frequency, tip = prof["amplitude"], prof["frequency"], prof["tip"]
     branches = np.flatnonzero(np.diff(np.asarray(traj.branch_offsets)) > 0)
     if amplitude <= 0 or frequency <= 0 or len(branches) == 0 or len(vertices) == 0:
-        return vertices
+        return None
     x_pt, lengths = arc_lengths(traj.points, traj.branch_offsets)
     L = lengths[branches]
     grown = grown_lengths(L, traj.cut[branches])
@@ -93,7 +143,7 @@ def carve_ripples(vertices: np.ndarray, traj: TrajectoryResult, prof: dict,
     # sample there carries an amplitude that fades in smoothly from the quiet stretches.
     rippled = np.flatnonzero(wave_amp > 0)
     if len(rippled) == 0:
-        return vertices
+        return None
     reach = REACH * radius[rippled].max() + amplitude
     lo, hi = axis[rippled].min(axis=0) - reach, axis[rippled].max(axis=0) + reach
     candidates = np.flatnonzero(((vertices >= lo) & (vertices <= hi)).all(axis=1))
@@ -121,11 +171,9 @@ def carve_ripples(vertices: np.ndarray, traj: TrajectoryResult, prof: dict,
     # and with height, never below FADE_FLOOR of the full one
     swirl = texture.break_phase[b] + xv * texture.break_rate[b]
     fade = 0.5 * (1 + 2 * sin_t * cos_t * np.cos(swirl) + (cos_t**2 - sin_t**2) * np.sin(swirl))
-    wave = wave_amp[i] * crest * (FADE_FLOOR + (1 - FADE_FLOOR) * fade)
-    out = np.array(vertices, dtype=np.float64, copy=True)
-    sel = near[own]
-    out[sel] += (wave / dist)[:, None] * radial
-    return out
+    depth = FADE_FLOOR + (1 - FADE_FLOOR) * fade
+    wave = wave_amp[i] * crest * depth
+    return near[own], wave, radial, dist, wave_amp[i] * depth, crest
 
 
 # Natural ripples (Chen & Morris 2013; photographs of eaves icicles): the wavelength
