@@ -50,7 +50,7 @@ def test_a_third_finer_field_is_united_locally_and_agrees_with_the_whole_boolean
     assert not whole, "fell back to the whole-mesh boolean"
     assert len(m.split(only_watertight=False)) == 1  # the tip, the thick part and the slab: one solid
     # the same solids through the whole-mesh boolean
-    parts = [fuse._march(f.values, f.blocks, f.level) for f in (a, slab, d)]
+    parts = [fuse.march_blocks(f.values, f.blocks, f.level) for f in (a, slab, d)]
     ref = _closed(*real_union([(f.origin + lat * f.voxel, fc) for f, (lat, fc) in zip((a, slab, d), parts)]))
     assert m.volume == pytest.approx(ref.volume, rel=0.005)
     # the tip keeps its fine lattice: its end reaches as low as the chain's last ball

@@ -8,7 +8,7 @@ import numpy as np
 from scipy import ndimage
 
 from .field import Field, block_keys
-from .march import _march
+from .march import march_blocks
 
 # Most tiles in the dense grid of a region where two lattices are fused.
 _MAX_TILES = 2**22
@@ -46,7 +46,7 @@ def fuse_fields(a: Field | None, b: Field | None, detail: Field | None = None):
     parts = []
     for f in (a, b):
         if f is not None:
-            lattice, faces = _march(f.values, f.blocks, f.level)
+            lattice, faces = march_blocks(f.values, f.blocks, f.level)
             if len(faces):
                 parts.append((f, f.origin + lattice * f.voxel, lattice, faces))
     keeps_a = bool(parts) and parts[0][0] is a
@@ -57,7 +57,7 @@ def fuse_fields(a: Field | None, b: Field | None, detail: Field | None = None):
         if fused is None:
             fused = (*union_meshes([(p[1], p[3]) for p in parts]), None)
     if detail is not None:
-        d_lattice, d_faces = _march(detail.values, detail.blocks, detail.level)
+        d_lattice, d_faces = march_blocks(detail.values, detail.blocks, detail.level)
         if len(d_faces):
             d_part = (detail, detail.origin + d_lattice * detail.voxel, d_lattice, d_faces)
             if fused is None:
@@ -107,7 +107,7 @@ def _local_union(a, b):
             return None
         inner = _inner_faces(lattice, faces, *tiles)
         values, blocks = _restrict(field, *tiles)
-        r_lattice, r_faces = _march(values, blocks, field.level)
+        r_lattice, r_faces = march_blocks(values, blocks, field.level)
         r_inner = _inner_faces(r_lattice, r_faces, *tiles)
         sides.append((field, verts, faces, inner, field.origin + r_lattice * field.voxel, r_faces, r_inner))
     # The whole mesh's faces in cells that reach out of the region lie off the other

@@ -58,11 +58,11 @@ def polygonize(balls: Balls, voxel: float, level: float = LEVEL, block: int = BL
     field = sample_field(balls, voxel, level, block, name)
     if field is None:
         return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64)
-    lattice, faces = _march(field.values, field.blocks, level)
+    lattice, faces = march_blocks(field.values, field.blocks, level)
     return field.origin + lattice * voxel, faces
 
 
-def _march(values: np.ndarray, blocks: np.ndarray, level: float):
+def march_blocks(values: np.ndarray, blocks: np.ndarray, level: float):
     """Marching cubes over block fields (blocks absent from ``blocks`` count as zero).
 
     Parameters
