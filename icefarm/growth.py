@@ -26,7 +26,8 @@ import trimesh
 
 from . import artifacts
 from .geometry import arc_lengths
-from .jobdir import FRAMES, GROWTH_MP4, GROWTH_SCRATCH, GROWTH_USDA, RENDER_PNG, ICE, growth_frame, growth_ice
+from .jobdir import (FRAMES, GROWTH_MP4, GROWTH_SCRATCH, GROWTH_USDA, ICE, ICE_BANDS, RENDER_PNG, growth_frame,
+                     growth_ice)
 from .params import GlazeParams, SurfaceParams
 from .scene.write import JobScene
 from .export.growth_usd import write_growth_usd
@@ -130,8 +131,9 @@ def grow_frames(folder: str | Path, traj: TrajectoryResult, drips: DripResult, s
     """
     from tqdm import tqdm
 
-    from .stages.surface.measure import measure_icicles
+    from .stages.surface import measure_icicles, profile_args, ripple_bands
 
+    prof = profile_args(surface)
     folder = Path(folder)
     shutil.rmtree(folder, ignore_errors=True)
     folder.mkdir(parents=True)
@@ -147,7 +149,11 @@ def grow_frames(folder: str | Path, traj: TrajectoryResult, drips: DripResult, s
         # modulo the period: a frame with more balls than the full growth steps back
         rng.bit_generator.advance((full_draws - noise_draws(traj_f, surface)) % 2**128)
         ice = build(traj_f, drips_f, glaze_f, rng)
+        axes = ice.axes if ice.axes is not None else traj_f
         mesh = trimesh.Trimesh(ice.vertices, ice.faces, process=False)
+        bands = ripple_bands(ice.vertices, axes, prof)
+        if bands is not None:  # milky under the crests, as the job's ice.ply
+            mesh.vertex_attributes[ICE_BANDS] = bands
         plies.append(folder / growth_ice(i))
         artifacts.write_mesh(plies[-1], mesh)  # as the job writes ice.ply: the last frame is that file
         surface_seconds = time.perf_counter() - start
@@ -156,7 +162,7 @@ def grow_frames(folder: str | Path, traj: TrajectoryResult, drips: DripResult, s
             start = time.perf_counter()
             pngs.append(render_frame(view, mesh, folder / GROWTH_SCRATCH, folder / growth_frame(i)))
             render_seconds = time.perf_counter() - start
-        m = measure_icicles(ice.vertices, ice.faces, ice.axes if ice.axes is not None else traj_f, surface)
+        m = measure_icicles(ice.vertices, ice.faces, axes, surface)
         long = arc_lengths(traj_f.points, np.asarray(traj_f.branch_offsets))[1][trunks]
         wide = 2 * m.taper * surface.tip_radius
         gained = np.divide(long - was_long, wide - was_wide, out=np.full(len(long), np.nan),
