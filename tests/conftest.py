@@ -206,12 +206,34 @@ def assert_not_blank():
 FAST = {"water": {"rays": 300}, "drips": {"count": 4}, "proxy": {"mode": "never"}}  # stage-only jobs in seconds
 
 
+def _write_ball(folder: Path) -> Path:
+    path = folder / "ball.ply"
+    trimesh.creation.icosphere(subdivisions=2, radius=1.0).export(path)
+    return path
+
+
+def _write_tiny_render(folder: Path) -> Path:
+    """``folder/tiny.yaml``: the preview config at `TINY_RENDER`, without its denoiser, for a manifest."""
+    from icefarm.scene.config import CONFIG_DIR
+
+    path = folder / "tiny.yaml"
+    config = yaml.safe_load((CONFIG_DIR / "preview.yaml").read_text())
+    path.write_text(yaml.safe_dump({**config, **TINY_RENDER, "denoise": "none"}))
+    return path
+
+
 @pytest.fixture
 def ball(tmp_path) -> Path:
     """``tmp_path/ball.ply``: an icosphere of radius 1 (subdivisions 2), for jobs and manifests."""
-    path = tmp_path / "ball.ply"
-    trimesh.creation.icosphere(subdivisions=2, radius=1.0).export(path)
-    return path
+    return _write_ball(tmp_path)
+
+
+@pytest.fixture(scope="session")
+def sweep_kit() -> SimpleNamespace:
+    """For fixtures wider than a test: ``fast`` (`FAST`), ``ball(folder)`` (writes the `ball`
+    fixture's mesh there) and ``tiny_render(folder)`` (writes a tiny render config there,
+    `TINY_RENDER` without a denoiser); each writer returns the path."""
+    return SimpleNamespace(fast=FAST, ball=_write_ball, tiny_render=_write_tiny_render)
 
 
 @pytest.fixture
