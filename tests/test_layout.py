@@ -7,11 +7,23 @@ functions too, which hide a cycle from Python at import time but not from a read
 from __future__ import annotations
 
 import ast
+import functools
 from pathlib import Path
 
 import icefarm
 
 PACKAGE_DIR = Path(icefarm.__file__).resolve().parent
+
+
+def source_tree(path: Path) -> ast.Module:
+    """The parsed source of ``path``; each text is parsed once per session (the layout tests
+    read every module several times)."""
+    return _parsed(path.read_text(), str(path))
+
+
+@functools.lru_cache(maxsize=None)
+def _parsed(text: str, name: str) -> ast.Module:
+    return ast.parse(text, name)
 
 
 def module_files(package_dir: Path) -> dict[str, Path]:
@@ -38,7 +50,7 @@ def import_graph(package_dir: Path) -> dict[str, set[str]]:
     for name, path in modules.items():
         is_package = path.name == "__init__.py"
         here = name.split(".") if is_package else name.split(".")[:-1]
-        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        for node in ast.walk(source_tree(path)):
             targets: list[str] = []
             if isinstance(node, ast.Import):
                 targets = [alias.name for alias in node.names]
@@ -160,7 +172,7 @@ def name_literals(package_dir: Path, names, skip: str = "jobdir.py") -> list[str
     for path in sorted(package_dir.rglob("*.py")):
         if path.parent == package_dir and path.name == skip:
             continue
-        tree = ast.parse(path.read_text(), str(path))
+        tree = source_tree(path)
         docstrings = {id(node.body[0].value) for node in ast.walk(tree)
                       if isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef))
                       and node.body and isinstance(node.body[0], ast.Expr)
@@ -204,16 +216,17 @@ def imported_from(package_dir: Path, package: str) -> set[str]:
     root = package_dir.name
     full = f"{root}.{package}"
     names = set()
-    for name, path in module_files(package_dir).items():
+    modules = module_files(package_dir)
+    for name, path in modules.items():
         if name == full or name.startswith(full + "."):
             continue
         here = name.split(".") if path.name == "__init__.py" else name.split(".")[:-1]
-        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        for node in ast.walk(source_tree(path)):
             if isinstance(node, ast.ImportFrom):
                 base = here[:len(here) - node.level + 1] if node.level else []
                 module = ".".join(base + ([node.module] if node.module else []))
                 if module == full or module.startswith(full + "."):
-                    submodules = {f"{module}.{alias.name}" for alias in node.names} & set(module_files(package_dir))
+                    submodules = {f"{module}.{alias.name}" for alias in node.names} & modules.keys()
                     names |= {alias.name for alias in node.names if not alias.name.startswith("_")
                               and f"{module}.{alias.name}" not in submodules}
     return names
