@@ -246,7 +246,7 @@ def test_a_single_sheet_runs_end_to_end(tmp_path, kind):
                  # a light storm, few icicles, a coarse proxy and flow mesh: the tilted quad's rims drew 192 icicles (6 s)
                  "--set", "storm.max_icicles=4", "--set", "storm.intensity=light", "--set", "proxy.face_budget=5000",
                  "--set", "storm.flow_edge=0.1",
-                 "--set", "surface.voxel_size=0.004", "--set", "glaze.voxel_size=0.016")  # coarse: a quick run
+                 "--set", "surface.voxel_size=0.008", "--set", "glaze.voxel_size=0.03")  # coarse: a quick run
     assert result.exit_code == 0, result.output
     timings = json.loads((out / "timings.json").read_text())
     assert timings["problems"]["boundary_edges"] == 0  # solidified: a closed slab

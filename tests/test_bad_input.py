@@ -220,8 +220,8 @@ FLAT = {  # the coarse ones need a proxy: about 1 s each (slow), the triangle's 
 def test_flat_meshes_run_with_the_default_proxy_mode(tmp_path, name):
     path = tmp_path / "flat.ply"
     FLAT[name]().export(path)
-    spec = JobSpec("flat", str(path), 0.3, params.resolve({"water.rays": 2000, "drips.count": 4}), seed=2,
-                   placement="hanging")
+    p = params.resolve({"water.rays": 2000, "drips.count": 4, "proxy.face_budget": 5000})  # a coarse flow mesh
+    spec = JobSpec("flat", str(path), 0.3, p, seed=2, placement="hanging")
     outcome = run_job(spec, tmp_path / "job", until=Stage.TRAJECTORIES)
     assert outcome.status == "done", outcome.error
     prepared = prepare(path, 0.3)

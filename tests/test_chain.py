@@ -14,7 +14,7 @@ from icefarm.chain import Stage, run_stages
 from icefarm.mesh import prepare
 from icefarm.pipeline import JobSpec, run_job
 
-SMALL = {"water.rays": 1500, "drips.count": 6, "glaze.mode": "none", "surface.voxel_size": 0.003}
+SMALL = {"water.rays": 1500, "drips.count": 6, "storm.max_icicles": 6, "glaze.mode": "none", "surface.voxel_size": 0.003}
 
 
 def _bowl(tmp_path):

@@ -150,6 +150,7 @@ def test_render_again_refuses_what_is_not_a_rendered_job(sphere_file, tmp_path):
     assert result.exit_code == 2 and "not a finished job" in result.output
     job = tmp_path / "job"
     assert run("run", sphere_file, "--size-m", 0.3, "-o", job, "--no-render", "--set", "drips.count=4",
+               "--set", "storm.max_icicles=4",  # the physical storm's count (drips.count is the relative one's)
                "--set", "water.rays=2000", "--set", "glaze.mode=none", "--set", "surface.voxel_size=0.003").exit_code == 0
     result = run("render", job)
     assert result.exit_code == 2 and "no object.ply" in result.output
@@ -166,8 +167,9 @@ def test_run_says_what_the_storm_did_and_warns_when_little_shows(tmp_path):
     timings = json.loads((tmp_path / "sign" / "timings.json").read_text())
     assert timings["storm_kind"] == "freezing_rain" and timings["water_frozen"] + timings["water_shed"] \
         + timings["water_pooled"] == pytest.approx(1.0, abs=1e-3)
-    # its real size; a coarse proxy (the default's wrap took 1 s) leaves the storm's figures as they are
-    table = run("run", "generator:table", "--until", "trajectories", "--set", "proxy.face_budget=5000",
-                "-o", tmp_path / "table")
+    # its real size; a coarse proxy (the default's wrap took 1 s) and flow mesh (5 cm edges, 25 mm
+    # by default) leave the storm's figures as they are: 102 icicles, 28 per m of rim either way
+    table = run("run", "generator:table", "--until", "trajectories", "--set", "proxy.face_budget=2500",
+                "--set", "storm.flow_edge=0.05", "-o", tmp_path / "table")
     assert table.exit_code == 0, table.output
     assert "warning:" not in table.output and "icicles, " in table.output

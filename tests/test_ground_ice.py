@@ -231,7 +231,7 @@ def test_parameters_are_declared_with_domains():
 
 
 def test_a_roof_job_writes_landing_json_and_reports_the_ground_ice(tmp_path):
-    values = {"storm.mode": "relative", "drips.count": 8, "surface.voxel_size": 0.002, "glaze.mode": "none",
+    values = {"storm.mode": "relative", "drips.count": 8, "surface.voxel_size": 0.003, "glaze.mode": "none",
               "ground_ice.mode": "stalagmites", "surface.curtain": 0.04}
     spec = JobSpec("roof", "generator:roof", 0.4, params.resolve(values), seed=2)
     out = tmp_path / "job"

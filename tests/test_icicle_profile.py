@@ -107,7 +107,7 @@ def test_bases_show_at_the_defaults(base_volume):
 
 
 def test_base_balls_and_extent_each_add_ice_monotonically(base_volume):
-    coarse = {"surface__voxel_size": 0.002}  # twice the default: twelve meshings in a third of the time
+    coarse = {"surface__voxel_size": 0.003}  # three times the default: twelve quick meshings, each step still +0.2 cm^3 or more
     by_count = [base_volume(surface__base_balls=n, **coarse) for n in (10, 20, 40)]
     by_extent = [base_volume(surface__base_extent=eb, **coarse) for eb in (0.01, 0.02, 0.03)]
     assert np.all(np.diff(by_count) > 0) and np.all(np.diff(by_extent) > 0)

@@ -71,7 +71,7 @@ def test_cache_entries_round_trip_every_stage_result_without_pickle(tmp_path):
     from icefarm.stage_codec import decode, encode
 
     prepared = prepare(generate("roof"), 0.4)
-    quick = {"surface.voxel_size": 0.003, "glaze.voxel_size": 0.012, "storm.max_icicles": 4, "storm.flow_edge": 0.05}
+    quick = {"surface.voxel_size": 0.006, "glaze.voxel_size": 0.024, "storm.max_icicles": 4, "storm.flow_edge": 0.05}
     r = run_stages(prepared, params.resolve(quick), 0)  # coarse, four icicles: quick
     results = [r.water, r.drips, r.trajectories, r.ice]
 

@@ -61,7 +61,7 @@ def test_a_job_run_from_a_log_prints_each_step_and_the_surface_parts(tmp_path):
 
     result = CliRunner().invoke(main, ["run", "generator:roof", "--size-m", "0.4", "--no-render",
                                        "--set", "storm.mode=relative", "--set", "drips.count=4",  # quick: four icicles
-                                       "--set", "surface.voxel_size=0.003", "--set", "glaze.voxel_size=0.012",
+                                       "--set", "surface.voxel_size=0.006", "--set", "glaze.voxel_size=0.024",
                                        "-o", str(tmp_path / "roof")])
     assert result.exit_code == 0, result.output
     lines = result.stdout.splitlines()

@@ -209,7 +209,7 @@ def test_small_holes_are_filled(sphere):
 def test_wide_opening_is_wrapped_not_capped():
     bowl = trimesh.creation.icosphere(subdivisions=3, radius=0.15)
     bowl.update_faces(bowl.triangles_center[:, 1] < 0.05)
-    result = build_proxy(bowl, dataclasses.replace(FAST, alpha=0.06))  # still a shell: 3 % of the hull
+    result = build_proxy(bowl, dataclasses.replace(FAST, alpha=0.06, face_budget=5000))  # still a shell: 3 % of the hull
     assert result.method is ProxyMethod.WRAP
     assert result.mesh.is_watertight and result.components == 1
     # A shell around both sides of the bowl, not a lid: far less volume than the capped bowl.
@@ -217,7 +217,7 @@ def test_wide_opening_is_wrapped_not_capped():
 
 
 def test_always_wraps_a_clean_mesh(sphere):
-    result = build_proxy(sphere, dataclasses.replace(FAST, alpha=0.04, mode="always"))
+    result = build_proxy(sphere, dataclasses.replace(FAST, alpha=0.04, mode="always", face_budget=5000))
     assert result.method is ProxyMethod.WRAP and result.mesh.is_watertight
 
 
@@ -225,7 +225,7 @@ def test_separate_objects_stay_separate():
     a = trimesh.creation.icosphere(subdivisions=2, radius=0.1)
     b = a.copy()
     b.apply_translation((0.5, 0, 0))
-    result = build_proxy(trimesh.util.concatenate([a, b]), FAST)
+    result = build_proxy(trimesh.util.concatenate([a, b]), dataclasses.replace(FAST, face_budget=5000))
     assert result.components == 2 and result.mesh.is_watertight
 
 

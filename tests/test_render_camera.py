@@ -31,7 +31,8 @@ def test_camera_up_follows_gravity_and_frames_everything(gravity, box_with_icicl
 
 def dense_icicles(count: int = 5, spacing: float = 0.05):
     """A 30 cm box with ``count`` cones hanging from its underside, finely meshed like the
-    pipeline's marching-cubes ice (edges of about 1.5 mm), 12 mm radius at the root."""
+    pipeline's marching-cubes ice (edges of about 1.5 mm: split until none is over 3 mm),
+    12 mm radius at the root."""
     box = trimesh.creation.box(extents=(0.3, 0.1, 0.2))
     box.apply_translation((0.0, 0.05, 0.0))
     cones = []
@@ -41,7 +42,7 @@ def dense_icicles(count: int = 5, spacing: float = 0.05):
         cone.apply_translation(((i - (count - 1) / 2) * spacing, 0.0, 0.04))
         cones.append(cone)
     ice = trimesh.util.concatenate(cones)
-    v, f = trimesh.remesh.subdivide_to_size(ice.vertices, ice.faces, max_edge=0.0015)
+    v, f = trimesh.remesh.subdivide_to_size(ice.vertices, ice.faces, max_edge=0.003)
     return box, trimesh.Trimesh(v, f, process=False), cones
 
 

@@ -54,7 +54,7 @@ def cup() -> trimesh.Trimesh:
     profile = np.array([[0.0, 0.0], [0.10, 0.0], [0.10, 0.18], [0.09, 0.18], [0.09, 0.10], [0.0, 0.10]])
     mesh = trimesh.creation.revolve(profile, sections=48)  # about +z
     mesh.apply_transform(trimesh.transformations.rotation_matrix(-np.pi / 2, (1, 0, 0)))  # z -> y up
-    return trimesh.Trimesh(*trimesh.remesh.subdivide_to_size(mesh.vertices, mesh.faces, 0.01))
+    return trimesh.Trimesh(*trimesh.remesh.subdivide_to_size(mesh.vertices, mesh.faces, 0.02))
 
 
 def test_spill_levels_are_the_lowest_pass_to_an_outlet():
