@@ -151,9 +151,10 @@ def _waves(vertices: np.ndarray, traj: TrajectoryResult, prof: dict, max_radius:
                                                              workers=-1)
     found = np.isfinite(d)
     near, i = candidates[found], rippled[i[found]]
+    t_i = tangent[i]  # gathered once: the gathers of (k, 3) rows are most of the cost here
     rel = vertices[near] - axis[i]
-    along = np.einsum("ij,ij->i", rel, tangent[i])
-    radial = rel - along[:, None] * tangent[i]
+    along = np.einsum("ij,ij->i", rel, t_i)
+    radial = rel - along[:, None] * t_i
     dist = np.linalg.norm(radial, axis=1)
     own = (dist <= REACH * radius[i] + amplitude) & (dist > 1e-9)
     i, radial, dist, along = i[own], radial[own], dist[own], along[own]
@@ -162,18 +163,21 @@ def _waves(vertices: np.ndarray, traj: TrajectoryResult, prof: dict, max_radius:
     e1, e2 = _frames(tangent)
     cos_t = np.einsum("ij,ij->i", radial, e1[i]) / dist
     sin_t = np.einsum("ij,ij->i", radial, e2[i]) / dist
-    xv = np.clip(x[i] + along, 0.0, L[b])  # the vertex's own arc length along its branch
+    x_i = x[i]
+    xv = np.clip(x_i + along, 0.0, L[b])  # the vertex's own arc length along its branch
     # the phase at the vertex: its sample's, carried on along the axis by the local wavenumber
     phase, rate = _wandering_phase(x, owner, frequency, texture)
-    tilt = cos_t * np.cos(texture.tilt_at[b]) + sin_t * np.sin(texture.tilt_at[b])  # cos(theta - tilt_at)
-    crest = np.sin(phase[i] + rate[i] * (xv - x[i]) + texture.tilt[b] * tilt)
+    # per branch, then gathered: the same numbers as per vertex, a fraction of the work
+    tilt = cos_t * np.cos(texture.tilt_at)[b] + sin_t * np.sin(texture.tilt_at)[b]  # cos(theta - tilt_at)
+    crest = np.sin(phase[i] + rate[i] * (xv - x_i) + texture.tilt[b] * tilt)
     # crests fade and break around the circumference: an amplitude that drifts with angle
     # and with height, never below FADE_FLOOR of the full one
     swirl = texture.break_phase[b] + xv * texture.break_rate[b]
     fade = 0.5 * (1 + 2 * sin_t * cos_t * np.cos(swirl) + (cos_t**2 - sin_t**2) * np.sin(swirl))
     depth = FADE_FLOOR + (1 - FADE_FLOOR) * fade
-    wave = wave_amp[i] * crest * depth
-    return near[own], wave, radial, dist, wave_amp[i] * depth, crest
+    amp = wave_amp[i]
+    wave = amp * crest * depth
+    return near[own], wave, radial, dist, amp * depth, crest
 
 
 # Natural ripples (Chen & Morris 2013; photographs of eaves icicles): the wavelength
