@@ -116,12 +116,13 @@ def test_a_big_asset_meshes_fewer_faces_with_the_same_icicles_and_stays_watertig
     for error_px in (0.25, 0.0):
         p = params.resolve({"surface": {"error_px": error_px}})
         r = run_stages(prep, p, 0)
-        results[error_px] = r.ice, measure_icicles(r.ice.vertices, r.ice.faces, r.trajectories, p.surface)
+        results[error_px] = r.ice, measure_icicles(r.ice.vertices, r.ice.faces, r.ice.axes, p.surface)
     (budget, stats), (full, full_stats) = results[0.25], results[0.0]
     m = _closed(budget.vertices, budget.faces)
     assert len(budget.faces) < 0.6 * len(full.faces)
     assert m.volume == pytest.approx(trimesh.Trimesh(full.vertices, full.faces).volume, rel=0.03)
     # the tips keep their fine lattice: tip radius and taper as measured without the budget
     assert stats.tip_radius_mm == pytest.approx(full_stats.tip_radius_mm, rel=0.1)
-    assert np.median(stats.taper) == pytest.approx(np.median(full_stats.taper), rel=0.15)
+    # (a trunk too short to measure has no taper: NaN)
+    assert np.nanmedian(stats.taper) == pytest.approx(np.nanmedian(full_stats.taper), rel=0.15)
     assert budget.vertices[:, 1].min() == pytest.approx(full.vertices[:, 1].min(), abs=0.002)
