@@ -91,7 +91,7 @@ def write_mesh(path: Path, mesh: trimesh.Trimesh) -> None:
     atomic_write(path, mesh.export(file_type="ply"))
 
 
-def read_ice(path: Path):
+def read_ice_mesh(path: Path):
     """A job's ice.ply as `trimesh.load` reads it, with its ripple bands (`ICE_BANDS`, which
     trimesh leaves in the raw PLY data) back in ``vertex_attributes`` when it has them."""
     mesh = trimesh.load(path, process=False)

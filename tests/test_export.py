@@ -53,7 +53,7 @@ READ_USD = textwrap.dedent("""
             np.save(f"{out}/{name}_normals.npy", np.array(mesh.GetNormalsAttr().Get()))
             primvars = {}
             for pv in UsdGeom.PrimvarsAPI(prim).GetPrimvars():
-                if pv.GetPrimvarName() in ("water", "supply"):
+                if pv.GetPrimvarName() in ("water", "supply", "crest"):
                     np.save(f"{out}/{name}_{pv.GetPrimvarName()}.npy", np.array(pv.Get()))
                     primvars[str(pv.GetPrimvarName())] = str(pv.GetInterpolation())
             material = UsdShade.MaterialBindingAPI(prim).ComputeBoundMaterial()[0]
@@ -187,6 +187,18 @@ def test_meshes_hold_the_plys_points_with_extents_and_normals(job, usd):
     # Outward: the ice's lowest point (an icicle's tip) has a normal pointing down.
     ice_points, ice_normals = np.load(out / "Ice_points.npy"), np.load(out / "Ice_normals.npy")
     assert ice_normals[np.argmin(ice_points[:, 1]), 1] < -0.5
+
+
+@pytest.mark.slow  # a rendered job (module fixture)
+def test_ice_carries_its_milky_ripple_bands_per_vertex(job, usd):
+    from icefarm.artifacts import read_ice_mesh
+    from icefarm.jobdir import ICE_BANDS
+
+    assert usd["meshes"]["Ice"]["primvars"] == {"crest": "vertex"}
+    bands = read_ice_mesh(job / "ice.ply").vertex_attributes[ICE_BANDS]
+    crest = np.load(usd["dir"] / "Ice_crest.npy")
+    np.testing.assert_array_equal(crest, bands)  # the ice's vertices keep ice.ply's order
+    assert crest.max() > 0.5 and crest.min() == 0.0
 
 
 @pytest.mark.slow  # a rendered job (module fixture)

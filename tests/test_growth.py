@@ -136,11 +136,11 @@ def test_each_frame_holds_the_one_before(grown):
 
 @pytest.mark.slow  # a rendered growth job (module fixture)
 def test_the_last_frame_is_the_jobs_ice(grown):
-    from icefarm.artifacts import read_ice
+    from icefarm.artifacts import read_ice_mesh
     from icefarm.jobdir import ICE_BANDS
 
-    last = read_ice(grown / "growth" / f"ice_{FRAMES:04d}.ply")
-    ice = read_ice(grown / "ice.ply")
+    last = read_ice_mesh(grown / "growth" / f"ice_{FRAMES:04d}.ply")
+    ice = read_ice_mesh(grown / "ice.ply")
     np.testing.assert_array_equal(last.vertices, ice.vertices)
     np.testing.assert_array_equal(last.faces, ice.faces)
     # milky under the same ripple crests (the job's water is impure)

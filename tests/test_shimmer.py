@@ -61,7 +61,7 @@ def test_ice_ply_keeps_the_bands_where_mitsuba_finds_them(tmp_path, box_with_ici
     ice.vertex_attributes[ICE_BANDS] = bands
     path = tmp_path / "ice.ply"
     artifacts.write_mesh(path, ice)
-    back = artifacts.read_ice(path)
+    back = artifacts.read_ice_mesh(path)
     assert np.array_equal(back.vertex_attributes[ICE_BANDS], bands)
     mitsuba.set_variant("scalar_rgb")
     shape = mitsuba.load_dict({"type": "ply", "filename": str(path)})

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import trimesh
 
-from ..artifacts import read_ice
+from ..artifacts import read_ice_mesh
 from ..errors import InputError
 from ..jobdir import DONE, ICE, OBJECT, PARAMS, SCENE_XML, JobState, read_job
 from ..placement import Placement
@@ -60,7 +60,7 @@ def render_again(job_dir: Path, render: str, out_dir: Path, progress: bool = Fal
     rendered = read_rendered(job_dir)
     obj = trimesh.load(job_dir / OBJECT, process=False)
     obj.merge_vertices(merge_norm=True)  # object.ply splits vertices along creases
-    ice = read_ice(job_dir / ICE)
+    ice = read_ice_mesh(job_dir / ICE)
     scene = job_scene(obj, ice if isinstance(ice, trimesh.Trimesh) else None, rendered.gravity,
                       material=rendered.material, placement=job.stats.get("placement", Placement.HANGING.value),
                       impurity=float((job.params or {}).get("surface.impurity", 0.0)))  # 0 for jobs older than it

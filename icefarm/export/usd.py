@@ -25,10 +25,11 @@ import numpy as np
 import trimesh
 from pxr import Gf, Sdf, Tf, Usd, UsdGeom, UsdLux, UsdShade, UsdUtils, Vt
 
+from ..artifacts import read_ice_mesh
 from ..errors import InputError
-from ..jobdir import ICE, ICE_USDC, OBJECT, OBJECT_USDC, SCENE_USDA
+from ..jobdir import ICE, ICE_BANDS, ICE_USDC, OBJECT, OBJECT_USDC, SCENE_USDA
 from ..scene.material import Material
-from .rendered import (TINT_DISTANCE_M, Rendered, Surface, ice_surface, object_surface, pbr, read_ice, read_rendered, require,
+from .rendered import (TINT_DISTANCE_M, Rendered, Surface, ice_surface, object_surface, pbr, read_rendered, require,
                        water_at)
 
 SCENE_FILE, OBJECT_FILE, ICE_FILE = SCENE_USDA, OBJECT_USDC, ICE_USDC  # (`icefarm.jobdir`)
@@ -41,6 +42,7 @@ SUN_ANGLE = 0.53
 # mode fades only the diffuse part and keeps the reflections. Not 0: importers that read
 # opacity as plain alpha (some DCCs) would lose the ice altogether.
 ICE_OPACITY = 0.1
+ICE_PRIMVAR = "crest"  # the ice's milky ripple bands (ice.ply's `ICE_BANDS`), per vertex
 
 
 @dataclass(frozen=True)
@@ -111,10 +113,10 @@ def write_job_usd(job_dir: str | Path, *, material: Material | None = None,
     layers = [out_dir / OBJECT_FILE]
     _write_mesh_layer(layers[0], "Object", obj, axis, _object_primvars(job_dir, obj), double_sided=True)
     if rendered.ice is not None:
-        ice = (read_ice(job_dir, rendered.ice.flip) if ice_mesh is None
-               else ice_surface(ice_mesh.vertices, ice_mesh.faces, rendered.ice.flip))
+        mesh = read_ice_mesh(job_dir / ICE) if ice_mesh is None else ice_mesh
+        ice = ice_surface(mesh.vertices, mesh.faces, rendered.ice.flip)
         layers.append(out_dir / ICE_FILE)
-        _write_mesh_layer(layers[1], "Ice", ice, axis, {})
+        _write_mesh_layer(layers[1], "Ice", ice, axis, _ice_primvars(mesh))
     else:  # no ice: no layer of an earlier run's ice beside the scene
         (out_dir / ICE_FILE).unlink(missing_ok=True)
     sky = f"./{rendered.sky.name}" if out_dir.resolve() == job_dir.resolve() else str(rendered.sky.resolve())
@@ -215,6 +217,15 @@ def _object_primvars(job_dir: Path, obj: Surface) -> dict:
     water, supply = found
     return {"water": (water.astype(np.float32), Sdf.ValueTypeNames.FloatArray),
             "supply": (supply.astype(np.int32), Sdf.ValueTypeNames.IntArray)}
+
+
+def _ice_primvars(mesh: trimesh.Trimesh) -> dict:
+    """``crest`` (float, 0 to 1) per ice vertex: how far under a ripple crest, where impure ice
+    is milky (the render's shimmer), for a DCC shader to frost by; nothing for clear ice."""
+    bands = mesh.vertex_attributes.get(ICE_BANDS)
+    if bands is None or len(bands) != len(mesh.vertices):
+        return {}
+    return {ICE_PRIMVAR: (np.asarray(bands, dtype=np.float32), Sdf.ValueTypeNames.FloatArray)}
 
 
 def _scene(stage: Usd.Stage, rendered: Rendered, axis: str, sky: str, has_ice: bool) -> None:
