@@ -126,3 +126,36 @@ def test_a_big_asset_meshes_fewer_faces_with_the_same_icicles_and_stays_watertig
     # (a trunk too short to measure has no taper: NaN)
     assert np.nanmedian(stats.taper) == pytest.approx(np.nanmedian(full_stats.taper), rel=0.15)
     assert budget.vertices[:, 1].min() == pytest.approx(full.vertices[:, 1].min(), abs=0.002)
+
+
+def _hanging_chains(n, length, r_top, spacing=0.03):
+    """``n`` cones hanging side by side, with a swollen ball at each root (as a base)."""
+    step = 0.4 * 0.0025
+    chains = [_cone_chain([i * spacing, 0.0, 0.0], length, r_top, 0.0025, step) for i in range(n)]
+    bases = M.Balls(np.array([[i * spacing, 0.0, 0.0] for i in range(n)], float), np.full(n, 1.6 * r_top),
+                    np.full(n, M.LEVEL * np.e))
+    return M.concat_balls(*chains, bases)
+
+
+def test_the_face_estimate_counts_what_marching_makes():
+    balls = _hanging_chains(3, 0.08, 0.008)
+    for voxel in (0.001, 0.002):
+        field = M.sample_field(balls, voxel)
+        _, faces = M.polygonize(balls, voxel)
+        assert M.face_estimate(field) == pytest.approx(len(faces), rel=0.002)
+
+
+@pytest.mark.parametrize("faces", [40_000, 120_000])
+def test_the_icicles_voxel_fits_their_face_budget_whatever_the_first_guess(faces):
+    from icefarm import params
+    from icefarm.stages.surface.build import fitted_voxel
+
+    surface = params.resolve({}).surface
+    balls = _hanging_chains(6, 0.12, 0.01)
+    for guess in (surface.voxel_size, 0.0018):  # the profiles' estimate can miss by 2x either way
+        voxel = fitted_voxel(balls, surface, guess, faces)
+        assert surface.voxel_size <= voxel <= surface.tip_radius
+        assert len(M.polygonize(balls, voxel)[1]) == pytest.approx(faces, rel=0.15)
+    # a budget the finest voxel already meets keeps it; one past the tips' stops at the tip radius
+    assert fitted_voxel(balls, surface, 0.0015, 10**9) == surface.voxel_size
+    assert fitted_voxel(balls, surface, 0.0015, 100) == pytest.approx(surface.tip_radius)

