@@ -29,7 +29,8 @@ def print_storm(timings: dict) -> None:
         size = "under 1 cm" if lengths and longest < SHORT_TRUNK_M else f"up to {100 * longest:.0f} cm"
         what = "no icicles" if icicles == 0 else f"{icicles} icicles {size}"
         click.echo(f"  warning: {what}: a {timings['storm_intensity']} storm on a small object or one with "
-                   "little rim; try storm.intensity=severe or a larger size_m")
+                   "little rim; try storm.intensity=severe, or storm.wind=0,0,5 (m/s) to drive the rain onto "
+                   "upright faces (a sign, a wall) that face it")
     elif timings["storm_glaze_p50_mm"] < THIN_GLAZE_MM:
         click.echo(f"  warning: glaze {timings['storm_glaze_p50_mm']:.1f} mm: too thin to read; raise "
                    "storm.precipitation or storm.freeze")
@@ -57,7 +58,8 @@ def print_job_summary(timings: dict) -> None:
         click.echo(f"  curtains: {1e4 * timings['curtain_area_m2']:.0f} cm^2 of sheet between close icicles")
     tip, amplitude, ripple = (timings.get(k) for k in ("tip_radius_mm", "ripple_amplitude_mm", "ripple_wavelength_cm"))
     click.echo(f"  tip radius {'-' if tip is None else f'{tip:.2f}'} mm (real: 2.44 mm); ripples "
-               + ("none" if amplitude is None else f"{amplitude:.2f} mm deep, {ripple:.2f} cm apart")
+               + ("none above the mesh's noise in the radius spectrum" if amplitude is None
+                  else f"{amplitude:.2f} mm deep, {ripple:.2f} cm apart")
                + " (real: 0.5-1 mm, about 1 cm apart, where the water is impure)")
     depth, corr, cv = (timings.get(k) for k in ("ripple_depth_mm", "ripple_correlation_3cm", "ripple_crest_cv"))
     if depth is not None and corr is not None and cv is not None:

@@ -139,6 +139,11 @@ PARAMS: tuple[Param, ...] = (
     _p("storm", "icicle_share", "-", "-", _F, 0.7,
        "share of the water reaching a drip point that freezes on its icicle; the rest drips off "
        "the tip to the ground (Makkonen 1988)", low=0.0, high=1.0, low_open=True),
+    _p("storm", "wind", "-", "m/s", Kind.VECTOR, [0.0, 0.0, 0.0],
+       "the wind during freezing rain, a velocity (its part across gravity counts): the rain "
+       "slants (drops fall at about 5 m/s), walls and signs facing the wind glaze and drip, the "
+       "lee stays dry; 0 0 0: still air, rain along gravity. trajectories.wind bends the icicles",
+       zero_ok=True),
     _p("storm", "max_icicles", "-", "-", _I, 2000,
        "budget of icicles for huge assets: drip points run along every wet drip rim at "
        "drips.spacing up to this many (drips.count is the relative mode's)", low=0),

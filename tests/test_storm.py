@@ -12,7 +12,8 @@ from icefarm.chain import Stage, run_stages
 from icefarm.geometry import ray_caster
 from icefarm.mesh import prepare
 from icefarm.stages.icicle_size import icicle_volume, length_from_volume
-from icefarm.stages.storm import WATER_TO_ICE, accrete, open_sky, precipitation_m, refine, storm_water
+from icefarm.stages.rain import open_sky
+from icefarm.stages.storm import WATER_TO_ICE, accrete, precipitation_m, refine, storm_water
 from icefarm.stages.water import water_coefficients
 
 G = np.array([0.0, -1.0, 0.0])

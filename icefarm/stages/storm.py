@@ -4,9 +4,11 @@ The paper's knobs are relative to the object (normalised water, a fixed count of
 points, glaze per meter of height), so a garden table and a 3 m house need hand tuning.
 Here the weather sets the ice, whatever the asset's size:
 
-* **Catch.** Rain falls along gravity: a vertex under open sky catches the precipitation
-  depth ``P`` over its area projected across the rain (``P cos(tilt) A``); nothing lands
-  under an overhang. Meltwater comes from the snow on slopes under `SNOW_SLOPE_DEG`.
+* **Catch.** Rain falls along gravity, slanted by ``storm.wind`` (`icefarm.stages.rain`): a
+  vertex under open sky catches the precipitation depth ``P`` over its area projected
+  across the rain (``P cos(tilt) A`` in still air; walls facing the wind catch too); nothing
+  lands under an overhang or in the lee. Meltwater comes from the snow on slopes under
+  `SNOW_SLOPE_DEG`.
 * **Freeze.** Each area freezes at most a share of the rain a level face gets
   (``storm.freeze``; ``storm.wall_freeze`` of that on vertical and downward faces, which
   lose less heat and shed their film faster): a heat budget, local to the area, so the
@@ -42,6 +44,7 @@ from scipy.spatial import cKDTree
 
 from ..geometry import unit
 from ..tol import tol
+from .rain import FALL_SPEED, facing_rain, open_sky, rain_vector
 
 # Density of water and of glaze (clear, dense ice: 917 kg/m^3), kg/m^3; one meter of
 # frozen water is 1.09 m of glaze (clear glaze is solid ice: Makkonen 2000, Phil. Trans. R. Soc. A 358).
@@ -107,6 +110,7 @@ def constants() -> tuple[Constant, ...]:
         Constant("RUNOUT_M", RUNOUT_M, "m", "> 0", "film run before 1 - 1/e of it freezes, at lifetime 0.5"),
         Constant("LIFETIME_CONTRAST", LIFETIME_CONTRAST, "-", "[0, 1]", "Equation 3's lt as a lean of the budget"),
         Constant("GROWTH_MAX", GROWTH_MAX, "m/m", "> 0", "stubbiest icicle: a cone half as wide as long"),
+        Constant("FALL_SPEED", FALL_SPEED, "m/s", "> 0", "freezing rain's drops (Jones 1998's terms; Gunn & Kinzer 1949)"),
     )
 
 class StormKind(enum.Enum):
@@ -172,18 +176,9 @@ def vertex_areas(mesh: trimesh.Trimesh) -> np.ndarray:
                        minlength=len(mesh.vertices))
 
 
-def open_sky(mesh: trimesh.Trimesh, gravity, cast) -> np.ndarray:
-    """``(n,) bool``: a ray against gravity from each vertex (lifted a hair along its normal)
-    leaves the object. ``cast`` is a `icefarm.geometry.ray_caster` of ``mesh``."""
-    g = unit(np.asarray(gravity, dtype=np.float64))
-    eps = tol.hair * float(np.linalg.norm(mesh.extents))
-    lifted = mesh.vertices + eps * mesh.vertex_normals - eps * g
-    return ~np.isfinite(cast(lifted, np.broadcast_to(-g, lifted.shape))[0])
-
-
 def accrete(mesh: trimesh.Trimesh, gravity, sky: np.ndarray, precipitation: float, *, kind: str,
             freeze: float, wall_freeze: float, lifetime: float, drip_limit: float,
-            d_up: np.ndarray, d_down: np.ndarray) -> StormResult:
+            d_up: np.ndarray, d_down: np.ndarray, rain=None) -> StormResult:
     """Catch, freeze, run off and shed a storm's water over ``mesh``.
 
     Parameters
@@ -192,7 +187,7 @@ def accrete(mesh: trimesh.Trimesh, gravity, sky: np.ndarray, precipitation: floa
         The flow surface, in meters, outward normals.
     gravity : (3,) float
     sky : (n,) bool
-        `open_sky` of the vertices.
+        `icefarm.stages.rain.open_sky` of the vertices.
     precipitation : float
         Meters of water (`precipitation_m`): rain, or melted snow for ``meltwater``.
     kind : {"freezing_rain", "meltwater"}
@@ -206,6 +201,9 @@ def accrete(mesh: trimesh.Trimesh, gravity, sky: np.ndarray, precipitation: floa
         Degrees from gravity within which a surface sheds its film.
     d_up, d_down : (n,) float
         Algorithm 1's walked distances up and down, meters (where on its walk a vertex lies).
+    rain : (3,) float, optional
+        `icefarm.stages.rain.rain_vector`: freezing rain slanted by the wind lands on the
+        faces that turn towards it; None: along gravity.
 
     Returns
     -------
@@ -222,7 +220,7 @@ def accrete(mesh: trimesh.Trimesh, gravity, sky: np.ndarray, precipitation: floa
         snow = sky & (cos_up >= math.cos(math.radians(SNOW_SLOPE_DEG)))
         catch = precipitation * np.where(snow, cos_up, 0.0) * area
     else:
-        catch = precipitation * np.where(sky, np.maximum(cos_up, 0.0), 0.0) * area
+        catch = precipitation * np.where(sky, facing_rain(normals, g if rain is None else rain), 0.0) * area
     cos_limit = math.cos(math.radians(drip_limit))
     tilt = np.clip((normals @ g - cos_limit) / (1.0 - cos_limit), 0.0, 1.0)
     walk = np.asarray(d_up, dtype=np.float64) + np.asarray(d_down, dtype=np.float64)
@@ -406,17 +404,20 @@ def storm_water(mesh: trimesh.Trimesh, gravity, storm, *, lifetime: float, drip_
     from .water import WaterResult, water_coefficients
 
     g = unit(np.asarray(gravity, dtype=np.float64))
-    sky = open_sky(mesh, g, cast)
+    # Snow lies where it fell: only freezing rain drifts with the wind.
+    rain = rain_vector(g, storm.wind) if storm.kind == StormKind.FREEZING_RAIN.value else g
+    sky = open_sky(mesh, rain, cast)
     if source is not None and sky.any():
         from ..geometry import ray_caster
 
         under = np.flatnonzero(sky)
-        sky[under] = np.isfinite(ray_caster(source)(mesh.vertices[under], np.broadcast_to(-g, (len(under), 3)))[0])
-    supply = sky & (np.asarray(mesh.vertex_normals) @ -g > 0)
+        back = -unit(rain)
+        sky[under] = np.isfinite(ray_caster(source)(mesh.vertices[under], np.broadcast_to(back, (len(under), 3)))[0])
+    supply = sky & (facing_rain(np.asarray(mesh.vertex_normals), rain) > 0)
     water, top, d_up, bottom, d_down = water_coefficients(mesh, supply, g)
     result = accrete(mesh, g, sky, precipitation_m(storm.intensity, storm.precipitation), kind=storm.kind,
                      freeze=storm.freeze, wall_freeze=storm.wall_freeze, lifetime=lifetime,
-                     drip_limit=drip_limit, d_up=d_up, d_down=d_down)
+                     drip_limit=drip_limit, d_up=d_up, d_down=d_down, rain=rain)
     return WaterResult(supply=supply, water=water, top=top, d_up=d_up, bottom=bottom, d_down=d_down,
                        hits=np.asarray(mesh.vertices)[supply], storm=result)
 
