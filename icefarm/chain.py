@@ -344,13 +344,11 @@ def build_surface(obj: trimesh.Trimesh, flow: trimesh.Trimesh, water: WaterResul
     below = np.minimum(ice.vertices @ -g - floor, 0.0)
     if not below.any():
         return ice
-    from .metaballs.clean import collapse_slivers, flip_needles
+    from .metaballs.clean import clean_slivers
     from .stages.surface.build import SLIVER
 
-    # Flattening can squash the faces of a foot into slivers: clean them as stage 4 does.
-    tol = SLIVER * params.surface.voxel_size
-    moved = below < 0  # only the faces at a flattened vertex can have become slivers
-    vertices, faces = collapse_slivers(ice.vertices + below[:, None] * g, ice.faces, tol, near=moved)
-    if len(vertices) != len(moved):  # renumbered: find the moved vertices again by height
-        moved = np.abs(vertices @ -g - floor) <= tol
-    return dataclasses.replace(ice, vertices=vertices, faces=flip_needles(vertices, faces, tol, near=moved))
+    # Flattening can squash the faces of a foot into slivers: clean them as stage 4 does,
+    # on the faces at a flattened vertex (only those can have become slivers).
+    vertices, faces = clean_slivers(ice.vertices + below[:, None] * g, ice.faces, SLIVER * params.surface.voxel_size,
+                                    near=below < 0)
+    return dataclasses.replace(ice, vertices=vertices, faces=faces)

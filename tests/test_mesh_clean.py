@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 import trimesh
 
 from icefarm.metaballs.clean import collapse_slivers
@@ -59,3 +60,28 @@ def test_a_needle_is_flipped_away_and_the_mesh_stays_closed():
     after = trimesh.Trimesh(vertices, faces, process=False)
     assert after.is_watertight and after.is_winding_consistent
     assert _heights(vertices, faces).min() > 1e-6
+
+
+@pytest.mark.parametrize("seed", [0, 2, 4])
+def test_slivers_are_found_where_the_union_cut_and_cleaned_as_everywhere(seed):
+    from icefarm import metaballs as M
+    from icefarm.metaballs.clean import _flat, clean_slivers, flip_needles, sliver_candidates
+
+    def sphere(centre, radius, voxel):
+        balls = M.Balls(np.array([centre], float), np.array([radius]), np.array([M.LEVEL * np.e]))
+        return M.sample_field(balls, voxel)
+
+    rng = np.random.default_rng(seed)
+    fields = [sphere([0, 0, 0], 0.02, 0.001), sphere(rng.uniform(0.01, 0.02, 3), 0.015, 0.0037)]
+    v, f = M.fuse_fields(*fields)
+    tol = 1e-3 * 0.001
+    tri = v[f]
+    thin = (np.linalg.norm(tri - np.roll(tri, 1, axis=1), axis=2) < tol).any(axis=1) | _flat(v, f, tol)
+    assert thin.any()  # the union cut some
+    near = sliver_candidates(v, fields, tol)
+    assert near[f[thin]].any(axis=1).all()
+    assert near.mean() < 0.1  # a few vertices, not the mesh
+    whole_v, whole_f = collapse_slivers(v, f, tol)
+    whole_f = flip_needles(whole_v, whole_f, tol)
+    near_v, near_f = clean_slivers(v, f, tol, near=near)
+    assert np.array_equal(near_v, whole_v) and np.array_equal(near_f, whole_f)

@@ -13,7 +13,7 @@ import trimesh
 from ...geometry import arc_lengths, ray_caster
 from ...params import GlazeParams, SurfaceParams
 from ...metaballs import Balls, concat_balls, face_estimate, fuse_fields, sample_field
-from ...metaballs.clean import collapse_slivers, flip_needles
+from ...metaballs.clean import clean_slivers, sliver_candidates
 from ..drips import DripResult
 from ..trajectories import TrajectoryResult
 from ..water import WaterResult
@@ -27,8 +27,8 @@ from .profile import grown_lengths, profile_args, smooth_radius
 from .ripples import carve_ripples
 from .tubes import tube_mesh
 
-# Vertices closer than this many voxels are one (`collapse_slivers`), and faces flatter
-# than it are flipped (`flip_needles`).
+# Vertices closer than this many voxels are one, and faces flatter than it are flipped
+# (`icefarm.metaballs.clean.clean_slivers`).
 SLIVER = 1e-3
 # Marching cubes gives about this many faces per voxel face of the icicles' estimated area
 # (`budget_voxel`'s first guess, which `fitted_voxel` checks on the balls themselves).
@@ -186,11 +186,11 @@ def build_ice(object_mesh: trimesh.Trimesh, flow_mesh: trimesh.Trimesh, water: W
         blocks = sum(len(f.blocks) for f in fields if f is not None)
         note(f"meshing {blocks:,} blocks and uniting the glaze")
         verts, faces = fuse_fields(*fields)
+        thin = sliver_candidates(verts, [f for f in fields if f is not None], SLIVER * voxel)
         note(f"ripples on {len(faces):,} faces")
         verts = carve_ripples(verts, trajectories, profile_args(surface), max_radius=coarse)
         note("clean-up")
-        verts, faces = collapse_slivers(verts, faces, SLIVER * voxel)
-        faces = flip_needles(verts, faces, SLIVER * voxel)
+        verts, faces = clean_slivers(verts, faces, SLIVER * voxel, near=thin)
         n_balls, curtain_area = len(ice), curtains.area
     return IceResult(verts, faces, measure_icicles(verts, faces, trajectories, surface) if measure else None,
                      n_balls, curtain_area, trajectories)
