@@ -113,8 +113,11 @@ def test_a_big_asset_meshes_fewer_faces_with_the_same_icicles_and_stays_watertig
 
     prep = prepare(generate("roof"), 1.2)
     results = {}
+    tip = params.defaults()["surface"]["tip_radius"]
     for error_px in (0.25, 0.0):
-        p = params.resolve({"surface": {"error_px": error_px}})
+        # the fine lattice pinned at the tips' voxel: the face budget's fit would otherwise
+        # spend what the coarse lattice saves on finer tips
+        p = params.resolve({"surface": {"error_px": error_px, "voxel_size": tip}})
         r = run_stages(prep, p, 0)
         results[error_px] = r.ice, measure_icicles(r.ice.vertices, r.ice.faces, r.ice.axes, p.surface)
     (budget, stats), (full, full_stats) = results[0.25], results[0.0]
@@ -148,14 +151,30 @@ def test_the_face_estimate_counts_what_marching_makes():
 @pytest.mark.parametrize("faces", [40_000, 120_000])
 def test_the_icicles_voxel_fits_their_face_budget_whatever_the_first_guess(faces):
     from icefarm import params
-    from icefarm.stages.surface.build import fitted_voxel
+    from icefarm.stages.surface.build import _icicle_faces, fitted_voxel
 
     surface = params.resolve({}).surface
     balls = _hanging_chains(6, 0.12, 0.01)
+
+    def count(voxel):
+        return _icicle_faces(voxel, None, balls, None)
+
     for guess in (surface.voxel_size, 0.0018):  # the profiles' estimate can miss by 2x either way
-        voxel = fitted_voxel(balls, surface, guess, faces)
+        voxel = fitted_voxel(count, surface, guess, faces)
         assert surface.voxel_size <= voxel <= surface.tip_radius
-        assert len(M.polygonize(balls, voxel)[1]) == pytest.approx(faces, rel=0.15)
+        assert len(M.polygonize(balls, voxel)[1]) == pytest.approx(faces, rel=0.1)
     # a budget the finest voxel already meets keeps it; one past the tips' stops at the tip radius
-    assert fitted_voxel(balls, surface, 0.0015, 10**9) == surface.voxel_size
-    assert fitted_voxel(balls, surface, 0.0015, 100) == pytest.approx(surface.tip_radius)
+    assert fitted_voxel(count, surface, 0.0015, 10**9) == surface.voxel_size
+    assert fitted_voxel(count, surface, 0.0015, 100) == pytest.approx(surface.tip_radius)
+
+
+def test_the_face_count_of_two_lattices_is_what_marching_them_makes():
+    from icefarm.stages.surface.build import _icicle_faces
+
+    balls = _hanging_chains(3, 0.1, 0.009)
+    fine_voxel = 0.001
+    coarse, thin = split_balls(balls, 3 * fine_voxel, np.zeros((1, 3)) + 5.0, clearance=0.0)
+    marched = len(M.polygonize(coarse, 3 * fine_voxel)[1]) + len(M.polygonize(thin, fine_voxel)[1])
+    assert _icicle_faces(fine_voxel, 3 * fine_voxel, coarse, thin) == pytest.approx(marched, rel=0.05)
+    # counted on one lattice, the same balls make several times more
+    assert _icicle_faces(fine_voxel, None, balls, None) > 2 * marched

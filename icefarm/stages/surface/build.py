@@ -35,6 +35,9 @@ SLIVER = 1e-3
 FACES_PER_VOXEL_AREA = 1.3
 # Share of ``surface.face_budget`` for the icicles and bases; the glaze coat gets the rest.
 ICICLE_SHARE = 0.6
+# `fitted_voxel`: counts at most this many voxels, and stops within this share of the last.
+FIT_STEPS = 3
+FIT_SLACK = 0.05
 
 
 @dataclass(frozen=True)
@@ -163,22 +166,25 @@ def build_ice(object_mesh: trimesh.Trimesh, flow_mesh: trimesh.Trimesh, water: W
         more = [b for b in (curtains.balls, extra_balls) if b is not None and len(b)]
         if more:  # nothing appended otherwise: the field's sums stay bit for bit
             ice = concat_balls(ice, *more)
-        if budget:
-            voxel = fitted_voxel(ice, surface, budget_voxel(trajectories, surface, ICICLE_SHARE * budget),
-                                 ICICLE_SHARE * budget)
         note(f"glaze coat over {len(flow_mesh.faces):,} faces")
         coat = glaze_field(flow_mesh, water, glaze, rng, exclude=exclude, cast=cast,
                            face_budget=(1.0 - ICICLE_SHARE) * budget)
-        fine = None
-        coarse = coarse_voxel(voxel, float(np.linalg.norm(np.ptp(object_mesh.vertices, axis=0))),
-                              surface.error_px, *_ripple(surface)) if budget else None
-        if coarse is not None:
-            chain = np.arange(len(ice)) < len(chains)
-            clearance = _coat_reach(flow_mesh, water, glaze, coat, coarse, voxel)
-            ice, fine = split_balls(ice, coarse, flow_mesh.vertices, clearance, chain)
-            voxel_ice = coarse
-        else:
-            voxel_ice = voxel
+        extent = float(np.linalg.norm(np.ptp(object_mesh.vertices, axis=0)))
+        chain = np.arange(len(ice)) < len(chains)
+
+        def lattices(fine_voxel: float):
+            # (coarse voxel or None, the balls on it, the thin rest on the fine one)
+            coarse = coarse_voxel(fine_voxel, extent, surface.error_px, *_ripple(surface)) if budget else None
+            if coarse is None:
+                return None, ice, None
+            clearance = _coat_reach(flow_mesh, water, glaze, coat, coarse, fine_voxel)
+            return coarse, *split_balls(ice, coarse, flow_mesh.vertices, clearance, chain)
+
+        if budget:
+            voxel = fitted_voxel(lambda v: _icicle_faces(v, *lattices(v)), surface,
+                                 budget_voxel(trajectories, surface, ICICLE_SHARE * budget), ICICLE_SHARE * budget)
+        coarse, ice, fine = lattices(voxel)
+        voxel_ice = voxel if coarse is None else coarse
         note(f"icicle field: {len(ice) + (len(fine) if fine is not None else 0):,} balls at "
              f"{voxel_ice * 1000:.2g}" + (f" and {voxel * 1000:.2g}" if fine is not None else "") + " mm")
         fields = (sample_field(ice, voxel_ice) if len(ice) else None, coat,
@@ -228,26 +234,40 @@ def budget_voxel(traj: TrajectoryResult, surface: SurfaceParams, faces: float) -
     return float(min(max(surface.voxel_size, wanted), max(surface.voxel_size, surface.tip_radius)))
 
 
-def fitted_voxel(balls: Balls, surface: SurfaceParams, guess: float, faces: float) -> float:
-    """The icicles' voxel edge, meters, at which marching ``balls`` makes about ``faces``
-    faces: their field sampled at twice ``guess`` (`budget_voxel`'s estimate from the
-    branches' profiles), its faces counted without marching (`face_estimate`), and the
-    voxel scaled by the square root of the miss (faces go as 1 / voxel^2); between
-    ``surface.voxel_size`` and the tip radius, as in `budget_voxel`.
+def fitted_voxel(count: Callable[[float], int], surface: SurfaceParams, guess: float, faces: float) -> float:
+    """The icicles' voxel edge, meters, at which their mesh holds about ``faces`` faces:
+    from ``guess`` (`budget_voxel`'s estimate from the branches' profiles), scaled by the
+    square root of the miss that ``count`` (a voxel to the faces marching would make,
+    `_icicle_faces`) reports, at most `FIT_STEPS` times; between ``surface.voxel_size`` and
+    the tip radius, as in `budget_voxel`.
 
     The profiles leave out bases, curtains and where icicles merge: on the real-size bench
-    they said 1.8 M faces at 1.14 mm where marching made 3.9 M (and the job 4.25 M of a
-    3 M budget); the count at twice the voxel predicts it within 3 %, in 0.05 s.
+    they said 1.8 M faces at 1.14 mm where marching made 3.9 M (the job 4.25 M of a 3 M
+    budget); counting on the balls themselves predicts it within 3 %.
     """
     lo, hi = surface.voxel_size, max(surface.voxel_size, surface.tip_radius)
-    pilot = 2.0 * guess
-    field = sample_field(balls, pilot) if len(balls) and faces > 0 else None
-    if field is None:
-        return guess
-    counted = face_estimate(field)
-    if counted == 0:
-        return guess
-    return float(np.clip(pilot * math.sqrt(counted / faces), lo, hi))
+    voxel = float(np.clip(guess, lo, hi))
+    for _ in range(FIT_STEPS):
+        counted = count(voxel) if faces > 0 else 0
+        if counted == 0:
+            break
+        wanted = float(np.clip(voxel * math.sqrt(counted / faces), lo, hi))
+        if abs(wanted - voxel) <= FIT_SLACK * voxel:
+            break
+        voxel = wanted
+    return voxel
+
+
+def _icicle_faces(fine: float, coarse: float | None, balls: Balls, thin: Balls | None) -> int:
+    """About the faces marching makes of ``balls`` on the ``coarse`` lattice (on the
+    ``fine`` one if None) and of ``thin`` on the fine one, without marching them: the
+    fine lattice counted at twice its voxel (`face_estimate`; faces go as 1 / voxel^2)."""
+    parts = [(balls, fine, 4)] if coarse is None else [(balls, coarse, 1), (thin, fine, 4)]
+    total = 0
+    for b, voxel, scale in parts:
+        field = sample_field(b, voxel * math.sqrt(scale)) if b is not None and len(b) else None
+        total += scale * face_estimate(field) if field is not None else 0
+    return total
 
 
 def _root_radius(traj: TrajectoryResult, k: int, surface: SurfaceParams) -> np.ndarray:
