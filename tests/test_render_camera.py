@@ -104,3 +104,37 @@ def test_ice_view_without_ice_or_icicles_still_renders_a_view(tmp_path, dense):
     glaze.vertices *= 1.02  # a thin shell: ice, but no icicles
     files = write_scenes(tmp_path / "glaze", box, glaze, config)
     assert files.cameras[1].fov_x < files.cameras[0].fov_x
+
+
+def test_an_ice_view_shows_its_icicles_whole_when_sections_find_only_their_tips():
+    """Sections through icicles can lie at their tips only (a lamp's: thick merged tops are
+    left out as lumps); the view then still frames them from where they hang to their tips,
+    with icicles at least 12 px wide; and a curtain too long for that shows its tips."""
+    from icefarm.scene.camera import Camera
+    from icefarm.scene.focus import IceFocus, zoom_on_ice
+
+    width, height = 160, 120
+    full = Camera(origin=np.array([0.0, -0.2, 1.5]), target=np.array([0.0, -0.05, 0.0]), up=np.array([0.0, 1.0, 0.0]),
+                  fov_x=30.0, fov_y=22.5, near=0.01, far=100.0)
+
+    def icicles(length):
+        xs = np.array([-0.05, 0.0, 0.05])
+        t = np.linspace(0.0, 1.0, 60)
+        ring = np.linspace(0, 2 * np.pi, 12, endpoint=False)
+        radius = 0.012 * (1 - t)[:, None]  # cones hanging from y = 0, 12 mm radius at the root
+        surface = np.array([[x + r * np.cos(a), -length * tt, r * np.sin(a)]
+                            for x in xs for tt, rr in zip(t, radius) for r in rr for a in ring])
+        tips = np.array([[x, -length * tt, 0.0] for x in xs for tt in (0.8, 0.85, 0.9)])
+        return IceFocus(points=tips, diameter=0.012, occluders=np.zeros((0, 3)), icicles=surface, clearance=0.01), xs
+
+    for length, whole in ((0.08, True), (0.4, False)):
+        focus, xs = icicles(length)
+        cam = zoom_on_ice(full, focus, width, height)
+        seen = 0.012 / (2 * np.linalg.norm(cam.target - cam.origin) * np.tan(np.radians(cam.fov_x) / 2) / width)
+        assert seen >= 12.0
+        tips = cam.project(np.c_[xs, np.full(3, -length), np.zeros(3)], width, height)
+        roots = cam.project(np.c_[xs, np.zeros(3), np.zeros(3)], width, height)
+        framed = (tips[:, 0] >= 0) & (tips[:, 0] < width)
+        assert framed.any()
+        assert (tips[framed, 1] < height).all()  # the tips are in the frame
+        assert (roots[framed, 1] >= 0).all() == whole  # and so are the roots, where they fit

@@ -18,13 +18,19 @@ from dataclasses import dataclass, field
 import numpy as np
 import trimesh
 from scipy import ndimage
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from .camera import Camera, along
 
 ICICLE_PX = 14.0  # icicle width (pixels) an ice view aims for (12 at least, with some slack)
+MIN_ICICLE_PX = 12.5  # ... and zooms out to at most (12 at least, with slack), to show long icicles whole
 MIN_ZOOM = 2.5  # an ice view is always a detail: at least this much closer than the full view
 MAX_ZOOM = 40.0
+FRAME_FILL = 0.95  # `_frame_lengthwise`: the framed icicles fill at most this share of the window's height ...
+ROOT_LIFT = 0.25  # ... and this share of what is left of it goes below them (the object they hang from shows above)
+JOIN = 3.0  # `_joined`: samples of one icicle lie within this many times their median spacing of another
 FOCUS_SAMPLES = 8_000  # ice vertices looked at to find the icicles
 SECTIONS = 10  # horizontal sections that find the icicles and measure their diameter
 THIN = 2.5  # a section up to this times the median width is an icicle's, wider ones are lumps
@@ -46,11 +52,19 @@ class IceFocus:
         Median icicle diameter (m) measured on horizontal sections; None without icicles.
     occluders : (m, 3) float
         Points of the object and the ice that may hide ``points`` from a camera.
+    icicles : (k, 3) float
+        Sampled ice vertices away from the object, the icicles' whole length (``points``
+        lie on a few sections of them): how far up and down the icicles framed run.
+    clearance : float
+        How far from the object (m) ice counts as icicles: ``icicles`` start that far below
+        where they hang from.
     """
 
     points: np.ndarray
     diameter: float | None
     occluders: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    icicles: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    clearance: float = 0.0
 
 
 def _edge_length(vertices: np.ndarray, faces: np.ndarray, count: int = 2000) -> float:
@@ -179,7 +193,7 @@ def ice_focus(ice_vertices: np.ndarray, ice_faces: np.ndarray, object_points: np
     diameter = float(np.median(widths))
     thin = widths <= THIN * diameter  # icicles, not lumps of ice
     return IceFocus(points=centres[thin] if thin.sum() >= 3 else icicles, diameter=diameter,
-                    occluders=occluders)
+                    occluders=occluders, icicles=icicles, clearance=reach)
 
 
 def visible(camera: Camera, points: np.ndarray, occluders: np.ndarray, width: int, height: int,
@@ -253,8 +267,10 @@ def zoom_on_ice(full: Camera, focus: IceFocus, width: int, height: int) -> Camer
     i, j = np.unravel_index(np.argmax(sums), sums.shape)
     sel = (ij[:, 0] >= i) & (ij[:, 0] < i + a) & (ij[:, 1] >= j) & (ij[:, 1] < j + b)
     # Aim at the middle of the icicle points in that window (their median: on the
-    # icicles that gather most there, the others at its edges).
+    # icicles that gather most there, the others at its edges), and down the picture at
+    # the middle of those icicles' whole length.
     cx, cy = np.median(pixels[sel], axis=0)
+    cy, zoom = _frame_lengthwise(full, focus, points[sel], cx, cy, zoom, width, height)
     right = np.cross(full.forward, full.up)
     right /= np.linalg.norm(right)
     cam_up = np.cross(right, full.forward)
@@ -267,6 +283,65 @@ def zoom_on_ice(full: Camera, focus: IceFocus, width: int, height: int) -> Camer
     fov_y = float(np.degrees(2 * np.arctan(ty / zoom)))
     return Camera(origin=full.origin, target=full.origin + direction * max(depth, 1e-6), up=full.up,
                   fov_x=fov_x, fov_y=fov_y, near=full.near, far=full.far)
+
+
+def _frame_lengthwise(full: Camera, focus: IceFocus, aimed: np.ndarray, cx: float, cy: float, zoom: float,
+                      width: int, height: int) -> tuple[float, float]:
+    """The picture row (of ``full``'s) to centre an ice view on, and its zoom, so that the
+    icicles it aims at show whole, from where they leave the object to their tips: sections
+    through them (``aimed``) can lie at their tips only, and aiming there left a lamp's
+    icicles cut off at the frame's top over an empty sky.
+
+    The icicles' samples joined to the aimed sections (`_joined`) and within ``2 diameter``
+    across of one, in the window's columns, give their extent down the picture, up to
+    ``focus.clearance`` above the highest (where they leave the object). Icicles longer
+    than `FRAME_FILL` of the window zoom it out, down to `MIN_ICICLE_PX` wide icicles;
+    past that it shows their tips at its foot and as much above them as fits.
+    """
+    if not focus.diameter or len(focus.icicles) < 2 or len(aimed) == 0:
+        return cy, zoom
+    same = _joined(focus.icicles, aimed, focus.diameter)
+    up = full.up / np.linalg.norm(full.up)
+
+    def across(p):  # positions across the vertical
+        return p - np.outer(p @ up, up)
+
+    # and straight above or below an aimed section: not the thick glaze they are joined to
+    if len(same):
+        apart, _ = cKDTree(across(aimed)).query(across(same), distance_upper_bound=2.0 * focus.diameter)
+        same = same[np.isfinite(apart)]
+    if len(same) == 0:
+        return cy, zoom
+    px = full.project(same, width, height)
+    px = px[np.abs(px[:, 0] - cx) <= width / zoom / 2]
+    if len(px) == 0:
+        return cy, zoom
+    top, bottom = float(px[:, 1].min()), float(px[:, 1].max())
+    root = top - focus.clearance / pixel_size(full, np.median(same, axis=0), width)
+    span = bottom - root
+    seen = focus.diameter / pixel_size(full, np.median(aimed, axis=0), width)  # icicle px in the full view
+    zoom = min(zoom, max(FRAME_FILL * height / max(span, 1e-9), MIN_ICICLE_PX / max(seen, 1e-9), MIN_ZOOM))
+    window = height / zoom
+    room = FRAME_FILL * window
+    margin = 0.5 * (window - room)
+    if span <= room:  # whole, nudged up towards the object they hang from
+        return (root + bottom) / 2 - 0.5 * (room - span) * ROOT_LIFT, zoom
+    # longer: their tips at the foot of the window, as much above them as fits (a curtain of
+    # metre-long icicles framed from the top was a wall of blue ice)
+    return bottom + margin - 0.5 * window, zoom
+
+
+def _joined(samples: np.ndarray, aimed: np.ndarray, diameter: float) -> np.ndarray:
+    """The ``samples`` (k, 3) of the icicles that ``aimed`` points (on their sections) lie
+    on: those joined to them by chains of samples under `JOIN` times the samples' median
+    spacing apart (other icicles higher up in the same columns of the picture are not)."""
+    tree = cKDTree(samples)
+    reach = JOIN * float(np.median(tree.query(samples, k=2)[0][:, 1]))
+    pairs = tree.query_pairs(reach, output_type="ndarray")
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(samples),) * 2)
+    _, part = connected_components(graph, directed=False)
+    near = np.isfinite(cKDTree(aimed).query(samples, distance_upper_bound=diameter + reach)[0])
+    return samples[np.isin(part, np.unique(part[near]))]
 
 
 def surface_points(mesh: trimesh.Trimesh, count: int = OBJECT_SAMPLES,
