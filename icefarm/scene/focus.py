@@ -270,6 +270,9 @@ def zoom_on_ice(full: Camera, focus: IceFocus, width: int, height: int) -> Camer
     # icicles that gather most there, the others at its edges), and down the picture at
     # the middle of those icicles' whole length.
     cx, cy = np.median(pixels[sel], axis=0)
+    if focus.diameter:  # the zoom again, for the icicles framed (nearer or farther than all's middle)
+        seen = focus.diameter / pixel_size(full, np.median(points[sel], axis=0), width)
+        zoom = min(max(MIN_ZOOM, ICICLE_PX / max(seen, 1e-9)), MAX_ZOOM)
     cy, zoom = _frame_lengthwise(full, focus, points[sel], cx, cy, zoom, width, height)
     right = np.cross(full.forward, full.up)
     right /= np.linalg.norm(right)
