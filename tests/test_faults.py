@@ -232,27 +232,3 @@ def test_a_sweep_folder_is_readable_by_the_group_under_umask_002(tmp_path, write
     files = [root / "jobs.csv", root / "manifest.resolved.yaml", summary.jobs[0].job_dir / "done.json",
              summary.jobs[0].job_dir / "water.ply", *root.glob("cache/*/*.npz")]
     assert all(f.stat().st_mode & 0o777 == 0o664 for f in files), {str(f): oct(f.stat().st_mode) for f in files}
-
-
-def test_an_interrupted_driver_knows_when_a_normal_exit_would_wait():
-    """After Ctrl-C the CLI exits at once (os._exit) when a thread or child process that a
-    normal exit waits for is left: a pool's manager thread that missed its killed workers
-    (CPython gh-115634) once kept a Ctrl-C'd sweep alive past the test's 120 s."""
-    import threading
-    from concurrent.futures import ProcessPoolExecutor
-
-    from icefarm.farm.local import _shut_down, stuck
-
-    assert not stuck()
-    release = threading.Event()
-    lingering = threading.Thread(target=release.wait)  # not a daemon: exit would join it
-    lingering.start()
-    try:
-        assert stuck()
-    finally:
-        release.set()
-        lingering.join()
-    assert not stuck()
-    pool = ProcessPoolExecutor(max_workers=1)
-    assert pool.submit(abs, -3).result() == 3
-    assert _shut_down(pool, 10.0) and not stuck()  # a pool that winds down leaves nothing

@@ -6,7 +6,6 @@ Each click command is a thin shell over a plain function (`validate_manifest`, `
 
 from __future__ import annotations
 
-import os
 import sys
 import tempfile
 import time
@@ -286,12 +285,6 @@ def make_sweep_command(after: Callable[[SweepSummary], None] | None = None) -> c
             click.echo(f"interrupted by {stop.name}: the workers were stopped; done jobs are kept, the others "
                        f"have no {DONE}. Finish the sweep with: icefarm sweep {manifest} -o {out} --resume",
                        err=True)
-            from .local import stuck
-
-            if stuck():  # everything is saved: do not wait at exit for what did not wind down
-                sys.stdout.flush()
-                sys.stderr.flush()
-                os._exit(stop.exit_code)
             sys.exit(stop.exit_code)
         except OSError as exc:  # the disk filled up, a folder became read-only, ... while running
             click.echo(one_line_each(f"error: {exc.strerror or exc}: {exc.filename or ''}".rstrip(": ")), err=True)

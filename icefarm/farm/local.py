@@ -28,10 +28,6 @@ from .task import (Gate, OnOutcome, Task, attempts_started, execute, failed_outc
 
 _BLAS_ENV = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 WATCHDOG_S = 0.5  # how often a local worker checks that its driver is still there
-# After Ctrl-C or an error, a pool whose workers were killed gets this long (s) to wind down:
-# its manager thread can miss killed workers and wait for them forever (CPython gh-115634;
-# once in about ten CI runs a Ctrl-C'd sweep never exited).
-KILL_WAIT_S = 10.0
 
 
 def _worker_init(driver: int) -> None:
@@ -146,9 +142,9 @@ def run_local(tasks: Sequence[Task], *, workers: int, on_outcome: OnOutcome,
                     pool = new_pool(workers)
         except BaseException:
             _kill_workers(pool)
-            _shut_down(pool, KILL_WAIT_S)
             raise
-        pool.shutdown(wait=True, cancel_futures=True)
+        finally:
+            pool.shutdown(wait=True, cancel_futures=True)
 
 
 def _deliver(fut, task: Task, on_outcome: OnOutcome, gate: Gate) -> bool:
@@ -207,25 +203,3 @@ def _kill_workers(pool: ProcessPoolExecutor) -> None:
     for proc in list(getattr(pool, "_processes", {}).values()):  # no public API for this
         with contextlib.suppress(Exception):
             proc.kill()
-
-
-def _shut_down(pool: ProcessPoolExecutor, timeout: float) -> bool:
-    """Shut ``pool`` down, waiting at most ``timeout`` seconds for its manager thread;
-    whether it ended (if not, the process cannot exit normally: `stuck`)."""
-    manager = getattr(pool, "_executor_manager_thread", None)  # no public API for this either
-    pool.shutdown(wait=False, cancel_futures=True)  # (which forgets the thread)
-    if manager is not None:
-        manager.join(timeout)
-        return not manager.is_alive()
-    return True
-
-
-def stuck() -> bool:
-    """Whether this process has a thread or a child process left that a normal exit would
-    wait for (a pool that did not wind down after its workers were killed: `_shut_down`)."""
-    import multiprocessing
-    import threading
-
-    main = threading.main_thread()
-    return (any(t.is_alive() and not t.daemon and t is not main for t in threading.enumerate())
-            or bool(multiprocessing.active_children()))
