@@ -56,9 +56,12 @@ def test_a_killed_driver_leaves_no_process_and_resume_finishes_every_job(tmp_pat
     path = write_manifest(grid={"water.rays": [300, 301, 302]})
     out = tmp_path / "out"
     env = dict(os.environ, **pause_env("ball", 600))  # every job stays in its worker
+    # As from a terminal: a sweep keeps ignoring a signal it was started ignoring (nohup), and
+    # a test run started in the background by a shell ignores SIGINT, which the driver inherits.
     driver = subprocess.Popen([str(ICEFARM), "sweep", str(path), "-o", str(out), "--workers", "2",
                                "--until", "drips"], env=env, cwd=tmp_path, start_new_session=True,
-                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                              preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     try:
         running = out / "t" / ".farm" / "running"
         markers = wait_for(lambda: len(list(running.glob("*.pid"))) >= 2 and list(running.glob("*.pid")),
