@@ -231,10 +231,10 @@ PARAMS: tuple[Param, ...] = (
        "dissolved salts in the water: 0 pure (smooth, clear icicles), about 0.7 tap water (rippled, "
        "cloudy core), 1 the full ripple amplitude; scales the ripples and the render's cloudiness",
        low=0.0, high=1.0),
-    _p("surface", "ripple_amplitude", "as", "m", _F, 0.0011,
-       "depth of the ripples' crests at impurity 1, where a crest is whole; the icicle gets as * impurity. "
-       "Crests fade and tilt around the trunk, so about 2/3 of it shows in the radius measured around "
-       "the trunk (real: 0.5-1 mm)", low=0.0),
+    _p("surface", "ripple_amplitude", "as", "m", _F, 0.00105,
+       "depth of the ripples' crests at impurity 1, where a crest is whole; the icicle gets as * impurity, "
+       "each icicle from 0.6 to 1.15 times that. Crests fade and tilt a little around the trunk, so "
+       "about 3/4 of it shows in the radius measured around the trunk (real: 0.5-1 mm)", low=0.0),
     _p("surface", "ripple_frequency", "fs", "rad/m", _F, 628.3,
        "angular frequency of the ripples (628 rad/m: 1 cm apart, as on real icicles)", low=0.0),
     _p("surface", "noise", "nc", "m", _F, 0.0004,

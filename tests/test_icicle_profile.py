@@ -162,3 +162,30 @@ def test_pure_water_icicles_have_no_ripple_texture_and_tips_are_quiet(one_icicle
     env = _envelope(x, 0.2, TIP)
     assert np.all(env[x > 0.2 - TIP_QUIET] == 0.0) and env[x < 0.15].min() == 1.0
     assert np.all(np.diff(env[x > 0.1]) <= 0)  # dies away towards the tip, never comes back
+
+
+def test_ripples_rise_from_a_smooth_root_and_differ_from_icicle_to_icicle(surface_kit):
+    """Issue 25: the amplitude fades into the base, and neighbours on one eave are not all
+    ribbed alike (identical rings on every icicle read as a stack of glass coins)."""
+    from icefarm.geometry import arc_lengths
+    from icefarm.stages.surface.profile import grown_lengths, smooth_radius
+    from icefarm.stages.surface.ripples import carve_ripples
+
+    surface, _ = surface_kit.groups()
+    prof = profile_args(surface)
+    starts = np.stack([np.arange(8) * 0.05, np.zeros(8), np.zeros(8)], axis=1)
+    traj = surface_kit.straight(starts, [0.2] * 8, step=0.002)
+    x, lengths = arc_lengths(traj.points, traj.branch_offsets)
+    branch = np.repeat(np.arange(8), np.diff(traj.branch_offsets))
+    radius = smooth_radius(x, grown_lengths(lengths, traj.cut)[branch], growth=traj.growth(prof["growth"])[branch],
+                           **{k: v for k, v in prof.items() if k != "growth"})
+    angle = np.linspace(0.0, 2 * np.pi, 24, endpoint=False)
+    ring = np.stack([np.cos(angle), np.zeros_like(angle), np.sin(angle)], axis=1)
+    vertices = (traj.points[:, None, :] + radius[:, None, None] * ring[None]).reshape(-1, 3)
+    moved = np.linalg.norm(carve_ripples(vertices, traj, prof) - vertices, axis=1).reshape(len(x), -1).mean(axis=1)
+    frac = x / 0.2
+    root = np.array([moved[(branch == b) & (frac < 0.05)].mean() for b in range(8)])
+    middle = np.array([moved[(branch == b) & (frac > 0.4) & (frac < 0.6)].mean() for b in range(8)])
+    assert np.all(root < 0.1 * middle)
+    assert middle.max() / middle.min() > 1.4
+    assert np.median(middle) * 1000 > 0.2  # a crest's mean displacement: 2/pi of its depth

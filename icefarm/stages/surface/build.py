@@ -24,7 +24,7 @@ from .glaze import glaze_field, glaze_thickness, wet_vertices
 from .icicles import hang_roots, icicle_balls, root_shifts
 from .measure import IcicleStats, measure_icicles
 from .profile import grown_lengths, profile_args, smooth_radius
-from .ripples import carve_ripples
+from .ripples import DEPTH_RANGE, carve_ripples
 from .tubes import tube_mesh
 
 # Vertices closer than this many voxels are one, and faces flatter than it are flipped
@@ -203,9 +203,10 @@ def build_ice(object_mesh: trimesh.Trimesh, flow_mesh: trimesh.Trimesh, water: W
 
 
 def _ripple(surface: SurfaceParams) -> tuple[float, float]:
-    """The ripples' amplitude and wavelength, meters."""
+    """The deepest ripples' amplitude (some icicles' ripples are deeper than the parameter's,
+    `ripples.DEPTH_RANGE`) and their wavelength, meters."""
     prof = profile_args(surface)
-    return prof["amplitude"], (2 * np.pi / prof["frequency"] if prof["frequency"] > 0 else 0.0)
+    return prof["amplitude"] * DEPTH_RANGE[1], (2 * np.pi / prof["frequency"] if prof["frequency"] > 0 else 0.0)
 
 
 def _coat_reach(flow_mesh: trimesh.Trimesh, water: WaterResult, glaze: GlazeParams, coat, coarse: float,

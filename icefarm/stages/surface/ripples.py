@@ -47,8 +47,9 @@ def carve_ripples(vertices: np.ndarray, traj: TrajectoryResult, prof: dict,
 
     Each vertex follows the nearest sample of the branch axes: at arc length x of a branch,
     it moves by ``as sin(x fs)`` (faded at the tip as in `profile_radius`, in over the
-    first base radius of the branch, where it meets the object, and in as the radius widens
-    past the tip's, `RIPPLE_WIDENING`) away from the axis.
+    first `ROOT_FADE` of the branch or its base radius if longer, where it meets the object,
+    and in as the radius widens past the tip's, `RIPPLE_WIDENING`) away from the axis, with
+    the texture of natural ripples (`WANDER` and the constants after it).
 
     Parameters
     ----------
@@ -132,9 +133,10 @@ def _waves(vertices: np.ndarray, traj: TrajectoryResult, prof: dict, max_radius:
     # Natural ripples (`_texture`): a wandering wavelength, quiet above the tip, and crests
     # that tilt and fade around the trunk, each branch its own (seeded by its index: no
     # draw from the stage's stream).
-    texture = _texture(branches, frequency)
-    wave_amp = amplitude * _envelope(x, grown[owner], tip) \
-        * np.clip(x / smooth_radius(0.0, grown[owner], growth=growth[owner], **prof), 0, 1)
+    texture = _texture(branches, frequency, np.asarray(traj.branch_icicle)[branches])
+    base = np.maximum(smooth_radius(0.0, grown[owner], growth=growth[owner], **prof), ROOT_FADE * grown[owner])
+    rise = np.clip(x / base, 0, 1)
+    wave_amp = amplitude * texture.depth[owner] * _envelope(x, grown[owner], tip) * rise * rise * (3 - 2 * rise)
     wave_amp *= np.clip((radius - tip) / (RIPPLE_WIDENING * tip), 0, 1)
     if max_radius is not None:
         wave_amp *= np.clip((max_radius - radius) / (0.2 * max_radius), 0, 1)
@@ -183,19 +185,26 @@ def _waves(vertices: np.ndarray, traj: TrajectoryResult, prof: dict, max_radius:
 # Natural ripples (Chen & Morris 2013; photographs of eaves icicles): the wavelength
 # wanders by about WANDER (standard deviation of the local wavenumber, relative) over a few
 # centimetres; crests tilt by up to TILT radians of phase around the trunk and fade to
-# FADE_FLOOR of their depth on some sides; the last TIP_QUIET metres above the tip are
-# smooth, and the ripples rise to full depth over the next TIP_RISE. Chosen by eye on the
-# bench's close-up view: at 15 % wander and 0.6 rad of tilt the rings refracted the seat
-# above as level, evenly spaced stripes, a stack of glass coins. More tilt and fade break
-# them further but cancel in the radius measured around the trunk (the mean of a crest
-# tilted by T is J0(T) of it), and deepening the crests to make up for it steepens their
-# flanks (40 degrees at 1.6 mm), which turns the refracted stripes into zebra stripes. So:
-# 25 % wander, 1 rad of tilt, crests never under half depth, 1.1 mm crests (`surface.
-# ripple_amplitude`): a 20 cm trunk measures 0.51 mm, 3 cm correlation -0.17, crest CV 0.20.
+# FADE_FLOOR of their depth on some sides; each icicle's ripples are deeper or shallower than
+# the parameter says, within DEPTH_RANGE of it (neighbours on one eave differ: some near
+# smooth, some ribbed); they rise from nothing at the root over ROOT_FADE of the icicle's length, and the
+# last TIP_QUIET metres above the tip are smooth, rising to full depth over the next TIP_RISE.
+# Uniform, steep crests read as a stack of glass coins whatever their texture (the bench's
+# close-up view at 480 x 360, icicles 13 px wide): 1.1 mm crests with 1 rad of tilt refracted
+# the seat above into a zebra of dark stripes on every icicle alike. Nearly level, whole
+# crests keep more of their depth in the radius measured around the trunk (a crest tilted by
+# T keeps J0(T) of it), so the measure needs no steeper flanks than before; roots without
+# ripples and a depth that differs from icicle to icicle break the curtain's regularity.
+# Shallower still (0.5 mm crests) read better by eye, but the 0.3 m bunny's short icicles
+# must keep 0.4 mm in the ripples' band (issue 25): `surface.ripple_amplitude` 1.05 mm gives
+# crests of 0.74 mm at the default impurity (0.44-0.85 by icicle), 0.41 mm on the bunny
+# (relative storm) and 0.53 on one 12 cm icicle.
 WANDER = 0.25
 WANDER_WAVES = (0.025, 0.04, 0.07)  # wavelengths (m) of the wandering's components
-TILT = 1.0
-FADE_FLOOR = 0.5
+TILT = 0.5
+FADE_FLOOR = 0.7
+DEPTH_RANGE = (0.6, 1.15)
+ROOT_FADE = 0.2
 TIP_QUIET = 0.01
 TIP_RISE = 0.03
 
@@ -211,18 +220,23 @@ class _Texture:
     break_phase: np.ndarray
     break_rate: np.ndarray
     phase0: np.ndarray
+    depth: np.ndarray  # its icicle's ripple depth over the parameter's, within DEPTH_RANGE
 
 
-def _texture(branches: np.ndarray, frequency: float) -> _Texture:
+def _texture(branches: np.ndarray, frequency: float, icicles: np.ndarray) -> _Texture:
     k = len(WANDER_WAVES)
     # row b of one table is branch b's draws whatever the table's length (rows come in order)
     table = np.random.default_rng(RIPPLE_SEED).random((int(branches.max(initial=-1)) + 1, k + 5))
     draws = table[branches]
+    # One depth per icicle (its branches alike), spread evenly over any run of icicles (a
+    # golden-ratio sequence: neighbours differ), most near full depth; icicle 0 gets the median.
+    u = (0.5 + icicles * (GOLDEN_ANGLE / (2 * np.pi))) % 1.0
     two_pi = 2 * np.pi
     return _Texture(wander_phase=two_pi * draws[:, :k], tilt=TILT * (0.4 + 0.6 * draws[:, k]),
                     tilt_at=two_pi * draws[:, k + 1], break_phase=two_pi * draws[:, k + 2],
                     break_rate=(20.0 + 40.0 * draws[:, k + 3]) * (1 if frequency > 0 else 0),
-                    phase0=(branches * GOLDEN_ANGLE + two_pi * draws[:, k + 4]) % two_pi)
+                    phase0=(branches * GOLDEN_ANGLE + two_pi * draws[:, k + 4]) % two_pi,
+                    depth=DEPTH_RANGE[1] - (DEPTH_RANGE[1] - DEPTH_RANGE[0]) * u**2)
 
 
 def _wandering_phase(x: np.ndarray, owner: np.ndarray, frequency: float,
