@@ -209,7 +209,8 @@ PARAMS: tuple[Param, ...] = (
        "0 0 0 for still air (bends spread at random)", zero_ok=True),
     _p("trajectories", "branch_spread", "-", "m", _F, 0.02,
        "a branch leaves its parent at 30 deg and holds that angle until it is this far aside, "
-       "then grows on parallel (the paper's p1'' with one F: 2 mm)", low=0.0),
+       "then grows on parallel (the paper's p1'' with one F: 2 mm); a late branch holds it for a "
+       "third of what it grows at most, a side tip beside its parent's", low=0.0),
     _p("trajectories", "contact", "-", "-", Kind.CHOICE, "stop",
        "what an icicle does where it meets the object below it: stop (it ends touching the surface, "
        "a column, as real icicles do) or slide (the paper 4.3.1: it runs down the surface and drips "

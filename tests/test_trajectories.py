@@ -106,29 +106,46 @@ def test_spread_steps():
     assert spread_steps(0.0005, 0.004) == 1
 
 
+def held(pts):
+    """A branch's segment tilts and how many of them lead at 30 degrees (up to the first
+    parallel, vertical one, like the straight trunk)."""
+    t = tilt(np.diff(pts, axis=0) / 0.004)
+    return t, int(np.argmax(t < 1e-4))
+
+
 @pytest.mark.parametrize("branch_spread", [0.0, 0.02])
 def test_branch_holds_30_degrees_until_branch_spread_aside(plate, branch_spread):
     mesh, starts, normals, water = plate
-    traj = grow(mesh, starts[:1], normals[:1], water[:1] / 2, curve_angle=0.0, division_probability=1.0,
+    traj = grow(mesh, starts[:1], normals[:1], water[:1], curve_angle=0.0, division_probability=1.0,
                 max_branches=1000, branch_spread=branch_spread)
     children = np.flatnonzero(traj.branch_parent >= 0)
     assert len(children) > 5
-    held = []
+    steps = []
     for b in children:
         pts = traj.branch(b)
-        t = tilt(np.diff(pts, axis=0) / 0.004)
-        k = int(np.argmax(t < 1e-4))  # the first parallel (vertical, like the straight trunk) segment
+        t, k = held(pts)
         assert k >= 1
         np.testing.assert_allclose(t[:k], BRANCH_ANGLE, atol=1e-6)
         np.testing.assert_allclose(t[k:], 0.0, atol=1e-4)  # arccos near 1 keeps ~1e-6 deg
         aside = np.linalg.norm((pts[-1] - pts[0])[[0, 2]])
         np.testing.assert_allclose(aside, k * 0.004 * 0.5, atol=1e-9)
-        held.append(k)
+        steps.append(k)
     if branch_spread == 0:
-        assert set(held) == {1}  # the paper: one F at 30 degrees, 2 mm aside
+        assert set(steps) == {1}  # the paper: one F at 30 degrees, 2 mm aside
     else:
         # 10 steps (20 mm) unless the icicle has fewer generations left to spend
-        assert max(held) == 10 and held[0] == 10
+        assert max(steps) == 10 and steps[0] == 10
+
+
+def test_a_late_branch_hangs_beside_its_parent_instead_of_splaying_to_its_end(plate):
+    # Issue 25: three or four branches born near the end, each at 30 degrees to its own end,
+    # made two- and three-fingered claws of the tips; now each spends at most about a third
+    # of what it grows spreading, then hangs
+    traj = grow(*plate, curve_angle=0.0, division_probability=0.3, max_branches=4)
+    children = np.flatnonzero(traj.branch_parent >= 0)
+    assert len(children) > 20
+    shares = [held(traj.branch(b))[1] / (len(traj.branch(b)) - 1) for b in children]
+    assert max(shares) <= 0.5 and np.median(shares) <= 0.4
 
 
 def test_branches_leave_at_30_degrees_even_from_a_leaning_parent(plate):
@@ -157,18 +174,21 @@ def bunny_setup(shared_mesh):
 
 
 @pytest.mark.slow
-def test_branches_spread_more_with_d_on_the_bunny(shared_mesh):
+def test_branches_multiply_with_d_and_stay_spread_on_the_bunny(shared_mesh):
     setup = bunny_setup(shared_mesh)
     count, spread = {}, {}
     for d in (0.0, 0.15, 0.3, 0.6):
-        runs = [grow(*setup, seed=s, division_probability=d) for s in range(3)]
+        runs = [grow(*setup, seed=s, division_probability=d) for s in range(10)]
         count[d] = sum(int((t.branch_parent >= 0).sum()) for t in runs)
         # the median of the seeds' medians
         spread[d] = np.nanmedian([measure_trajectories(t, G).branch_spread_mm for t in runs]) if count[d] else 0.0
         assert measure_trajectories(runs[0], G).upward_share == 0.0
     assert count[0.0] == 0 and count[0.0] < count[0.15] < count[0.3] < count[0.6]
     assert spread[0.3] >= 15.0  # the paper's single F gives about 8 mm: glass wool
-    assert spread[0.0] < spread[0.15] <= spread[0.3] + 1.0 <= spread[0.6] + 2.0
+    # d adds branches, not distance: past d = 0 the median spread stays within a few mm
+    # (seeds alone move one run's median by 3 mm; 3 seeds read 17.6, 19.7, 16.2 here)
+    assert spread[0.0] < min(spread[0.15], spread[0.3], spread[0.6]) >= 15.0
+    assert max(spread[0.15], spread[0.3], spread[0.6]) - min(spread[0.15], spread[0.3], spread[0.6]) <= 3.0
     paper = np.median([measure_trajectories(grow(*setup, seed=s, division_probability=0.3, branch_spread=0.0), G)
                        .branch_spread_mm for s in range(3)])
     assert paper < 10.0

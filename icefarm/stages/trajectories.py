@@ -4,7 +4,8 @@ Three departures from the literal rules, each where the literal turtle is unphys
 bend saturates at ``max_tilt`` from gravity (a steady ``+(c)`` with no roll winds the
 turtle into a loop, and water does not flow up), a horizontal wind orients every bend
 (a wind-blown icicle leans downwind), and a branch holds its 30 degrees until it is
-``branch_spread`` aside (the paper's single F puts it 2 mm off: glass wool, not branches).
+``branch_spread`` aside (the paper's single F puts it 2 mm off: glass wool, not branches),
+or for a third of what it grows when born late (a side tip, not a splayed finger).
 
 The turtle that draws them, with its collisions, is `turtles`; their shape statistics
 (rising segments, branch spread, trunk lengths) are `trajectory_stats`.
@@ -212,10 +213,12 @@ def grow_trajectories(mesh: trimesh.Trimesh, positions: np.ndarray, normals: np.
             rows = np.arange(len(turtles.alive) - len(split), len(turtles.alive))
             grower.bend(turtles, rows, curve_angle)
             parallel, parallel_left = grower.depart(turtles, rows)
-            # [+(30) F^n -(30) F X]: the spread may not outgrow the generations left, so a
-            # late branch stays a short spur instead of hanging below the whole icicle
+            # [+(30) F^n -(30) F X]: the spread may not outgrow a third of the generations
+            # left, so a late branch is a short side tip hanging beside its parent's (as on
+            # real icicles) instead of a finger splayed at 30 degrees to its end: three or
+            # four of those made the fence's and the eaves' tips into claws
             left_gens = generations[turtles.icicle[rows]] - gen - 1
-            steps = np.clip(1 + 3 * left_gens, 1, n_spread)
+            steps = np.clip(1 + left_gens, 1, n_spread)
             spreading = np.ones(len(rows), dtype=bool)
             for k in range(int(steps.max())):
                 hit = grower.forward(turtles, rows[spreading & (steps > k)])
