@@ -29,6 +29,27 @@ def test_camera_up_follows_gravity_and_frames_everything(gravity, box_with_icicl
     assert tip[1] > root[1]
 
 
+def test_the_ground_in_the_frame_lies_past_the_near_plane():
+    """A long, low asset (a 4.5 m car shape) seen from slightly below (the three-quarter view): the
+    eye sits just over the ground, whose nearest visible metres the near plane, set from the
+    asset alone, clipped (a flat dark band across the frame's foot)."""
+    car = trimesh.creation.box(extents=(4.5, 1.5, 1.8))
+    car.apply_translation((0.0, 0.75, 0.0))
+    gravity = np.array([0.0, -1.0, 0.0])
+    camera = frame_view(car.vertices, gravity, 35.0, -8.0, 4 / 3, ground=0.0)  # three_quarter
+    fwd = (camera.target - camera.origin) / np.linalg.norm(camera.target - camera.origin)
+    # the ground point seen at the middle of the frame's lower edge, and its depth along fwd
+    right = np.cross(fwd, camera.up)
+    right /= np.linalg.norm(right)
+    low = fwd - np.tan(np.radians(camera.fov_y) / 2) * np.cross(right, fwd)
+    assert low[1] < 0  # the frame's foot shows ground
+    depth = camera.origin[1] / -low[1]
+    assert depth < np.linalg.norm(camera.target - camera.origin)  # nearer than the asset
+    assert camera.near < depth
+    # the asset itself stays past the near plane too
+    assert ((car.vertices - camera.origin) @ fwd).min() > camera.near
+
+
 def dense_icicles(count: int = 5, spacing: float = 0.05):
     """A 30 cm box with ``count`` cones hanging from its underside, finely meshed like the
     pipeline's marching-cubes ice (edges of about 1.5 mm: split until none is over 3 mm),

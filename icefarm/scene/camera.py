@@ -176,6 +176,16 @@ def frame_view(points: np.ndarray, gravity, azimuth: float, elevation: float, as
     dist = float(np.linalg.norm(target - origin))
     depth = (pts - origin) @ ((target - origin) / dist)
     near = max(float(depth.min()) * 0.5, 1e-4)
+    if ground is not None:
+        # Nor may the ground at the frame's lower edge lie before the near plane: a low eye
+        # before a big asset (a car, 15 cm over the ground) clipped its nearest metres, and
+        # the rays started under the ground saw a flat dark band across the frame's foot.
+        fwd = (target - origin) / dist
+        right = np.cross(fwd, up)
+        right /= np.linalg.norm(right)
+        low = fwd - np.tan(np.radians(fov_y) / 2) * np.cross(right, fwd)  # unit depth along fwd
+        if low @ up < 0:
+            near = max(min(near, 0.5 * (origin @ up - ground) / -(low @ up)), 1e-4)
     return Camera(origin=origin, target=target, up=up, fov_x=fov_x, fov_y=float(fov_y),
                   near=near, far=max(1000.0 * dist, 100.0 * size))
 
