@@ -246,25 +246,30 @@ def accrete(mesh: trimesh.Trimesh, gravity, sky: np.ndarray, precipitation: floa
 
 
 def _spread(mesh: trimesh.Trimesh, volume: np.ndarray, area: np.ndarray) -> np.ndarray:
-    """``(n,)`` ice volumes per vertex, m^3, relaxed over about `GLAZE_BLUR_M`: each pass a
-    vertex keeps half its ice and hands the rest to its edge neighbours in proportion to
-    their areas (the total stays exactly the same; equal shares piled 29 cm of ice on the
-    tiny vertices of a fence's unions). Ice does not freeze vertex by vertex: the water each
-    route carries left the glaze on walls in speckles and in sharp-edged fans, which the
-    coat rendered as black patches on a fence's pickets."""
+    """``(n,)`` ice volumes per vertex, m^3, relaxed over about `GLAZE_BLUR_M`: each pass
+    every edge carries ice from its thicker end to its thinner one, in proportion to the
+    difference in thickness (volume over area) and to the smaller end's area over the larger
+    of their edge counts (the total stays exactly the same, no vertex gives more than half
+    of what it holds, and an even coat stays even). Ice does not freeze vertex by vertex: the
+    water each route carries left the glaze on walls in speckles and in sharp-edged fans,
+    which the coat rendered as black patches on a fence's pickets. Handing each neighbour a
+    share by its area instead kept even ice uneven on a refined face, whose vertices have 4
+    to 8 edges: a car's windscreen alternated between 13.6 and 20 mm, vertex by vertex."""
     edges = np.asarray(mesh.edges_unique)
     if len(edges) == 0:
         return volume
     n = len(volume)
     a, b = edges[:, 0], edges[:, 1]
-    around = np.bincount(a, weights=area[b], minlength=n) + np.bincount(b, weights=area[a], minlength=n)
+    degree = np.bincount(a, minlength=n) + np.bincount(b, minlength=n)
+    conductance = 0.5 * np.minimum(area[a], area[b]) / np.maximum(degree[a], degree[b])
     passes = int(min(MAX_BLUR_PASSES, np.ceil(GLAZE_BLUR_M / max(float(np.median(mesh.edges_unique_length)), 1e-9))))
     v = np.asarray(volume, dtype=np.float64)
     for _ in range(passes):
-        per_area = np.divide(0.5 * v, around, out=np.zeros(n), where=around > 0)
-        v = np.where(around > 0, 0.5 * v, v) + np.bincount(a, weights=per_area[b] * area[a], minlength=n) \
-            + np.bincount(b, weights=per_area[a] * area[b], minlength=n)
+        t = np.divide(v, area, out=np.zeros(n), where=area > 0)
+        flux = conductance * (t[a] - t[b])
+        v = v - np.bincount(a, weights=flux, minlength=n) + np.bincount(b, weights=flux, minlength=n)
     return v
+
 
 def _routes(mesh: trimesh.Trimesh, g: np.ndarray, cos_up: np.ndarray, area: np.ndarray):
     """Where the water at each vertex goes next, and an order that visits every vertex
