@@ -213,3 +213,23 @@ def test_a_coat_follows_a_steep_thickness_slope_without_steps():
     d, _ = ray_caster(ice)(pts - 1e-4 * up, up)
     error = d - 1e-4 - (0.002 + 0.1 * (pts[:, 0] + 0.1))
     assert np.abs(error).max() <= 0.05 * glaze.voxel_size
+
+
+def test_a_coat_over_noisy_thickness_stays_within_the_thickness_it_was_given():
+    """Vertex thicknesses alternating between 5 and 15 mm: the thickness carried along each
+    face's steep slope stays within what the face and its neighbours hold (unbounded, the
+    slopes of small faces carried it into lumps of +-5 mm past them on a car's windscreen)."""
+    plate = trimesh.creation.box(extents=(0.2, 0.03, 0.2))
+    plate = trimesh.Trimesh(*trimesh.remesh.subdivide_to_size(plate.vertices, plate.faces, 0.01))
+    top = plate.vertices[:, 1] > 0.0149
+    n = len(top)
+    noisy = np.where(np.arange(n) % 3 == 0, 0.015, 0.005)
+    water = WaterResult(top, np.where(top, 0.1, 0.0), np.zeros(n, int), np.where(top, noisy / 0.02, 0.0),
+                        np.zeros(n, int), np.zeros(n), np.zeros((0, 3)))
+    ice = _closed(*_coat(plate, water, _glaze(lifetime=1.0, min_radius=0.0, scale=0.02)))
+    px = np.linspace(-0.07, 0.07, 57)
+    pts = np.stack(np.meshgrid(px, [0.015], px, indexing="ij"), axis=-1).reshape(-1, 3)
+    up = np.broadcast_to(-G, pts.shape)
+    d, _ = ray_caster(ice)(pts - 1e-4 * up, up)
+    height = d - 1e-4
+    assert height.min() >= 0.005 - 0.001 and height.max() <= 0.015 + 0.001

@@ -12,12 +12,12 @@ touch an excluded vertex (the sole an object stands on) get none at all.
 
 D and T come from an even sample of the surface (``SPACING`` voxels apart, with face
 normals): a lattice sample takes its nearest surface sample (scipy cKDTree) and
-``D = (p - s) . n``, rounded off with the lateral offset past the reach of that sample's
-patch of surface (`sample_cover`) so that convex creases get round offsets instead of
-fins, and T carried from the sample to the foot by the thickness's slope along the face;
-dry samples bound the coat (a lattice sample nearer to a dry face than to a wet one is
-not under the wet one, so the inner face never comes out through a thin wall) and carry
-the taper, from the distance to the rim. The lattice is sampled in the narrow band around the coat, and stored as a field
+``D = (p - s) . n``, rounded off with the lateral offset past the sample spacing so that
+convex creases get round offsets instead of fins, and T carried from the sample to the
+foot by the thickness's slope along the face; dry samples bound the coat (a lattice
+sample nearer to a dry face than to a wet one is not under the wet one, so the inner
+face never comes out through a thin wall) and carry the taper, from the distance to the
+rim. The lattice is sampled in the narrow band around the coat, and stored as a field
 that marching cubes reads as the signed distance itself (`coat_band`); it fuses with
 the icicles' field through `icefarm.metaballs.fuse_fields`.
 """
@@ -149,30 +149,32 @@ def coat_field(flow_mesh: trimesh.Trimesh, thickness: np.ndarray, wet: np.ndarra
     all_t = np.r_[t_wet, np.zeros(len(dpts))]
     depth = _inner_depth(flow_mesh, all_pts, normals, all_t, kind, inner, voxel, cast)
     sole = flow_mesh.vertices[exclude] if exclude is not None else np.zeros((0, 3))
-    cover = sample_cover(flow_mesh, np.r_[wet_faces, around], h)[all_face]
     dry = np.zeros(len(dpts))
-    low, high = _thickness_range(flow_mesh, thickness, wet, face)
+    low, high = _thickness_range(flow_mesh, thickness, wet, wet_faces)
     thick = Thickness(all_t, np.concatenate([slope, np.zeros((len(dpts), 3))]),
-                      np.r_[np.fmin(low, t_wet), dry], np.r_[np.fmax(high, t_wet), dry])
+                      np.r_[np.fmin(low[face], t_wet), dry], np.r_[np.fmax(high[face], t_wet), dry])
     return sample_band(all_pts, normals, thick, kind[all_face], depth, rim, features, sole, edge, voxel, reach, h,
-                       cover, name)
+                       name)
 
 
 def _thickness_range(mesh: trimesh.Trimesh, thickness: np.ndarray, wet: np.ndarray,
                      faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Per face of ``faces`` (each with a wet vertex), the least and the greatest thickness of the wet vertices of it and of the
-    faces around it (f,) each: a sample's thickness carried along its slope stays within
-    these, exact where the thickness is linear (a lattice sample's nearest surface sample
-    may lie on the next face), bounded where it is not (a slope across a small face of
-    noisy thickness would otherwise carry far past it)."""
+    """The least and the greatest thickness of the wet vertices of each of ``faces`` (each
+    with a wet vertex) and of their edge neighbours, per mesh face ((f,) each, NaN off
+    ``faces``): a sample's thickness carried along its slope stays within these, exact where
+    the thickness is linear (a lattice sample's nearest surface sample may lie on the next
+    face), bounded where it is not (the slope of a small face of noisy thickness carried
+    past it made lumps of +-5 mm on a car's windscreen)."""
     t = np.where(wet, thickness, np.nan)
     low, high = t.copy(), t.copy()
     a, b = np.asarray(mesh.edges_unique).T
     for u, v in ((a, b), (b, a)):
         np.fmin.at(low, u, t[v])
         np.fmax.at(high, u, t[v])
+    lo, hi = np.full(len(mesh.faces), np.nan), np.full(len(mesh.faces), np.nan)
     corners = mesh.faces[faces]
-    return np.nanmin(low[corners], axis=1), np.nanmax(high[corners], axis=1)
+    lo[faces], hi[faces] = np.nanmin(low[corners], axis=1), np.nanmax(high[corners], axis=1)
+    return lo, hi
 
 
 def _thickness_slope(mesh: trimesh.Trimesh, thickness: np.ndarray, wet: np.ndarray) -> np.ndarray:
@@ -292,7 +294,7 @@ def surface_samples(mesh: trimesh.Trimesh, faces: np.ndarray, spacing: float):
     sub-triangles no longer than ``2 spacing``. Faces without area get none.
 
     Deterministic: no gaps and no clumps, so the nearest sample of any point of a fat
-    face lies within about 0.6 ``spacing`` of it (within `sample_cover` on any face).
+    face lies within about 0.6 ``spacing`` of it.
 
     Returns
     -------
@@ -304,8 +306,11 @@ def surface_samples(mesh: trimesh.Trimesh, faces: np.ndarray, spacing: float):
     faces = faces[np.linalg.norm(mesh.face_normals[faces], axis=1) > 0.5]  # a plane, a normal
     if len(faces) == 0:
         return np.zeros((0, 3)), np.zeros(0, dtype=np.int64), np.zeros((0, 3))
-    m = _cuts(mesh, faces, spacing)
     tri = mesh.triangles[faces]
+    longest = np.linalg.norm(tri - np.roll(tri, 1, axis=1), axis=2).max(axis=1)
+    area = mesh.area_faces[faces]
+    m = np.maximum(np.maximum(np.ceil(np.sqrt(2.0 * area) / spacing), np.ceil(0.5 * longest / spacing)), 1)
+    m = m.astype(np.int64)
     out_p, out_f, out_b = [], [], []
     for mm in np.unique(m):
         sel = np.flatnonzero(m == mm)
@@ -316,39 +321,6 @@ def surface_samples(mesh: trimesh.Trimesh, faces: np.ndarray, spacing: float):
         out_f.append(faces[f])
         out_b.append(b)
     return np.concatenate(out_p), np.concatenate(out_f), np.concatenate(out_b)
-
-
-def _cuts(mesh: trimesh.Trimesh, faces: np.ndarray, spacing: float) -> np.ndarray:
-    """How many ways `surface_samples` cuts each of ``faces`` (k,) int64."""
-    tri = mesh.triangles[faces]
-    longest = np.linalg.norm(tri - np.roll(tri, 1, axis=1), axis=2).max(axis=1)
-    area = mesh.area_faces[faces]
-    m = np.maximum(np.maximum(np.ceil(np.sqrt(2.0 * area) / spacing), np.ceil(0.5 * longest / spacing)), 1)
-    return m.astype(np.int64)
-
-
-def sample_cover(mesh: trimesh.Trimesh, faces: np.ndarray, spacing: float) -> np.ndarray:
-    """How far from its nearest `surface_samples` point a point of the surface may lie,
-    per face of ``faces`` (meters): the farthest corner of a sub-triangle from its centroid,
-    the most of it over the face and its neighbours (a point near a face's edge may take its
-    nearest sample from the next face).
-
-    0.58 ``spacing`` on an equilateral face; skinny faces, which a refined box's often are,
-    reach 1.2 ``spacing`` (the car's, p90).
-
-    Returns
-    -------
-    (len(mesh.faces),) float64
-        0 on the faces not in ``faces``.
-    """
-    faces = np.asarray(faces, dtype=np.int64)
-    tri = mesh.triangles[faces]
-    own = np.linalg.norm(tri - tri.mean(axis=1, keepdims=True), axis=2).max(axis=1) / _cuts(mesh, faces, spacing)
-    corner = np.zeros(len(mesh.vertices))
-    np.maximum.at(corner, mesh.faces[faces].ravel(), np.repeat(own, 3))
-    cover = np.zeros(len(mesh.faces))
-    cover[faces] = np.maximum(own, corner[mesh.faces[faces]].max(axis=1))
-    return cover
 
 
 _PATTERNS: dict[int, np.ndarray] = {}

@@ -53,7 +53,7 @@ TAPER_END = 0.25
 class Thickness:
     """The coat's thickness at the surface samples (meters): ``value`` (k,) at each, carried
     to a point ``lateral`` (k, 3) away along ``slope`` (k, 3, m/m) and kept within ``low`` ..
-    ``high`` (k,), the range over the sample's face (0 for dry samples)."""
+    ``high`` (k,), the range around the sample's face (0 for dry samples)."""
 
     value: np.ndarray
     slope: np.ndarray
@@ -64,7 +64,7 @@ class Thickness:
         return np.clip(self.value[i] + np.einsum("kd,kd->k", self.slope[i], lateral), self.low[i], self.high[i])
 
 
-def sample_band(pts, normals, thick: Thickness, kind, depth, rim, features, sole, edge, voxel, reach, h, cover,
+def sample_band(pts, normals, thick: Thickness, kind, depth, rim, features, sole, edge, voxel, reach, h,
                 name) -> Field | None:
     """The coat's field on the lattice tiles near the wet samples.
 
@@ -72,15 +72,11 @@ def sample_band(pts, normals, thick: Thickness, kind, depth, rim, features, sole
     surface sample ``s`` (normal ``n``): ``sd = (p - s) . n``, its lateral offset beyond
     the sample spacing ``l``, the signed distance ``D = sign(sd) sqrt(sd^2 + l^2)`` and
     ``phi = min(T - D, D + depth)`` (positive inside); T is the thickness of a wet ``s``
-    carried to the foot ``p - sd n`` (`Thickness.at`) and, past the rim,
-    that of the nearest rim point times ``1 - d / edge`` (d: distance from the foot to
-    the rim). No coat where ``s`` is excluded, lies past the
-    taper or farther than ``reach``. Between wet and excluded samples (and the excluded
-    vertices ``sole``) the coat ends in a wall at their bisector, ``phi = (dB - dW) / 2``.
-    ``l`` is the lateral offset past ``cover`` (per sample, meters: how far a point of the
-    surface may lie from its nearest sample, `coat.sample_cover`); a fixed 0.6 ``h`` left
-    the points farther than that from every sample of skinny faces under dimples, a
-    hammered-glass glaze on the car's windows.
+    carried to the foot ``p - sd n`` (`Thickness.at`) and, past the rim, that of the
+    nearest rim point times ``1 - d / edge`` (d: distance from the foot to the rim). No
+    coat where ``s`` is excluded, lies past the taper or farther than ``reach``. Between wet
+    and excluded samples (and the excluded vertices ``sole``) the coat ends in a wall at
+    their bisector, ``phi = (dB - dW) / 2``.
     """
     wet = kind == 1
     blocked = np.concatenate([pts[kind == -1], sole])
@@ -118,7 +114,7 @@ def sample_band(pts, normals, thick: Thickness, kind, depth, rim, features, sole
         dist, idx = tree.query(centre, k=1, distance_upper_bound=reach + half, workers=-1)
         d_c = np.full(len(centre), np.inf)
         found = np.isfinite(dist)
-        d_c[found] = _signed(centre[found] - pts[idx[found]], normals[idx[found]], dist[found], cover[idx[found]])[0]
+        d_c[found] = _signed(centre[found] - pts[idx[found]], normals[idx[found]], dist[found], 0.6 * h)[0]
         near = half + voxel
         inside = (d_c > near - inner_lo) & (d_c < t_lo - near)
         keep = (d_c > -(inner + near)) & (d_c < t_hi + near) & ~inside
@@ -164,11 +160,11 @@ def sample_band(pts, normals, thick: Thickness, kind, depth, rim, features, sole
         # surface sample (the same plane: the same distance); elsewhere each finds its own.
         flat = np.repeat(shared[lo:hi], _TILE**3)
         phi = np.empty(len(p))
-        phi[flat] = _phi(tree, p[flat], normals, thick, kind, rim, edge, depth, reach, cover + half,
+        phi[flat] = _phi(tree, p[flat], normals, thick, kind, rim, edge, depth, reach, 0.6 * h + half,
                          np.repeat(nearest[lo:hi], _TILE**3)[flat],
                          None if rim_seg is None else np.repeat(rim_seg[lo:hi], _TILE**3)[flat], workers=1,
                          taper_end=TAPER_END * voxel)
-        phi[~flat] = _phi(tree, p[~flat], normals, thick, kind, rim, edge, depth, reach, cover, wall=wall,
+        phi[~flat] = _phi(tree, p[~flat], normals, thick, kind, rim, edge, depth, reach, 0.6 * h, wall=wall,
                           workers=1, taper_end=TAPER_END * voxel)
         values[lo * _TILE**3:hi * _TILE**3] = _encode(phi, voxel)
 
@@ -231,8 +227,7 @@ def _phi(tree, points, normals, thick: Thickness, kind, rim, edge, depth, reach,
     samples of a tile sharing one, `sample_band`). With ``wall`` (wet sample indices,
     a tree of the wet samples, one of the excluded ones), the coat stops at the bisector
     between wet and excluded samples. ``workers``: threads of each tree query. The taper
-    ends where it would be thinner than ``taper_end`` (meters). ``tol`` (per sample,
-    meters): the lateral offset from a sample that its plane covers before ``D`` rounds off.
+    ends where it would be thinner than ``taper_end`` (meters).
     """
     samples = tree.data
     if nearest is None:
@@ -248,7 +243,7 @@ def _phi(tree, points, normals, thick: Thickness, kind, rim, edge, depth, reach,
         d_s = np.sqrt(np.einsum("kd,kd->k", v, v))
     phi = np.full(len(points), -reach)
     k = kind[i]
-    d, sd = _signed(v, normals[i], d_s, tol[i])
+    d, sd = _signed(v, normals[i], d_s, tol)
     t = np.where(k == 1, thick.at(i, v - sd[:, None] * normals[i]), -np.inf)
     dry = np.flatnonzero(k == 0)
     if rim is not None and len(dry):
@@ -273,7 +268,7 @@ def _phi(tree, points, normals, thick: Thickness, kind, rim, edge, depth, reach,
             ok = np.isfinite(d_cut)
             d_w[cut] = d_cut
             cut, j, d_cut = cut[ok], wet_index[j[ok]], d_cut[ok]
-            dj = _signed(q[cut] - samples[j], normals[j], d_cut, tol[j])[0]
+            dj = _signed(q[cut] - samples[j], normals[j], d_cut, tol)[0]
             p[sel[cut]] = np.minimum(thick.value[j] - dj, dj + depth[j])
         p[sel] = np.minimum(p[sel], 0.5 * (d_b - d_w))
     phi[found] = np.where(np.isfinite(p) & (d < reach), p, -reach)
