@@ -304,7 +304,8 @@ def _surface_and_render(spec: JobSpec, job_dir: Path, run: _Run, until: Stage | 
 
     config = load_render_config(spec.render)
     scene = job_scene(obj, ice_mesh, gravity, material=spec.material, placement=spec.placement,
-                      impurity=p.surface.impurity)  # impure water: a cloudy core
+                      impurity=p.surface.impurity,  # impure water: a cloudy core
+                      icicle_axes=axes.points)
     material = scene.material
     # POV-Ray files written meanwhile
     result = run.timed("render", lambda: render_job(job_dir, config, scene, progress=run.progress))
@@ -338,7 +339,9 @@ def _growth(spec: JobSpec, job_dir: Path, run: _Run, r: StageResults, gravity: n
 
         full = trimesh.load(job_dir / ICE, process=False, force="mesh")
         view = FrameView(job_scene(obj, full, gravity, material=spec.material, placement=spec.placement,
-                                   impurity=p.surface.impurity), load_render_config(spec.render))
+                                   impurity=p.surface.impurity,
+                                   icicle_axes=(r.trajectories if r.ice.axes is None else r.ice.axes).points),
+                         load_render_config(spec.render))
     cast = ray_caster(r.flow)
     extra_balls = r.ground.balls if r.ground is not None else None
     result = grow_frames(

@@ -159,3 +159,26 @@ def test_an_ice_view_shows_its_icicles_whole_when_sections_find_only_their_tips(
         assert framed.any()
         assert (tips[framed, 1] < height).all()  # the tips are in the frame
         assert (roots[framed, 1] >= 0).all() == whole  # and so are the roots, where they fit
+
+
+def test_the_ice_view_tells_icicles_from_glaze_thicker_than_its_reach(dense):
+    """Glaze 4 cm thick on the box's top lies farther from the object than the 9 mm that tells
+    icicles from glaze (2 % of the scene): given the icicles' axes, the ice view's icicles are
+    the cones under the box, not the glaze (a 0.3 m bunny's 2 cm glaze on its back was framed
+    over the icicles under its chin)."""
+    from icefarm.scene.camera import world_frame
+    from icefarm.scene.focus import ice_focus, surface_points
+
+    box, cones_mesh, cones = dense
+    slab = trimesh.creation.box(extents=(0.3, 0.04, 0.2))
+    slab.apply_translation((0.0, 0.12, 0.0))
+    v, f = trimesh.remesh.subdivide_to_size(slab.vertices, slab.faces, max_edge=0.003)
+    ice = trimesh.util.concatenate([cones_mesh, trimesh.Trimesh(v, f, process=False)])
+    axes = np.vstack([np.c_[np.full(20, c.bounds.mean(axis=0)[0]), np.linspace(0.0, c.bounds[0][1], 20),
+                            np.full(20, 0.04)] for c in cones])
+    frame, size = world_frame((0, -1, 0)), float(np.linalg.norm(np.ptp(np.vstack([box.vertices, ice.vertices]), axis=0)))
+    blind = ice_focus(ice.vertices, ice.faces, surface_points(box), frame, size)
+    assert (blind.icicles[:, 1] > 0.1).any()  # without the axes the glaze counts as icicles
+    focus = ice_focus(ice.vertices, ice.faces, surface_points(box), frame, size, axes=axes)
+    assert len(focus.icicles) > 100 and (focus.icicles[:, 1] < 0.0).all()
+    assert (focus.points[:, 1] < 0.0).all() and focus.diameter < 0.03

@@ -6,9 +6,9 @@ from pathlib import Path
 
 import trimesh
 
-from ..artifacts import read_ice_mesh
+from ..artifacts import read_ice_mesh, trajectories_from_json
 from ..errors import InputError
-from ..jobdir import DONE, ICE, OBJECT, PARAMS, SCENE_XML, JobState, read_job
+from ..jobdir import DONE, ICE, OBJECT, PARAMS, SCENE_XML, TRAJECTORIES, JobState, read_job
 from ..placement import Placement
 
 
@@ -61,7 +61,9 @@ def render_again(job_dir: Path, render: str, out_dir: Path, progress: bool = Fal
     obj = trimesh.load(job_dir / OBJECT, process=False)
     obj.merge_vertices(merge_norm=True)  # object.ply splits vertices along creases
     ice = read_ice_mesh(job_dir / ICE)
+    axes = trajectories_from_json(job_dir / TRAJECTORIES).points if (job_dir / TRAJECTORIES).is_file() else None
     scene = job_scene(obj, ice if isinstance(ice, trimesh.Trimesh) else None, rendered.gravity,
                       material=rendered.material, placement=job.stats.get("placement", Placement.HANGING.value),
-                      impurity=float((job.params or {}).get("surface.impurity", 0.0)))  # 0 for jobs older than it
+                      impurity=float((job.params or {}).get("surface.impurity", 0.0)),  # 0 for jobs older than it
+                      icicle_axes=axes)
     return render_job(out_dir, config, scene, progress=progress)

@@ -36,6 +36,7 @@ SECTIONS = 10  # horizontal sections that find the icicles and measure their dia
 THIN = 2.5  # a section up to this times the median width is an icicle's, wider ones are lumps
 OBJECT_POINTS = 10_000  # object vertices (at most) and ...
 OBJECT_SAMPLES = 4_000  # ... points on its faces that tell icicles from glaze
+AXIS_REACH = 1.5  # icicles' ice lies within this many times the clearance of their axes
 
 
 @dataclass(frozen=True)
@@ -145,7 +146,7 @@ def section_diameters(points: np.ndarray, slab: np.ndarray, frame: np.ndarray,
 
 
 def ice_focus(ice_vertices: np.ndarray, ice_faces: np.ndarray, object_points: np.ndarray,
-              frame: np.ndarray, size: float) -> IceFocus | None:
+              frame: np.ndarray, size: float, axes: np.ndarray | None = None) -> IceFocus | None:
     """The icicles of a scene: ice away from the object, and how thick they are.
 
     Parameters
@@ -158,7 +159,11 @@ def ice_focus(ice_vertices: np.ndarray, ice_faces: np.ndarray, object_points: np
         World frame rows (right, up, front).
     size : float
         Size of the scene (m): ice further than 2 % of it (at least 4 mm, and three
-        times the spacing of ``object_points``) from the object counts as icicles.
+        times the spacing of ``object_points``) from the object counts as icicles ...
+    axes : (k, 3) float, optional
+        ... and, given points along the icicles' axes (the trajectories), only ice within
+        `AXIS_REACH` times that distance of one (icicles' roots can be wider than it): glaze
+        thicker than it (2 cm on a 0.3 m bunny's back) away from the icicles is not one.
 
     Returns
     -------
@@ -173,7 +178,15 @@ def ice_focus(ice_vertices: np.ndarray, ice_faces: np.ndarray, object_points: np
     tree = cKDTree(object_points)
     gap = float(np.median(tree.query(object_points[:: max(1, len(object_points) // 2000)], k=2)[0][:, 1]))
     reach = max(0.02 * size, 3.0 * gap, 0.004)
-    far = ~np.isfinite(tree.query(sample, distance_upper_bound=reach)[0])
+    axis_tree = cKDTree(np.asarray(axes, dtype=np.float64).reshape(-1, 3)) if axes is not None and len(axes) else None
+
+    def hanging(q: np.ndarray) -> np.ndarray:  # away from the object (and on an icicle's axis)
+        out = ~np.isfinite(tree.query(q, distance_upper_bound=reach)[0])
+        if axis_tree is not None:
+            out[out] = np.isfinite(axis_tree.query(q[out], distance_upper_bound=AXIS_REACH * reach)[0])
+        return out
+
+    far = hanging(sample)
     occluders = np.vstack([object_points, sample])
     if far.sum() < 20:  # glaze alone: the densest ice is anywhere on it
         return IceFocus(points=sample, diameter=None, occluders=occluders)
@@ -186,7 +199,7 @@ def ice_focus(ice_vertices: np.ndarray, ice_faces: np.ndarray, object_points: np
     lo, hi = icicles.min(axis=0) - reach, icicles.max(axis=0) + reach
     pick = np.flatnonzero(slab >= 0)
     pick = pick[np.all((vertices[pick] >= lo) & (vertices[pick] <= hi), axis=1)]
-    pick = pick[~np.isfinite(tree.query(vertices[pick], distance_upper_bound=reach)[0])]
+    pick = pick[hanging(vertices[pick])]
     widths, centres = section_diameters(vertices[pick], slab[pick], frame, spacing)
     if len(widths) == 0:
         return IceFocus(points=icicles, diameter=None, occluders=occluders)

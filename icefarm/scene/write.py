@@ -95,6 +95,8 @@ class JobScene:
         The job's ``surface.impurity``.
     ground_level : float or None
         As `write_scenes` takes it.
+    icicle_axes : (k, 3) float or None
+        As `write_scenes` takes it.
     """
 
     object_mesh: trimesh.Trimesh
@@ -104,20 +106,22 @@ class JobScene:
     frame_points: np.ndarray
     impurity: float = 0.0
     ground_level: float | None = None
+    icicle_axes: np.ndarray | None = None
 
 
 def job_scene(object_mesh: trimesh.Trimesh, ice_mesh: trimesh.Trimesh | None, gravity, *,
               material: Material | Mapping | None = None, placement: str = "ground",
-              impurity: float = 0.0) -> JobScene:
+              impurity: float = 0.0, icicle_axes: np.ndarray | None = None) -> JobScene:
     """The `JobScene` of a job: the cameras frame the boxes of the object and the ice, the
     ground lies under the object when it stands on it (`icefarm.placement.ground_level`).
-    Ice without faces counts as none."""
+    Ice without faces counts as none; ``icicle_axes`` (the trajectories' points) tell the
+    ice views icicles from thick glaze."""
     from ..placement import ground_level
 
     ice = ice_mesh if ice_mesh is not None and len(ice_mesh.faces) else None
     return JobScene(object_mesh, ice, gravity, material_from_dict(material),
                     cam.frame_boxes(object_mesh, ice_mesh if ice_mesh is not None else trimesh.Trimesh()),
-                    float(impurity), ground_level(placement, object_mesh, gravity))
+                    float(impurity), ground_level(placement, object_mesh, gravity), icicle_axes)
 
 
 def _check_mesh(mesh: trimesh.Trimesh, what: str) -> None:
@@ -141,7 +145,7 @@ def write_scenes(job_dir: str | Path, object_mesh: trimesh.Trimesh, ice_mesh: tr
                  object_material: Material | Mapping | None = None,
                  frame_points: np.ndarray | None = None,
                  defer_povray: bool = False, impurity: float = 0.0,
-                 ground_level: float | None = None) -> SceneFiles:
+                 ground_level: float | None = None, icicle_axes: np.ndarray | None = None) -> SceneFiles:
     """Write ``object.ply``, ``scene.xml``, ``scene.pov`` (+ includes), the sky,
     ``scene.json`` (the scene for every other writer, `icefarm.scene.spec`) and
     ``views.json`` into ``job_dir``.
@@ -174,6 +178,10 @@ def write_scenes(job_dir: str | Path, object_mesh: trimesh.Trimesh, ice_mesh: tr
     ground_level : float, optional
         Height (m, along minus gravity) of the ground plane: the lowest point of an
         object standing on it. Default: just below the lowest framed point.
+    icicle_axes : (k, 3) float, optional
+        Points along the icicles' axes (meters; the trajectories' points): an ice view
+        frames ice near them, not glaze thicker than its reach (`focus.ice_focus`).
+        Default: ice far enough from the object counts as icicles.
 
     ``views.json`` lists each view: ``index``, ``name``, ``frame`` (``all`` or ``ice``),
     ``stem`` (its image files' stem) and ``icicle_px``, the width in pixels of the
@@ -193,14 +201,15 @@ def write_scenes(job_dir: str | Path, object_mesh: trimesh.Trimesh, ice_mesh: tr
     """
     start = time.perf_counter()
     spec = build_spec(job_dir, object_mesh, ice_mesh, config, gravity, object_material, frame_points=frame_points,
-                      impurity=impurity, ground_level=ground_level)
+                      impurity=impurity, ground_level=ground_level, icicle_axes=icicle_axes)
     return write_spec_files(job_dir, spec, object_mesh, ice_mesh, defer_povray=defer_povray, start=start)
 
 
 def build_spec(job_dir: str | Path, object_mesh: trimesh.Trimesh, ice_mesh: trimesh.Trimesh | None,
                config: RenderConfig, gravity: Sequence[float] = (0.0, -1.0, 0.0),
                object_material: Material | Mapping | None = None, *, frame_points: np.ndarray | None = None,
-               impurity: float = 0.0, ground_level: float | None = None) -> SceneSpec:
+               impurity: float = 0.0, ground_level: float | None = None,
+               icicle_axes: np.ndarray | None = None) -> SceneSpec:
     """The `SceneSpec` of a job's scene, arguments as `write_scenes` takes them: the cameras
     framed on ``frame_points``, the ground under them, the sun and sky from the config's
     environment, the ice's look from its ``ice`` and the job's ``impurity``.
@@ -250,7 +259,8 @@ def build_spec(job_dir: str | Path, object_mesh: trimesh.Trimesh, ice_mesh: trim
     # Views of the ice: the same camera turned and zoomed onto the densest icicles.
     focus = None
     if ice_mesh is not None and any(v.frame == "ice" for v in config.views):
-        focus = ice_focus(ice_mesh.vertices, ice_mesh.faces, surface_points(object_mesh), frame, size)
+        focus = ice_focus(ice_mesh.vertices, ice_mesh.faces, surface_points(object_mesh), frame, size,
+                          axes=icicle_axes)
     icicle_px: list[float | None] = [None] * len(cameras)
     if focus is not None:
         for i, v in enumerate(config.views):
