@@ -322,7 +322,8 @@ def _surface_and_render(spec: JobSpec, job_dir: Path, run: _Run, until: Stage | 
     from .export.usd import write_job_usd
 
     # scene.usda (object.usdc, ice.usdc) for DCCs: the render's cameras, sun, sky, materials.
-    run.timed("usd", lambda: write_job_usd(job_dir, material=material, ice_mesh=ice_mesh))
+    run.timed("usd", lambda: write_job_usd(job_dir, material=material, ice_mesh=ice_mesh,
+                                           ice_normals=result.ice_normals))
     return stats
 
 

@@ -486,3 +486,21 @@ def test_scene_json_describes_what_scene_xml_renders(job, tmp_path):
     assert a.ice.shimmer == pytest.approx(b.ice.shimmer) and a.ice.shimmer > 0  # the job's ice is impure
     np.testing.assert_allclose(a.gravity, b.gravity)
     assert a.material == b.material
+
+
+@pytest.mark.parametrize("flip", [False, True])
+def test_the_ice_surface_takes_the_normals_the_render_computed(flip):
+    """USD's ice normals can come from the render (Mitsuba computes them on load, for the
+    unflipped faces): the same as computing them again, flipped with the faces."""
+    from icefarm.export.rendered import ice_surface
+    from icefarm.scene.geometry import smooth_normals
+
+    mesh = trimesh.creation.icosphere(subdivisions=3)
+    faces = mesh.faces[:, ::-1] if flip else mesh.faces  # inward-wound ice, as IceShading.flip says
+    computed = ice_surface(mesh.vertices, faces, flip)
+    given = ice_surface(mesh.vertices, faces, flip, normals=smooth_normals(mesh.vertices, faces))
+    np.testing.assert_array_equal(given.faces, computed.faces)
+    np.testing.assert_allclose(given.normals, computed.normals, atol=1e-6)
+    assert (np.einsum("ij,ij->i", given.normals, mesh.vertices) > 0).all()  # outwards
+    wrong = ice_surface(mesh.vertices, faces, flip, normals=np.zeros((3, 3)))  # not this mesh's: computed
+    np.testing.assert_allclose(wrong.normals, computed.normals)

@@ -79,7 +79,8 @@ def up_axis(gravity) -> str:
 
 
 def write_job_usd(job_dir: str | Path, *, material: Material | None = None,
-                  ice_mesh: trimesh.Trimesh | None = None, out_dir: str | Path | None = None) -> UsdScene:
+                  ice_mesh: trimesh.Trimesh | None = None, out_dir: str | Path | None = None,
+                  ice_normals: np.ndarray | None = None) -> UsdScene:
     """Write ``scene.usda``, ``object.usdc`` and ``ice.usdc`` for a job that rendered.
 
     Parameters
@@ -93,6 +94,9 @@ def write_job_usd(job_dir: str | Path, *, material: Material | None = None,
         The ice already in memory (the pipeline's): saves reading ``ice.ply`` again.
     out_dir : path, optional
         Where to write; default ``job_dir``. Elsewhere, the sky is named by its absolute path.
+    ice_normals : (n, 3) float, optional
+        The ice's vertex normals as the render computed them (`RenderResult.ice_normals`),
+        if at hand: `ice_surface` computes them otherwise.
 
     Returns
     -------
@@ -114,7 +118,7 @@ def write_job_usd(job_dir: str | Path, *, material: Material | None = None,
     _write_mesh_layer(layers[0], "Object", obj, axis, _object_primvars(job_dir, obj), double_sided=True)
     if rendered.ice is not None:
         mesh = read_ice_mesh(job_dir / ICE) if ice_mesh is None else ice_mesh
-        ice = ice_surface(mesh.vertices, mesh.faces, rendered.ice.flip)
+        ice = ice_surface(mesh.vertices, mesh.faces, rendered.ice.flip, ice_normals)
         layers.append(out_dir / ICE_FILE)
         _write_mesh_layer(layers[1], "Ice", ice, axis, _ice_primvars(mesh))
     else:  # no ice: no layer of an earlier run's ice beside the scene

@@ -84,6 +84,9 @@ class RenderResult:
         Of ``seconds``, the denoiser's (0 when the config does not denoise).
     scene : SceneFiles or None
         What was written and rendered, when `render_job` was given them or wrote them.
+    ice_normals : (n, 3) float32 or None
+        The ice's vertex normals as Mitsuba computed them on load (`smooth_normals`, not
+        flipped), for other writers of the same mesh (USD); None when Mitsuba did not run.
     """
 
     renderer: str
@@ -99,6 +102,7 @@ class RenderResult:
     view_seconds: tuple[float, ...] = ()
     denoise_seconds: float = 0.0
     scene: SceneFiles | None = None
+    ice_normals: np.ndarray | None = None
 
     @property
     def scene_seconds(self) -> float:
@@ -285,10 +289,17 @@ def render_job(job_dir: str | Path, config: RenderConfig, scene: JobScene | Scen
     writer = scene.povray_writer if scene is not None else None
     pending: list[Future] = []
     with ThreadPoolExecutor(max_workers=1) as pool:
-        def start_povray(mitsuba_scene=None) -> None:
+        ice_normals: list[np.ndarray] = []  # as Mitsuba computed them on load: for POV-Ray and USD
+
+        def start_povray(normals=None) -> None:
             if writer is not None and not pending:
-                normals = None if mitsuba_scene is None else _vertex_normals(mitsuba_scene, "ice")
                 pending.append(pool.submit(_cpu_seconds, functools.partial(writer, ice_normals=normals)))
+
+        def loaded(mitsuba_scene) -> None:
+            normals = _vertex_normals(mitsuba_scene, "ice")
+            if normals is not None:
+                ice_normals.append(normals.astype(np.float32))
+            start_povray(normals)
 
         try:
             if config.uses_mitsuba and not (job_dir / SCENE_XML).is_file():
@@ -300,8 +311,7 @@ def render_job(job_dir: str | Path, config: RenderConfig, scene: JobScene | Scen
             views, denoise_seconds = (), 0.0
             if config.uses_mitsuba:
                 variant = pick_variant(config.variant)
-                run = render_mitsuba(job_dir, config, variant, on_loaded=start_povray if writer else None,
-                                     progress=progress)
+                run = render_mitsuba(job_dir, config, variant, on_loaded=loaded, progress=progress)
                 load_seconds, views, denoise_seconds = run.load_seconds, run.view_seconds, run.denoise_seconds
                 files, integrator = list(run.files), run.integrator
         finally:  # the job is not over while its scene.pov is missing or being written
@@ -326,4 +336,5 @@ def render_job(job_dir: str | Path, config: RenderConfig, scene: JobScene | Scen
                         view_seconds=views, denoise_seconds=denoise_seconds,
                         write_seconds=scene.seconds if scene is not None else 0.0,
                         load_seconds=load_seconds, wait_seconds=waited, povray_write_cpu_seconds=writer_cpu,
-                        povray_seconds=pov_seconds, files=tuple(files), scene=scene)
+                        povray_seconds=pov_seconds, files=tuple(files), scene=scene,
+                        ice_normals=ice_normals[0] if ice_normals else None)
