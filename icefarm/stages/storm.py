@@ -38,8 +38,9 @@ from dataclasses import dataclass
 
 import numpy as np
 import trimesh
-from scipy.sparse import coo_matrix
+from scipy.sparse import coo_matrix, diags
 from scipy.sparse.csgraph import dijkstra
+from scipy.sparse.linalg import cg
 from scipy.spatial import cKDTree
 
 from ..geometry import unit
@@ -260,9 +261,6 @@ def _spread(mesh: trimesh.Trimesh, volume: np.ndarray, area: np.ndarray) -> np.n
     quarter of `GLAZE_BLUR_M`: a 25 cm teapot's spout, on a 7 mm proxy, kept steps of 8 mm
     across one edge, and its coat meshed into a crumpled sheet of flaps. Now 15 mm.
     """
-    from scipy.sparse import diags
-    from scipy.sparse.linalg import cg
-
     edges = np.asarray(mesh.edges_unique)
     n = len(volume)
     v = np.asarray(volume, dtype=np.float64)
