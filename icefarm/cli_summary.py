@@ -39,6 +39,9 @@ def print_storm(timings: dict) -> None:
 def print_job_summary(timings: dict) -> None:
     """The run's closing lines: trajectories, storm, ice, ground ice, curtains, tips and ripples, glaze,
     the ground, and the icicles' shapes, each beside what real ones measure."""
+    inside_out = (timings.get("problems") or {}).get("inside_out_faces", 0)
+    if inside_out:
+        click.echo(f"  mesh: {inside_out} faces came wound inside out (normals pointing in); turned outward")
     if "upward_share" in timings:
         share, spread, cv = (timings.get(k) for k in ("upward_share", "branch_spread_mm", "length_cv"))
         click.echo(f"  trajectories: {'-' if share is None else f'{100 * share:.0f}'} % of segments upward "

@@ -251,3 +251,28 @@ def test_a_single_sheet_runs_end_to_end(tmp_path, kind):
     timings = json.loads((out / "timings.json").read_text())
     assert timings["problems"]["boundary_edges"] == 0  # solidified: a closed slab
     assert (out / "ice.ply").is_file()
+
+
+def test_a_mesh_wound_inside_out_is_turned_outward_and_catches_the_rain(tmp_path):
+    """A DCC export wound inside out (normals pointing in), with holes like a scan's: prepare
+    turns it outward and says so, and the storm glazes its top (wound inside out, a 0.3 m bunny
+    caught no rain at all: no glaze, no icicles). A sheet has no inside and is left alone."""
+    from icefarm.chain import Stage, run_stages
+
+    ball = trimesh.creation.icosphere(subdivisions=3)
+    ball.update_faces(np.flatnonzero(ball.triangles_center[:, 1] > -0.9))  # a hole at the bottom
+    ball.invert()
+    ball.export(tmp_path / "inside_out.obj")
+    prepared = prepare(tmp_path / "inside_out.obj", 0.3)
+    mesh = prepared.mesh
+    assert prepared.problems.inside_out_faces == len(mesh.faces) and prepared.problems.boundary_edges > 0
+    outward = np.einsum("ij,ij->i", mesh.face_normals, mesh.triangles_center - mesh.centroid)
+    assert (outward > 0).all()
+    p = params.resolve({})
+    r = run_stages(prepare(tmp_path / "inside_out.obj", 0.3), p, 0, until=Stage.WATER)
+    top = r.flow.vertices[:, 1] > 0.1
+    assert np.median(r.water.storm.ice[top]) > 0.005  # centimetre glaze where the rain lands
+    sheet = trimesh.Trimesh([[0, 0, 0], [1, 0, 0], [1, 0.2, 1], [0, 0.2, 1]], [[0, 2, 1], [0, 3, 2]])  # facing down
+    sheet.export(tmp_path / "sheet.obj")
+    assert prepare(tmp_path / "sheet.obj", 0.3).problems.inside_out_faces == 0
+    assert prepare(tmp_path / "inside_out.obj", 0.3).problems == prepared.problems  # the same every time
