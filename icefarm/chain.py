@@ -255,7 +255,7 @@ def _run(prepared, p, seed, placement, exclude, overrides, source, until, mesh_k
         from .stages.proxy import snap_to_surface
 
         # Icicles hang from the real object: move each drip point onto it.
-        points, normals, faces = snap_to_surface(found.positions, obj)
+        points, normals, faces = snap_to_surface(found.positions, obj, reference=found.normals)
         return DripResult(found.region_faces, points, normals, found.water, faces, found.growth)
 
     drips = advance("drips", drips_key, drips_stage, "drips")

@@ -307,3 +307,37 @@ def test_problem_mesh_job_hangs_icicles_from_the_real_object(problem_mesh, tmp_p
                 continue
             rise = top - (np.asarray(branch["points"]) @ gravity).min()
             assert rise <= tolerance, f"icicle {icicle['id']} rises {rise:.2g} m above its drip point"
+
+
+def test_snapped_normals_agree_with_the_proxys_where_it_dips_inside(sphere):
+    """A decimated proxy lies on both sides of the object's surface; with the proxy's own
+    (outward) normals as the reference, every snapped normal points out, where the side a
+    point came from turned those from inside inwards."""
+    rng = np.random.default_rng(0)
+    points, faces = trimesh.sample.sample_surface(sphere, 400, seed=6)
+    radial = points / np.linalg.norm(points, axis=1, keepdims=True)
+    depth = rng.uniform(-0.01, 0.01, len(points)) * float(np.linalg.norm(sphere.extents))
+    snapped, normals, _ = snap_to_surface(points + depth[:, None] * radial, sphere, reference=radial)
+    assert (np.einsum("ij,ij->i", normals, radial) > 0).all()
+    _, old, _ = snap_to_surface(points + depth[:, None] * radial, sphere)
+    assert (np.einsum("ij,ij->i", old, radial) < 0).sum() > 100  # why the reference
+
+
+def test_a_dense_scan_with_holes_grows_its_icicles(tmp_path):
+    """A finely meshed object with a hole goes through a filled and decimated proxy: its drip
+    points keep outward normals and their icicles grow (a 1.1 M-face scan of the bunny grew 3
+    icicles of its 28 drip points; 28 now, as the 69 k bunny's 25)."""
+    from icefarm import params
+    from icefarm.chain import Stage, run_stages
+    from icefarm.mesh import prepare
+
+    ball = trimesh.creation.icosphere(subdivisions=5)
+    ball.update_faces(np.flatnonzero(ball.triangles_center[:, 0] < 0.995))  # a small hole in its side
+    ball.export(tmp_path / "scan.obj")
+    p = params.resolve({"proxy.face_budget": 2000, "storm.mode": "relative", "drips.count": 12})
+    r = run_stages(prepare(tmp_path / "scan.obj", 0.3), p, 0, until=Stage.TRAJECTORIES)
+    assert r.proxy is not None and r.proxy.method.name in ("FILL", "DECIMATE")
+    g = np.array([0.0, -1.0, 0.0])
+    assert (r.drips.normals @ g > 0).all()  # drip points face down, out of the object
+    lengths = np.diff(np.asarray(r.trajectories.branch_offsets))[np.asarray(r.trajectories.branch_parent) < 0]
+    assert len(lengths) >= 6 and (lengths > 1).mean() >= 0.8

@@ -402,6 +402,7 @@ def build_proxy(mesh: trimesh.Trimesh, proxy: ProxyParams[str, Any],
     if not out.is_watertight:
         raise InputError(f"the approximate surface ({method.value}) is not watertight; "
                          "set proxy.mode: never, or repair the mesh")
+    trimesh.repair.fix_inversion(out, multibody=True)  # wound outward: the water and the drips' normals read it
     reason = proxy_reason(problems, "always", budget)
     if notes:
         reason = f"{reason}; {'; '.join(notes)}"
@@ -410,7 +411,8 @@ def build_proxy(mesh: trimesh.Trimesh, proxy: ProxyParams[str, Any],
                        seconds=time.perf_counter() - start, method=method, alpha=alpha_m)
 
 
-def snap_to_surface(points: np.ndarray, mesh: trimesh.Trimesh) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def snap_to_surface(points: np.ndarray, mesh: trimesh.Trimesh,
+                    reference: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Move points to the closest point of ``mesh`` (drip points from the proxy to the object).
 
     Parameters
@@ -419,16 +421,21 @@ def snap_to_surface(points: np.ndarray, mesh: trimesh.Trimesh) -> tuple[np.ndarr
         Points near the surface, in meters.
     mesh : trimesh.Trimesh
         The real object, in meters; it need not be watertight or consistently oriented.
+    reference : (k, 3) float, optional
+        Outward normals at ``points`` (the proxy's, which is closed and wound outward).
 
     Returns
     -------
     closest : (k, 3) float
         Closest points on ``mesh``.
     normals : (k, 3) float
-        Unit normals of the faces there, turned towards the side each point came from (the
-        proxy lies outside the object, so this is outward even on soups with random
-        winding); a point on the surface (within `tol.on_surface` of the diagonal)
-        keeps its face's own normal.
+        Unit normals of the faces there, turned to agree with ``reference``; without one,
+        towards the side each point came from (outward where the proxy lies outside the
+        object, as a wrap does, even on soups with random winding), and a point on the
+        surface (within `tol.on_surface` of the diagonal) keeps its face's own normal. A
+        decimated proxy lies on both sides of the object: on a 1.1 M-face scan of the bunny,
+        the side a point came from turned 25 of 28 drip normals inwards and their icicles
+        never grew.
     faces : (k,) int
         Face holding each closest point.
     """
@@ -443,6 +450,9 @@ def snap_to_surface(points: np.ndarray, mesh: trimesh.Trimesh) -> tuple[np.ndarr
         return np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, dtype=np.int64)
     closest, distance, faces = closest_point(mesh, points)
     normals = np.asarray(mesh.face_normals, dtype=np.float64)[faces]
+    if reference is not None:
+        agree = np.einsum("ij,ij->i", normals, np.asarray(reference, dtype=np.float64).reshape(-1, 3))
+        return np.asarray(closest, dtype=np.float64), np.where((agree < 0)[:, None], -normals, normals), faces
     facing = np.einsum("ij,ij->i", normals, points - closest)
     # Below this distance the side is rounding noise: the point is on the surface.
     on_surface = distance <= tol.on_surface * float(np.linalg.norm(mesh.extents))
