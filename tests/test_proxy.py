@@ -341,3 +341,21 @@ def test_a_dense_scan_with_holes_grows_its_icicles(tmp_path):
     assert (r.drips.normals @ g > 0).all()  # drip points face down, out of the object
     lengths = np.diff(np.asarray(r.trajectories.branch_offsets))[np.asarray(r.trajectories.branch_parent) < 0]
     assert len(lengths) >= 6 and (lengths > 1).mean() >= 0.8
+
+
+def test_a_scan_far_over_the_budget_is_thinned_out_before_the_careful_passes(sphere):
+    """A manifold piece with more than PRE_DECIMATE times the budget's faces is cut down to
+    that roughly first (a 1.1 M-face scan's proxy: 24 s -> 6 s); its hole is still filled, the
+    proxy closed, at the budget and on the surface."""
+    from icefarm.stages.proxy import PRE_DECIMATE
+
+    fine = trimesh.creation.icosphere(subdivisions=5, radius=0.15)  # 20 k faces
+    fine.update_faces(np.linalg.norm(fine.triangles_center - [0, 0.15, 0], axis=1) > 0.02)
+    budget = 1000
+    result = build_proxy(fine, dataclasses.replace(DEFAULTS, face_budget=budget), detect_problems(fine))
+    assert result.method is ProxyMethod.FILL and result.mesh.is_watertight
+    assert 0.9 * budget <= result.faces <= budget
+    filled = int(result.reason.split("hole filling gave ")[1].split(" ")[0])
+    assert filled <= PRE_DECIMATE * budget + 50  # the fill ran on the rough cut, not on 20 k faces
+    radius = np.linalg.norm(result.mesh.vertices, axis=1)
+    assert np.abs(radius - 0.15).max() < 0.01 * 0.3
