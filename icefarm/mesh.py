@@ -110,7 +110,8 @@ def orient_outward(mesh: trimesh.Trimesh) -> tuple[trimesh.Trimesh, int]:
     water and rain read the winding, and a 0.3 m bunny wound inside out caught no rain at all:
     no glaze, no icicles. trimesh's ``fix_inversion`` turns watertight pieces only; scans
     have holes. A piece's signed volume about its own centroid (`INSIDE_OUT`) tells without
-    a closed surface.
+    a closed surface. A piece within another's bounding box is left alone: the wall of a
+    cavity faces into it.
     """
     faces = np.asarray(mesh.faces)
     if len(faces) == 0:
@@ -126,7 +127,19 @@ def orient_outward(mesh: trimesh.Trimesh) -> tuple[trimesh.Trimesh, int]:
     volume = np.einsum("ij,ij->i", np.cross(rel[:, 0], rel[:, 1]), rel[:, 2])  # 6 x each tetrahedron's
     signed = np.bincount(labels, weights=volume, minlength=pieces)
     unsigned = np.bincount(labels, weights=np.abs(volume), minlength=pieces)
-    turn = (signed < INSIDE_OUT * unsigned)[labels]
+    inside_out = np.flatnonzero(signed < INSIDE_OUT * unsigned)
+    if len(inside_out):
+        # A piece inside another's box is a cavity's wall, wound into the cavity on purpose
+        # (a hollow ball's inner shell, a mug's separate inner wall): left as it is.
+        order = np.argsort(labels, kind="stable")
+        corners = tri[order].reshape(-1, 3)
+        starts = np.r_[0, np.cumsum(np.bincount(labels, minlength=pieces))[:-1]] * 3
+        lo, hi = np.minimum.reduceat(corners, starts), np.maximum.reduceat(corners, starts)
+        size = np.prod(hi - lo, axis=1)
+        nested = [bool(np.any((lo <= lo[i]).all(axis=1) & (hi >= hi[i]).all(axis=1) & (size > size[i])))
+                  for i in inside_out]
+        inside_out = inside_out[~np.asarray(nested, dtype=bool)]
+    turn = np.isin(labels, inside_out)
     if not turn.any():
         return mesh, 0
     faces = faces.copy()

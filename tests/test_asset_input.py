@@ -276,3 +276,17 @@ def test_a_mesh_wound_inside_out_is_turned_outward_and_catches_the_rain(tmp_path
     sheet.export(tmp_path / "sheet.obj")
     assert prepare(tmp_path / "sheet.obj", 0.3).problems.inside_out_faces == 0
     assert prepare(tmp_path / "inside_out.obj", 0.3).problems == prepared.problems  # the same every time
+    # A hollow ball's inner shell faces into its cavity on purpose: a piece inside another's
+    # box is left as it is; when the whole ball comes inside out, only the outer shell turns.
+    from icefarm.mesh import orient_outward
+
+    inner = trimesh.creation.icosphere(subdivisions=2, radius=0.8)
+    inner.invert()
+    hollow = trimesh.util.concatenate([trimesh.creation.icosphere(subdivisions=2), inner])
+    assert orient_outward(hollow)[1] == 0
+    hollow.invert()
+    turned, count = orient_outward(hollow)
+    outer = np.linalg.norm(turned.triangles_center, axis=1) > 0.9
+    assert count == outer.sum()
+    np.testing.assert_array_equal(turned.faces[~outer], hollow.faces[~outer])
+    assert (np.einsum("ij,ij->i", turned.face_normals, turned.triangles_center)[outer] > 0).all()
