@@ -211,6 +211,39 @@ def arc_lengths(points: np.ndarray, offsets: np.ndarray) -> tuple[np.ndarray, np
     return x, lengths
 
 
+def point_index(points: np.ndarray):
+    """A nearest-neighbour index of ``points`` (n, 3) for `nearest` (pykdtree's k-d tree).
+
+    Twice as fast per query as scipy's ``cKDTree`` on the glaze coat's lattice samples, with
+    the same answers (the bench's 470 k surface samples: 0.53 against 1.09 us a query, one
+    thread; built in a tenth of the time). Its queries release the GIL. None for no points
+    (pykdtree refuses an empty tree): `nearest` finds nothing in it.
+    """
+    from pykdtree.kdtree import KDTree
+
+    points = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
+    return KDTree(points) if len(points) else None
+
+
+def nearest(index, points: np.ndarray, upper: float = np.inf) -> tuple[np.ndarray, np.ndarray]:
+    """Nearest indexed point (`point_index`) to each of ``points`` (k, 3) closer than ``upper``.
+
+    Returns
+    -------
+    distance : (k,) float64
+        inf where none is closer than ``upper``.
+    index : (k,) int64
+        Into the indexed points; -1 where none is closer than ``upper``.
+    """
+    q = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
+    if len(q) == 0 or index is None:
+        return np.full(len(q), np.inf), np.full(len(q), -1, dtype=np.int64)
+    d, i = index.query(q, k=1, distance_upper_bound=float(upper) if np.isfinite(upper) else None)
+    i = i.astype(np.int64)
+    i[~np.isfinite(d)] = -1
+    return d, i
+
+
 def ray_caster(mesh: trimesh.Trimesh):
     """A first-hit ray caster over ``mesh`` (Embree), for many small batches of rays.
 
@@ -228,9 +261,12 @@ def ray_caster(mesh: trimesh.Trimesh):
     from embreex import rtcore_scene
     from embreex.mesh_construction import TriangleMesh
 
-    centre = mesh.bounds.mean(axis=0)
+    vertices = np.asarray(mesh.vertices)
+    # any centre will do: the vertices' own bounds (trimesh's look for the referenced ones first,
+    # 0.28 s on a 2.2 M-face ice mesh)
+    centre = 0.5 * (vertices.min(axis=0) + vertices.max(axis=0)) if len(vertices) else np.zeros(3)
     scene = rtcore_scene.EmbreeScene()
-    TriangleMesh(scene=scene, vertices=(mesh.vertices - centre).astype(np.float32),
+    TriangleMesh(scene=scene, vertices=(vertices - centre).astype(np.float32),
                  indices=np.asarray(mesh.faces, dtype=np.int32))
 
     def cast(origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -121,3 +121,25 @@ def test_arc_lengths_are_each_polylines_own():
         assert lengths[b] == pytest.approx(steps.sum(), abs=1e-12)
     x, lengths = arc_lengths(np.zeros((0, 3)), [0, 0])
     assert x.shape == (0,) and lengths.tolist() == [0.0]
+
+
+def test_nearest_is_scipys_nearest_neighbour():
+    from scipy.spatial import cKDTree
+
+    from icefarm.geometry import nearest, point_index
+
+    rng = np.random.default_rng(3)
+    points = rng.random((5000, 3))
+    query = rng.random((20000, 3)) * 1.4 - 0.2  # some far outside the points
+    d_ref, i_ref = cKDTree(points).query(query, k=1, distance_upper_bound=0.05)
+    d, i = nearest(point_index(points), query, 0.05)
+    found = np.isfinite(d_ref)
+    assert 0 < found.sum() < len(query)
+    np.testing.assert_array_equal(i >= 0, found)
+    np.testing.assert_array_equal(i[found], i_ref[found])
+    np.testing.assert_array_equal(d[found], d_ref[found])
+    assert np.all(i[~found] == -1) and np.all(np.isinf(d[~found]))
+    # no bound: every point finds one; nothing to look in, or nothing to look for: none
+    assert (nearest(point_index(points), query)[1] >= 0).all()
+    assert (nearest(point_index(np.zeros((0, 3))), query[:5])[1] == -1).all()
+    assert nearest(point_index(points), np.zeros((0, 3)))[0].shape == (0,)

@@ -11,7 +11,7 @@ thins linearly to nothing over ``edge`` (its inner part ends there too); faces t
 touch an excluded vertex (the sole an object stands on) get none at all.
 
 D and T come from an even sample of the surface (``SPACING`` voxels apart, with face
-normals): a lattice sample takes its nearest surface sample (scipy cKDTree) and
+normals): a lattice sample takes its nearest surface sample (a k-d tree) and
 ``D = (p - s) . n``, rounded off with the lateral offset past the sample spacing so that
 convex creases get round offsets instead of fins, and T carried from the sample to the
 foot by the thickness's slope along the face; dry samples bound the coat (a lattice
@@ -29,10 +29,9 @@ from dataclasses import dataclass
 
 import numpy as np
 import trimesh
-from scipy.spatial import cKDTree
 
 from ...errors import InputError
-from ...geometry import ragged_arange, ray_caster
+from ...geometry import nearest, point_index, ragged_arange, ray_caster
 from ...metaballs.field import Field, block_keys
 from .coat_band import MAX_BAND_POINTS, Thickness, sample_band
 
@@ -233,7 +232,7 @@ def _features(mesh: trimesh.Trimesh, faces: np.ndarray, kind: np.ndarray, spacin
     count = np.maximum(np.ceil(np.linalg.norm(b - a, axis=1) / spacing), 1).astype(np.int64)
     which = np.repeat(np.arange(len(edges)), count + 1)
     u = ragged_arange(count + 1) / count[which]
-    return cKDTree(a[which] + u[:, None] * (b - a)[which])
+    return point_index(a[which] + u[:, None] * (b - a)[which])
 
 
 @dataclass(frozen=True)
@@ -243,7 +242,7 @@ class _Rim:
     ``tb[j]`` thick; ``normal`` is its wet face's. ``tree`` holds points along the
     segments (``seg``: theirs)."""
 
-    tree: cKDTree
+    tree: object  # `icefarm.geometry.point_index`
     seg: np.ndarray
     a: np.ndarray
     b: np.ndarray
@@ -253,8 +252,8 @@ class _Rim:
 
     def query(self, foot: np.ndarray, bound: float) -> np.ndarray:
         """The segment nearest to each point (-1: none within ``bound``)."""
-        d, j = self.tree.query(foot, k=1, distance_upper_bound=bound, workers=-1)
-        return np.where(np.isfinite(d), self.seg[np.minimum(j, len(self.seg) - 1)], -1)
+        _, j = nearest(self.tree, foot, bound)
+        return np.where(j >= 0, self.seg[j], -1)
 
     def near(self, foot: np.ndarray, j: np.ndarray):
         """Distance from ``foot`` (k, 3) to segment ``j`` (k,) and the coat's thickness at
@@ -285,7 +284,7 @@ def _rim(mesh: trimesh.Trimesh, is_wet, blocked, wet, thickness, spacing) -> _Ri
     count = np.maximum(np.ceil(np.linalg.norm(b - a, axis=1) / spacing), 1).astype(np.int64)
     seg = np.repeat(np.arange(len(e_of)), count + 1)
     u = ragged_arange(count + 1) / count[seg]
-    return _Rim(cKDTree(a[seg] + u[:, None] * (b - a)[seg]), seg, a, b, ta, tb, mesh.face_normals[f_of])
+    return _Rim(point_index(a[seg] + u[:, None] * (b - a)[seg]), seg, a, b, ta, tb, mesh.face_normals[f_of])
 
 
 def surface_samples(mesh: trimesh.Trimesh, faces: np.ndarray, spacing: float):
@@ -353,6 +352,5 @@ def _faces_near(mesh: trimesh.Trimesh, wet_faces: np.ndarray, wet_points: np.nda
     cell = max(distance, 1e-9)
     key = block_keys(np.floor((wet_points - wet_points.min(axis=0)) / cell).astype(np.int64))
     _, first = np.unique(key, return_index=True)
-    coarse = cKDTree(wet_points[first])
-    d, _ = coarse.query(centroid[cand], k=1, distance_upper_bound=np.inf, workers=-1)
+    d, _ = nearest(point_index(wet_points[first]), centroid[cand])
     return cand[d <= distance + radius[cand] + math.sqrt(3) * cell]

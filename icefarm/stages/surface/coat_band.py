@@ -20,9 +20,9 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from ...errors import InputError
+from ...geometry import nearest, point_index
 from ...metaballs.field import BLOCK, CUTOFF, Field, block_keys
 from ...metaballs.march import MARCH_POWER
 
@@ -80,7 +80,7 @@ def sample_band(pts, normals, thick: Thickness, kind, depth, rim, features, sole
     """
     wet = kind == 1
     blocked = np.concatenate([pts[kind == -1], sole])
-    wall = (np.flatnonzero(wet), cKDTree(pts[wet]), cKDTree(blocked)) if len(blocked) else None
+    wall = (np.flatnonzero(wet), point_index(pts[wet]), point_index(blocked)) if len(blocked) else None
     inner, inner_lo = float(depth.max()), float(depth.min())
     pad = BLOCK * voxel + reach  # the lattice's first block stays empty (see _halo_blocks)
     # Off the round coordinates by a fraction of a voxel: faces of boxes and prisms then
@@ -105,15 +105,15 @@ def sample_band(pts, normals, thick: Thickness, kind, depth, rim, features, sole
     # ... then, level by level down to _TILE, tiles are dropped where their centre says
     # none of their samples is within a voxel of the coat, kept whole where it says all
     # are more than a voxel inside it, and split in eight otherwise.
-    tree = cKDTree(pts)
+    tree = point_index(pts)
     children = np.stack(np.meshgrid(*[np.arange(2)] * 3, indexing="ij"), axis=-1).reshape(-1, 3)
     solid = []
     while True:
         half = 0.5 * math.sqrt(3) * (size - 1) * voxel
         centre = origin + (tiles * size + 0.5 * (size - 1)) * voxel
-        dist, idx = tree.query(centre, k=1, distance_upper_bound=reach + half, workers=-1)
+        dist, idx = nearest(tree, centre, reach + half)
         d_c = np.full(len(centre), np.inf)
-        found = np.isfinite(dist)
+        found = idx >= 0
         d_c[found] = _signed(centre[found] - pts[idx[found]], normals[idx[found]], dist[found], 0.6 * h)[0]
         near = half + voxel
         inside = (d_c > near - inner_lo) & (d_c < t_lo - near)
@@ -124,21 +124,21 @@ def sample_band(pts, normals, thick: Thickness, kind, depth, rim, features, sole
             solid.append((tiles[inside][:, None, :] * n_sub + sub[None]).reshape(-1, 3))
         tiles, t_lo, t_hi = tiles[keep], t_lo[keep], t_hi[keep]
         if size == _TILE:
-            nearest = np.where(found, idx, -1)[keep]
+            near_sample = idx[keep]
             # A tile's samples share its centre's nearest surface sample where no crease or
             # change of kind comes near enough to give any of them another (their nearest
             # lies within dist + 2 half of the centre).
             shared = found[keep].copy()
             if features is not None and shared.any():
                 bound = dist[keep][shared] + 2.0 * half + h
-                d_f, _ = features.query(centre[keep][shared], k=1, distance_upper_bound=bound.max(), workers=-1)
+                d_f, _ = nearest(features, centre[keep][shared], bound.max())
                 shared[shared] = d_f > bound
             # Shared dry tiles share the rim segment nearest to their centre too.
             rim_seg = None
-            dry = shared & (kind[np.maximum(nearest, 0)] == 0)
+            dry = shared & (kind[np.maximum(near_sample, 0)] == 0)
             if rim is not None and dry.any():
                 rim_seg = np.full(len(tiles), -1)
-                c, j = centre[keep][dry], nearest[dry]
+                c, j = centre[keep][dry], near_sample[dry]
                 foot = c - np.einsum("kd,kd->k", c - pts[j], normals[j])[:, None] * normals[j]
                 rim_seg[dry] = rim.query(foot, edge + 2.0 * half)
             break
@@ -160,12 +160,12 @@ def sample_band(pts, normals, thick: Thickness, kind, depth, rim, features, sole
         # surface sample (the same plane: the same distance); elsewhere each finds its own.
         flat = np.repeat(shared[lo:hi], _TILE**3)
         phi = np.empty(len(p))
-        phi[flat] = _phi(tree, p[flat], normals, thick, kind, rim, edge, depth, reach, 0.6 * h + half,
-                         np.repeat(nearest[lo:hi], _TILE**3)[flat],
-                         None if rim_seg is None else np.repeat(rim_seg[lo:hi], _TILE**3)[flat], workers=1,
+        phi[flat] = _phi(tree, pts, p[flat], normals, thick, kind, rim, edge, depth, reach, 0.6 * h + half,
+                         np.repeat(near_sample[lo:hi], _TILE**3)[flat],
+                         None if rim_seg is None else np.repeat(rim_seg[lo:hi], _TILE**3)[flat],
                          taper_end=TAPER_END * voxel)
-        phi[~flat] = _phi(tree, p[~flat], normals, thick, kind, rim, edge, depth, reach, 0.6 * h, wall=wall,
-                          workers=1, taper_end=TAPER_END * voxel)
+        phi[~flat] = _phi(tree, pts, p[~flat], normals, thick, kind, rim, edge, depth, reach, 0.6 * h, wall=wall,
+                          taper_end=TAPER_END * voxel)
         values[lo * _TILE**3:hi * _TILE**3] = _encode(phi, voxel)
 
     # Chunks of tiles on every core: the queries and most numpy work release the GIL.
@@ -217,8 +217,8 @@ def _signed(v, n, dist, tol):
     return np.sign(sd) * np.sqrt(sd**2 + extra**2), sd
 
 
-def _phi(tree, points, normals, thick: Thickness, kind, rim, edge, depth, reach, tol, nearest=None, seg=None, wall=None,
-         workers=-1, taper_end=0.0):
+def _phi(tree, samples, points, normals, thick: Thickness, kind, rim, edge, depth, reach, tol, near=None, seg=None,
+         wall=None, taper_end=0.0):
     """``phi`` (meters, positive inside the coat) at ``points`` (see `sample_band`), from
     their nearest samples (``nearest``, -1 for none; queried when not given).
 
@@ -226,19 +226,18 @@ def _phi(tree, points, normals, thick: Thickness, kind, rim, edge, depth, reach,
     to the nearest rim segment, found per point or given (``seg``, -1: none near; the
     samples of a tile sharing one, `sample_band`). With ``wall`` (wet sample indices,
     a tree of the wet samples, one of the excluded ones), the coat stops at the bisector
-    between wet and excluded samples. ``workers``: threads of each tree query. The taper
-    ends where it would be thinner than ``taper_end`` (meters).
+    between wet and excluded samples. The taper ends where it would be thinner than
+    ``taper_end`` (meters).
     """
-    samples = tree.data
-    if nearest is None:
-        dist, nearest = tree.query(points, k=1, distance_upper_bound=reach, workers=workers)
-        found = np.flatnonzero(np.isfinite(dist))
-        i = nearest[found]
+    if near is None:
+        dist, near = nearest(tree, points, reach)
+        found = np.flatnonzero(near >= 0)
+        i = near[found]
         v = points[found] - samples[i]
         d_s = dist[found]
     else:
-        found = np.flatnonzero(nearest >= 0)
-        i = nearest[found]
+        found = np.flatnonzero(near >= 0)
+        i = near[found]
         v = points[found] - samples[i]
         d_s = np.sqrt(np.einsum("kd,kd->k", v, v))
     phi = np.full(len(points), -reach)
@@ -259,13 +258,13 @@ def _phi(tree, points, normals, thick: Thickness, kind, rim, edge, depth, reach,
         wet_index, wet_tree, blocked_tree = wall
         sel = np.flatnonzero(k != 0)  # nearest to a wet or an excluded sample
         q = points[found[sel]]
-        d_b, _ = blocked_tree.query(q, k=1, distance_upper_bound=reach, workers=workers)
+        d_b, _ = nearest(blocked_tree, q, reach)
         d_w = d_s[sel]
         cut = np.flatnonzero(k[sel] == -1)
         if len(cut):  # nearest to an excluded sample: the coat of the nearest wet one, walled
             d_b[cut] = np.minimum(d_b[cut], d_w[cut])
-            d_cut, j = wet_tree.query(q[cut], k=1, distance_upper_bound=reach, workers=workers)
-            ok = np.isfinite(d_cut)
+            d_cut, j = nearest(wet_tree, q[cut], reach)
+            ok = j >= 0
             d_w[cut] = d_cut
             cut, j, d_cut = cut[ok], wet_index[j[ok]], d_cut[ok]
             dj = _signed(q[cut] - samples[j], normals[j], d_cut, tol)[0]

@@ -16,9 +16,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import cKDTree
 
-from ...geometry import arc_lengths, ragged_arange
+from ...geometry import arc_lengths, nearest, point_index, ragged_arange
 from ..trajectories import TrajectoryResult
 from .profile import TIP_CALM, points_along, grown_lengths, smooth_radius
 
@@ -149,9 +148,8 @@ def _waves(vertices: np.ndarray, traj: TrajectoryResult, prof: dict, max_radius:
     reach = REACH * radius[rippled].max() + amplitude
     lo, hi = axis[rippled].min(axis=0) - reach, axis[rippled].max(axis=0) + reach
     candidates = np.flatnonzero(((vertices >= lo) & (vertices <= hi)).all(axis=1))
-    d, i = cKDTree(axis[rippled], balanced_tree=False).query(vertices[candidates], distance_upper_bound=reach,
-                                                             workers=-1)
-    found = np.isfinite(d)
+    _, i = nearest(point_index(axis[rippled]), vertices[candidates], reach)
+    found = i >= 0
     near, i = candidates[found], rippled[i[found]]
     t_i = tangent[i]  # gathered once: the gathers of (k, 3) rows are most of the cost here
     rel = vertices[near] - axis[i]
