@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -260,19 +259,10 @@ def prepare(path: str | Path | trimesh.Trimesh, size_m: float | None,
     again, shift = _fit(mesh.vertices, size_m, g, path, 1.0)
     mesh.vertices = mesh.vertices * again - shift
     scale, centre = scale * again, centre * again + shift
-    # pymeshlab counts the crossing faces (most of the time on a scan: 3.3 s of 8 at 1.1 M
-    # faces) with the GIL released, on a copy, while the pieces are turned and measured:
-    # the winding does not change what crosses. A flat mesh is counted once solidified.
-    with ThreadPoolExecutor(1) as pool:
-        crossings = pool.submit(count_self_intersections,
-                                trimesh.Trimesh(mesh.vertices.copy(), mesh.faces.copy(), process=False))
-        mesh, inside_out = orient_outward(mesh)
-        flat = is_flat(mesh)
-        if flat:
-            mesh = solidify(mesh, min(FLAT_THICKNESS_M, FLAT_THICKNESS_RATIO * float(np.linalg.norm(mesh.extents))))
-        problems = detect_problems(mesh, self_intersections=False)
-        counted = count_self_intersections(mesh) if flat else crossings.result()
-    problems = replace(problems, self_intersections=counted, inside_out_faces=inside_out)
+    mesh, inside_out = orient_outward(mesh)
+    if is_flat(mesh):
+        mesh = solidify(mesh, min(FLAT_THICKNESS_M, FLAT_THICKNESS_RATIO * float(np.linalg.norm(mesh.extents))))
+    problems = replace(detect_problems(mesh), inside_out_faces=inside_out)
     return PreparedMesh(mesh=mesh, scale=scale, offset=centre, problems=problems)
 
 
