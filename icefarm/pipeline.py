@@ -8,11 +8,10 @@ last and atomically, ``error.json`` names the failed stage.
 
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
-
 import contextlib
 import time
 import traceback
+from concurrent.futures import ThreadPoolExecutor
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path

@@ -20,6 +20,7 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from ...errors import InputError
 from ...geometry import nearest, point_index
@@ -168,11 +169,18 @@ def sample_band(pts, normals, thick: Thickness, kind, depth, rim, features, sole
                           taper_end=TAPER_END * voxel)
         values[lo * _TILE**3:hi * _TILE**3] = _encode(phi, voxel)
 
-    # Chunks of tiles on every core: the queries and most numpy work release the GIL.
+    # Chunks of tiles on every core: the queries and most numpy work release the GIL. Each
+    # chunk's tree queries stay on its own thread: pykdtree would start an OpenMP team of
+    # every core in each (cores^2 threads on a render node).
     threads = os.cpu_count() or 1
     chunk = max(1, min(_CHUNK_POINTS // _TILE**3, -(-len(tiles) // threads)))
+
+    def evaluate_alone(lo: int) -> None:
+        with threadpool_limits(limits=1, user_api="openmp"):
+            evaluate(lo, min(lo + chunk, len(tiles)))
+
     with ThreadPoolExecutor(threads) as pool:
-        list(pool.map(lambda lo: evaluate(lo, min(lo + chunk, len(tiles))), range(0, len(tiles), chunk)))
+        list(pool.map(evaluate_alone, range(0, len(tiles), chunk)))
     if solid:  # more than a voxel inside: any value above the level marches the same
         solid = np.concatenate(solid)
         tiles = np.concatenate([tiles, solid])
@@ -220,7 +228,8 @@ def _signed(v, n, dist, tol):
 def _phi(tree, samples, points, normals, thick: Thickness, kind, rim, edge, depth, reach, tol, near=None, seg=None,
          wall=None, taper_end=0.0):
     """``phi`` (meters, positive inside the coat) at ``points`` (see `sample_band`), from
-    their nearest samples (``nearest``, -1 for none; queried when not given).
+    their nearest ``samples`` (indices ``near``, -1 for none; queried in ``tree``, their
+    `icefarm.geometry.point_index`, when not given).
 
     The points of a dry sample lie past the rim: the coat there tapers with the distance
     to the nearest rim segment, found per point or given (``seg``, -1: none near; the
