@@ -11,7 +11,6 @@ from __future__ import annotations
 import contextlib
 import time
 import traceback
-from concurrent.futures import ThreadPoolExecutor
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -274,17 +273,11 @@ def _surface_and_render(spec: JobSpec, job_dir: Path, run: _Run, until: Stage | 
     axes = ice.axes if ice.axes is not None else r.trajectories
     # Plausibility, measured on the mesh, and where the ripples' milky bands lie (ice.ply
     # carries them for the render's shimmer): timed apart from the modelling (Table 2 times that).
-    def measure():
-        # three measures of one mesh, side by side: their ray casts and tree queries
-        # release the GIL for part of the time
-        with ThreadPoolExecutor(3) as pool:
-            glaze = pool.submit(measure_glaze, ice.vertices, ice.faces, r.flow, r.water, gravity,
-                                exclude=_not_glaze(r.flow, r.drips, sole(r.flow, p, gravity, spec.placement), p.surface))
-            bands = pool.submit(ripple_bands, ice.vertices, axes, profile_args(p.surface))
-            icicles = pool.submit(measure_icicles, ice.vertices, ice.faces, axes, p.surface)
-            return icicles.result(), glaze.result(), bands.result()
-
-    m, glaze, bands = run.timed("measure", measure)
+    m, glaze, bands = run.timed("measure", lambda: (
+        measure_icicles(ice.vertices, ice.faces, axes, p.surface),
+        measure_glaze(ice.vertices, ice.faces, r.flow, r.water, gravity,
+                      exclude=_not_glaze(r.flow, r.drips, sole(r.flow, p, gravity, spec.placement), p.surface)),
+        ripple_bands(ice.vertices, axes, profile_args(p.surface))))
     ice_mesh = trimesh.Trimesh(ice.vertices, ice.faces, process=False)
     if bands is not None:
         ice_mesh.vertex_attributes[ICE_BANDS] = bands
