@@ -146,7 +146,7 @@ def test_an_ice_view_shows_its_icicles_whole_when_sections_find_only_their_tips(
         surface = np.array([[x + r * np.cos(a), -length * tt, r * np.sin(a)]
                             for x in xs for tt, rr in zip(t, radius) for r in rr for a in ring])
         tips = np.array([[x, -length * tt, 0.0] for x in xs for tt in (0.8, 0.85, 0.9)])
-        return IceFocus(points=tips, diameter=0.012, occluders=np.zeros((0, 3)), icicles=surface, clearance=0.01), xs
+        return IceFocus(points=tips, diameter=0.012, icicles=surface, clearance=0.01), xs
 
     for length, whole in ((0.08, True), (0.4, False)):
         focus, xs = icicles(length)
@@ -182,3 +182,39 @@ def test_the_ice_view_tells_icicles_from_glaze_thicker_than_its_reach(dense):
     focus = ice_focus(ice.vertices, ice.faces, surface_points(box), frame, size, axes=axes)
     assert len(focus.icicles) > 100 and (focus.icicles[:, 1] < 0.0).all()
     assert (focus.points[:, 1] < 0.0).all() and focus.diameter < 0.03
+
+
+def test_the_ice_view_frames_icicles_the_object_does_not_hide():
+    """A car's densest icicles hung behind its front wheel, and the ice view framed the wheel.
+    Rays cast against the object tell hidden icicles from seen ones: a wall in front of the
+    denser of two clusters sends the view to the other, and none of its icicles is hidden."""
+    from icefarm.geometry import ray_caster
+    from icefarm.scene.camera import Camera
+    from icefarm.scene.focus import IceFocus, visible, zoom_on_ice
+
+    width, height = 160, 120
+    full = Camera(origin=np.array([0.0, 0.0, 2.0]), target=np.zeros(3), up=np.array([0.0, 1.0, 0.0]),
+                  fov_x=40.0, fov_y=30.0, near=0.01, far=100.0)
+
+    def cluster(x0, count):  # section centres down `count` icicles 3 cm apart
+        xs = x0 + 0.03 * np.arange(count)
+        return np.array([[x, y, 0.0] for x in xs for y in np.linspace(-0.02, -0.12, 6)])
+
+    dense, sparse = cluster(-0.35, 8), cluster(0.2, 4)
+    focus = IceFocus(points=np.vstack([dense, sparse]), diameter=0.012)
+    wall = trimesh.creation.box(extents=(0.3, 0.3, 0.02))
+    wall.apply_translation((-0.25, -0.07, 0.3))  # between the camera and the dense cluster
+    cast = ray_caster(wall)
+    assert not visible(full, dense, cast, 0.01).any() and visible(full, sparse, cast, 0.01).all()
+
+    def aimed(cam):  # the cluster nearest the view's line of sight
+        ray = (cam.target - cam.origin) / np.linalg.norm(cam.target - cam.origin)
+        miss = [np.linalg.norm(np.cross(c.mean(axis=0) - cam.origin, ray)) for c in (dense, sparse)]
+        return int(np.argmin(miss))
+
+    assert aimed(zoom_on_ice(full, focus, width, height)) == 0  # blind to the wall: the denser one
+    cam = zoom_on_ice(full, focus, width, height, cast)
+    assert aimed(cam) == 1
+    px = cam.project(sparse, width, height)
+    framed = (px[:, 0] >= 0) & (px[:, 0] < width) & (px[:, 1] >= 0) & (px[:, 1] < height)
+    assert framed.any() and visible(cam, sparse[framed], cast, 0.01).all()

@@ -5,10 +5,10 @@ too thin to judge. An ice view keeps the main view's camera position and turns a
 it onto the densest cluster of icicles, close enough that they are several pixels wide.
 
 Icicles are told from glaze by their distance from the object (`ice_focus`); horizontal
-sections through them measure their diameter and place them (`section_diameters`); a
-coarse z-buffer of the object and the ice keeps the icicles the camera sees
-(`visible`); the window of the picture holding most of them is then framed
-(`zoom_on_ice`).
+sections through them measure their diameter and place them (`section_diameters`); rays
+cast at them against the object tell those the camera sees from those behind it
+(`visible`); the window of the picture holding most seen icicles, and fewest hidden ones
+(a wheel or a post in front of them), is then framed (`zoom_on_ice`).
 """
 
 from __future__ import annotations
@@ -51,8 +51,6 @@ class IceFocus:
         sampled ice vertices).
     diameter : float or None
         Median icicle diameter (m) measured on horizontal sections; None without icicles.
-    occluders : (m, 3) float
-        Points of the object and the ice that may hide ``points`` from a camera.
     icicles : (k, 3) float
         Sampled ice vertices away from the object, the icicles' whole length (``points``
         lie on a few sections of them): how far up and down the icicles framed run.
@@ -63,7 +61,6 @@ class IceFocus:
 
     points: np.ndarray
     diameter: float | None
-    occluders: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     icicles: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     clearance: float = 0.0
 
@@ -187,9 +184,8 @@ def ice_focus(ice_vertices: np.ndarray, ice_faces: np.ndarray, object_points: np
         return out
 
     far = hanging(sample)
-    occluders = np.vstack([object_points, sample])
     if far.sum() < 20:  # glaze alone: the densest ice is anywhere on it
-        return IceFocus(points=sample, diameter=None, occluders=occluders)
+        return IceFocus(points=sample, diameter=None)
     icicles = sample[far]
     # Sections through every vertex of the icicles: thin slabs, then away from the object.
     up = frame[1]
@@ -202,36 +198,29 @@ def ice_focus(ice_vertices: np.ndarray, ice_faces: np.ndarray, object_points: np
     pick = pick[hanging(vertices[pick])]
     widths, centres = section_diameters(vertices[pick], slab[pick], frame, spacing)
     if len(widths) == 0:
-        return IceFocus(points=icicles, diameter=None, occluders=occluders)
+        return IceFocus(points=icicles, diameter=None)
     diameter = float(np.median(widths))
     thin = widths <= THIN * diameter  # icicles, not lumps of ice
     return IceFocus(points=centres[thin] if thin.sum() >= 3 else icicles, diameter=diameter,
-                    occluders=occluders, icicles=icicles, clearance=reach)
+                    icicles=icicles, clearance=reach)
 
 
-def visible(camera: Camera, points: np.ndarray, occluders: np.ndarray, width: int, height: int,
-            tolerance: float, cell: int = 4) -> np.ndarray:
-    """Which ``points`` no ``occluders`` hide from ``camera``: a z-buffer of the occluders.
+def visible(camera: Camera, points: np.ndarray, cast, tolerance: float) -> np.ndarray:
+    """Which ``points`` (k, 3) the object does not hide from ``camera``: a ray from the
+    camera to each, cast against the object (``cast``, an `icefarm.geometry.ray_caster` of
+    it), hits nothing nearer than the point less ``tolerance`` (m).
 
-    The occluders (surface points) are splatted into cells of ``cell`` pixels, each cell
-    keeping the nearest depth; a point is hidden when it lies more than ``tolerance`` (m)
-    behind its cell's depth. Cells no occluder reached hide nothing.
+    It replaced a z-buffer of splatted surface points, whose empty cells hid nothing: the big
+    flat faces of a car's wheel, a few samples each, let the ice view frame the icicles
+    behind it.
     """
-    gw, gh = -(-width // cell), -(-height // cell)
-    zbuf = np.full((gh, gw), np.inf)
-
-    def cells(q):
-        xy = camera.project(q, width, height)
-        depth = along(q - camera.origin, camera.forward)
-        ij = np.floor(xy / cell).astype(np.int64)
-        ok = (depth > 0) & (ij[:, 0] >= 0) & (ij[:, 0] < gw) & (ij[:, 1] >= 0) & (ij[:, 1] < gh)
-        return ij, depth, ok
-
-    ij, depth, ok = cells(np.asarray(occluders, dtype=np.float64).reshape(-1, 3))
-    np.minimum.at(zbuf, (ij[ok, 1], ij[ok, 0]), depth[ok])
-    ij, depth, ok = cells(np.asarray(points, dtype=np.float64).reshape(-1, 3))
-    out = np.zeros(len(depth), dtype=bool)
-    out[ok] = depth[ok] <= zbuf[ij[ok, 1], ij[ok, 0]] + tolerance
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    ray = points - camera.origin
+    distance = np.linalg.norm(ray, axis=1)
+    ok = distance > 0
+    out = ok.copy()
+    hit, _ = cast(np.broadcast_to(camera.origin, (int(ok.sum()), 3)), ray[ok] / distance[ok, None])
+    out[ok] = hit >= distance[ok] - tolerance
     return out
 
 
@@ -241,47 +230,58 @@ def pixel_size(camera: Camera, point: np.ndarray, width: int) -> float:
     return 2.0 * max(depth, 1e-9) * np.tan(np.radians(camera.fov_x) / 2) / width
 
 
-def zoom_on_ice(full: Camera, focus: IceFocus, width: int, height: int) -> Camera:
+def zoom_on_ice(full: Camera, focus: IceFocus, width: int, height: int, cast=None) -> Camera:
     """A camera at ``full``'s position turned and zoomed onto the densest icicles.
 
     The zoom makes icicles of ``focus.diameter`` about `ICICLE_PX` pixels wide (at least
     `MIN_ZOOM`, at most `MAX_ZOOM` times closer than ``full``); the window of the full
-    picture it then shows is placed where it holds the most icicle points.
+    picture it then shows is placed where it holds the most icicle points, less those the
+    object hides there (``cast``, a ray caster of the object, `visible`; None: none hidden):
+    the icicles behind a car's wheel would frame the wheel.
     """
     pixels = full.project(focus.points, width, height)
     ahead = along(focus.points - full.origin, full.forward) > 0
     inside = ahead & (pixels[:, 0] >= 0) & (pixels[:, 0] < width) & (pixels[:, 1] >= 0) & (pixels[:, 1] < height)
-    if len(focus.occluders):  # icicles the camera sees, not those behind the object
-        span = np.ptp(focus.occluders, axis=0).max() if len(focus.occluders) > 1 else 0.0
+    hidden = np.zeros(len(pixels), dtype=bool)
+    if cast is not None and inside.any():
+        span = float(np.ptp(focus.points, axis=0).max())
         tolerance = max(2.0 * (focus.diameter or 0.0), 0.01 * span)
-        seen = inside & visible(full, focus.points, focus.occluders, width, height, tolerance)
+        seen = np.zeros(len(pixels), dtype=bool)
+        seen[inside] = visible(full, focus.points[inside], cast, tolerance)
         if seen.any():
+            hidden = inside & ~seen
             inside = seen
     if not inside.any():
         return full
-    pixels, points = pixels[inside], focus.points[inside]
+    # Hidden icicles count against a window: something stands in front of them.
+    counted = inside | hidden
+    pixels, points, own = pixels[counted], focus.points[counted], inside[counted]
+    weight = np.where(own, 1.0, -1.0)
     zoom = MIN_ZOOM
     if focus.diameter:
-        centre = np.median(points, axis=0)
-        seen = focus.diameter / pixel_size(full, centre, width)
-        zoom = max(MIN_ZOOM, ICICLE_PX / max(seen, 1e-9))
+        centre = np.median(points[own], axis=0)
+        seen_px = focus.diameter / pixel_size(full, centre, width)
+        zoom = max(MIN_ZOOM, ICICLE_PX / max(seen_px, 1e-9))
     zoom = min(zoom, MAX_ZOOM)
-    # Densest window: counts in bins a quarter of the window, summed over 4 x 4 bins.
+    # Best window: weights in bins a quarter of the window, summed over 4 x 4 bins.
     win = np.array([width, height]) / zoom
     bins = win / 4
     ij = np.floor(pixels / bins).astype(np.int64)
     shape = ij.max(axis=0) + 1
     counts = np.zeros(shape + 1)
-    np.add.at(counts, (ij[:, 0] + 1, ij[:, 1] + 1), 1)
+    np.add.at(counts, (ij[:, 0] + 1, ij[:, 1] + 1), weight)
     cum = counts.cumsum(0).cumsum(1)
     k = 4
     a, b = min(k, shape[0]), min(k, shape[1])
     sums = cum[a:, b:] - cum[:-a, b:] - cum[a:, :-b] + cum[:-a, :-b]
+    own_count = np.zeros(shape + 1)  # a window must hold seen icicles
+    np.add.at(own_count, (ij[own, 0] + 1, ij[own, 1] + 1), 1)
+    oc = own_count.cumsum(0).cumsum(1)
+    sums = np.where(oc[a:, b:] - oc[:-a, b:] - oc[a:, :-b] + oc[:-a, :-b] > 0, sums, -np.inf)
     i, j = np.unravel_index(np.argmax(sums), sums.shape)
-    sel = (ij[:, 0] >= i) & (ij[:, 0] < i + a) & (ij[:, 1] >= j) & (ij[:, 1] < j + b)
-    # Aim at the middle of the icicle points in that window (their median: on the
-    # icicles that gather most there, the others at its edges), and down the picture at
-    # the middle of those icicles' whole length.
+    sel = own & (ij[:, 0] >= i) & (ij[:, 0] < i + a) & (ij[:, 1] >= j) & (ij[:, 1] < j + b)
+    pixels, points = pixels[own], points[own]
+    sel = sel[own]
     cx, cy = np.median(pixels[sel], axis=0)
     if focus.diameter:  # the zoom again, for the icicles framed (nearer or farther than all's middle)
         seen = focus.diameter / pixel_size(full, np.median(points[sel], axis=0), width)

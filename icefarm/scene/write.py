@@ -19,6 +19,7 @@ import trimesh
 
 from .. import jobdir as jd
 from ..artifacts import write_mesh
+from ..geometry import ray_caster
 from . import camera as cam
 from . import geometry as geo
 from . import mitsuba as mx
@@ -261,11 +262,12 @@ def build_spec(job_dir: str | Path, object_mesh: trimesh.Trimesh, ice_mesh: trim
     if ice_mesh is not None and any(v.frame == "ice" for v in config.views):
         focus = ice_focus(ice_mesh.vertices, ice_mesh.faces, surface_points(object_mesh), frame, size,
                           axes=icicle_axes)
+        cast = ray_caster(object_mesh)  # what hides icicles from a view
     icicle_px: list[float | None] = [None] * len(cameras)
     if focus is not None:
         for i, v in enumerate(config.views):
             if v.frame == "ice":
-                cameras[i] = zoom_on_ice(cameras[i], focus, config.width, config.height)
+                cameras[i] = zoom_on_ice(cameras[i], focus, config.width, config.height, cast)
         if focus.diameter:
             # an ice view at the icicles it aims at (its target lies at their depth); others
             # at the middle of all the icicles
