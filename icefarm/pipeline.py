@@ -349,7 +349,7 @@ def _growth(spec: JobSpec, job_dir: Path, run: _Run, r: StageResults, gravity: n
         job_dir / GROWTH_DIR, r.trajectories, r.drips, p.surface, p.glaze, frames=p.growth.frames,
         build=lambda t, d, g, rng: build_surface(obj, r.flow, r.water, d, t, p, gravity, rng,
                                                  placement=spec.placement, glaze=g, cast=cast,
-                                                 extra_balls=extra_balls),
+                                                 extra_balls=extra_balls, proxy=r.proxy),
         new_rng=lambda: stage_rng(spec.seed, Stage.SURFACE), gravity=gravity, view=view, progress=run.progress,
         object_usd=job_dir / OBJECT_USDC, scene_usd=job_dir / SCENE_USDA)
     return {"growth_frames": len(result.frames), "growth_seconds_per_frame": round(result.seconds_per_frame, 3)}

@@ -233,3 +233,36 @@ def test_a_coat_over_noisy_thickness_stays_within_the_thickness_it_was_given():
     d, _ = ray_caster(ice)(pts - 1e-4 * up, up)
     height = d - 1e-4
     assert height.min() >= 0.005 - 0.001 and height.max() <= 0.015 + 0.001
+
+
+def test_water_on_a_wrap_is_carried_to_the_object_under_it():
+    """Over a wrap the coat grows on the object itself (`carry_water`): the object's own
+    surface, its long edges split, each vertex wet as the wrap is nearest to it, and none of
+    the object farther inside than the reach (surface the wrap left out) wet at all; the coat
+    grown on it starts at the object, not at the wrap 4 mm above."""
+    from icefarm.stages.surface.glaze import carry_water
+
+    outer = trimesh.creation.icosphere(subdivisions=2, radius=0.1)  # long edges (~2 cm)
+    hidden = trimesh.creation.icosphere(subdivisions=1, radius=0.02)  # a piece deep inside
+    obj = trimesh.util.concatenate([outer, hidden])
+    wrap = trimesh.creation.icosphere(subdivisions=4, radius=0.104)
+    n = len(wrap.vertices)
+    top = wrap.vertices[:, 1] > 0
+    water = WaterResult(top, np.where(top, 0.1, 0.0), np.zeros(n, int), np.where(top, 0.05, 0.0),
+                        np.zeros(n, int), np.where(top, 0.05, 0.0), np.zeros((0, 3)))
+    side = wrap.vertices[:, 0] > 0.05
+    carried = carry_water(obj, wrap, water, side, reach=0.008)
+    v = carried.mesh.vertices
+    assert len(carried.mesh.faces) > len(obj.faces)  # split to follow the water
+    assert carried.mesh.edges_unique_length.max() <= 3.0 * np.median(wrap.edges_unique_length) * 1.001
+    r = np.linalg.norm(v, axis=1)
+    on_outer = r > 0.05
+    assert np.all(r[on_outer] <= 0.1 + 1e-9)  # the object's surface (on or inside the sphere)
+    wet = wet_vertices(carried.water)
+    assert wet[on_outer & (v[:, 1] > 0.01)].all() and not wet[on_outer & (v[:, 1] < -0.01)].any()
+    assert not wet[~on_outer].any()  # 8 cm under the wrap
+    assert carried.exclude[on_outer & (v[:, 0] > 0.06)].all() and not carried.exclude[v[:, 0] < 0.04].any()
+    glaze = _glaze(min_radius=0.002, scale=0.0, voxel_size=0.002)
+    ice = _closed(*_coat(carried.mesh, carried.water, glaze))
+    below = np.array([[0.0, 0.097, 0.0], [0.03, 0.094, 0.0]])  # 3 mm under the object's top: in the coat's inner part
+    assert inside(ray_caster(ice), below).all()

@@ -359,3 +359,34 @@ def test_a_scan_far_over_the_budget_is_thinned_out_before_the_careful_passes(sph
     assert filled <= PRE_DECIMATE * budget + 50  # the fill ran on the rough cut, not on 20 k faces
     radius = np.linalg.norm(result.mesh.vertices, axis=1)
     assert np.abs(radius - 0.15).max() < 0.01 * 0.3
+
+
+def test_glaze_over_a_wrap_hugs_the_object_itself(tmp_path):
+    """Over a wrap the glaze coat grows on the object itself, the wrap's water carried over
+    (`glaze.carry_water`; its own test shows the coat's inner face at the object, not the
+    wrap): through a job's surface stage on the boxes, the object's sky-facing tops lie under
+    ice, none left bare by the carrying."""
+    from icefarm.geometry import inside, ray_caster
+
+    path = tmp_path / "boxes.stl"
+    box_soup().export(path)
+    wrap = WRAPS["boxes"]
+    p = params.resolve({"proxy": {"alpha": wrap.alpha, "face_budget": wrap.face_budget}})
+    spec = JobSpec(object_id="boxes", mesh=str(path), size_m=SIZE_M, params=p, seed=3)
+    job = tmp_path / "job"
+    outcome = run_job(spec, job, until=Stage.SURFACE)
+    assert outcome.status == "done", outcome.error
+    assert json.loads((job / "done.json").read_text())["proxy_reason"]
+    up = -np.asarray(p.water.gravity, dtype=np.float64)
+    up /= np.linalg.norm(up)
+    mesh = prepare(path, SIZE_M, -up).mesh
+    ice = trimesh.load(job / "ice.ply", process=False)
+    points, face = trimesh.sample.sample_surface_even(mesh, 4000, seed=1)
+    normals = mesh.face_normals[face]
+    top = normals @ up > 0.9
+    lifted = points[top] + 1e-4 * up
+    open_sky = ~np.isfinite(ray_caster(mesh)(lifted, np.broadcast_to(up, lifted.shape))[0])
+    tops = points[top][open_sky]
+    assert len(tops) > 100
+    covered = inside(ray_caster(ice), tops + 5e-4 * up)
+    assert covered.mean() > 0.95, f"{covered.mean():.1%} of the object's open tops lie under ice"

@@ -20,7 +20,7 @@ from ..water import WaterResult
 from .bases import BASE_THICKNESS, base_balls, object_thickness
 from .curtains import curtain_balls
 from .detail import coarse_voxel, split_balls, surface_spacing
-from .glaze import glaze_field, glaze_thickness, wet_vertices
+from .glaze import CoatSurface, glaze_field, glaze_thickness, wet_vertices
 from .icicles import hang_roots, icicle_balls, root_shifts
 from .measure import IcicleStats, measure_icicles
 from .profile import grown_lengths, profile_args, smooth_radius
@@ -76,7 +76,7 @@ def build_ice(object_mesh: trimesh.Trimesh, flow_mesh: trimesh.Trimesh, water: W
               drips: DripResult, trajectories: TrajectoryResult, surface: SurfaceParams,
               glaze: GlazeParams, gravity: np.ndarray, rng: np.random.Generator, exclude: np.ndarray | None = None,
               cast=None, measure: bool = True, extra_balls: Balls | None = None,
-              note: Callable[[str], None] | None = None) -> IceResult:
+              note: Callable[[str], None] | None = None, coat_surface: CoatSurface | None = None) -> IceResult:
     """Stage 4: icicles, their bases and glaze ice as one mesh (paper 4.4).
 
     ``surface.mode == "metaballs"``: one watertight mesh of the icicle chains and the
@@ -119,6 +119,10 @@ def build_ice(object_mesh: trimesh.Trimesh, flow_mesh: trimesh.Trimesh, water: W
     note : callable, optional
         ``note(text)`` as each part starts (glaze coat, icicle field, meshing, ripples,
         clean-up): progress for a caller that shows it.
+    coat_surface : CoatSurface, optional
+        The surface the glaze grows on, with its water and excluded vertices, when not
+        ``flow_mesh`` (the object under a wrap, `glaze.carry_water`); ``water`` and
+        ``exclude`` still say where the icicles' water came from.
 
     Returns
     -------
@@ -166,9 +170,14 @@ def build_ice(object_mesh: trimesh.Trimesh, flow_mesh: trimesh.Trimesh, water: W
         more = [b for b in (curtains.balls, extra_balls) if b is not None and len(b)]
         if more:  # nothing appended otherwise: the field's sums stay bit for bit
             ice = concat_balls(ice, *more)
-        note(f"glaze coat over {len(flow_mesh.faces):,} faces")
-        coat = glaze_field(flow_mesh, water, glaze, rng, exclude=exclude, cast=cast,
-                           face_budget=(1.0 - ICICLE_SHARE) * budget)
+        if coat_surface is None:
+            coat_surface = CoatSurface(flow_mesh, water, exclude)
+            coat_cast = cast
+        else:
+            coat_cast = own_cast if coat_surface.mesh is object_mesh else None
+        note(f"glaze coat over {len(coat_surface.mesh.faces):,} faces")
+        coat = glaze_field(coat_surface.mesh, coat_surface.water, glaze, rng, exclude=coat_surface.exclude,
+                           cast=coat_cast, face_budget=(1.0 - ICICLE_SHARE) * budget)
         extent = float(np.linalg.norm(np.ptp(object_mesh.vertices, axis=0)))
         chain = np.arange(len(ice)) < len(chains)
 
@@ -177,8 +186,8 @@ def build_ice(object_mesh: trimesh.Trimesh, flow_mesh: trimesh.Trimesh, water: W
             coarse = coarse_voxel(fine_voxel, extent, surface.error_px, *_ripple(surface)) if budget else None
             if coarse is None:
                 return None, ice, None
-            clearance = _coat_reach(flow_mesh, water, glaze, coat, coarse, fine_voxel)
-            return coarse, *split_balls(ice, coarse, flow_mesh.vertices, clearance, chain)
+            clearance = _coat_reach(coat_surface.mesh, coat_surface.water, glaze, coat, coarse, fine_voxel)
+            return coarse, *split_balls(ice, coarse, coat_surface.mesh.vertices, clearance, chain)
 
         if budget:
             voxel = fitted_voxel(lambda v: _icicle_faces(v, *lattices(v)), surface,
