@@ -322,27 +322,45 @@ def sole(flow: trimesh.Trimesh, params: Params, gravity: np.ndarray, placement: 
             if placement == Placement.GROUND.value and clearance > 0 else None)
 
 
+def glaze_surface(obj: trimesh.Trimesh, flow: trimesh.Trimesh, water: WaterResult, params: Params,
+                  gravity: np.ndarray, placement: str, proxy=None, glaze: GlazeParams | None = None):
+    """The surface the glaze grows on (and is measured on), with its water and its sole: the
+    flow mesh's own, or over a wrap (``proxy``, the `ProxyResult` ``flow`` came from) the
+    object's, the water carried over (`icefarm.stages.surface.glaze.carry_water`).
+
+    Returns
+    -------
+    icefarm.stages.surface.glaze.CoatSurface
+    """
+    from .stages.proxy import ProxyMethod
+    from .stages.surface import CoatSurface, carry_water
+
+    exclude = sole(flow, params, gravity, placement)
+    glaze = params.glaze if glaze is None else glaze
+    if proxy is not None and proxy.method is ProxyMethod.WRAP and flow is not obj and glaze.mode != "none":
+        carried = carry_water(obj, flow, water, exclude, WRAP_REACH * proxy.alpha)
+        if carried is not None:
+            return carried
+    return CoatSurface(flow, water, exclude)
+
+
 def build_surface(obj: trimesh.Trimesh, flow: trimesh.Trimesh, water: WaterResult, drips: DripResult,
                   traj: TrajectoryResult, params: Params, gravity: np.ndarray, rng: np.random.Generator, *,
                   placement: str = "ground", glaze: GlazeParams | None = None, cast=None, extra_balls=None,
                   note=None, proxy=None):
     """Stage 4 as a job runs it (the sole kept dry, no measurements); growth frames pass
-    their own drips, trajectories, ``glaze`` group and stream. Over a wrap (``proxy``, the
-    `ProxyResult` ``flow`` came from) the glaze grows on the object itself, the water
-    carried over (`icefarm.stages.surface.glaze.carry_water`).
+    their own drips, trajectories, ``glaze`` group and stream. The glaze grows on
+    `glaze_surface` (over a wrap, ``proxy``: the object itself).
 
     Returns
     -------
     IceResult
     """
-    from .stages.proxy import ProxyMethod
-    from .stages.surface import build_ice, carry_water
+    from .stages.surface import build_ice
 
     glaze = params.glaze if glaze is None else glaze
+    coat_surface = glaze_surface(obj, flow, water, params, gravity, placement, proxy, glaze)
     exclude = sole(flow, params, gravity, placement)
-    coat_surface = None
-    if proxy is not None and proxy.method is ProxyMethod.WRAP and flow is not obj and glaze.mode != "none":
-        coat_surface = carry_water(obj, flow, water, exclude, WRAP_REACH * proxy.alpha)
     ice = build_ice(obj, flow, water, drips, traj, params.surface, glaze, gravity, rng, exclude=exclude, cast=cast,
                     measure=False,
                     extra_balls=extra_balls, note=note, coat_surface=coat_surface)

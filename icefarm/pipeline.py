@@ -24,7 +24,7 @@ from .errors import InputError
 from .geometry import ray_caster
 from .jobdir import (DONE, DRIPS, ERROR, GROWTH_DIR, ICE, ICE_BANDS, LANDING, OBJECT_USDC, PARAMS, PROXY,
                      SCENE_USDA, TIMINGS, TRAJECTORIES, WATER, JobState)
-from .chain import Stage, StageResults, build_surface, run_stages, sole, stage_rng, stops
+from .chain import Stage, StageResults, build_surface, glaze_surface, run_stages, stage_rng, stops
 from .mesh import PreparedMesh, prepare
 from .params import Params, StormParams, SurfaceParams
 from .placement import ground_height
@@ -273,10 +273,12 @@ def _surface_and_render(spec: JobSpec, job_dir: Path, run: _Run, until: Stage | 
     axes = ice.axes if ice.axes is not None else r.trajectories
     # Plausibility, measured on the mesh, and where the ripples' milky bands lie (ice.ply
     # carries them for the render's shimmer): timed apart from the modelling (Table 2 times that).
+    # the glaze measured on the surface it grew on (over a wrap, the object's)
+    wet = glaze_surface(obj, r.flow, r.water, p, gravity, spec.placement, r.proxy)
     m, glaze, bands = run.timed("measure", lambda: (
         measure_icicles(ice.vertices, ice.faces, axes, p.surface),
-        measure_glaze(ice.vertices, ice.faces, r.flow, r.water, gravity,
-                      exclude=_not_glaze(r.flow, r.drips, sole(r.flow, p, gravity, spec.placement), p.surface)),
+        measure_glaze(ice.vertices, ice.faces, wet.mesh, wet.water, gravity,
+                      exclude=_not_glaze(wet.mesh, r.drips, wet.exclude, p.surface)),
         ripple_bands(ice.vertices, axes, profile_args(p.surface))))
     ice_mesh = trimesh.Trimesh(ice.vertices, ice.faces, process=False)
     if bands is not None:
@@ -355,14 +357,14 @@ def _growth(spec: JobSpec, job_dir: Path, run: _Run, r: StageResults, gravity: n
     return {"growth_frames": len(result.frames), "growth_seconds_per_frame": round(result.seconds_per_frame, 3)}
 
 
-def _not_glaze(flow: trimesh.Trimesh, drips: DripResult, sole: np.ndarray | None, surface: SurfaceParams) -> np.ndarray:
-    """Flow-mesh vertices whose ice is not glaze: the sole, and around each drip point the
-    base and the icicle's root (within twice the base extent), which stand thicker."""
-    out = np.zeros(len(flow.vertices), dtype=bool) if sole is None else sole.copy()
+def _not_glaze(mesh: trimesh.Trimesh, drips: DripResult, sole: np.ndarray | None, surface: SurfaceParams) -> np.ndarray:
+    """Vertices of the glaze's surface whose ice is not glaze: the sole, and around each drip
+    point the base and the icicle's root (within twice the base extent), which stand thicker."""
+    out = np.zeros(len(mesh.vertices), dtype=bool) if sole is None else sole.copy()
     if len(drips.positions):
         from scipy.spatial import cKDTree
 
-        out |= cKDTree(drips.positions).query(flow.vertices)[0] < 2 * max(surface.base_extent, surface.tip_radius)
+        out |= cKDTree(drips.positions).query(mesh.vertices)[0] < 2 * max(surface.base_extent, surface.tip_radius)
     return out
 
 

@@ -19,7 +19,7 @@ __getattr__, __dir__, __all__ = _lazy.attach(__name__, submod_attrs={
     "landing": ["find_landings"],
     "proxy": ["ProxyMethod", "build_proxy", "proxy_reason", "snap_to_surface"],
     "storm": ["constants", "drip_rim_length", "precipitation_m", "refine", "storm_water"],
-    "surface": ["SLIVER", "build_ice", "carry_water", "ground_ice_balls", "icicle_balls", "measure_glaze", "measure_icicles",
+    "surface": ["SLIVER", "CoatSurface", "build_ice", "carry_water", "ground_ice_balls", "icicle_balls", "measure_glaze", "measure_icicles",
                 "profile_args", "ripple_bands"],
     "trajectories": ["TrajectoryResult", "grow_trajectories"],
     "trajectory_stats": ["measure_trajectories"],

@@ -21,12 +21,12 @@ closed tube with the same profile instead: instant, no fusion, no base, no glaze
 from __future__ import annotations
 
 from .build import SLIVER, IceResult, build_ice
-from .glaze import carry_water, measure_glaze
+from .glaze import CoatSurface, carry_water, measure_glaze
 from .ground_ice import ground_ice_balls
 from .icicles import icicle_balls
 from .measure import measure_icicles
 from .profile import TIP_CALM, profile_args, profile_radius
 from .ripples import ripple_bands
 
-__all__ = ["SLIVER", "IceResult", "TIP_CALM", "build_ice", "carry_water", "ground_ice_balls", "icicle_balls",
+__all__ = ["SLIVER", "CoatSurface", "IceResult", "TIP_CALM", "build_ice", "carry_water", "ground_ice_balls", "icicle_balls",
            "measure_glaze", "measure_icicles", "profile_args", "profile_radius", "ripple_bands"]

@@ -172,9 +172,7 @@ def build_ice(object_mesh: trimesh.Trimesh, flow_mesh: trimesh.Trimesh, water: W
             ice = concat_balls(ice, *more)
         if coat_surface is None:
             coat_surface = CoatSurface(flow_mesh, water, exclude)
-            coat_cast = cast
-        else:
-            coat_cast = own_cast if coat_surface.mesh is object_mesh else None
+        coat_cast = cast if coat_surface.mesh is flow_mesh else own_cast if coat_surface.mesh is object_mesh else None
         note(f"glaze coat over {len(coat_surface.mesh.faces):,} faces")
         coat = glaze_field(coat_surface.mesh, coat_surface.water, glaze, rng, exclude=coat_surface.exclude,
                            cast=coat_cast, face_budget=(1.0 - ICICLE_SHARE) * budget)
