@@ -338,9 +338,7 @@ def glaze_surface(obj: trimesh.Trimesh, flow: trimesh.Trimesh, water: WaterResul
     exclude = sole(flow, params, gravity, placement)
     glaze = params.glaze if glaze is None else glaze
     if proxy is not None and proxy.method is ProxyMethod.WRAP and flow is not obj and glaze.mode != "none":
-        carried = carry_water(obj, flow, water, exclude, WRAP_REACH * proxy.alpha)
-        if carried is not None:
-            return carried
+        return carry_water(obj, flow, water, exclude, WRAP_REACH * proxy.alpha)
     return CoatSurface(flow, water, exclude)
 
 

@@ -266,3 +266,26 @@ def test_water_on_a_wrap_is_carried_to_the_object_under_it():
     ice = _closed(*_coat(carried.mesh, carried.water, glaze))
     below = np.array([[0.0, 0.097, 0.0], [0.03, 0.094, 0.0]])  # 3 mm under the object's top: in the coat's inner part
     assert inside(ray_caster(ice), below).all()
+
+
+def test_an_inside_out_piece_under_a_wrap_is_turned_whole():
+    """A piece wound inward (prepare cannot turn the pieces of a mesh with non-manifold
+    edges: a chair's seat) would grow its coat inside itself: `carry_water` turns each
+    piece to face the way the wrap around it does, and leaves the others as they are."""
+    from icefarm.stages.surface.glaze import carry_water
+
+    right = trimesh.creation.icosphere(subdivisions=2, radius=0.05)
+    wrong = trimesh.creation.icosphere(subdivisions=2, radius=0.05)
+    wrong.apply_translation((0.2, 0.0, 0.0))
+    wrong.invert()
+    obj = trimesh.util.concatenate([right, wrong])
+    wraps = [trimesh.creation.icosphere(subdivisions=3, radius=0.053) for _ in range(2)]
+    wraps[1].apply_translation((0.2, 0.0, 0.0))
+    wrap = trimesh.util.concatenate(wraps)
+    n = len(wrap.vertices)
+    water = WaterResult(np.ones(n, bool), np.full(n, 0.1), np.zeros(n, int), np.full(n, 0.05),
+                        np.zeros(n, int), np.full(n, 0.05), np.zeros((0, 3)))
+    carried = carry_water(obj, wrap, water, None, reach=0.006)
+    centre = np.where(carried.mesh.triangles_center[:, :1] > 0.1, [0.2, 0.0, 0.0], [0.0, 0.0, 0.0])
+    outward = np.einsum("kd,kd->k", carried.mesh.face_normals, carried.mesh.triangles_center - centre)
+    assert (outward > 0).all()

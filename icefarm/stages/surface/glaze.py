@@ -95,7 +95,7 @@ class CoatSurface:
 
 
 def carry_water(object_mesh: trimesh.Trimesh, flow_mesh: trimesh.Trimesh, water: WaterResult,
-                exclude: np.ndarray | None, reach: float) -> CoatSurface | None:
+                exclude: np.ndarray | None, reach: float) -> CoatSurface:
     """The object's own surface for the glaze coat, with the water that stages 1-2 left on a
     wrap around it (`icefarm.stages.proxy`) carried over.
 
@@ -104,14 +104,12 @@ def carry_water(object_mesh: trimesh.Trimesh, flow_mesh: trimesh.Trimesh, water:
     out through the coat in patches whose outlines rendered as dark cracks, whatever the
     coat's sampling or thickness. On the object itself the coat has no such outlines.
 
-    The object's long edges are split (midpoint subdivision, `icefarm.stages.storm.refine`)
-    down to `CARRY_EDGE` times the flow mesh's, so that its wet and dry parts follow the
-    water; each of
-    its vertices takes the water of the flow-mesh vertex nearest to it, and none where that
-    lies farther than ``reach`` (object surface the wrap left out: the inside of a spout or a
-    gap it bridged). The faces keep the winding `icefarm.mesh.prepare` gave each piece:
-    turning single faces to agree with the wrap's nearest normal turned 216 of the teapot's
-    6,320 (near creases and the spout's mouth) and broke the coat into flakes.
+    The object's long edges are split (midpoint subdivision, `icefarm.stages.storm.refine`;
+    not on an object with non-manifold edges, which it refuses) down to `CARRY_EDGE` times
+    the flow mesh's, so that its wet and dry parts follow the water; each of its vertices
+    takes the water of the flow-mesh vertex nearest to it, and none where that lies farther
+    than ``reach`` (object surface the wrap left out: the inside of a spout or a gap it
+    bridged). Each connected piece is turned to face the way the wrap does (`_outward`).
 
     Parameters
     ----------
@@ -126,10 +124,7 @@ def carry_water(object_mesh: trimesh.Trimesh, flow_mesh: trimesh.Trimesh, water:
 
     Returns
     -------
-    CoatSurface or None
-        None for an object with non-manifold edges (the subdivision refuses them): its
-        sheets' sides say nothing of where outside is (the chair's seat, 51 such edges, took
-        no glaze inside its bowl), and the coat stays on the wrap.
+    CoatSurface
     """
     import pymeshlab
 
@@ -137,11 +132,13 @@ def carry_water(object_mesh: trimesh.Trimesh, flow_mesh: trimesh.Trimesh, water:
 
     try:
         mesh = refine(object_mesh, CARRY_EDGE * float(np.median(flow_mesh.edges_unique_length)))
-    except pymeshlab.PyMeshLabException:  # subdivision needs a 2-manifold
-        return None
+    except pymeshlab.PyMeshLabException:  # subdivision needs a 2-manifold: the object as it is
+        mesh = object_mesh
     vertices = np.asarray(mesh.vertices)
-    distance, source = nearest(point_index(flow_mesh.vertices), vertices)
+    index = point_index(flow_mesh.vertices)
+    distance, source = nearest(index, vertices)
     near = distance <= reach
+    mesh = _outward(mesh, flow_mesh, index, reach)
 
     def carried(values, dry):
         return np.where(near, np.asarray(values)[source], dry)
@@ -156,6 +153,26 @@ def carry_water(object_mesh: trimesh.Trimesh, flow_mesh: trimesh.Trimesh, water:
                                 storm=storm)
     return CoatSurface(mesh, moved,
                        None if exclude is None else np.asarray(exclude, dtype=bool)[source] & near)
+
+
+def _outward(mesh: trimesh.Trimesh, wrap: trimesh.Trimesh, index, reach: float) -> trimesh.Trimesh:
+    """``mesh`` with each connected piece turned, whole, to face the way the wrap around it
+    does: by the area of its faces within ``reach`` of the wrap (``index``, `point_index` of
+    its vertices), weighted by the cosine between each face's normal and the nearest wrap
+    vertex's. `icefarm.mesh.prepare` cannot turn the pieces of a mesh with non-manifold edges:
+    the chair's seat (its bowl, 1,746 faces) faced 99 % of its area against its wrap, and its
+    coat grew inside the shell, leaving the bowl bare. Single faces are not turned: near
+    creases and a spout's mouth the nearest wrap vertex faces elsewhere (216 of the teapot's
+    6,320 faces turned wrongly broke its coat into flakes)."""
+    faces = np.asarray(mesh.faces)
+    distance, nearest_vertex = nearest(index, mesh.triangles_center)
+    cosine = np.einsum("kd,kd->k", mesh.face_normals, wrap.vertex_normals[nearest_vertex])
+    piece = trimesh.graph.connected_component_labels(mesh.face_adjacency, node_count=len(faces))
+    vote = np.bincount(piece, weights=mesh.area_faces * cosine * (distance <= reach))
+    turn = vote[piece] < 0
+    if not turn.any():
+        return mesh
+    return trimesh.Trimesh(mesh.vertices, np.where(turn[:, None], faces[:, ::-1], faces), process=False)
 
 
 def glaze_field(flow_mesh: trimesh.Trimesh, water: WaterResult, glaze: GlazeParams, rng: np.random.Generator,
