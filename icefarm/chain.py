@@ -322,11 +322,12 @@ def sole(flow: trimesh.Trimesh, params: Params, gravity: np.ndarray, placement: 
             if placement == Placement.GROUND.value and clearance > 0 else None)
 
 
-def glaze_surface(obj: trimesh.Trimesh, flow: trimesh.Trimesh, water: WaterResult, params: Params,
-                  gravity: np.ndarray, placement: str, proxy=None, glaze: GlazeParams | None = None):
-    """The surface the glaze grows on (and is measured on), with its water and its sole: the
-    flow mesh's own, or over a wrap (``proxy``, the `ProxyResult` ``flow`` came from) the
-    object's, the water carried over (`icefarm.stages.surface.glaze.carry_water`).
+def glaze_surface(obj: trimesh.Trimesh, flow: trimesh.Trimesh, water: WaterResult, exclude: np.ndarray | None,
+                  glaze: GlazeParams, proxy=None):
+    """The surface the glaze grows on (and is measured on), with its water and its sole
+    (``exclude``, per flow-mesh vertex, `sole`): the flow mesh's own, or over a wrap
+    (``proxy``, the `ProxyResult` ``flow`` came from) the object's, the water carried over
+    (`icefarm.stages.surface.glaze.carry_water`).
 
     Returns
     -------
@@ -335,8 +336,6 @@ def glaze_surface(obj: trimesh.Trimesh, flow: trimesh.Trimesh, water: WaterResul
     from .stages.proxy import ProxyMethod
     from .stages.surface import CoatSurface, carry_water
 
-    exclude = sole(flow, params, gravity, placement)
-    glaze = params.glaze if glaze is None else glaze
     if proxy is not None and proxy.method is ProxyMethod.WRAP and flow is not obj and glaze.mode != "none":
         return carry_water(obj, flow, water, exclude, WRAP_REACH * proxy.alpha)
     return CoatSurface(flow, water, exclude)
@@ -357,8 +356,8 @@ def build_surface(obj: trimesh.Trimesh, flow: trimesh.Trimesh, water: WaterResul
     from .stages.surface import build_ice
 
     glaze = params.glaze if glaze is None else glaze
-    coat_surface = glaze_surface(obj, flow, water, params, gravity, placement, proxy, glaze)
     exclude = sole(flow, params, gravity, placement)
+    coat_surface = glaze_surface(obj, flow, water, exclude, glaze, proxy)
     ice = build_ice(obj, flow, water, drips, traj, params.surface, glaze, gravity, rng, exclude=exclude, cast=cast,
                     measure=False,
                     extra_balls=extra_balls, note=note, coat_surface=coat_surface)

@@ -24,7 +24,7 @@ from .errors import InputError
 from .geometry import ray_caster
 from .jobdir import (DONE, DRIPS, ERROR, GROWTH_DIR, ICE, ICE_BANDS, LANDING, OBJECT_USDC, PARAMS, PROXY,
                      SCENE_USDA, TIMINGS, TRAJECTORIES, WATER, JobState)
-from .chain import Stage, StageResults, build_surface, glaze_surface, run_stages, stage_rng, stops
+from .chain import Stage, StageResults, build_surface, glaze_surface, run_stages, sole, stage_rng, stops
 from .mesh import PreparedMesh, prepare
 from .params import Params, StormParams, SurfaceParams
 from .placement import ground_height
@@ -274,7 +274,7 @@ def _surface_and_render(spec: JobSpec, job_dir: Path, run: _Run, until: Stage | 
     # Plausibility, measured on the mesh, and where the ripples' milky bands lie (ice.ply
     # carries them for the render's shimmer): timed apart from the modelling (Table 2 times that).
     # the glaze measured on the surface it grew on (over a wrap, the object's)
-    wet = glaze_surface(obj, r.flow, r.water, p, gravity, spec.placement, r.proxy)
+    wet = glaze_surface(obj, r.flow, r.water, sole(r.flow, p, gravity, spec.placement), p.glaze, r.proxy)
     m, glaze, bands = run.timed("measure", lambda: (
         measure_icicles(ice.vertices, ice.faces, axes, p.surface),
         measure_glaze(ice.vertices, ice.faces, wet.mesh, wet.water, gravity,

@@ -289,3 +289,31 @@ def test_an_inside_out_piece_under_a_wrap_is_turned_whole():
     centre = np.where(carried.mesh.triangles_center[:, :1] > 0.1, [0.2, 0.0, 0.0], [0.0, 0.0, 0.0])
     outward = np.einsum("kd,kd->k", carried.mesh.face_normals, carried.mesh.triangles_center - centre)
     assert (outward > 0).all()
+
+
+def test_water_carried_from_a_wrap_skips_faces_buried_in_the_object():
+    """Two boxes through each other (a kitbashed asset): the wrap's water reaches the faces
+    of each that lie inside the other too, and a coat there would come out through the
+    other's walls. Those faces get none: no wet face of the carried surface lies wholly inside
+    the other box, while those wholly in the open stay wet."""
+    from icefarm.geometry import inside, ray_caster
+    from icefarm.stages.surface.glaze import carry_water
+
+    a = trimesh.creation.box(extents=(0.2, 0.06, 0.06))
+    b = trimesh.creation.box(extents=(0.06, 0.2, 0.06))
+    obj = trimesh.util.concatenate([a, b])
+    wrap = trimesh.creation.box(extents=(0.206, 0.206, 0.066))
+    v, f = trimesh.remesh.subdivide_to_size(wrap.vertices, wrap.faces, max_edge=0.01)
+    wrap = trimesh.Trimesh(v, f)
+    n = len(wrap.vertices)
+    water = WaterResult(np.ones(n, bool), np.full(n, 0.1), np.zeros(n, int), np.full(n, 0.05),
+                        np.zeros(n, int), np.full(n, 0.05), np.zeros((0, 3)))
+    carried = carry_water(obj, wrap, water, None, reach=0.2)
+    m = carried.mesh
+    wet = wet_vertices(carried.water, carried.exclude)
+    glazed = (wet[m.faces].sum(axis=1) >= 2) & ~carried.exclude[m.faces].any(axis=1)
+    corner = (m.vertices[m.faces] + 1e-4 * m.face_normals[:, None, :]).reshape(-1, 3)
+    inner = (inside(ray_caster(a), corner) | inside(ray_caster(b), corner)).reshape(-1, 3)
+    buried, open_ = inner.all(axis=1), ~inner.any(axis=1)  # (those across the seam are neither)
+    assert buried.any() and not (glazed & buried).any()
+    assert glazed[open_].mean() > 0.9

@@ -86,7 +86,8 @@ class CoatSurface:
         Per vertex of ``mesh`` (``top``, ``bottom`` and ``hits`` still those of the surface
         the water ran on).
     exclude : (n,) bool or None
-        Vertices of ``mesh`` that get no glaze (the sole an object stands on).
+        Vertices of ``mesh`` that get no glaze (the sole an object stands on; over a wrap,
+        also those only on faces buried in the object, `_open`).
     """
 
     mesh: trimesh.Trimesh
@@ -109,7 +110,8 @@ def carry_water(object_mesh: trimesh.Trimesh, flow_mesh: trimesh.Trimesh, water:
     the flow mesh's, so that its wet and dry parts follow the water; each of its vertices
     takes the water of the flow-mesh vertex nearest to it, and none where that lies farther
     than ``reach`` (object surface the wrap left out: the inside of a spout or a gap it
-    bridged). Each connected piece is turned to face the way the wrap does (`_outward`).
+    bridged) or where it lies on faces buried in the object (`_open`). Each connected piece is
+    turned to face the way the wrap does (`_outward`).
 
     Parameters
     ----------
@@ -137,8 +139,9 @@ def carry_water(object_mesh: trimesh.Trimesh, flow_mesh: trimesh.Trimesh, water:
     vertices = np.asarray(mesh.vertices)
     index = point_index(flow_mesh.vertices)
     distance, source = nearest(index, vertices)
-    near = distance <= reach
     mesh = _outward(mesh, flow_mesh, index, reach)
+    near = distance <= reach
+    shown = _open(mesh, wet_vertices(water)[source] & near)
 
     def carried(values, dry):
         return np.where(near, np.asarray(values)[source], dry)
@@ -151,8 +154,36 @@ def carry_water(object_mesh: trimesh.Trimesh, flow_mesh: trimesh.Trimesh, water:
                                 top=np.asarray(water.top)[source], d_up=carried(water.d_up, 0.0),
                                 bottom=np.asarray(water.bottom)[source], d_down=carried(water.d_down, 0.0),
                                 storm=storm)
-    return CoatSurface(mesh, moved,
-                       None if exclude is None else np.asarray(exclude, dtype=bool)[source] & near)
+    sole = np.zeros(len(vertices), dtype=bool) if exclude is None else np.asarray(exclude, dtype=bool)[source] & near
+    return CoatSurface(mesh, moved, sole | ~shown)
+
+
+def _open(mesh: trimesh.Trimesh, wet: np.ndarray) -> np.ndarray:
+    """``(n,) bool``: the vertices of ``mesh`` (wound outward) that are not wet (``wet``) only
+    on faces buried in the object: a wet face whose normal, cast from just off its centre,
+    first meets the object from behind (the inside of a part it lies in) is buried. One ray
+    a face, and no closed surface needed (parity counts went wrong on the chair's open,
+    non-manifold seat and dried a third of its wet faces).
+
+    A wrap's water reaches the object's surface inside the wrap whether or not it is buried:
+    on the box soup 13 % of the wet area (25 % with a coarser wrap), on the teapot 4.8 % (the
+    spout's root inside the body, the lid's rim). A coat grown there lies inside the opaque
+    object, or comes out through its surface where that is closer than the coat is thick, and
+    the glaze measured on it read 38.7 mm at p90 on the box soup.
+    """
+    faces = np.asarray(mesh.faces)
+    wet_face = np.flatnonzero(wet[faces].sum(axis=1) >= 2)
+    shown = np.ones(len(mesh.vertices), dtype=bool)
+    if len(wet_face) == 0:
+        return shown
+    normal = mesh.face_normals[wet_face]
+    _, hit = ray_caster(mesh)(mesh.triangles_center[wet_face] + tol.ray_lift_m * normal, normal)
+    buried = hit >= 0
+    buried[buried] = np.einsum("kd,kd->k", mesh.face_normals[hit[buried]], normal[buried]) > 0
+    seen = np.zeros(len(mesh.vertices), dtype=bool)
+    seen[faces[wet_face[~buried]]] = True
+    shown[faces[wet_face[buried]].ravel()] = False
+    return shown | seen
 
 
 def _outward(mesh: trimesh.Trimesh, wrap: trimesh.Trimesh, index, reach: float) -> trimesh.Trimesh:
