@@ -13,7 +13,8 @@ touch an excluded vertex (the sole an object stands on) get none at all.
 D and T come from an even sample of the surface (``SPACING`` voxels apart, with face
 normals): a lattice sample takes its nearest surface sample (a k-d tree) and
 ``D = (p - s) . n``, rounded off with the lateral offset past the sample spacing so that
-convex creases get round offsets instead of fins, and T carried from the sample to the
+convex creases get round offsets instead of fins (past a sharp convex edge near the sample,
+the offset past that edge: the sample's plane ends there), and T carried from the sample to the
 foot by the thickness's slope along the face; dry samples bound the coat (a lattice
 sample nearer to a dry face than to a wet one is not under the wet one, so the inner
 face never comes out through a thin wall) and carry the taper, from the distance to the
@@ -33,7 +34,7 @@ import trimesh
 from ...errors import InputError
 from ...geometry import nearest, point_index, ragged_arange, ray_caster
 from ...metaballs.field import Field, block_keys
-from .coat_band import MAX_BAND_POINTS, Thickness, sample_band
+from .coat_band import MAX_BAND_POINTS, Edges, Thickness, sample_band
 
 # Depth of the coat's hidden inner face under the surface, in voxels: a coat of any
 # thickness makes a sheet at least this thick, which marching cubes cannot tear.
@@ -48,6 +49,14 @@ SPACING = 2.0
 # Faces that meet at more than this (radians) make a crease: near one, each lattice sample
 # finds its own nearest surface sample; elsewhere those of a tile share one (one plane).
 _CREASE = math.radians(1.0)
+# Convex edges where faces meet at more than this (radians) bound their faces' planes
+# (`coat_band.Edges`): a sample's plane otherwise runs on up to ~0.6 SPACING voxels past
+# such an edge, and the coat with it (fins up to 5 mm out at 4 mm voxels along a fence's
+# picket edges, wet with thin rivulets); under this the plane strays under a third of a
+# voxel off the surface.
+_SHARP = math.radians(15.0)
+# Odd 63-bit multipliers: rows of 8 integers hash to one (collisions about n^2 / 2^64).
+_LINE_HASH = np.random.default_rng(20261126).integers(2**61, 2**62, 8) * 2 + 1
 
 
 def coat_field(flow_mesh: trimesh.Trimesh, thickness: np.ndarray, wet: np.ndarray, voxel: float,
@@ -153,7 +162,7 @@ def coat_field(flow_mesh: trimesh.Trimesh, thickness: np.ndarray, wet: np.ndarra
     thick = Thickness(all_t, np.concatenate([slope, np.zeros((len(dpts), 3))]),
                       np.r_[np.fmin(low[face], t_wet), dry], np.r_[np.fmax(high[face], t_wet), dry])
     return sample_band(all_pts, normals, thick, kind[all_face], depth, rim, features, sole, edge, voxel, reach, h,
-                       name)
+                       name, edges=_convex_edges(flow_mesh, all_face, 0.6 * h + voxel))
 
 
 def _thickness_range(mesh: trimesh.Trimesh, thickness: np.ndarray, wet: np.ndarray,
@@ -211,6 +220,78 @@ def _inner_depth(mesh, pts, normals, thick, kind, inner, voxel, cast):
     thin = thin[kind[hit[thin]] != 1]
     depth[thin] = np.maximum(np.minimum(inner, 0.45 * (dist[thin] + start)), MIN_SHEET * voxel - thick[thin])
     return depth
+
+
+def _convex_edges(mesh: trimesh.Trimesh, face: np.ndarray, reach: float) -> Edges | None:
+    """The `Edges` of samples on ``face`` (k,): the convex edges sharper than _SHARP of
+    their faces, and of the faces in the same plane (within _SHARP / 3) within ``reach``
+    across such faces (a strip of thin faces along an edge has samples near it on faces
+    that do not touch it), up to 3 a face, its own first. None if there are none.
+
+    Per face, not per sample: on Table 2's dragon (102,516 samples, 6,288 such edges) a
+    k-d tree of points along the edges, queried per sample, took 0.15 s."""
+    adj = mesh.face_adjacency
+    angle = mesh.face_adjacency_angles
+    sharp = np.flatnonzero((angle > _SHARP) & mesh.face_adjacency_convex)
+    if len(sharp) == 0:
+        return None
+    f = adj[sharp].ravel()  # one line for each face along each edge
+    ends = np.repeat(mesh.face_adjacency_edges[sharp], 2, axis=0)
+    a = mesh.vertices[ends[:, 0]]
+    inward = np.cross(mesh.face_normals[f], mesh.vertices[ends[:, 1]] - a)
+    inward *= np.where(np.einsum("kd,kd->k", inward, mesh.triangles_center[f] - a) < 0, -1.0, 1.0)[:, None]
+    inward /= np.maximum(np.linalg.norm(inward, axis=1), 1e-300)[:, None]
+    level = np.einsum("kd,kd->k", a, inward)
+    # The segments of one straight edge (a box's, split by a refinement) are one line: the
+    # same plane, the same side, the same line in it.
+    n_f = mesh.face_normals[f]
+    offset = np.einsum("kd,kd->k", a, n_f)
+    key = np.round(np.c_[inward * 1e4, n_f * 1e4, np.c_[level, offset] / mesh.scale * 1e5]).astype(np.int64)
+    key = key @ _LINE_HASH  # unique(axis=0) took 7 ms of the dragon's 12,576 lines
+    _, line_of, inverse = np.unique(key, return_index=True, return_inverse=True)
+    inverse = inverse.reshape(-1)
+    inward, level, normal = inward[line_of], level[line_of], n_f[line_of]
+    n_lines, n_faces = len(line_of), len(mesh.faces)
+    # Each line spreads ring by ring across the faces of its plane while within reach.
+    flat = adj[angle < _SHARP / 3]
+    flat = np.concatenate([flat, flat[:, ::-1]])
+    flat = flat[np.argsort(flat[:, 0], kind="stable"), 1]
+    start = np.searchsorted(np.sort(np.concatenate([adj[angle < _SHARP / 3].ravel()])), np.arange(n_faces + 1))
+    tri = mesh.triangles
+    own = np.unique(f * n_lines + inverse)
+    rec_face, rec_line = [own // n_lines], [own % n_lines]
+    known = own
+    new_face, new_line = rec_face[0], rec_line[0]
+    while len(new_face):
+        count = start[new_face + 1] - start[new_face]
+        nb = flat[ragged_arange(count) + np.repeat(start[new_face], count)]
+        line = np.repeat(new_line, count)
+        key, first = np.unique(nb * n_lines + line, return_index=True)
+        fresh = known[np.minimum(np.searchsorted(known, key), len(known) - 1)] != key
+        nb, line, key = nb[first][fresh], line[first][fresh], key[fresh]
+        # The face lies wholly on the line's side (in a non-convex plane, an L or a gable's
+        # end, the line runs on across the plane), its nearest corner within reach.
+        gap = (np.einsum("kvd,kd->kv", tri[nb], inward[line]) - level[line][:, None]).min(axis=1)
+        ok = (gap >= -1e-9 * mesh.scale) & (gap <= reach)
+        ok &= np.einsum("kd,kd->k", mesh.face_normals[nb], normal[line]) > math.cos(_SHARP / 3)
+        new_face, new_line = nb[ok], line[ok]
+        known = np.sort(np.concatenate([known, key[ok]]))
+        rec_face.append(new_face)
+        rec_line.append(new_line)
+    rec_face, rec_line = np.concatenate(rec_face), np.concatenate(rec_line)
+    order = np.argsort(rec_face, kind="stable")  # own lines first, then ring by ring
+    rec_face, rec_line = rec_face[order], rec_line[order]
+    slot = np.arange(len(rec_face)) - np.searchsorted(rec_face, rec_face)
+    keep = slot < 3
+    rec_face, rec_line, slot = rec_face[keep], rec_line[keep], slot[keep]
+    rows = np.unique(rec_face)
+    row_of = np.full(n_faces, -1)
+    row_of[rows] = np.arange(len(rows))
+    w = np.zeros((len(rows), 3, 3))
+    lv = np.full((len(rows), 3), -np.inf)
+    w[row_of[rec_face], slot] = inward[rec_line]
+    lv[row_of[rec_face], slot] = level[rec_line]
+    return Edges(row_of[face], w, lv)
 
 
 def _features(mesh: trimesh.Trimesh, faces: np.ndarray, kind: np.ndarray, spacing: float):

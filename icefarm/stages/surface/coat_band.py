@@ -48,6 +48,12 @@ _CHUNK_POINTS = 1_000_000
 # object, and its ragged line of contact rendered as black cracks on the fountain's basin
 # wall at 1920 x 1080. A quarter voxel is below what marching cubes places to begin with.
 TAPER_END = 0.25
+# Under a sample's plane, the coat's bound falls this many meters per meter of lateral
+# offset past the sample's reach (or past a sharp edge): the coat's hidden inner part,
+# ``INNER`` voxels deep, otherwise came out beside a convex edge whose other side is dry, as
+# sawtooth spikes up to 1 cm long along a fence's picket edges wet with thin rivulets. At
+# the plane the bound meets the outer face's.
+_BESIDE = 3.0
 
 
 @dataclass(frozen=True)
@@ -65,8 +71,38 @@ class Thickness:
         return np.clip(self.value[i] + np.einsum("kd,kd->k", self.slope[i], lateral), self.low[i], self.high[i])
 
 
+@dataclass(frozen=True)
+class Edges:
+    """Sharp convex edges that bound the surface samples' planes: sample ``s`` with
+    ``row[s] >= 0`` lies in the plane of a face bounded by up to 3 such edges, each the line
+    ``x . inward[row, e] = level[row, e]`` in that plane; ``inward`` (m, 3, 3) unit vectors
+    in the plane pointing from the edge towards the face, ``level`` (m, 3) in meters
+    (-inf: no edge)."""
+
+    row: np.ndarray
+    inward: np.ndarray
+    level: np.ndarray
+
+    def past(self, i: np.ndarray, points: np.ndarray) -> np.ndarray:
+        """How far each of ``points`` (k, 3) lies past the edges of sample ``i`` (k,),
+        along its plane (meters, 0 where it does not or ``i`` has none)."""
+        out = np.zeros(len(points))
+        sel = np.flatnonzero(self.row[i] >= 0)
+        if len(sel):
+            r = self.row[i[sel]]
+            p = points[sel]
+            off = self.level[r, 0] - np.einsum("kd,kd->k", p, self.inward[r, 0])
+            for e in (1, 2):  # most faces have one edge: the second and third only where there
+                more = np.flatnonzero(np.isfinite(self.level[r, e]))
+                if len(more):
+                    rm = r[more]
+                    off[more] = np.maximum(off[more], self.level[rm, e] - np.einsum("kd,kd->k", p[more], self.inward[rm, e]))
+            out[sel] = np.maximum(off, 0.0)
+        return out
+
+
 def sample_band(pts, normals, thick: Thickness, kind, depth, rim, features, sole, edge, voxel, reach, h,
-                name) -> Field | None:
+                name, edges: Edges | None = None) -> Field | None:
     """The coat's field on the lattice tiles near the wet samples.
 
     ``kind`` per sample: 1 wet, 0 dry, -1 excluded. Each lattice sample takes its nearest
@@ -77,7 +113,9 @@ def sample_band(pts, normals, thick: Thickness, kind, depth, rim, features, sole
     nearest rim point times ``1 - d / edge`` (d: distance from the foot to the rim). No
     coat where ``s`` is excluded, lies past the taper or farther than ``reach``. Between wet
     and excluded samples (and the excluded vertices ``sole``) the coat ends in a wall at
-    their bisector, ``phi = (dB - dW) / 2``.
+    their bisector, ``phi = (dB - dW) / 2``. With ``edges``, the lateral offset counts from
+    a sharp convex edge of ``s``'s face too (`Edges.past`): beyond it the face's plane is
+    not the surface.
     """
     wet = kind == 1
     blocked = np.concatenate([pts[kind == -1], sole])
@@ -118,6 +156,8 @@ def sample_band(pts, normals, thick: Thickness, kind, depth, rim, features, sole
         d_c[found] = _signed(centre[found] - pts[idx[found]], normals[idx[found]], dist[found], 0.6 * h)[0]
         near = half + voxel
         inside = (d_c > near - inner_lo) & (d_c < t_lo - near)
+        if edges is not None:  # the centre's plane may not hold past a sharp edge: no solid tile
+            inside[found] &= edges.row[idx[found]] < 0
         keep = (d_c > -(inner + near)) & (d_c < t_hi + near) & ~inside
         if inside.any():
             n_sub = size // _TILE
@@ -166,7 +206,7 @@ def sample_band(pts, normals, thick: Thickness, kind, depth, rim, features, sole
                          None if rim_seg is None else np.repeat(rim_seg[lo:hi], _TILE**3)[flat],
                          taper_end=TAPER_END * voxel)
         phi[~flat] = _phi(tree, pts, p[~flat], normals, thick, kind, rim, edge, depth, reach, 0.6 * h, wall=wall,
-                          taper_end=TAPER_END * voxel)
+                          taper_end=TAPER_END * voxel, edges=edges)
         values[lo * _TILE**3:hi * _TILE**3] = _encode(phi, voxel)
 
     # Chunks of tiles on every core: the queries and most numpy work release the GIL. Each
@@ -217,16 +257,19 @@ def _reduce(keys, t_lo, t_hi, flag):
             np.logical_or.reduceat(flag[order], start))
 
 
-def _signed(v, n, dist, tol):
+def _signed(v, n, dist, tol, past=None):
     """Signed distance from offsets ``v`` (k, 3) to samples of normal ``n``: the height
-    over the sample's plane, rounded off with the lateral offset past ``tol``."""
+    over the sample's plane, rounded off with the lateral offset past ``tol`` (or past a
+    sharp edge, ``past``, where farther). Returns it, the height and that offset."""
     sd = np.einsum("kd,kd->k", v, n)
     extra = np.maximum(np.sqrt(np.maximum(dist**2 - sd**2, 0.0)) - tol, 0.0)
-    return np.sign(sd) * np.sqrt(sd**2 + extra**2), sd
+    if past is not None:
+        extra = np.maximum(extra, past)
+    return np.sign(sd) * np.sqrt(sd**2 + extra**2), sd, extra
 
 
 def _phi(tree, samples, points, normals, thick: Thickness, kind, rim, edge, depth, reach, tol, near=None, seg=None,
-         wall=None, taper_end=0.0):
+         wall=None, taper_end=0.0, edges: Edges | None = None):
     """``phi`` (meters, positive inside the coat) at ``points`` (see `sample_band`), from
     their nearest ``samples`` (indices ``near``, -1 for none; queried in ``tree``, their
     `icefarm.geometry.point_index`, when not given).
@@ -236,7 +279,7 @@ def _phi(tree, samples, points, normals, thick: Thickness, kind, rim, edge, dept
     samples of a tile sharing one, `sample_band`). With ``wall`` (wet sample indices,
     a tree of the wet samples, one of the excluded ones), the coat stops at the bisector
     between wet and excluded samples. The taper ends where it would be thinner than
-    ``taper_end`` (meters).
+    ``taper_end`` (meters). ``edges``: see `sample_band`.
     """
     if near is None:
         dist, near = nearest(tree, points, reach)
@@ -251,7 +294,7 @@ def _phi(tree, samples, points, normals, thick: Thickness, kind, rim, edge, dept
         d_s = np.sqrt(np.einsum("kd,kd->k", v, v))
     phi = np.full(len(points), -reach)
     k = kind[i]
-    d, sd = _signed(v, normals[i], d_s, tol)
+    d, sd, extra = _signed(v, normals[i], d_s, tol, None if edges is None else edges.past(i, points[found]))
     t = np.where(k == 1, thick.at(i, v - sd[:, None] * normals[i]), -np.inf)
     dry = np.flatnonzero(k == 0)
     if rim is not None and len(dry):
@@ -263,6 +306,10 @@ def _phi(tree, samples, points, normals, thick: Thickness, kind, rim, edge, dept
         taper = t_rim * (1.0 - d_rim / edge)
         t[dry] = np.where(facing & (d_rim < edge) & (taper >= taper_end), taper, -np.inf)
     p = np.minimum(t - d, d + depth[i])
+    # Under the sample's plane but past its reach the point may lie beside a convex edge,
+    # outside the object: the coat's hidden inner part must not come out there.
+    beside = np.flatnonzero((sd < 0) & (extra > 0))
+    p[beside] = np.minimum(p[beside], t[beside] - sd[beside] - _BESIDE * extra[beside])
     if wall is not None:
         wet_index, wet_tree, blocked_tree = wall
         sel = np.flatnonzero(k != 0)  # nearest to a wet or an excluded sample
@@ -276,7 +323,8 @@ def _phi(tree, samples, points, normals, thick: Thickness, kind, rim, edge, dept
             ok = j >= 0
             d_w[cut] = d_cut
             cut, j, d_cut = cut[ok], wet_index[j[ok]], d_cut[ok]
-            dj = _signed(q[cut] - samples[j], normals[j], d_cut, tol)[0]
+            dj = _signed(q[cut] - samples[j], normals[j], d_cut, tol,
+                         None if edges is None else edges.past(j, q[cut]))[0]
             p[sel[cut]] = np.minimum(thick.value[j] - dj, dj + depth[j])
         p[sel] = np.minimum(p[sel], 0.5 * (d_b - d_w))
     phi[found] = np.where(np.isfinite(p) & (d < reach), p, -reach)
