@@ -63,8 +63,10 @@ def test_a_rivulet_down_a_sharp_edge_gets_a_coat_as_thin_as_its_ice():
     assert trimesh.Trimesh(verts, faces, process=False).is_watertight
     q = np.abs(verts) - half
     out = np.linalg.norm(np.maximum(q, 0.0), axis=1) + np.minimum(q.max(axis=1), 0.0)
-    # Never much past its thickness (marching cubes places the surface to a fraction of a
-    # voxel), and there all along the rivulet.
-    assert out.max() <= 0.0012 + 0.25 * voxel, f"the coat stands {out.max() * 1000:.1f} mm off the post"
+    # Never past its thickness but for marching's error (the coat's signed distance is
+    # exact on the faces, and round past the edge: the largest of the two faces' planes), and
+    # there all along the rivulet. With the faces' planes alone (the edge's offset, no plane
+    # across) it stood 1.54 mm off the post at the end of the rivulet.
+    assert out.max() <= 0.0012 + 0.05 * voxel, f"the coat stands {out.max() * 1000:.2f} mm off the post"
     along = (verts[:, 0] > half[0]) & (np.abs(verts[:, 2]) < 0.1)
     assert np.ptp(verts[along, 2]) > 0.19 and np.median(out[along]) > 0.0008

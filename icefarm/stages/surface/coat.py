@@ -13,8 +13,8 @@ touch an excluded vertex (the sole an object stands on) get none at all.
 D and T come from an even sample of the surface (``SPACING`` voxels apart, with face
 normals): a lattice sample takes its nearest surface sample (a k-d tree) and
 ``D = (p - s) . n``, rounded off with the lateral offset past the sample spacing so that
-convex creases get round offsets instead of fins (past a sharp convex edge near the sample,
-the offset past that edge: the sample's plane ends there), and T carried from the sample to the
+convex creases get round offsets instead of fins (near a sharp convex edge, the offset past
+it, and at least the height over the plane across it: the sample's plane ends there), and T carried from the sample to the
 foot by the thickness's slope along the face; dry samples bound the coat (a lattice
 sample nearer to a dry face than to a wet one is not under the wet one, so the inner
 face never comes out through a thin wall) and carry the taper, from the distance to the
@@ -55,8 +55,8 @@ _CREASE = math.radians(1.0)
 # picket edges, wet with thin rivulets); under this the plane strays under a third of a
 # voxel off the surface.
 _SHARP = math.radians(15.0)
-# Odd 63-bit multipliers: rows of 8 integers hash to one (collisions about n^2 / 2^64).
-_LINE_HASH = np.random.default_rng(20261126).integers(2**61, 2**62, 8) * 2 + 1
+# Odd 63-bit multipliers: rows of 11 integers hash to one (collisions about n^2 / 2^64).
+_LINE_HASH = np.random.default_rng(20261126).integers(2**61, 2**62, 11) * 2 + 1
 
 
 def coat_field(flow_mesh: trimesh.Trimesh, thickness: np.ndarray, wet: np.ndarray, voxel: float,
@@ -257,15 +257,18 @@ def _convex_edges(mesh: trimesh.Trimesh, face: np.ndarray, reach: float) -> Edge
     inward *= np.where(np.einsum("kd,kd->k", inward, mesh.triangles[f].mean(axis=1) - a) < 0, -1.0, 1.0)[:, None]
     inward /= np.maximum(np.linalg.norm(inward, axis=1), 1e-300)[:, None]
     level = np.einsum("kd,kd->k", a, inward)
+    n_across = mesh.face_normals[adj[sharp][:, ::-1].ravel()]  # the other face's, across the edge
     # The segments of one straight edge (a box's, split by a refinement) are one line: the
-    # same plane, the same side, the same line in it.
+    # same plane, the same side, the same line in it, the same plane across.
     n_f = mesh.face_normals[f]
     offset = np.einsum("kd,kd->k", a, n_f)
-    key = np.round(np.c_[inward * 1e4, n_f * 1e4, np.c_[level, offset] / mesh.scale * 1e5]).astype(np.int64)
+    key = np.round(np.c_[inward * 1e4, n_f * 1e4, n_across * 1e4,
+                         np.c_[level, offset] / mesh.scale * 1e5]).astype(np.int64)
     key = key @ _LINE_HASH  # unique(axis=0) took 7 ms of the dragon's 12,576 lines
     _, line_of, inverse = np.unique(key, return_index=True, return_inverse=True)
     inverse = inverse.reshape(-1)
     inward, level, normal = inward[line_of], level[line_of], n_f[line_of]
+    across, across_level = n_across[line_of], np.einsum("kd,kd->k", a[line_of], n_across[line_of])
     n_lines = len(line_of)
     # Each line spreads ring by ring across the faces of its plane while within reach.
     flat = adj[(angle < _SHARP / 3) & both]
@@ -303,11 +306,12 @@ def _convex_edges(mesh: trimesh.Trimesh, face: np.ndarray, reach: float) -> Edge
     rows = np.unique(rec_face)
     row_of = np.full(n_faces, -1)
     row_of[rows] = np.arange(len(rows))
-    w = np.zeros((len(rows), 3, 3))
-    lv = np.full((len(rows), 3), -np.inf)
-    w[row_of[rec_face], slot] = inward[rec_line]
-    lv[row_of[rec_face], slot] = level[rec_line]
-    return Edges(row_of[face], w, lv)
+    w, n = np.zeros((len(rows), 3, 3)), np.zeros((len(rows), 3, 3))
+    lv, nv = np.full((len(rows), 3), -np.inf), np.full((len(rows), 3), -np.inf)
+    r = row_of[rec_face]
+    w[r, slot], lv[r, slot] = inward[rec_line], level[rec_line]
+    n[r, slot], nv[r, slot] = across[rec_line], across_level[rec_line]
+    return Edges(row_of[face], w, lv, n, nv)
 
 
 def _features(mesh: trimesh.Trimesh, faces: np.ndarray, kind: np.ndarray, spacing: float):
