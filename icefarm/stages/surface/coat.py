@@ -236,7 +236,9 @@ def _convex_edges(mesh: trimesh.Trimesh, face: np.ndarray, reach: float) -> Edge
     adj = mesh.face_adjacency
     angle = mesh.face_adjacency_angles
     both = used[adj].all(axis=1)  # lines spread over the sampled faces only
-    sharp = np.flatnonzero((angle > _SHARP) & used[adj].any(axis=1))
+    # (faces without a normal, of no area, bound nothing)
+    planar = np.linalg.norm(mesh.face_normals, axis=1) > 0.5
+    sharp = np.flatnonzero((angle > _SHARP) & used[adj].any(axis=1) & planar[adj].all(axis=1))
     # Convex: the far corner of the second face lies under the first one's plane (trimesh's
     # face_adjacency_convex takes every pair: 80 ms of the 3 m house's 1.4 M).
     edge = mesh.face_adjacency_edges[sharp]
