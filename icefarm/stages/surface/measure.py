@@ -34,12 +34,10 @@ _EXPONENTS = tuple(np.round(np.arange(0.2, 2.0001, 0.01), 2))
 MAX_MEASURED = 200
 SLAB_CHUNK = 2000
 
-# Ripple texture (`ripple_texture`): trunks this long and more (at most TEXTURE_TRUNKS of
-# them: 0.6 s of the table's measure for 200), radius sampled every
+# Ripple texture (`ripple_texture`): trunks this long and more, radius sampled every
 # TEXTURE_STEP in slabs TEXTURE_SLAB thick over TEXTURE_SPAN of the length, compared
 # TEXTURE_LAG apart; crests are maxima above CREST_SIGMA standard deviations.
 TEXTURE_MIN_LENGTH = 0.10
-TEXTURE_TRUNKS = 32  # at most, evenly over the icicles: the figures are medians
 TEXTURE_STEP = 0.001
 TEXTURE_SLAB = 0.0006
 TEXTURE_SPAN = (0.2, 0.8)
@@ -132,8 +130,8 @@ def ripple_texture(vertices: np.ndarray, faces: np.ndarray, traj: TrajectoryResu
         return RippleTexture.none()
     x_pt, lengths = arc_lengths(traj.points, traj.branch_offsets)
     trunks = trunks[lengths[trunks] >= TEXTURE_MIN_LENGTH]
-    if len(trunks) > TEXTURE_TRUNKS:
-        trunks = trunks[np.linspace(0, len(trunks) - 1, TEXTURE_TRUNKS).round().astype(np.int64)]
+    if len(trunks) > MAX_MEASURED:
+        trunks = trunks[np.linspace(0, len(trunks) - 1, MAX_MEASURED).round().astype(np.int64)]
     if len(trunks) == 0:
         return RippleTexture.none()
     tree = tree if tree is not None else cKDTree(vertices, balanced_tree=False, compact_nodes=False)
@@ -145,10 +143,17 @@ def ripple_texture(vertices: np.ndarray, faces: np.ndarray, traj: TrajectoryResu
     x = (lo * L)[owner] + k * TEXTURE_STEP
     axis, tangent = points_along(traj, x_pt, lengths, trunks[owner], x)
     r = _slab_radius(axis, tangent, vertices, tree, TEXTURE_SLAB, 0.002, (faces, owner, x, TEXTURE_STEP))
+    return _texture([r[owner == j] for j in range(len(trunks))])
+
+
+def _texture(profiles: list[np.ndarray]) -> RippleTexture:
+    """`RippleTexture` of trunks' radius profiles (meters), each sampled every
+    `TEXTURE_STEP` over `TEXTURE_SPAN` of its trunk's length."""
     lag = int(round(TEXTURE_LAG / TEXTURE_STEP))
     depth, corr, cv = [], [], []
-    for j in range(len(trunks)):
-        rj = r[owner == j]
+    for rj in profiles:
+        if len(rj) < 3:
+            continue
         u = np.linspace(-1.0, 1.0, len(rj))
         rest = rj - np.polyval(np.polyfit(u, rj, 2), u)
         sigma = float(rest.std())
@@ -170,9 +175,11 @@ def measure_icicles(vertices: np.ndarray, faces: np.ndarray, traj: TrajectoryRes
                     surface: SurfaceParams, sample_step: float = 0.001) -> IcicleStats:
     """Physical plausibility of the icicles, measured on the ice mesh.
 
-    The radius of a trunk at arc length x is the distance from its axis point to the nearest
-    ice vertex (vertices lie on the iso-surface), sampled every ``sample_step`` from
-    ``TAPER_AT`` of its length to ``FIT_END``.
+    The radius of a trunk at arc length x is the median distance from its axis of the ice in
+    a `TEXTURE_SLAB` slab across it (its vertices and where its edges cross the slab's
+    mid-plane, `_slab_radius`), sampled every ``sample_step`` from ``TAPER_AT`` of its
+    length to ``FIT_END``. The ripple texture reads the same samples over `TEXTURE_SPAN`
+    of the trunks of `TEXTURE_MIN_LENGTH` and more (one pass over the mesh, not two).
 
     Parameters
     ----------
@@ -221,17 +228,20 @@ def measure_icicles(vertices: np.ndarray, faces: np.ndarray, traj: TrajectoryRes
     k = ragged_arange(n)
     x = (TAPER_AT * L)[owner] + k * sample_step
     axis, tangent = points_along(traj, x_pt, lengths, trunks[owner], x)
-    r = _slab_radius(axis, tangent, vertices, tree, sample_step,
+    r = _slab_radius(axis, tangent, vertices, tree, TEXTURE_SLAB,
                      2 * surface.ripple_amplitude * surface.impurity, (faces, owner, x, sample_step))
 
     tip = surface.tip_radius
     amplitude = surface.ripple_amplitude * surface.impurity
     fs = surface.ripple_frequency
     taper, growth, exponent = empty.copy(), empty.copy(), empty.copy()
-    amplitudes, spectra = [], []
+    amplitudes, spectra, textured = [], [], []
+    lo, hi = TEXTURE_SPAN
     for j in np.flatnonzero(ok):
         sel = owner == j
         xj, rj = x[sel], r[sel]
+        if L[j] >= TEXTURE_MIN_LENGTH:
+            textured.append(rj[(xj >= lo * L[j]) & (xj <= hi * L[j])])
         taper[j] = rj[0] / tip
         grown = grown_all[j]  # the profile of a cut icicle runs on below the ground
         d = grown - xj
@@ -254,8 +264,9 @@ def measure_icicles(vertices: np.ndarray, faces: np.ndarray, traj: TrajectoryRes
         if amp > RIPPLE_SIGNAL * noise:
             ripple_mm = float(amp * 1000)
             wavelength = _dominant_period(spectra, sample_step) * 100
-    return IcicleStats(tip_mm, taper, growth, exponent, ripple_mm, wavelength,
-                       ripple_texture(vertices, faces, traj, tree))
+    texture = (_texture(textured) if sample_step == TEXTURE_STEP
+               else ripple_texture(vertices, faces, traj, tree))
+    return IcicleStats(tip_mm, taper, growth, exponent, ripple_mm, wavelength, texture)
 
 
 def _band_amplitude(residual: np.ndarray, step: float, fs: float) -> tuple[float, float]:
@@ -338,7 +349,7 @@ def _crossings(axis, tangent, vertices, near, faces, trunk, x, step):
     crosses the planes of that trunk's points between their arc lengths, at the radius
     interpolated between them. One pass over the edges, not one per plane: on the table
     (lookdev), `measure_icicles` took 5.8 s with the edges at each plane searched for the
-    crossing, 3.0 s this way (2.2 s on vertices alone).
+    crossing, 2.0-2.3 s this way (2.2 s on vertices alone).
     """
     k = cKDTree(axis, balanced_tree=False, compact_nodes=False).query(vertices[near])[1]
     rel = vertices[near] - axis[k]
