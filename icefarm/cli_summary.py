@@ -64,6 +64,10 @@ def print_job_summary(timings: dict) -> None:
                + ("none above the mesh's noise in the radius spectrum" if amplitude is None
                   else f"{amplitude:.2f} mm deep, {ripple:.2f} cm apart")
                + " (real: 0.5-1 mm, about 1 cm apart, where the water is impure)")
+    coarse = timings.get("coarse_voxel_mm")
+    if coarse is not None:
+        click.echo(f"  face budget: the icicles' thick parts meshed at {coarse:.1f} mm, too coarse to carry ripples; "
+                   "surface.error_px=0 meshes them on one lattice, rippled, with more faces")
     depth, corr, cv = (timings.get(k) for k in ("ripple_depth_mm", "ripple_correlation_3cm", "ripple_crest_cv"))
     if depth is not None and corr is not None and cv is not None:
         click.echo(f"  ripple texture on {timings.get('ripple_trunks', 0)} trunks of 10 cm and more: {depth:.2f} mm "

@@ -256,9 +256,9 @@ PARAMS: tuple[Param, ...] = (
        "the voxel sizes (Table 2's polygon counts)", low=0),
     _p("surface", "error_px", "-", "px", _F, 0.15,
        "storm.mode physical: how far the icicles' mesh may lie off their exact surface, in pixels of "
-       "a 480-pixel view framing the object; where that allows, their thick parts are meshed on a "
-       "lattice 3 times coarser than their tips (a 3 m house: 7.8 M faces to under 3 M); 0: one "
-       "lattice", low=0.0),
+       "a 480-pixel view framing the object; where that allows and one lattice would not hold "
+       "surface.face_budget, their thick parts are meshed on a lattice 3 times coarser than their "
+       "tips, without ripples (a 3 m house: 7.8 M faces to under 3 M); 0: one lattice", low=0.0),
     _p("surface", "curtain", "-", "m", _F, 0.0,
        "icicles whose trunks hang closer than this are joined by a sheet of ice, thick near their "
        "bases, draped between them, down to the shorter one's tip (as along eaves); 0: none; "

@@ -296,6 +296,8 @@ def _surface_and_render(spec: JobSpec, job_dir: Path, run: _Run, until: Stage | 
         "ripple_correlation_3cm": _finite(m.ripple_texture.correlation_3cm),
         "ripple_crest_cv": _finite(m.ripple_texture.crest_cv), "ripple_trunks": m.ripple_texture.trunks,
     }
+    if ice.coarse_voxel is not None:
+        stats["coarse_voxel_mm"] = round(1000 * ice.coarse_voxel, 3)
     if p.surface.curtain > 0:
         stats["curtain_area_m2"] = round(ice.curtain_area, 6)
     if spec.render is None or stops(until, Stage.SURFACE):

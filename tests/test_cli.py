@@ -173,3 +173,17 @@ def test_run_says_what_the_storm_did_and_warns_when_little_shows(tmp_path):
                 "--set", "storm.flow_edge=0.05", "-o", tmp_path / "table")
     assert table.exit_code == 0, table.output
     assert "warning:" not in table.output and "icicles, " in table.output
+
+
+def test_the_summary_says_when_the_face_budget_left_the_ripples_off(capsys):
+    """A big asset's thick icicles, meshed on the budget's coarse lattice, carry no ripple:
+    the run says so and how to keep them, rather than only "none above the noise"."""
+    from icefarm.cli_summary import print_job_summary
+
+    timings = {"ice_faces": 10, "icicles": 2, "tip_radius_mm": 2.4, "ripple_amplitude_mm": None,
+               "ripple_wavelength_cm": None}
+    print_job_summary(timings)
+    assert "face budget" not in capsys.readouterr().out
+    print_job_summary({**timings, "coarse_voxel_mm": 7.3})
+    line = next(s for s in capsys.readouterr().out.splitlines() if "face budget" in s)
+    assert "7.3 mm" in line and "surface.error_px=0" in line

@@ -129,6 +129,8 @@ def test_a_big_asset_meshes_fewer_faces_with_the_same_icicles_and_stays_watertig
     # (a trunk too short to measure has no taper: NaN)
     assert np.nanmedian(stats.taper) == pytest.approx(np.nanmedian(full_stats.taper), rel=0.15)
     assert budget.vertices[:, 1].min() == pytest.approx(full.vertices[:, 1].min(), abs=0.002)
+    # the job says which lattice its thick parts got (the run prints why they carry no ripple)
+    assert budget.coarse_voxel > 2 * tip and full.coarse_voxel is None
 
 
 def _hanging_chains(n, length, r_top, spacing=0.03):
@@ -178,3 +180,25 @@ def test_the_face_count_of_two_lattices_is_what_marching_them_makes():
     assert _icicle_faces(fine_voxel, 3 * fine_voxel, coarse, thin) == pytest.approx(marched, rel=0.05)
     # counted on one lattice, the same balls make several times more
     assert _icicle_faces(fine_voxel, None, balls, None) > 2 * marched
+
+
+@pytest.mark.slow
+def test_the_coarse_lattice_only_when_one_lattice_cannot_hold_the_face_budget():
+    """The coarse lattice carries no ripple, so it is kept for assets whose ice one lattice
+    cannot hold. The 3.5 m street lamp at the defaults had its thick parts at 3 mm, ripples
+    0.2 mm (texture); one lattice holds it in 1.1 M faces, rippled. Squeezed to a 200 k face
+    budget, it still splits."""
+    from icefarm import params
+    from icefarm.chain import run_stages
+    from icefarm.generators import generate
+    from icefarm.mesh import prepare
+    from icefarm.stages.surface.measure import measure_icicles
+
+    prep = prepare(generate("lamp"), 3.5)
+    for face_budget, split in ((3_000_000, False), (200_000, True)):
+        p = params.resolve({"surface": {"face_budget": face_budget}})
+        ice = run_stages(prep, p, 0).ice
+        texture = measure_icicles(ice.vertices, ice.faces, ice.axes, p.surface).ripple_texture
+        assert len(ice.faces) <= 1.1 * face_budget
+        assert (ice.coarse_voxel is not None) == split
+        assert (texture.depth_mm >= 0.4) != split

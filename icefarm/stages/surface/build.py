@@ -62,6 +62,9 @@ class IceResult:
     axes : TrajectoryResult or None
         The branches the icicles were built on: stage 3's, with roots on a rim moved in
         under the object (`hang_roots`); what measures of the ice take as axes.
+    coarse_voxel : float or None
+        Voxel of the lattice the face budget meshed the icicles' thick parts on, meters
+        (`coarse_voxel`): no ripple is carved where an icicle is that thick. None: one lattice.
     """
 
     vertices: np.ndarray
@@ -70,6 +73,7 @@ class IceResult:
     balls: int
     curtain_area: float = 0.0
     axes: TrajectoryResult | None = None
+    coarse_voxel: float | None = None
 
 
 def build_ice(object_mesh: trimesh.Trimesh, flow_mesh: trimesh.Trimesh, water: WaterResult,
@@ -153,7 +157,7 @@ def build_ice(object_mesh: trimesh.Trimesh, flow_mesh: trimesh.Trimesh, water: W
         raise ValueError("trajectories.branch_offsets must have n_branches + 1 entries ending at len(points)")
     if surface.mode == "tubes":
         verts, faces = tube_mesh(trajectories, surface, g)
-        n_balls, curtain_area = 0, 0.0
+        n_balls, curtain_area, coarse = 0, 0.0, None
     else:
         voxel = surface.voxel_size
         budget = surface.face_budget if water.storm is not None else 0
@@ -187,10 +191,16 @@ def build_ice(object_mesh: trimesh.Trimesh, flow_mesh: trimesh.Trimesh, water: W
             clearance = _coat_reach(coat_surface.mesh, coat_surface.water, glaze, coat, coarse, fine_voxel)
             return coarse, *split_balls(ice, coarse, coat_surface.mesh.vertices, clearance, chain)
 
+        coarse, fine = None, None
         if budget:
-            voxel = fitted_voxel(lambda v: _icicle_faces(v, *lattices(v)), surface,
-                                 budget_voxel(trajectories, surface, ICICLE_SHARE * budget), ICICLE_SHARE * budget)
-        coarse, ice, fine = lattices(voxel)
+            # One lattice, rippled, whenever it holds the budget; the coarse lattice (whose
+            # thick parts carry no ripple) only where even the tips' coarsest voxel would not.
+            share = ICICLE_SHARE * budget
+            guess = budget_voxel(trajectories, surface, share)
+            voxel = fitted_voxel(lambda v: _icicle_faces(v, None, ice, None), surface, guess, share)
+            if _icicle_faces(voxel, None, ice, None) > (1 + FIT_SLACK) * share:
+                voxel = fitted_voxel(lambda v: _icicle_faces(v, *lattices(v)), surface, guess, share)
+                coarse, ice, fine = lattices(voxel)
         voxel_ice = voxel if coarse is None else coarse
         note(f"icicle field: {len(ice) + (len(fine) if fine is not None else 0):,} balls at "
              f"{voxel_ice * 1000:.2g}" + (f" and {voxel * 1000:.2g}" if fine is not None else "") + " mm")
@@ -206,7 +216,7 @@ def build_ice(object_mesh: trimesh.Trimesh, flow_mesh: trimesh.Trimesh, water: W
         verts, faces = clean_slivers(verts, faces, SLIVER * voxel, near=thin)
         n_balls, curtain_area = len(ice), curtains.area
     return IceResult(verts, faces, measure_icicles(verts, faces, trajectories, surface) if measure else None,
-                     n_balls, curtain_area, trajectories)
+                     n_balls, curtain_area, trajectories, coarse)
 
 
 def _ripple(surface: SurfaceParams) -> tuple[float, float]:
