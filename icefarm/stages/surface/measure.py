@@ -320,7 +320,8 @@ def _slab_radius(axis, tangent, vertices, tree, thickness, slack, section=None):
         slab = np.abs(along) <= 0.5 * thickness
         owners.append(owner[slab])
         radials.append(radial[slab])
-        seen[idx] = True
+        if section is not None:
+            seen[idx] = True
     if section is not None:
         owner, radial = _crossings(axis, tangent, vertices, np.flatnonzero(seen), *section)
         keep = radial <= reach[owner]
@@ -341,8 +342,9 @@ def _slab_radius(axis, tangent, vertices, tree, thickness, slack, section=None):
 
 
 def _crossings(axis, tangent, vertices, near, faces, trunk, x, step):
-    """``(point, radial)``: where the edges among the ``near`` vertices cross the planes
-    across the axis at ``axis`` (k, 3), and their distance from it.
+    """``(sample, radius)`` of each point where an edge among the ``near`` vertices crosses
+    the plane across the axis at a sample ``axis`` (k, 3): the sample's index, and the
+    point's distance from the axis.
 
     Each vertex takes its nearest axis point's trunk, arc length (``x`` plus its offset along
     the tangent) and distance from the axis; an edge whose two ends lie on one trunk
@@ -368,7 +370,8 @@ def _crossings(axis, tangent, vertices, near, faces, trunk, x, step):
     a, b = a[up], b[up]
     first = np.searchsorted(trunk, np.arange(int(trunk.max()) + 1))
     points = np.bincount(trunk, minlength=len(first))
-    start, x0 = first[t[a]], x[np.minimum(first[t[a]], len(x) - 1)]
+    start = first[t[a]]
+    x0 = x[start]
     lo = np.maximum(np.floor((s[a] - x0) / step).astype(np.int64) + 1, 0)
     hi = np.minimum(np.floor((s[b] - x0) / step).astype(np.int64), points[t[a]] - 1)
     count = np.maximum(hi - lo + 1, 0)
