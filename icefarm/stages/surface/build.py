@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable
 
@@ -197,8 +198,9 @@ def build_ice(object_mesh: trimesh.Trimesh, flow_mesh: trimesh.Trimesh, water: W
             # thick parts carry no ripple) only where even the tips' coarsest voxel would not.
             share = ICICLE_SHARE * budget
             guess = budget_voxel(trajectories, surface, share)
-            voxel = fitted_voxel(lambda v: _icicle_faces(v, None, ice, None), surface, guess, share)
-            if _icicle_faces(voxel, None, ice, None) > (1 + FIT_SLACK) * share:
+            one_lattice = functools.lru_cache(maxsize=None)(lambda v: _icicle_faces(v, None, ice, None))
+            voxel = fitted_voxel(one_lattice, surface, guess, share)
+            if one_lattice(voxel) > (1 + FIT_SLACK) * share:  # counted already when the fit settled
                 voxel = fitted_voxel(lambda v: _icicle_faces(v, *lattices(v)), surface, guess, share)
                 coarse, ice, fine = lattices(voxel)
         voxel_ice = voxel if coarse is None else coarse
