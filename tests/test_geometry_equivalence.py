@@ -143,3 +143,41 @@ def test_nearest_is_scipys_nearest_neighbour():
     assert (nearest(point_index(points), query)[1] >= 0).all()
     assert (nearest(point_index(np.zeros((0, 3))), query[:5])[1] == -1).all()
     assert nearest(point_index(points), np.zeros((0, 3)))[0].shape == (0,)
+
+
+def test_near_caster_hits_what_the_whole_tree_hits():
+    # Fine faces beside coarse ones (an icicle's lattice beside a glaze coat's), and few rays
+    # for the mesh, so that the first round's tree holds a small part of it: rays that hit
+    # close, hit past the first round, start outside the box, run along an axis or miss.
+    rng = np.random.default_rng(3)
+    fine = trimesh.creation.icosphere(subdivisions=5, radius=0.15)
+    fine.vertices += rng.normal(scale=0.001, size=fine.vertices.shape)
+    coarse = trimesh.creation.box(extents=(0.6, 0.6, 0.05))
+    coarse.apply_translation([0.0, 0.0, -0.3])
+    mesh = trimesh.util.concatenate([fine, coarse])
+    n = 150
+    origins = np.concatenate([fine.vertices[rng.integers(0, len(fine.vertices), n)] + rng.normal(0, 0.01, (n, 3)),
+                              rng.uniform(-0.5, 0.5, (n, 3))])
+    directions = rng.normal(size=(2 * n, 3))
+    axis = np.arange(0, 2 * n, 7)
+    directions[axis] = np.eye(3)[rng.integers(0, 3, len(axis))] * rng.choice([-1.0, 1.0], (len(axis), 1))
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    want_d, want_f = geometry.ray_caster(mesh)(origins, directions)
+    got_d, got_f = geometry.near_caster(mesh.vertices, mesh.faces, 0.02)(origins, directions)
+    np.testing.assert_array_equal(got_f, want_f)
+    np.testing.assert_array_equal(got_d, want_d)
+    assert 0.2 < np.isfinite(want_d).mean() < 0.9  # hits and misses both tried
+    assert (want_d[np.isfinite(want_d)] > 0.1).sum() > 20  # and hits past the first round
+
+
+def test_near_caster_misses_where_no_face_comes_near(sphere):
+    cast = geometry.near_caster(sphere.vertices, sphere.faces, 0.01)
+    # outside the box; through a corner of the box, past the sphere (no face near); a hit
+    distance, face = cast(np.array([[1.0, 1.0, 1.0], [0.14, 0.14, -1.0], [0.0, 0.0, 0.0]]),
+                          np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, 0.0, 1.0]]))
+    assert np.isinf(distance[:2]).all() and (face[:2] == -1).all()
+    assert distance[2] == pytest.approx(0.15, abs=0.01) and face[2] >= 0
+    distance, face = cast(np.array([[0.14, 0.14, -1.0]]), np.array([[0.0, 0.0, 1.0]]))  # alone: no face at all
+    assert np.isinf(distance[0]) and face[0] == -1
+    empty = geometry.near_caster(np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64), 0.01)
+    assert np.isinf(empty(np.zeros((2, 3)), np.eye(3)[:2])[0]).all()

@@ -26,7 +26,7 @@ import numpy as np
 import trimesh
 
 from ...params import GlazeParams
-from ...geometry import nearest, point_index, random_barycentric, ray_caster, sample_faces, unit
+from ...geometry import near_caster, nearest, point_index, random_barycentric, ray_caster, sample_faces, unit
 from ...metaballs import Field, sample_field
 from ...metaballs.balls import NO_BALLS, Balls, sheet_balls
 from ...tol import tol
@@ -45,6 +45,9 @@ COAT_FACES_PER_VOXEL_AREA = 8.0
 # measure_glaze: rays start `tol.ray_under_m` under the surface and count ice that starts
 # within REACH (m) above it.
 REACH = 0.01
+# `measure_glaze` builds its first tree over the ice this far along its rays (meters): past
+# the thickest coats the storms lay (25 mm is crippling), so few rays need a second round.
+GLAZE_CAST_REACH = 0.05
 # `carry_water` splits the object's edges down to this many times the flow mesh's median
 # edge: as fine as the wrap's (1), the teapot's spout took the wrap's patchy wet and dry
 # faces as islands of coat with ragged rims; at 3 its coat is as smooth as unsplit.
@@ -441,8 +444,8 @@ def measure_glaze(ice_vertices: np.ndarray, ice_faces: np.ndarray, flow_mesh: tr
     if len(ice_faces):
         ice_vertices = np.asarray(ice_vertices, dtype=np.float64)
         ice_faces = np.asarray(ice_faces)
-        if cast is None:
-            cast = ray_caster(trimesh.Trimesh(ice_vertices, ice_faces, process=False))
+        if cast is None:  # a tree over the faces near the rays only: most stop in the coat
+            cast = near_caster(ice_vertices, ice_faces, GLAZE_CAST_REACH)
         start, past = tol.ray_under_m, tol.ray_past_m
         d1, f1 = cast(pts - start * normal, normal)
         hit = np.flatnonzero(np.isfinite(d1))

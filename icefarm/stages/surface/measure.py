@@ -2,14 +2,13 @@
 
 from __future__ import annotations
 
-import itertools
 import math
 from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ...geometry import arc_lengths, ragged_arange
+from ...geometry import arc_lengths, nearest, point_index, ragged_arange
 from ...params import SurfaceParams
 from ..trajectories import TrajectoryResult
 from .profile import points_along, grown_lengths
@@ -113,7 +112,7 @@ class IcicleStats:
     ripple_texture: RippleTexture = field(default_factory=lambda: RippleTexture.none())
 
 
-def ripple_texture(vertices: np.ndarray, faces: np.ndarray, traj: TrajectoryResult, tree=None) -> RippleTexture:
+def ripple_texture(vertices: np.ndarray, faces: np.ndarray, traj: TrajectoryResult) -> RippleTexture:
     """`RippleTexture` of the trunks of ``traj`` on an ice mesh (``vertices`` (n, 3) in
     meters, ``faces`` (m, 3)).
 
@@ -134,7 +133,6 @@ def ripple_texture(vertices: np.ndarray, faces: np.ndarray, traj: TrajectoryResu
         trunks = trunks[np.linspace(0, len(trunks) - 1, MAX_MEASURED).round().astype(np.int64)]
     if len(trunks) == 0:
         return RippleTexture.none()
-    tree = tree if tree is not None else cKDTree(vertices, balanced_tree=False, compact_nodes=False)
     L = lengths[trunks]
     lo, hi = TEXTURE_SPAN
     n = ((hi - lo) * L / TEXTURE_STEP).astype(np.int64) + 1
@@ -142,7 +140,8 @@ def ripple_texture(vertices: np.ndarray, faces: np.ndarray, traj: TrajectoryResu
     k = ragged_arange(n)
     x = (lo * L)[owner] + k * TEXTURE_STEP
     axis, tangent = points_along(traj, x_pt, lengths, trunks[owner], x)
-    r = _slab_radius(axis, tangent, vertices, tree, TEXTURE_SLAB, 0.002, (faces, owner, x, TEXTURE_STEP))
+    r = _slab_radius(axis, tangent, vertices, point_index(vertices), faces, owner, x, TEXTURE_STEP, TEXTURE_SLAB,
+                     0.002)
     return _texture([r[owner == j] for j in range(len(trunks))])
 
 
@@ -207,12 +206,12 @@ def measure_icicles(vertices: np.ndarray, faces: np.ndarray, traj: TrajectoryRes
         return IcicleStats(nan, empty, empty.copy(), empty.copy(), nan, nan)
     x_pt, lengths = arc_lengths(traj.points, traj.branch_offsets)
     pts = np.asarray(traj.points, dtype=np.float64)
-    tree = cKDTree(vertices, balanced_tree=False, compact_nodes=False)
+    index = point_index(vertices)
 
     tips = pts[off[trunks + 1] - 1]
     direction = tips - pts[np.maximum(off[trunks + 1] - 2, off[trunks])]
     direction /= np.maximum(np.linalg.norm(direction, axis=1, keepdims=True), 1e-300)
-    tip_d = _tip_radius(tips, direction, vertices, tree)
+    tip_d = _tip_radius(tips, direction, vertices, index)
     cut = traj.cut[trunks]
     grown_all = grown_lengths(lengths[trunks], cut)
     tip_d[cut > 0] = np.nan  # its end stands on the ground: a column's foot, not a drop
@@ -228,8 +227,8 @@ def measure_icicles(vertices: np.ndarray, faces: np.ndarray, traj: TrajectoryRes
     k = ragged_arange(n)
     x = (TAPER_AT * L)[owner] + k * sample_step
     axis, tangent = points_along(traj, x_pt, lengths, trunks[owner], x)
-    r = _slab_radius(axis, tangent, vertices, tree, TEXTURE_SLAB,
-                     2 * surface.ripple_amplitude * surface.impurity, (faces, owner, x, sample_step))
+    r = _slab_radius(axis, tangent, vertices, index, faces, owner, x, sample_step, TEXTURE_SLAB,
+                     2 * surface.ripple_amplitude * surface.impurity)
 
     tip = surface.tip_radius
     amplitude = surface.ripple_amplitude * surface.impurity
@@ -265,7 +264,7 @@ def measure_icicles(vertices: np.ndarray, faces: np.ndarray, traj: TrajectoryRes
             ripple_mm = float(amp * 1000)
             wavelength = _dominant_period(spectra, sample_step) * 100
     texture = (_texture(textured) if sample_step == TEXTURE_STEP
-               else ripple_texture(vertices, faces, traj, tree))
+               else ripple_texture(vertices, faces, traj))
     return IcicleStats(tip_mm, taper, growth, exponent, ripple_mm, wavelength, texture)
 
 
@@ -286,48 +285,42 @@ def _band_amplitude(residual: np.ndarray, step: float, fs: float) -> tuple[float
     return amp, noise
 
 
-def _slab_radius(axis, tangent, vertices, tree, thickness, slack, section=None):
+def _slab_radius(axis, tangent, vertices, index, faces, trunk, x, step, thickness, slack):
     """Radius of the ice around each axis point (k, 3): the median distance from the axis of
-    the vertices in a slab ``thickness`` thick across it, within ``slack`` (and a margin)
-    of the nearest vertex's distance; the nearest vertex's distance where the slab is empty.
+    the ice in a slab ``thickness`` thick across it, within ``slack`` (and a margin) of the
+    nearest vertex's distance (``index``: `icefarm.geometry.point_index` of ``vertices``);
+    the nearest vertex's distance where the slab is empty.
 
-    With ``section`` ``(faces, trunk, x, step)`` (the mesh's faces (m, 3); each axis point's
-    trunk (k,) and arc length (k,), its trunk's points ``step`` apart and in order), where
-    the mesh's edges cross each point's plane across the axis counts too (`_crossings`),
-    so no slab is empty. Without it a slab thinner than the mesh's vertex spacing misses
-    the vertices every other step and falls back to the nearest vertex, which under-reads:
-    on the eaves (2 mm voxel) the radius sampled every 1 mm in 0.6 mm slabs alternated by
-    about 0.5 mm, half the crest spacings read 2 mm, and the ripple's band drowned in that
-    noise (the bench's ripples read "none").
+    The ice in a slab is its vertices and the points where the mesh's edges (``faces``
+    (m, 3)) cross the point's plane across the axis (`_crossings`; each axis point's trunk
+    ``trunk`` (k,) and arc length ``x`` (k,), its trunk's points ``step`` apart and in
+    order). Vertices alone leave a slab thinner than the mesh's vertex spacing empty every
+    other step, and the nearest vertex, which under-reads, stood in: on the eaves (2 mm
+    voxel) the radius sampled every 1 mm in 0.6 mm slabs alternated by about 0.5 mm, half
+    the crest spacings read 2 mm, and the ripple's band drowned in that noise.
 
-    The nearest vertex alone under-reads ripple crests: a trough a few millimetres along
-    the axis lies closer than the crest.
+    Each vertex belongs to the slab of its nearest axis point, as it does to the planes it
+    crosses: one nearest-point query for the mesh, not a ball query per slab (the car's
+    2.4 M faces at lookdev: 2.35 s with ball queries, under cProfile; see `measure_icicles`).
     """
     if len(axis) == 0:
         return np.zeros(0)
-    near = tree.query(axis)[0]
+    near = nearest(index, axis)[0]
     reach = near + slack + thickness
-    owners, radials = [], []
-    seen = np.zeros(len(vertices), dtype=bool)
-    for i in range(0, len(axis), SLAB_CHUNK):  # a fat icicle's slab holds thousands of vertices: bound the lists
-        lists = tree.query_ball_point(axis[i:i + SLAB_CHUNK], reach[i:i + SLAB_CHUNK], return_sorted=False)
-        counts = np.fromiter(map(len, lists), dtype=np.int64, count=len(lists))
-        owner = np.repeat(np.arange(i, i + len(lists)), counts)
-        idx = np.fromiter(itertools.chain.from_iterable(lists), dtype=np.int64, count=int(counts.sum()))
-        rel = vertices[idx] - axis[owner]
-        along = np.einsum("ij,ij->i", rel, tangent[owner])
-        radial = np.sqrt(np.maximum(np.einsum("ij,ij->i", rel, rel) - along**2, 0.0))
-        slab = np.abs(along) <= 0.5 * thickness
-        owners.append(owner[slab])
-        radials.append(radial[slab])
-        if section is not None:
-            seen[idx] = True
-    if section is not None:
-        owner, radial = _crossings(axis, tangent, vertices, np.flatnonzero(seen), *section)
-        keep = radial <= reach[owner]
-        owners.append(owner[keep])
-        radials.append(radial[keep])
-    owner, radial = np.concatenate(owners), np.concatenate(radials)
+    bound = float(reach.max())
+    box = ((vertices >= axis.min(axis=0) - bound) & (vertices <= axis.max(axis=0) + bound)).all(axis=1)
+    candidates = np.flatnonzero(box)
+    dist, k = nearest(point_index(axis), vertices[candidates], bound)
+    found = (k >= 0) & (dist <= reach[np.maximum(k, 0)])
+    vert, k = candidates[found], k[found]
+    rel = vertices[vert] - axis[k]
+    along = np.einsum("ij,ij->i", rel, tangent[k])
+    radial = np.sqrt(np.maximum(np.einsum("ij,ij->i", rel, rel) - along**2, 0.0))
+    slab = np.abs(along) <= 0.5 * thickness
+    c_owner, c_radial = _crossings(vert, k, along, radial, len(vertices), faces, trunk, x, step)
+    keep = c_radial <= reach[c_owner]
+    owner = np.concatenate([k[slab], c_owner[keep]])
+    radial = np.concatenate([radial[slab], c_radial[keep]])
     # The median of each sample's slab: sort by (sample, radius), take the middle entries.
     order = np.lexsort((radial, owner))
     owner, radial = owner[order], radial[order]
@@ -341,27 +334,25 @@ def _slab_radius(axis, tangent, vertices, tree, thickness, slack, section=None):
     return out
 
 
-def _crossings(axis, tangent, vertices, near, faces, trunk, x, step):
-    """``(sample, radius)`` of each point where an edge among the ``near`` vertices crosses
-    the plane across the axis at a sample ``axis`` (k, 3): the sample's index, and the
-    point's distance from the axis.
+def _crossings(vert, sample, along, radial, n_vertices, faces, trunk, x, step):
+    """``(sample, radius)`` of each point where a mesh edge crosses the plane across the
+    axis at an axis sample: the sample's index, and the point's distance from the axis.
 
-    Each vertex takes its nearest axis point's trunk, arc length (``x`` plus its offset along
-    the tangent) and distance from the axis; an edge whose two ends lie on one trunk
-    crosses the planes of that trunk's points between their arc lengths, at the radius
-    interpolated between them. One pass over the edges, not one per plane: on the table
-    (lookdev), `measure_icicles` took 5.8 s with the edges at each plane searched for the
-    crossing, 2.0-2.3 s this way (2.2 s on vertices alone).
+    ``vert`` (v,) are the vertices near the axis, ``sample`` (v,) the nearest axis sample of
+    each, ``along`` (v,) its offset along that sample's tangent and ``radial`` (v,) its
+    distance from the axis; ``n_vertices`` the mesh's. Each such vertex lies on its sample's
+    trunk (``trunk`` (k,)) at arc length ``x`` (k,) plus its offset; an edge whose two ends
+    lie on one trunk crosses the planes of that trunk's samples (``step`` apart, in order)
+    between their arc lengths, at the radius interpolated between them. One pass over the
+    edges, not one per plane: on the table (lookdev), `measure_icicles` took 5.8 s with the
+    edges at each plane searched for the crossing, 2.0-2.3 s this way.
     """
-    k = cKDTree(axis, balanced_tree=False, compact_nodes=False).query(vertices[near])[1]
-    rel = vertices[near] - axis[k]
-    off = np.einsum("ij,ij->i", rel, tangent[k])
-    s = np.full(len(vertices), np.nan)
-    r = np.full(len(vertices), np.nan)
-    t = np.full(len(vertices), -1, dtype=np.int64)
-    s[near] = x[k] + off
-    r[near] = np.sqrt(np.maximum(np.einsum("ij,ij->i", rel, rel) - off**2, 0.0))
-    t[near] = trunk[k]
+    s = np.full(n_vertices, np.nan)
+    r = np.full(n_vertices, np.nan)
+    t = np.full(n_vertices, -1, dtype=np.int64)
+    s[vert] = x[sample] + along
+    r[vert] = radial
+    t[vert] = trunk[sample]
     inside = t >= 0
     faces = faces[inside[faces].all(axis=1)]
     a, b = faces.ravel(), np.roll(faces, -1, axis=1).ravel()
@@ -395,14 +386,19 @@ def _power_fit(d: np.ndarray, y: np.ndarray) -> tuple[float, float]:
     return float(_EXPONENTS[best]), float(k[best])
 
 
-def _tip_radius(points, directions, vertices, tree):
+def _tip_radius(points, directions, vertices, index):
     """Per tip point (p, 3) with its unit growth direction: the median distance to the mesh
     vertices (which lie on the iso-surface) ahead of the tip and within 1.5 times the
-    nearest one, i.e. the radius of the drop that closes the icicle."""
-    d_near, _ = tree.query(points)
+    nearest one (``index``: `icefarm.geometry.point_index` of ``vertices``), i.e. the radius
+    of the drop that closes the icicle."""
+    d_near, _ = nearest(index, points)
     out = np.full(len(points), np.nan)
-    for i, idx in enumerate(tree.query_ball_point(points, 1.5 * d_near)):
-        rel = vertices[np.asarray(idx, dtype=np.int64)] - points[i]
+    ball = 1.5 * d_near
+    # a tree of the vertices around the tips only
+    d_tip, _ = nearest(point_index(points), vertices, float(ball.max(initial=0.0)))
+    near = np.flatnonzero(np.isfinite(d_tip))
+    for i, idx in enumerate(cKDTree(vertices[near]).query_ball_point(points, ball)):
+        rel = vertices[near[np.asarray(idx, dtype=np.int64)]] - points[i]
         ahead = rel @ directions[i] >= 0
         if ahead.any():
             out[i] = np.median(np.linalg.norm(rel[ahead], axis=1))
