@@ -78,6 +78,16 @@ def test_default_coat_covers_the_wet_surface_evenly(case, request):
     assert s.p50_mm >= 1.0  # thick enough to read as ice
 
 
+def test_the_glaze_measure_reads_the_same_through_a_tree_of_the_faces_near_its_rays(roof_water, monkeypatch):
+    from icefarm.stages.surface import glaze as glaze_module
+
+    mesh, water, sole = roof_water
+    v, f = _coat(mesh, water, _glaze(), exclude=sole)
+    whole = measure_glaze(v, f, mesh, water, G, exclude=sole, samples=3000)
+    monkeypatch.setattr(glaze_module, "NEAR_CASTER_FACES", 0)  # big ice's near_caster on this small coat
+    assert measure_glaze(v, f, mesh, water, G, exclude=sole, samples=3000) == whole
+
+
 @pytest.mark.parametrize("case", [pytest.param("bunny_water", marks=pytest.mark.slow),  # ../shared/meshes
                                   "roof_water"])
 def test_lifetime_puts_the_ice_high_up_or_low_down(case, request):
