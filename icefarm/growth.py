@@ -131,9 +131,8 @@ def grow_frames(folder: str | Path, traj: TrajectoryResult, drips: DripResult, s
     """
     from tqdm import tqdm
 
-    from .stages.surface import measure_icicles, profile_args, ripple_bands
+    from .stages.surface import measure_icicles
 
-    prof = profile_args(surface)
     folder = Path(folder)
     shutil.rmtree(folder, ignore_errors=True)
     folder.mkdir(parents=True)
@@ -151,9 +150,8 @@ def grow_frames(folder: str | Path, traj: TrajectoryResult, drips: DripResult, s
         ice = build(traj_f, drips_f, glaze_f, rng)
         axes = ice.axes if ice.axes is not None else traj_f
         mesh = trimesh.Trimesh(ice.vertices, ice.faces, process=False)
-        bands = ripple_bands(ice.vertices, axes, prof)
-        if bands is not None:  # milky under the crests, as the job's ice.ply
-            mesh.vertex_attributes[ICE_BANDS] = bands
+        if ice.bands is not None:  # milky under the crests, as the job's ice.ply
+            mesh.vertex_attributes[ICE_BANDS] = ice.bands
         plies.append(folder / growth_ice(i))
         artifacts.write_mesh(plies[-1], mesh)  # as the job writes ice.ply: the last frame is that file
         surface_seconds = time.perf_counter() - start

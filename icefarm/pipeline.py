@@ -266,23 +266,21 @@ def _run_stages(spec: JobSpec, job_dir: Path, run: _Run, cache: StageCache, unti
 def _surface_and_render(spec: JobSpec, job_dir: Path, run: _Run, until: Stage | None, r: StageResults,
                         gravity: np.ndarray) -> dict:
     from .stages.surface.glaze import measure_glaze
-    from .stages.surface import measure_icicles, profile_args, ripple_bands
+    from .stages.surface import measure_icicles
 
     p = spec.params
     obj, ice = r.mesh, r.ice
     axes = ice.axes if ice.axes is not None else r.trajectories
-    # Plausibility, measured on the mesh, and where the ripples' milky bands lie (ice.ply
-    # carries them for the render's shimmer): timed apart from the modelling (Table 2 times that).
+    # Plausibility, measured on the mesh: timed apart from the modelling (Table 2 times that);
     # the glaze measured on the surface it grew on (over a wrap, the object's)
     wet = glaze_surface(obj, r.flow, r.water, sole(r.flow, p, gravity, spec.placement), p.glaze, r.proxy)
-    m, glaze, bands = run.timed("measure", lambda: (
+    m, glaze = run.timed("measure", lambda: (
         measure_icicles(ice.vertices, ice.faces, axes, p.surface),
         measure_glaze(ice.vertices, ice.faces, wet.mesh, wet.water, gravity,
-                      exclude=_not_glaze(wet.mesh, r.drips, wet.exclude, p.surface)),
-        ripple_bands(ice.vertices, axes, profile_args(p.surface))))
+                      exclude=_not_glaze(wet.mesh, r.drips, wet.exclude, p.surface))))
     ice_mesh = trimesh.Trimesh(ice.vertices, ice.faces, process=False)
-    if bands is not None:
-        ice_mesh.vertex_attributes[ICE_BANDS] = bands
+    if ice.bands is not None:  # the ripples' milky bands, for the render's shimmer
+        ice_mesh.vertex_attributes[ICE_BANDS] = ice.bands
     artifacts.write_mesh(job_dir / ICE, ice_mesh)
     stats = {
         "glaze_coverage": _finite(glaze.coverage), "glaze_p10_mm": _finite(glaze.p10_mm),

@@ -85,3 +85,7 @@ def test_slivers_are_found_where_the_union_cut_and_cleaned_as_everywhere(seed):
     whole_f = flip_needles(whole_v, whole_f, tol)
     near_v, near_f = clean_slivers(v, f, tol, near=near)
     assert np.array_equal(near_v, whole_v) and np.array_equal(near_f, whole_f)
+    # per-vertex values stay with the vertices that stay
+    carried_v, carried_f, index = clean_slivers(v, f, tol, near=near, carry=np.arange(len(v)))
+    assert np.array_equal(carried_v, near_v) and np.array_equal(carried_f, near_f)
+    assert len(index) == len(near_v) < len(v) and np.array_equal(v[index], near_v)

@@ -51,6 +51,17 @@ def test_bands_lie_under_the_crests_and_nowhere_off_the_icicle(surface_kit):
 def test_clear_ice_has_no_bands(surface_kit):
     ice, surface = _icicle(surface_kit, surface__impurity=0.0)
     assert ripple_bands(ice.vertices, ice.axes, profile_args(surface)) is None
+    assert ice.bands is None  # nor does stage 4 carry any
+
+
+def test_stage_4_carries_the_bands_that_its_finished_ice_reads(surface_kit):
+    # Read off the carve itself, through the clean-up: what ripple_bands reads off the result.
+    ice, surface = _icicle(surface_kit)
+    assert ice.bands is not None and ice.bands.dtype == np.float32 and ice.bands.shape == (len(ice.vertices),)
+    again = ripple_bands(ice.vertices, ice.axes, profile_args(surface))
+    assert (ice.bands > 0.5).sum() > 100
+    assert np.mean(np.abs(ice.bands - again) < 1e-4) > 0.999
+    assert np.abs(ice.bands - again).max() < 0.1
 
 
 def test_ice_ply_keeps_the_bands_where_mitsuba_finds_them(tmp_path, box_with_icicles):

@@ -25,7 +25,7 @@ from .glaze import CoatSurface, glaze_field, glaze_thickness, wet_vertices
 from .icicles import hang_roots, icicle_balls, root_shifts
 from .measure import IcicleStats, measure_icicles
 from .profile import grown_lengths, profile_args, smooth_radius
-from .ripples import DEPTH_RANGE, carve_ripples
+from .ripples import DEPTH_RANGE, carve_ripples_and_bands
 from .tubes import tube_mesh
 
 # Vertices closer than this many voxels are one, and faces flatter than it are flipped
@@ -66,6 +66,9 @@ class IceResult:
     coarse_voxel : float or None
         Voxel of the lattice the face budget meshed the icicles' thick parts on, meters
         (`coarse_voxel`): no ripple is carved where an icicle is that thick. None: one lattice.
+    bands : (n,) float32 or None
+        How far under a ripple crest each vertex lies, 0 to 1 (`ripple_bands`, read off the
+        carve itself): where impure ice is milky. None: no ripples (pure water, tubes mode).
     """
 
     vertices: np.ndarray
@@ -75,6 +78,7 @@ class IceResult:
     curtain_area: float = 0.0
     axes: TrajectoryResult | None = None
     coarse_voxel: float | None = None
+    bands: np.ndarray | None = None
 
 
 def build_ice(object_mesh: trimesh.Trimesh, flow_mesh: trimesh.Trimesh, water: WaterResult,
@@ -158,7 +162,7 @@ def build_ice(object_mesh: trimesh.Trimesh, flow_mesh: trimesh.Trimesh, water: W
         raise ValueError("trajectories.branch_offsets must have n_branches + 1 entries ending at len(points)")
     if surface.mode == "tubes":
         verts, faces = tube_mesh(trajectories, surface, g)
-        n_balls, curtain_area, coarse = 0, 0.0, None
+        n_balls, curtain_area, coarse, bands = 0, 0.0, None, None
     else:
         voxel = surface.voxel_size
         budget = surface.face_budget if water.storm is not None else 0
@@ -213,12 +217,15 @@ def build_ice(object_mesh: trimesh.Trimesh, flow_mesh: trimesh.Trimesh, water: W
         verts, faces = fuse_fields(*fields)
         thin = sliver_candidates(verts, [f for f in fields if f is not None], SLIVER * voxel)
         note(f"ripples on {len(faces):,} faces")
-        verts = carve_ripples(verts, trajectories, profile_args(surface), max_radius=coarse)
+        verts, bands = carve_ripples_and_bands(verts, trajectories, profile_args(surface), max_radius=coarse)
         note("clean-up")
-        verts, faces = clean_slivers(verts, faces, SLIVER * voxel, near=thin)
+        if bands is None:
+            verts, faces = clean_slivers(verts, faces, SLIVER * voxel, near=thin)
+        else:
+            verts, faces, bands = clean_slivers(verts, faces, SLIVER * voxel, near=thin, carry=bands)
         n_balls, curtain_area = len(ice), curtains.area
     return IceResult(verts, faces, measure_icicles(verts, faces, trajectories, surface) if measure else None,
-                     n_balls, curtain_area, trajectories, coarse)
+                     n_balls, curtain_area, trajectories, coarse, bands)
 
 
 def _ripple(surface: SurfaceParams) -> tuple[float, float]:

@@ -67,13 +67,31 @@ def carve_ripples(vertices: np.ndarray, traj: TrajectoryResult, prof: dict,
     (n, 3) float
         The moved vertices (a copy); the same array when there is no ripple.
     """
+    return carve_ripples_and_bands(vertices, traj, prof, max_radius)[0]
+
+
+def carve_ripples_and_bands(vertices: np.ndarray, traj: TrajectoryResult, prof: dict,
+                            max_radius: float | None = None) -> tuple[np.ndarray, np.ndarray | None]:
+    """`carve_ripples` and the `ripple_bands` of the carved vertices, from one pass.
+
+    The carve moves vertices across the axis only, so each keeps its place along the
+    ripple: the bands read off the carve's own waves are those `ripple_bands` reads off the
+    carved mesh (save a vertex whose nearest axis sample changes as it moves, at a bend),
+    without a second search of the mesh (the 8 m roof: 2.8 s).
+
+    Returns
+    -------
+    vertices : (n, 3) float
+        As `carve_ripples`.
+    bands : (n,) float32 or None
+        As `ripple_bands`.
+    """
     waves = _waves(vertices, traj, prof, max_radius)
     if waves is None:
-        return vertices
-    sel, wave, radial, dist, *_ = waves
+        return vertices, None
     out = np.array(vertices, dtype=np.float64, copy=True)
-    out[sel] += (wave / dist)[:, None] * radial
-    return out
+    out[waves.near] += (waves.wave / waves.dist)[:, None] * waves.radial
+    return out, _bands(len(vertices), waves, prof["amplitude"])
 
 
 def ripple_bands(vertices: np.ndarray, traj: TrajectoryResult, prof: dict) -> np.ndarray | None:
@@ -99,20 +117,36 @@ def ripple_bands(vertices: np.ndarray, traj: TrajectoryResult, prof: dict) -> np
         None where there is no ripple (``amplitude`` 0, no branch).
     """
     waves = _waves(vertices, traj, prof, None)
-    if waves is None:
-        return None
-    sel, _, _, _, depth, crest = waves
-    bands = np.zeros(len(vertices), dtype=np.float32)
-    bands[sel] = np.clip(depth / prof["amplitude"] * (BAND_FLOOR + (1 - BAND_FLOOR) * 0.5 * (1 + crest)), 0.0, 1.0)
+    return None if waves is None else _bands(len(vertices), waves, prof["amplitude"])
+
+
+def _bands(n: int, waves: "_Waves", amplitude: float) -> np.ndarray:
+    """`ripple_bands` of ``n`` vertices from their `_Waves`."""
+    bands = np.zeros(n, dtype=np.float32)
+    bands[waves.near] = np.clip(waves.depth / amplitude * (BAND_FLOOR + (1 - BAND_FLOOR) * 0.5 * (1 + waves.crest)),
+                                0.0, 1.0)
     return bands
 
 
-def _waves(vertices: np.ndarray, traj: TrajectoryResult, prof: dict, max_radius: float | None):
-    """The ripple at the vertices near the branches: their indices ``sel`` (k,), the radial
-    displacement ``wave`` (k,) in meters, the offsets ``radial`` (k, 3) from the axis and
-    their lengths ``dist`` (k,), and ``wave`` as ``depth * crest``: the crest's local depth
-    (meters) and where on the crest the vertex lies (-1 trough to 1 top); None where there
-    is no ripple."""
+@dataclass(frozen=True)
+class _Waves:
+    """The ripple at the vertices near the branches (k of them): their indices ``near``,
+    the radial displacement ``wave`` (meters; faded where the mesh is too coarse to carry
+    it), the offsets ``radial`` (k, 3) from the axis and their lengths ``dist``, the crest's
+    local depth without that fade ``depth`` (meters) and where on the crest each lies,
+    ``crest`` (-1 trough to 1 top)."""
+
+    near: np.ndarray
+    wave: np.ndarray
+    radial: np.ndarray
+    dist: np.ndarray
+    depth: np.ndarray
+    crest: np.ndarray
+
+
+def _waves(vertices: np.ndarray, traj: TrajectoryResult, prof: dict, max_radius: float | None) -> _Waves | None:
+    """`_Waves` of ``vertices`` (n, 3), the fade to ``max_radius`` (`carve_ripples`) in the
+    displacement only; None where there is no ripple."""
     amplitude, frequency, tip = prof["amplitude"], prof["frequency"], prof["tip"]
     branches = np.flatnonzero(np.diff(np.asarray(traj.branch_offsets)) > 0)
     if amplitude <= 0 or frequency <= 0 or len(branches) == 0 or len(vertices) == 0:
@@ -137,11 +171,12 @@ def _waves(vertices: np.ndarray, traj: TrajectoryResult, prof: dict, max_radius:
     rise = np.clip(x / base, 0, 1)
     wave_amp = amplitude * texture.depth[owner] * _envelope(x, grown[owner], tip) * rise * rise * (3 - 2 * rise)
     wave_amp *= np.clip((radius - tip) / (RIPPLE_WIDENING * tip), 0, 1)
-    if max_radius is not None:
-        wave_amp *= np.clip((max_radius - radius) / (0.2 * max_radius), 0, 1)
+    carved = wave_amp if max_radius is None else wave_amp * np.clip((max_radius - radius) / (0.2 * max_radius), 0, 1)
 
-    # Only where there is a ripple (not near tips, bases or coarse parts): the nearest axis
-    # sample there carries an amplitude that fades in smoothly from the quiet stretches.
+    # Only where there is a ripple (not near tips or bases): the nearest axis sample there
+    # carries an amplitude that fades in smoothly from the quiet stretches. The coarse parts
+    # count (`carved` fades there): their milky bands stay, and a vertex follows its own
+    # nearest sample, not a thinner one past the fade.
     rippled = np.flatnonzero(wave_amp > 0)
     if len(rippled) == 0:
         return None
@@ -175,9 +210,7 @@ def _waves(vertices: np.ndarray, traj: TrajectoryResult, prof: dict, max_radius:
     swirl = texture.break_phase[b] + xv * texture.break_rate[b]
     fade = 0.5 * (1 + 2 * sin_t * cos_t * np.cos(swirl) + (cos_t**2 - sin_t**2) * np.sin(swirl))
     depth = FADE_FLOOR + (1 - FADE_FLOOR) * fade
-    amp = wave_amp[i]
-    wave = amp * crest * depth
-    return near[own], wave, radial, dist, amp * depth, crest
+    return _Waves(near[own], carved[i] * crest * depth, radial, dist, wave_amp[i] * depth, crest)
 
 
 # Natural ripples (Chen & Morris 2013; photographs of eaves icicles): the wavelength
