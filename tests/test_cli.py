@@ -116,6 +116,18 @@ def test_bench_render_compares_overhead_with_render_time(sphere_file, tmp_path):
         assert word in result.output, word
 
 
+def test_bench_job_times_every_step_of_whole_jobs(sphere_file):
+    result = run("bench", "job", sphere_file, "--size-m", 0.3, "--render", "none", "--repeat", 2,
+                 "--set", "drips.count=4", "--set", "water.rays=2000", "--set", "glaze.mode=none")
+    assert result.exit_code == 0, result.output
+    assert "2 jobs (median, min)" in result.output
+    for step in ("prepare", "water", "drips", "trajectories", "surface", "measure", "job", "peak memory"):
+        assert f"  {step}" in result.output, step
+    assert "render " not in result.output.split("\n", 1)[1]  # no render step without a render
+    result = run("bench", "job", sphere_file, "--render", "none")
+    assert result.exit_code != 0 and "--size-m" in result.output
+
+
 @pytest.mark.slow
 def test_render_again_makes_new_frames_and_leaves_the_job_as_it_was(sphere_file, tmp_path):
     small = tmp_path / "small.yaml"

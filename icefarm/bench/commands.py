@@ -138,6 +138,44 @@ def bench_render(mesh, size_m, drips, render, repeat, assignments):
                f"peak memory of this process: {peak_memory_gb():.2f} GB")
 
 
+@bench.command(name="job")
+@MESH
+@click.option("--size-m", type=float, default=None,
+              help="Object height in meters (needed for OBJ, PLY, STL and OFF; real-size generators and USD "
+                   "or glTF files keep their own size without it).")
+@click.option("--render", "render", default="lookdev", show_default=True, metavar="CONFIG",
+              help="Render config: a name in render_configs/ or a YAML path; none for no render.")
+@repeat_option(3, "Jobs run; medians are printed.")
+@SET
+def bench_job(mesh, size_m, render, repeat, assignments):
+    """Median seconds of each step of a whole job on MESH, as `icefarm run` runs it.
+
+    Every run starts from nothing (no stage cache): the object's preparation, the four
+    stages, the measures, the render and the USD export, each timed as the job's
+    timings.json times it, with the job's wall-clock total and this process's peak memory.
+    The first run also compiles the render's kernels (Dr.Jit caches them on disk).
+    """
+    from tqdm import tqdm
+
+    from .timings import job_timings, peak_memory_gb
+    from ..asset_io import missing_size, with_asset_gravity
+    from ..pipeline import GENERATOR_PREFIX
+
+    if not mesh.startswith(GENERATOR_PREFIX) and not Path(mesh).is_file():
+        raise InputError(f"mesh file not found: {mesh}")
+    if size_m is None and (why := missing_size(mesh)):
+        raise InputError(f"{why}: pass the object's real height in meters with --size-m")
+    p = params.resolve(with_asset_gravity(mesh, set_values(assignments)))
+    with tqdm(total=repeat, desc="jobs", unit="job", leave=False) as bar:
+        runs = job_timings(mesh, size_m, p, None if render == "none" else render, repeat, on_run=bar.update)
+    med = statistics.median
+    click.echo(f"{mesh}: {runs.ice_faces:,} ice faces, render {render}, {repeat} jobs (median, min)")
+    for step, seconds in runs.steps.items():
+        click.echo(f"  {step:<13} {med(seconds):8.3f} s  {min(seconds):8.3f} s")
+    click.echo(f"  {'job':<13} {med(runs.total):8.3f} s  {min(runs.total):8.3f} s")
+    click.echo(f"  peak memory of this process: {peak_memory_gb():.2f} GB")
+
+
 @bench.command(name="growth")
 @MESH
 @size_m_option(0.4)

@@ -159,6 +159,55 @@ def render_timings(mesh: str, size_m: float, p: dict, render_config: str, repeat
                       denoise=tuple(float(r.get("denoise_seconds", 0.0)) for r in runs))
 
 
+@dataclass(frozen=True)
+class JobRuns:
+    """Seconds of whole jobs (`job_timings`), one entry per run.
+
+    Attributes
+    ----------
+    ice_faces : int
+        Of the last run.
+    steps : dict
+        Step name (``timings.json``'s ``seconds``: prepare, water, ..., measure, render,
+        usd) to its seconds, one per run.
+    total : tuple of float
+        Each job's wall-clock seconds, all steps and the writing between them.
+    """
+
+    ice_faces: int
+    steps: dict
+    total: tuple
+
+
+def job_timings(mesh: str, size_m: float | None, p: Params, render_config: str | None, repeat: int,
+                seed: int = 0, on_run: Callable[[], None] | None = None) -> JobRuns:
+    """Run a whole job ``repeat`` times in scratch folders, without a stage cache, as
+    ``icefarm run`` does (``size_m`` None: the size a real-size generator or a USD file
+    carries; ``render_config`` None: no render)."""
+    from ..pipeline import GENERATOR_PREFIX, JobSpec, run_job
+
+    if not mesh.startswith(GENERATOR_PREFIX):
+        mesh = str(Path(mesh).resolve())
+    spec = JobSpec(object_id=Path(mesh).stem, mesh=mesh, size_m=size_m, params=p, seed=seed, render=render_config)
+    steps: dict[str, list[float]] = {}
+    total, faces = [], 0
+    with tempfile.TemporaryDirectory(prefix="icefarm-bench-") as tmp:
+        for run in range(repeat):
+            job_dir = Path(tmp) / f"job{run}"
+            start = time.perf_counter()
+            outcome = run_job(spec, job_dir)
+            total.append(time.perf_counter() - start)
+            if outcome.status is not JobState.DONE:
+                raise RuntimeError(f"benchmark job failed in stage {outcome.failed_stage}: {outcome.error}")
+            for step, seconds in outcome.seconds.items():
+                steps.setdefault(step, []).append(float(seconds))
+            faces = int(read_job(job_dir).stats.get("ice_faces", 0))
+            shutil.rmtree(job_dir)
+            if on_run is not None:
+                on_run()
+    return JobRuns(ice_faces=faces, steps={k: tuple(v) for k, v in steps.items()}, total=tuple(total))
+
+
 def peak_memory_gb() -> float:
     """Peak resident memory of this process so far, GB (Linux reports KiB, macOS bytes)."""
     import resource
