@@ -29,9 +29,8 @@ _EXPONENTS = tuple(np.round(np.arange(0.2, 2.0001, 0.01), 2))
 
 
 # At most this many trunks are measured, evenly over the icicles (all 933 of a 3 m bunny's
-# took 21 GB, and long); and radius samples go through the slab query this many at a time.
+# took 21 GB, and long).
 MAX_MEASURED = 200
-SLAB_CHUNK = 2000
 
 # Ripple texture (`ripple_texture`): trunks this long and more, radius sampled every
 # TEXTURE_STEP in slabs TEXTURE_SLAB thick over TEXTURE_SPAN of the length, compared
