@@ -375,6 +375,6 @@ def build_surface(obj: trimesh.Trimesh, flow: trimesh.Trimesh, water: WaterResul
 
     # Flattening can squash the faces of a foot into slivers: clean them as stage 4 does,
     # on the faces at a flattened vertex (only those can have become slivers).
-    flat = clean_slivers(ice.vertices + below[:, None] * g, ice.faces, SLIVER * params.surface.voxel_size,
-                         near=below < 0, carry=ice.bands)
-    return dataclasses.replace(ice, vertices=flat[0], faces=flat[1], bands=flat[2] if ice.bands is not None else None)
+    vertices, faces, kept = clean_slivers(ice.vertices + below[:, None] * g, ice.faces,
+                                          SLIVER * params.surface.voxel_size, near=below < 0)
+    return dataclasses.replace(ice, vertices=vertices, faces=faces, bands=None if ice.bands is None else ice.bands[kept])

@@ -83,9 +83,7 @@ def test_slivers_are_found_where_the_union_cut_and_cleaned_as_everywhere(seed):
     assert near.mean() < 0.1  # a few vertices, not the mesh
     whole_v, whole_f = collapse_slivers(v, f, tol)
     whole_f = flip_needles(whole_v, whole_f, tol)
-    near_v, near_f = clean_slivers(v, f, tol, near=near)
+    near_v, near_f, kept = clean_slivers(v, f, tol, near=near)
     assert np.array_equal(near_v, whole_v) and np.array_equal(near_f, whole_f)
-    # per-vertex values stay with the vertices that stay
-    carried_v, carried_f, index = clean_slivers(v, f, tol, near=near, carry=np.arange(len(v)))
-    assert np.array_equal(carried_v, near_v) and np.array_equal(carried_f, near_f)
-    assert len(index) == len(near_v) < len(v) and np.array_equal(v[index], near_v)
+    # kept says which input vertex each one is: per-vertex values index with it
+    assert len(kept) == len(near_v) < len(v) and np.array_equal(v[kept], near_v)

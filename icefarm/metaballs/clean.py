@@ -39,31 +39,23 @@ def sliver_candidates(vertices: np.ndarray, fields, tol: float) -> np.ndarray:
     return ~on_edge | cornered
 
 
-def clean_slivers(vertices: np.ndarray, faces: np.ndarray, tol: float, near: np.ndarray | None = None,
-                  carry: np.ndarray | None = None):
+def clean_slivers(vertices: np.ndarray, faces: np.ndarray, tol: float, near: np.ndarray | None = None):
     """`collapse_slivers`, then `flip_needles` on what it left, both on the faces at
     ``near`` vertices only (all faces when None).
-
-    Parameters
-    ----------
-    carry : (n, ...) array, optional
-        Per-vertex values to keep with the vertices that stay (a merged group keeps its
-        lowest vertex's).
 
     Returns
     -------
     vertices : (k, 3) float64
     faces : (j, 3) int64
-    carried : (k, ...) array
-        ``carry`` of the vertices that stay; only when ``carry`` is given.
+    kept : (k,) int64
+        The input vertex each output vertex is (a merged group keeps its lowest): index
+        per-vertex values with it to keep them with their vertices.
     """
     vertices, faces, kept = _collapse(vertices, faces, tol, near)
     if near is not None and kept is not None:
         near = np.asarray(near, dtype=bool)[kept]
     faces = flip_needles(vertices, faces, tol, near=near)
-    if carry is None:
-        return vertices, faces
-    return vertices, faces, carry if kept is None else np.asarray(carry)[kept]
+    return vertices, faces, np.arange(len(vertices)) if kept is None else np.flatnonzero(kept)
 
 
 def collapse_slivers(vertices: np.ndarray, faces: np.ndarray, tol: float, near: np.ndarray | None = None):

@@ -219,10 +219,9 @@ def build_ice(object_mesh: trimesh.Trimesh, flow_mesh: trimesh.Trimesh, water: W
         note(f"ripples on {len(faces):,} faces")
         verts, bands = carve_ripples_and_bands(verts, trajectories, profile_args(surface), max_radius=coarse)
         note("clean-up")
-        if bands is None:
-            verts, faces = clean_slivers(verts, faces, SLIVER * voxel, near=thin)
-        else:
-            verts, faces, bands = clean_slivers(verts, faces, SLIVER * voxel, near=thin, carry=bands)
+        verts, faces, kept = clean_slivers(verts, faces, SLIVER * voxel, near=thin)
+        if bands is not None:
+            bands = bands[kept]
         n_balls, curtain_area = len(ice), curtains.area
     return IceResult(verts, faces, measure_icicles(verts, faces, trajectories, surface) if measure else None,
                      n_balls, curtain_area, trajectories, coarse, bands)
