@@ -209,22 +209,22 @@ def _march_packed(fields: np.ndarray, blocks: np.ndarray, level: float, block: i
     mask = mx[:, None, None] & my[None, :, None] & mz[None, None, :]
     v, f, _, _ = marching_cubes(vol, level=level, mask=mask, gradient_direction="ascent")
     v = v.astype(np.float64)
+    base = np.floor(v)
     cell = np.minimum(np.floor(v / n1).astype(np.int64), np.array([px, py, pz]) - 1)
-    local = v - cell * n1
     # Vertices on lattice edges again, in float64 from the edge's two samples and rounded
     # from block-local coordinates: an edge then gets the same bits whatever batch or
     # packing marched it (`fuse_fields` welds on them).
-    base = np.floor(v)
     frac = v - base
-    edge = np.flatnonzero((frac > 0).sum(axis=1) == 1)
+    edge = np.flatnonzero(np.count_nonzero(frac, axis=1) == 1)
     axis = np.argmax(frac[edge], axis=1)
     i0 = base[edge].astype(np.int64)
     i1 = i0.copy()
     i1[np.arange(len(edge)), axis] += 1
     g0 = vol[i0[:, 0], i0[:, 1], i0[:, 2]].astype(np.float64)
     g1 = vol[i1[:, 0], i1[:, 1], i1[:, 2]].astype(np.float64)
-    t = np.clip((level - g0) / np.where(g1 != g0, g1 - g0, 1.0), 0.0, 1.0)
-    local[edge, axis] = (i0 - cell[edge] * n1)[np.arange(len(edge)), axis] + t
+    frac[edge, axis] = np.clip((level - g0) / np.where(g1 != g0, g1 - g0, 1.0), 0.0, 1.0)
+    # local = v - cell * n1, exactly (v = base + frac, and the difference is small)
+    local = (base - cell * n1) + frac
     which = (cell[:, 0] * py + cell[:, 1]) * pz + cell[:, 2]
     return blocks[which] * block + local, f.astype(np.int64)
 
@@ -237,22 +237,25 @@ def _weld_lattice(lattice: np.ndarray, faces: np.ndarray, block: int):
     multiple of ``block``) are marched by more than one block; their copies share the
     edge's key.
     """
-    base = np.floor(lattice)
-    frac = lattice - base
-    on_seam = ((frac == 0) & (base % block == 0)).any(axis=1)
-    seam = np.flatnonzero(on_seam)
-    index = np.arange(len(lattice))
+    # on a seam: a coordinate that is a multiple of the block (a whole number on a seam plane)
+    seam = np.flatnonzero((np.fmod(lattice, block) == 0).any(axis=1))
     if len(seam):
-        fs, bs = frac[seam], base[seam].astype(np.int64)
+        index = np.arange(len(lattice))
+        bs = np.floor(lattice[seam])
+        fs = lattice[seam] - bs
+        bs = bs.astype(np.int64)
         nfrac = (fs > 0).sum(axis=1)
         key = (block_keys(bs - bs.min(axis=0)) << 2) | np.where(nfrac == 1, np.argmax(fs, axis=1), 3)
         key = np.where(nfrac >= 2, -1 - np.arange(len(key)), key)
         _, first, inverse = np.unique(key, return_index=True, return_inverse=True)
         index[seam] = seam[first][inverse.reshape(-1)]
-    faces = index[faces]
+        faces = index[faces]
     ok = (faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 0] != faces[:, 2])
-    faces = faces[ok]
+    if not ok.all():
+        faces = faces[ok]
     used = np.zeros(len(lattice), dtype=bool)
     used[faces] = True
+    if used.all():
+        return lattice, faces
     remap = np.cumsum(used) - 1
     return lattice[used], remap[faces]
