@@ -183,3 +183,17 @@ def test_every_command_explains_itself():
                            (bench_farm, "speed-up")):
         result = CliRunner().invoke(command, ["--help"])
         assert result.exit_code == 0 and words in result.output
+
+
+def test_a_job_marker_is_replaced_whole_each_attempt(tmp_path):
+    # The driver and the fault tests read the running markers while workers write them: a
+    # marker must never exist empty or half written, so each attempt replaces it whole.
+    from icefarm.farm.task import _add_attempt
+
+    marker = tmp_path / "running" / "job.pid"
+    _add_attempt(marker)
+    first = marker.stat().st_ino
+    _add_attempt(marker)
+    assert marker.read_text().split() == [str(os.getpid())] * 2
+    assert marker.stat().st_ino != first  # a new file renamed over it, not an append in place
+    assert [p.name for p in marker.parent.iterdir()] == ["job.pid"]  # no temporary file left

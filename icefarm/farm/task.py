@@ -65,6 +65,20 @@ def marker_path(task: Task) -> Path:
     return Path(task.running_dir) / f"{task.job_id}.pid"
 
 
+def _add_attempt(marker: Path) -> None:
+    """Add this worker's pid to ``marker`` as a line of its own (a leftover line means a dead
+    worker), replacing the file whole: whoever reads it (the driver, a monitor, the fault
+    tests) never finds it created but not yet written. One worker runs a job at a time."""
+    marker.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        before = marker.read_text()
+    except FileNotFoundError:
+        before = ""
+    tmp = marker.with_name(f".{marker.name}.{os.getpid()}")
+    tmp.write_text(f"{before}{os.getpid()}\n")
+    os.replace(tmp, marker)
+
+
 def attempts_started(task: Task) -> int:
     """How many times a worker started ``task`` in this sweep run without finishing it yet."""
     try:
@@ -99,9 +113,7 @@ def execute(task: Task) -> tuple[Any, int]:
         1 for the first start of the job, 2 after a worker died under it, ...
     """
     marker = marker_path(task)
-    marker.parent.mkdir(parents=True, exist_ok=True)
-    with marker.open("a") as fh:  # one line per attempt: a leftover line means a dead worker
-        fh.write(f"{os.getpid()}\n")
+    _add_attempt(marker)
     attempt = attempts_started(task)
     job_dir = Path(task.job_dir)
     if job_dir.exists():  # leftovers of an attempt that did not finish
