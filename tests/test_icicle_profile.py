@@ -147,10 +147,40 @@ def test_ripples_wander_and_break_like_real_ones_not_stacked_rings(monkeypatch, 
     assert 0.1 <= natural.crest_cv <= 0.35
     from icefarm.stages.surface import ripples
 
-    for name, value in (("WANDER", 0.0), ("TILT", 0.0), ("FADE_FLOOR", 1.0)):
+    for name, value in (("WANDER", 0.0), ("TILT", 0.0), ("FADE_FLOOR", 1.0), ("FORK_SPACING", 1e9)):
         monkeypatch.setattr(ripples, name, value)
     rings = one_icicle(length=0.2).ripple_texture
     assert rings.correlation_3cm > 0.8 and rings.crest_cv < 0.1
+
+
+def test_a_crest_forks_on_an_arc_of_the_trunk_and_leaves_the_rest_whole():
+    """Real ripple crests split and merge: each fork adds one crest on an arc of the trunk
+    (the crests counted up the trunk through it), none off the arc, and changes nothing
+    beyond its reach along the axis."""
+    import dataclasses
+
+    from icefarm.stages.surface.ripples import FORK_ARC, FORK_REACH, _fork_shift, _forks
+
+    wavelength, radius = 0.0116, 0.006
+    forks = _forks(np.array([3]), np.array([0.3]), wavelength)
+    assert len(forks.x) >= 4 and np.all(np.diff(forks.x) >= FORK_REACH * wavelength)
+    reach = FORK_REACH * wavelength
+    k = 2 * np.pi / wavelength
+    for f in range(len(forks.x)):
+        one = dataclasses.replace(forks, offsets=np.array([0, 1]), x=forks.x[f:f + 1], key=forks.x[f:f + 1],
+                                  stride=1.0, cos=forks.cos[f:f + 1], sin=forks.sin[f:f + 1], edge=forks.edge[f:f + 1])
+        assert FORK_ARC[0] <= np.arccos(one.edge[0]) <= FORK_ARC[1]
+        x = one.x[0] + np.linspace(-3 * reach, 3 * reach, 6001)
+        centre = np.arctan2(one.sin[0], one.cos[0])
+        crests = {}
+        for where, angle in (("on", centre), ("off", centre + np.pi)):
+            shift, core = _fork_shift(one, np.zeros(len(x), dtype=np.int64), x, radius * np.cos(angle) + 0 * x,
+                                      radius * np.sin(angle) + 0 * x)
+            wave = np.sin(k * x + shift)
+            crests[where] = int(np.sum((wave[1:-1] > wave[:-2]) & (wave[1:-1] >= wave[2:]) & (wave[1:-1] > 0.5)))
+            far = np.abs(x - one.x[0]) >= reach
+            assert np.allclose(np.cos(shift[far]), 1.0) and np.all(core[far] == 1.0)
+        assert crests["on"] == crests["off"] + 1
 
 
 def test_pure_water_icicles_have_no_ripple_texture_and_tips_are_quiet(one_icicle):

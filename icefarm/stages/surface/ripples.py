@@ -7,8 +7,9 @@ displacement of the mesh's vertices around each branch, which keeps the mesh wat
 and the ripple exactly as deep as asked, at any frequency the voxel resolves.
 
 The ripple is natural rather than a stack of identical rings (they read as a coiled
-spring at lookdev): its wavelength wanders, its crests tilt and fade around the trunk,
-and it is quiet near the tip (`WANDER`, `TILT`, `FADE_FLOOR`, `TIP_QUIET`, `TIP_RISE`).
+spring at lookdev): its wavelength wanders, its crests tilt, fork and fade around the
+trunk, and it is quiet near the tip (`WANDER`, `TILT`, `FORK_SPACING`, `FADE_FLOOR`,
+`TIP_QUIET`, `TIP_RISE`).
 """
 
 from __future__ import annotations
@@ -204,12 +205,14 @@ def _waves(vertices: np.ndarray, traj: TrajectoryResult, prof: dict, max_radius:
     phase, rate = _wandering_phase(x, owner, frequency, texture)
     # per branch, then gathered: the same numbers as per vertex, a fraction of the work
     tilt = cos_t * np.cos(texture.tilt_at)[b] + sin_t * np.sin(texture.tilt_at)[b]  # cos(theta - tilt_at)
-    crest = np.sin(phase[i] + rate[i] * (xv - x_i) + texture.tilt[b] * tilt)
+    forks = _forks(branches, L, 2 * np.pi / frequency)
+    shift, core = _fork_shift(forks, b, xv, dist * cos_t, dist * sin_t)
+    crest = np.sin(phase[i] + rate[i] * (xv - x_i) + texture.tilt[b] * tilt + shift)
     # crests fade and break around the circumference: an amplitude that drifts with angle
     # and with height, never below FADE_FLOOR of the full one
     swirl = texture.break_phase[b] + xv * texture.break_rate[b]
     fade = 0.5 * (1 + 2 * sin_t * cos_t * np.cos(swirl) + (cos_t**2 - sin_t**2) * np.sin(swirl))
-    depth = FADE_FLOOR + (1 - FADE_FLOOR) * fade
+    depth = (FADE_FLOOR + (1 - FADE_FLOOR) * fade) * core
     return _Waves(near[own], carved[i] * crest * depth, radial, dist, wave_amp[i] * depth, crest)
 
 
@@ -229,8 +232,10 @@ def _waves(vertices: np.ndarray, traj: TrajectoryResult, prof: dict, max_radius:
 # Shallower still (0.5 mm crests) read better by eye, but the 0.3 m bunny's short icicles
 # must keep 0.4 mm in the ripples' band (issue 25): `surface.ripple_amplitude` 1.05 mm gives
 # crests of 0.74 mm at the default impurity (0.44-0.85 by icicle), 0.41 mm on the bunny
-# (relative storm) and 0.53 on one 12 cm icicle.
-WANDER = 0.25
+# (relative storm) and 0.53 on one 12 cm icicle. WANDER was 0.25 before crests forked
+# (`FORK_SPACING`): both vary the crest spacing the measure reads, whose CV must stay under
+# 0.35, and forks break the rings where wandering only spaces them unevenly.
+WANDER = 0.15
 WANDER_WAVES = (0.025, 0.04, 0.07)  # wavelengths (m) of the wandering's components
 TILT = 0.5
 FADE_FLOOR = 0.7
@@ -238,6 +243,91 @@ DEPTH_RANGE = (0.6, 1.15)
 ROOT_FADE = 0.2
 TIP_QUIET = 0.01
 TIP_RISE = 0.03
+
+
+# Crests fork (Chen & Morris 2013; photographs of eaves icicles): on part of the trunk one
+# crest splits in two and the two merge again a little further round, which no wandering
+# or tilt of whole rings gives. Every FORK_SPACING wavelengths or so along each branch
+# (FORK_JITTER of that either way) a crest gains a neighbour over an arc of FORK_ARC radians
+# (either way of it) around the trunk, centred at a random angle: a pair of dislocations
+# in the ripple's phase at the arc's ends, each with a smooth core FORK_CORE wavelengths
+# across; the new crest comes in over FORK_WIDTH wavelengths along the axis. It bends the
+# crests within FORK_REACH wavelengths of it along the axis only, and the rest of the
+# circumference keeps its crests: the radius measured around the trunk (its median) barely
+# moves. Every 5 wavelengths with WANDER 0.15, ripple texture (depth mm, correlation, crest
+# CV) at the defaults: bench 0.50, 0.22, 0.21; car 0.54, 0.22, 0.33; table 0.57, 0.21,
+# 0.30 (WANDER 0.25, no forks: 0.54, -0.14, 0.22; 0.56, -0.14, 0.31; 0.60, -0.13, 0.28).
+# Every 3.5 wavelengths the car's CV reached 0.35.
+FORK_SPACING = 5.0
+FORK_JITTER = 0.25
+FORK_REACH = 1.5
+FORK_ARC = (0.6, 1.4)
+FORK_CORE = 0.15
+FORK_WIDTH = 0.5
+FORK_MAX = 64  # per branch: 2.5 m of icicle at 1 cm ripples
+FORK_SEED = RIPPLE_SEED + 1
+
+
+@dataclass(frozen=True)
+class _Forks:
+    """Each branch's forks, laid end to end (``offsets``, (b + 1,)): arc length ``x`` (m,
+    ascending per branch), ``key`` (x shifted by the branch's ``stride``, for one search),
+    the arc's centre around the trunk (``cos``, ``sin``) and ``cos`` of its half-width
+    (``edge``), ``reach`` and ``core`` (m)."""
+
+    offsets: np.ndarray
+    x: np.ndarray
+    key: np.ndarray
+    stride: float
+    cos: np.ndarray
+    sin: np.ndarray
+    edge: np.ndarray
+    reach: float
+    core: float
+    width: float
+
+
+def _forks(branches: np.ndarray, lengths: np.ndarray, wavelength: float) -> _Forks:
+    spacing = FORK_SPACING * wavelength
+    count = np.minimum(np.floor(lengths / spacing).astype(np.int64) + 1, FORK_MAX)
+    # row b is branch b's draws whatever the table's length, as in `_texture`
+    draws = np.random.default_rng(FORK_SEED).random((int(branches.max(initial=-1)) + 1, FORK_MAX, 3))[branches]
+    owner = np.repeat(np.arange(len(branches)), count)
+    j = ragged_arange(count)
+    d = draws[owner, j]
+    x = (j + 0.5 + FORK_JITTER * (2 * d[:, 0] - 1)) * spacing
+    stride = float(lengths.max(initial=0.0)) + 2 * spacing
+    centre = 2 * np.pi * d[:, 1]
+    return _Forks(offsets=np.concatenate([[0], np.cumsum(count)]), x=x, key=owner * stride + x, stride=stride,
+                  cos=np.cos(centre), sin=np.sin(centre), edge=np.cos(FORK_ARC[0] + (FORK_ARC[1] - FORK_ARC[0]) * d[:, 2]),
+                  reach=FORK_REACH * wavelength, core=FORK_CORE * wavelength, width=FORK_WIDTH * wavelength)
+
+
+def _fork_shift(forks: _Forks, b: np.ndarray, x: np.ndarray, u: np.ndarray, v: np.ndarray):
+    """The forks' shift of the ripple's phase (rad) at points of branches ``b`` at arc length
+    ``x`` and ``(u, v)`` (m) across the axis, and the factor (0-1) that smooths each core.
+
+    With ``y = r (cos(a - ac) - cos(w))`` (positive on the fork's arc, 0 at its ends) and
+    ``X`` the arc length past the fork, a fork adds ``atan2(y g, -X) + pi - atan2(l g, X)``
+    (``g`` 1 at the fork, 0 from ``reach`` on; ``l`` the typical ``-y`` off the arc):
+    0 on the root side, 2 pi on the arc's tip side (one crest more), about 0 off the arc.
+    The forks are at least ``reach`` apart, so only the nearest on either side counts.
+    """
+    above = np.searchsorted(forks.key, b * forks.stride + x)  # the first fork tipwards
+    shift = np.zeros(len(x))
+    core = np.ones(len(x))
+    r = np.hypot(u, v)
+    for k, valid in ((above - 1, above > forks.offsets[b]), (above, above < forks.offsets[b + 1])):
+        k = np.where(valid, k, 0)
+        along = np.where(valid, x - forks.x[k], -forks.reach)
+        edge = forks.edge[k]
+        y = forks.width * ((u * forks.cos[k] + v * forks.sin[k]) / r - edge) / (1 - edge)
+        typical = 0.5 * forks.width * (1 + edge) / (1 - edge)
+        g = np.clip(1 - (along / forks.reach) ** 2, 0, 1) ** 2
+        shift += np.arctan2(y * g, -along) + np.pi - np.arctan2(typical * g, along)
+        r2 = along**2 + y**2
+        core *= np.sqrt(r2 / (r2 + g * forks.core**2))
+    return shift, core
 
 
 @dataclass(frozen=True)
