@@ -134,6 +134,28 @@ def test_the_bunny_at_the_defaults_grows_carrots_not_straws(shared_mesh, tmp_pat
     assert len(taper) >= 10 and np.median(taper) >= 3.0
     assert 0.6 <= np.median([v for v in t["profile_exponent"] if v is not None]) <= 0.9
     assert t["ripple_amplitude_mm"] >= 0.4 and t["upward_share"] == 0.0
+    # Issue 25's ripple texture on its trunks of 10 cm and more (none grow under the
+    # physical storm's defaults): deep, decorrelated 3 cm along, unevenly spaced crests
+    assert t["ripple_trunks"] >= 1 and t["ripple_depth_mm"] >= 0.4
+    assert t["ripple_correlation_3cm"] <= 0.6 and 0.1 <= t["ripple_crest_cv"] <= 0.35
+
+
+@pytest.mark.slow
+def test_the_fountains_long_icicles_ripple_like_real_ones(tmp_path):
+    """Issue 25's measures on the 0.4 m fountain overflowing, relative storm (its trunks of
+    10 cm and more: the physical storm's defaults grow none)."""
+    import json
+
+    from icefarm import params
+    from icefarm.pipeline import JobSpec, Stage, run_job
+
+    spec = JobSpec("fountain", "generator:fountain", 0.4,
+                   params.resolve({"storm.mode": "relative", "water.pools": "overflow"}), seed=0)
+    outcome = run_job(spec, tmp_path / "job", until=Stage.SURFACE)
+    assert outcome.status == "done", outcome.error
+    t = json.loads((tmp_path / "job" / "timings.json").read_text())
+    assert t["ripple_trunks"] >= 3 and t["ripple_depth_mm"] >= 0.4
+    assert t["ripple_correlation_3cm"] <= 0.6 and 0.1 <= t["ripple_crest_cv"] <= 0.35
 
 
 def test_ripples_wander_and_break_like_real_ones_not_stacked_rings(monkeypatch, one_icicle):
