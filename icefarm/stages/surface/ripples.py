@@ -307,26 +307,29 @@ def _fork_shift(forks: _Forks, b: np.ndarray, x: np.ndarray, u: np.ndarray, v: n
     """The forks' shift of the ripple's phase (rad) at points of branches ``b`` at arc length
     ``x`` and ``(u, v)`` (m) across the axis, and the factor (0-1) that smooths each core.
 
-    With ``y = r (cos(a - ac) - cos(w))`` (positive on the fork's arc, 0 at its ends) and
-    ``X`` the arc length past the fork, a fork adds ``atan2(y g, -X) + pi - atan2(l g, X)``
-    (``g`` 1 at the fork, 0 from ``reach`` on; ``l`` the typical ``-y`` off the arc):
-    0 on the root side, 2 pi on the arc's tip side (one crest more), about 0 off the arc.
-    The forks are at least ``reach`` apart, so only the nearest on either side counts.
+    With ``y = width (cos(a - ac) - cos(w)) / (1 - cos(w))`` (``width`` at the arc's centre
+    ``ac``, 0 at its ends ``ac +- w``, negative off it) and ``X`` the arc length past the
+    fork, a fork adds ``atan2(y g, -X) + pi - atan2(l g, X)`` (``g`` 1 at the fork, 0 from
+    ``reach`` on; ``l`` the typical ``-y`` off the arc): 0 on the root side, 2 pi on the
+    arc's tip side (one crest more), about 0 off the arc. The forks are at least ``reach``
+    apart, so only the nearest on either side counts, and only within ``reach`` of it.
     """
     above = np.searchsorted(forks.key, b * forks.stride + x)  # the first fork tipwards
     shift = np.zeros(len(x))
     core = np.ones(len(x))
-    r = np.hypot(u, v)
     for k, valid in ((above - 1, above > forks.offsets[b]), (above, above < forks.offsets[b + 1])):
-        k = np.where(valid, k, 0)
-        along = np.where(valid, x - forks.x[k], -forks.reach)
+        i = np.flatnonzero(valid)
+        k = k[i]
+        along = x[i] - forks.x[k]
+        near = np.abs(along) < forks.reach
+        i, k, along = i[near], k[near], along[near]
         edge = forks.edge[k]
-        y = forks.width * ((u * forks.cos[k] + v * forks.sin[k]) / r - edge) / (1 - edge)
+        y = forks.width * ((u[i] * forks.cos[k] + v[i] * forks.sin[k]) / np.hypot(u[i], v[i]) - edge) / (1 - edge)
         typical = 0.5 * forks.width * (1 + edge) / (1 - edge)
-        g = np.clip(1 - (along / forks.reach) ** 2, 0, 1) ** 2
-        shift += np.arctan2(y * g, -along) + np.pi - np.arctan2(typical * g, along)
+        g = (1 - (along / forks.reach) ** 2) ** 2
+        shift[i] += np.arctan2(y * g, -along) + np.pi - np.arctan2(typical * g, along)
         r2 = along**2 + y**2
-        core *= np.sqrt(r2 / (r2 + g * forks.core**2))
+        core[i] *= np.sqrt(r2 / (r2 + g * forks.core**2))
     return shift, core
 
 
