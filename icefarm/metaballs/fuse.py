@@ -209,16 +209,27 @@ def _inner_faces(lattice: np.ndarray, faces: np.ndarray, region, lo, tile) -> np
     """
     # NaN (a vertex of no marching of this field): a cell far outside every region
     corner = np.floor(np.where(np.isfinite(lattice), lattice, -2.0**30)).astype(np.int32)
-    cell = np.minimum(np.minimum(corner[faces[:, 0]], corner[faces[:, 1]]), corner[faces[:, 2]])
-    t = cell // tile - lo.astype(np.int32)
-    across = cell % tile == tile - 1  # per axis: the cell's samples reach the next tile
     shape = np.array(region.shape)
-    inner = ((t >= 0) & (t < shape - across)).all(axis=1)
-    inner[inner] = region[t[inner, 0], t[inner, 1], t[inner, 2]]
+    lo = lo.astype(np.int32)
+    # A vertex lies in its face's cell, so in one of the tiles the cell's samples lie in: only
+    # the faces whose three vertices lie in the region's tiles can be inner (the bench's
+    # whole meshes: a tenth of their faces).
+    t = corner // tile - lo
+    in_region = (t >= 0).all(axis=1) & (t < shape).all(axis=1)
+    in_region[in_region] = region[t[in_region, 0], t[in_region, 1], t[in_region, 2]]
+    inner = np.zeros(len(faces), dtype=bool)
+    maybe = np.flatnonzero(in_region[faces].all(axis=1))
+    f = faces[maybe]
+    cell = np.minimum(np.minimum(corner[f[:, 0]], corner[f[:, 1]]), corner[f[:, 2]])
+    t = cell // tile - lo
+    across = cell % tile == tile - 1  # per axis: the cell's samples reach the next tile
+    ok = ((t >= 0) & (t < shape - across)).all(axis=1)
+    ok[ok] = region[t[ok, 0], t[ok, 1], t[ok, 2]]
     for step in list(np.ndindex(2, 2, 2))[1:]:  # every other tile the cell's 8 samples lie in
-        rows = np.flatnonzero(inner & across[:, np.array(step, dtype=bool)].all(axis=1))
+        rows = np.flatnonzero(ok & across[:, np.array(step, dtype=bool)].all(axis=1))
         u = t[rows] + np.array(step, dtype=np.int32)
-        inner[rows] = region[u[:, 0], u[:, 1], u[:, 2]]
+        ok[rows] = region[u[:, 0], u[:, 1], u[:, 2]]
+    inner[maybe] = ok
     return inner
 
 
