@@ -4,14 +4,18 @@ writes the same bytes wherever its output is deterministic today.
 Left out, and why: ``timings.json``, ``done.json`` (it repeats the timings), ``jobs.csv``,
 ``report.md``/``report.csv``, the gallery and the contact sheets: each prints every job's
 seconds (a sheet's label strip too: about 200 pixels of the PNG and EXR change from run to
-run), so none is byte-identical today. The EXR renders differ only by their ``DateTime``
-header attribute: their pixels and other attributes are compared.
+run), so none is byte-identical today. Renders are compared to the rounding of Mitsuba's
+film: the JIT variants add the samples' (filtered) weights into the pixels with atomic adds
+from several threads, whose order changes the last bit now and then (a clean-clone CI run:
+one half-float in render.exr's 48 x 36 x 3, one step in its last bit). Their headers must
+match but for when they were written (``DateTime``).
 """
 
 from __future__ import annotations
 
 from types import SimpleNamespace
 
+import numpy as np
 import pytest
 import yaml
 
@@ -36,9 +40,11 @@ def assert_same_bytes(a, b, names):
         assert (a / name).read_bytes() == (b / name).read_bytes(), f"{name} differs between two runs"
 
 
-def assert_same_exr(a, b):
-    """Two EXR files hold the same pixels, bit for bit, and the same header but for when they
-    were written (``DateTime``)."""
+def assert_same_render(a, b):
+    """Two renders (EXR or PNG) of one scene: the same header but for when they were written
+    (``DateTime``), and the same pixels but for the film's rounding: every value within 2^-9
+    of the larger (half a float16 step more than one) or one 8-bit level, and at most one in a
+    hundred off at all. A change to the scene moves far more of them, far further."""
     import OpenImageIO as oiio
 
     images = [oiio.ImageInput.open(str(p)) for p in (a, b)]
@@ -46,11 +52,17 @@ def assert_same_exr(a, b):
         specs = [i.spec() for i in images]
         headers = [{x.name: str(x.value) for x in s.extra_attribs if x.name != "DateTime"} for s in specs]
         assert headers[0] == headers[1] and specs[0].format == specs[1].format
-        pixels = [i.read_image(specs[0].format) for i in images]
+        assert (specs[0].width, specs[0].height, specs[0].nchannels) == (specs[1].width, specs[1].height,
+                                                                         specs[1].nchannels)
+        pixels = [np.asarray(i.read_image("float"), dtype=np.float64) for i in images]
     finally:
         for i in images:
             i.close()
-    assert pixels[0].tobytes() == pixels[1].tobytes(), f"{a.name}: its pixels differ between two runs"
+    step = 1.0 / 255 if specs[0].format == oiio.UINT8 else 0.0
+    off = np.abs(pixels[0] - pixels[1])
+    tol = np.maximum(2.0**-9 * np.maximum(np.abs(pixels[0]), np.abs(pixels[1])), step) + 1e-12
+    assert np.all(off <= tol), f"{a.name}: its pixels differ between two runs by up to {off.max():.3g}"
+    assert np.mean(off > 0) <= 0.01, f"{a.name}: {np.mean(off > 0):.1%} of its values differ between two runs"
 
 
 def test_a_job_run_twice_writes_the_same_stage_files(tmp_path, ball, sweep_kit):
@@ -88,8 +100,9 @@ def test_a_sweep_run_twice_writes_the_same_stages_scenes_and_renders(twice):
     first, second = twice.runs
     assert [d.name for d in first] == [d.name for d in second] and len(first) == 2
     for a, b in zip(first, second):
-        assert_same_bytes(a, b, STAGES + SCENE + (RENDER_PNG,))
-        assert_same_exr(a / RENDER_EXR, b / RENDER_EXR)
+        assert_same_bytes(a, b, STAGES + SCENE)
+        for render in (RENDER_PNG, RENDER_EXR):
+            assert_same_render(a / render, b / render)
     sweep_a, sweep_b = (d[0].parents[2] for d in twice.runs)
     assert_same_bytes(sweep_a, sweep_b, (MANIFEST,))
 
