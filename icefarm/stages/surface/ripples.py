@@ -273,7 +273,8 @@ class _Forks:
     """Each branch's forks, laid end to end (``offsets``, (b + 1,)): arc length ``x`` (m,
     ascending per branch), ``key`` (x shifted by the branch's ``stride``, for one search),
     the arc's centre around the trunk (``cos``, ``sin``) and ``cos`` of its half-width
-    (``edge``), ``reach`` and ``core`` (m)."""
+    (``edge``); ``reach``, ``core`` and ``width`` (m): `FORK_REACH`, `FORK_CORE` and
+    `FORK_WIDTH` in meters."""
 
     offsets: np.ndarray
     x: np.ndarray
@@ -288,6 +289,8 @@ class _Forks:
 
 
 def _forks(branches: np.ndarray, lengths: np.ndarray, wavelength: float) -> _Forks:
+    """The forks of ``branches`` (their indices in the trajectories, which seed their draws)
+    of ``lengths`` (m), for ripples ``wavelength`` (m) apart."""
     spacing = FORK_SPACING * wavelength
     count = np.minimum(np.floor(lengths / spacing).astype(np.int64) + 1, FORK_MAX)
     # row b is branch b's draws whatever the table's length, as in `_texture`
