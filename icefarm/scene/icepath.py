@@ -332,12 +332,18 @@ class IcePathMethods:
             f_pdf = dr.select(active_ph, ISOTROPIC, bsdf_pdf)
             mis_em = dr.select(ds.delta, 1.0, _mis_weight(ds.pdf, f_pdf))
             f_val = dr.select(active_ph, mi.Spectrum(ISOTROPIC), bsdf_val)
-            L += dr.select(active_em | active_ph, beta * mis_em * f_val * trans, 0.0)
+            # A BSDF's value can be NaN at a degenerate configuration (roughdielectric, once
+            # in 33 M samples of a lookdev bunny): one such sample would poison the pixels
+            # its filter reaches. It is a set of measure zero: drop it.
+            direct = beta * mis_em * f_val * trans
+            L += dr.select((active_em | active_ph) & dr.all(dr.isfinite(direct)), direct, 0.0)
 
             # ---- BSDF sampling
             bs, bsdf_weight = bsdf.sample(bsdf_ctx, si, sampler.next_1d(), sampler.next_2d(),
                                           real_next)
             delta = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
+            # a NaN weight, like a NaN value above, ends the path rather than poisoning it
+            bsdf_weight = dr.select(dr.all(dr.isfinite(bsdf_weight)), bsdf_weight, 0.0)
             # Dielectrics scale radiance by 1/eta^2 on entering (solid angle compression)
             # and back on leaving; a path that ends inside ice (a glazed surface, whose
             # light then passes straight out) never leaves, which would darken everything
