@@ -332,9 +332,9 @@ class IcePathMethods:
             f_pdf = dr.select(active_ph, ISOTROPIC, bsdf_pdf)
             mis_em = dr.select(ds.delta, 1.0, _mis_weight(ds.pdf, f_pdf))
             f_val = dr.select(active_ph, mi.Spectrum(ISOTROPIC), bsdf_val)
-            # A BSDF's value can be NaN at a degenerate configuration (roughdielectric, once
-            # in 33 M samples of a lookdev bunny): one such sample would poison the pixels
-            # its filter reaches. It is a set of measure zero: drop it.
+            # A BSDF's value can be NaN at a degenerate configuration (roughdielectric: once in
+            # the 33 M samples of the 0.3 m bunny's two 480 x 360 views at 96 spp): one such
+            # sample would poison the pixels its filter reaches. A set of measure zero: drop it.
             direct = beta * mis_em * f_val * trans
             L += dr.select((active_em | active_ph) & dr.all(dr.isfinite(direct)), direct, 0.0)
 
