@@ -314,7 +314,9 @@ def _surface_and_render(spec: JobSpec, job_dir: Path, run: _Run, until: Stage | 
     config = load_render_config(spec.render)
     scene = job_scene(obj, ice_mesh, gravity, material=spec.material, placement=spec.placement,
                       impurity=p.surface.impurity,  # impure water: a cloudy core
-                      icicle_axes=axes.points)
+                      # framed on trajectories.json's axes, as `icefarm render` frames it again
+                      # (stage 4's, with roots hung under the rims, moved the ice view)
+                      icicle_axes=r.trajectories.points)
     material = scene.material
     # POV-Ray files written meanwhile
     result = run.timed("render", lambda: render_job(job_dir, config, scene, progress=run.progress))
@@ -350,7 +352,7 @@ def _growth(spec: JobSpec, job_dir: Path, run: _Run, r: StageResults, gravity: n
         full = trimesh.load(job_dir / ICE, process=False, force="mesh")
         view = FrameView(job_scene(obj, full, gravity, material=spec.material, placement=spec.placement,
                                    impurity=p.surface.impurity,
-                                   icicle_axes=(r.trajectories if r.ice.axes is None else r.ice.axes).points),
+                                   icicle_axes=r.trajectories.points),
                          load_render_config(spec.render))
     cast = ray_caster(r.flow)
     extra_balls = r.ground.balls if r.ground is not None else None

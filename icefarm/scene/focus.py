@@ -362,14 +362,22 @@ def _joined(samples: np.ndarray, aimed: np.ndarray, diameter: float) -> np.ndarr
 
 def surface_points(mesh: trimesh.Trimesh, count: int = OBJECT_SAMPLES,
                     most: int = OBJECT_POINTS) -> np.ndarray:
-    """Points on ``mesh``'s surface, the same for the same mesh: its vertices (at most
+    """Points on ``mesh``'s surface, the same for the same surface: its vertices (at most
     ``most``), and ``count`` samples of its faces by area when its faces are big (the
-    median edge over 1 % of the mesh's size), which its vertices alone would leave bare."""
+    median edge over 1 % of the mesh's size), which its vertices alone would leave bare.
+
+    Past ``most``, every so many of the distinct vertices in coordinate order (rounded to
+    single precision, as ``object.ply`` stores them): the job's mesh and the one
+    ``icefarm render`` reads back (its vertices split along creases, then merged again, in
+    another order) give the same points, and so frame the same views."""
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     faces = np.asarray(mesh.faces)
     some = faces[:: max(1, len(faces) // 1000)]
     edge = float(np.median(np.linalg.norm(vertices[some[:, 1]] - vertices[some[:, 0]], axis=1)))
-    kept = vertices[:: -(-len(vertices) // most)]
+    kept = vertices
+    if len(vertices) > most:
+        distinct = np.unique(vertices.astype(np.float32), axis=0).astype(np.float64)
+        kept = distinct[:: -(-len(distinct) // most)]
     if edge <= 0.01 * float(np.ptp(vertices, axis=0).max()):
         return kept
     tri = vertices[faces]
