@@ -292,8 +292,9 @@ def _register_nan_bsdf(mi):
 
 @pytest.mark.slow  # renders
 def test_a_bsdf_that_returns_nan_leaves_no_nan_pixel(mi, integrators):
-    # One NaN sample poisons every pixel its filter reaches (a 5 x 5 block with
-    # Mitsuba's Gaussian), and a denoiser spreads it: the integrator drops such samples.
+    # One NaN sample poisons every pixel its filter reaches (a 5 x 5 block with Mitsuba's
+    # Gaussian; undenoised renders kept it, denoised ones got a black patch): the
+    # integrator drops such samples.
     _register_nan_bsdf(mi)
     scene = base_scene(mi)
     scene["ball"] = ball(bsdf={"type": "icefarm_test_nan_diffuse"})
