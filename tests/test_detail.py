@@ -84,19 +84,23 @@ def test_the_budget_coarsens_big_assets_only():
 
 
 def test_inner_faces_ask_only_for_the_tiles_a_cell_touches():
-    region = np.zeros((4, 4, 4), dtype=bool)
-    region[1, 1, 1] = region[1, 2, 1] = True
-    tile = 4
+    from icefarm.metaballs.union_region import Region, inner_faces
+
+    mask = np.zeros((1, 4, 4, 4), dtype=bool)  # one block of 16 samples, tiles of 4
+    mask[0, 1, 1, 1] = mask[0, 1, 2, 1] = True
+    index = np.full((3, 3, 3), -1)  # the block, with a border of none
+    index[1, 1, 1] = 0
+    region = Region(mask, 4, index, np.full(3, -1))
     # cell (7, 7, 4): its samples reach x 8 (tile 2, not in the region) -> out;
     # cell (4, 7, 4): its samples span y tiles 1 and 2 only, both in -> in
     lattice = np.array([[7.2, 7.0, 4.0], [7.0, 7.5, 4.0], [7.0, 7.0, 4.5],
                         [4.2, 7.0, 4.0], [4.0, 7.5, 4.0], [4.0, 7.0, 4.5]])
     faces = np.array([[0, 1, 2], [3, 4, 5]])
-    inner = fuse._inner_faces(lattice, faces, region, np.zeros(3, dtype=np.int64), tile)
+    inner = inner_faces(lattice, faces, region)
     assert inner.tolist() == [False, True]
     nan = lattice.copy()
     nan[3] = np.nan  # a vertex no marching of this field made: never inner
-    assert fuse._inner_faces(nan, faces, region, np.zeros(3, dtype=np.int64), tile).tolist() == [False, False]
+    assert inner_faces(nan, faces, region).tolist() == [False, False]
 
 
 # Pure, but about 30 s: a 1.2 m roof meshed twice. The tips' check needs the defaults'

@@ -219,35 +219,6 @@ def test_fusing_two_lattices_is_the_union_of_the_solids():
     assert M.fuse_fields(None, None)[1].shape == (0, 3)
 
 
-def test_inner_faces_are_those_whose_cell_lies_wholly_in_the_region():
-    """`_inner_faces` against its definition, cell by cell: a face is inner when all 8
-    samples of its marching-cubes cell (the floor of its vertices' least coordinates) lie
-    in tiles of the region; vertices of no marching (NaN) are never inner."""
-    from icefarm.metaballs.fuse import _inner_faces
-
-    rng = np.random.default_rng(3)
-    tile, lo = 3, np.array([-2, -1, 0])
-    region = rng.random((6, 7, 5)) < 0.6
-    cells = rng.integers(-8, 22, (4000, 3))
-    # a triangle in each cell, its vertices at the cell's corners or between them
-    offset = np.where(rng.random((4000, 3, 3)) < 0.5, rng.random((4000, 3, 3)), rng.integers(0, 2, (4000, 3, 3)))
-    lattice = (cells[:, None, :] + offset).reshape(-1, 3)
-    lattice[rng.random(len(lattice)) < 0.01] = np.nan
-    faces = np.arange(len(lattice)).reshape(-1, 3)
-    inner = _inner_faces(lattice, faces, region, lo, tile)
-    for k, f in enumerate(faces):
-        v = lattice[f]
-        if not np.isfinite(v).all():
-            assert not inner[k]
-            continue
-        cell = np.floor(v).astype(int).min(axis=0)
-        samples = cell + np.array(list(np.ndindex(2, 2, 2)))
-        t = samples // tile - lo
-        want = bool(np.all((t >= 0) & (t < region.shape)) and region[t[:, 0], t[:, 1], t[:, 2]].all())
-        assert inner[k] == want
-    assert 0 < inner.sum() < len(faces)
-
-
 def test_coarse_glaze_apart_from_icicles_or_alone_stays_closed(surface_kit):
     kit = surface_kit
     obj = kit.sphere()

@@ -2,16 +2,11 @@
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
-from scipy import ndimage
 
 from .field import Field, block_keys
 from .march import march_blocks
-
-# Most tiles in the dense grid of a region where two lattices are fused.
-_MAX_TILES = 2**22
+from .union_region import inner_faces, margin, near_region, restrict, surface_region
 
 
 def fuse_fields(a: Field | None, b: Field | None, detail: Field | None = None):
@@ -19,8 +14,8 @@ def fuse_fields(a: Field | None, b: Field | None, detail: Field | None = None):
 
     Both are marched whole. The union only cuts them where they come close, so only there
     does it run (manifold3d): each field is marched again with its samples zeroed outside
-    the tiles near the other surface (`_margin`), which closes it with caps out of the
-    other's reach; the caps are cut off the union and the rest welds, bit for bit, to the
+    the samples of its cells that may meet the other surface (`icefarm.metaballs.union_region`),
+    which closes it with caps out of the other's reach; the caps are cut off the union and the rest welds, bit for bit, to the
     faces of the whole meshes outside those tiles, less those wholly inside the other solid
     (nearest-sample test). Should a check fail (a face there half inside, a seam that does
     not close), the whole meshes go through the boolean instead (`union_meshes`).
@@ -73,19 +68,6 @@ def fuse_fields(a: Field | None, b: Field | None, detail: Field | None = None):
     return fused[0], fused[1]
 
 
-def _margin(field: Field, other: Field) -> float:
-    """How far the cells of ``field`` left out of the union must lie from ``other``'s
-    vertices.
-
-    A point of the other surface lies within one of its voxels of a vertex of it (a
-    marching-cubes triangle fits in a cell), and a cell spans one cell diagonal, so a cell
-    with a sample this far from the other's vertices stays more than half of the other's
-    cell diagonal off the other surface: out of its reach, and on the side of it that the
-    nearest sample of the other field says (`_inside`).
-    """
-    return 1.05 * (math.sqrt(3) * field.voxel + (1 + 0.5 * math.sqrt(3)) * other.voxel)
-
-
 def _local_union(a, b):
     """`fuse_fields` near where the surfaces meet; None when a check fails.
 
@@ -101,14 +83,16 @@ def _local_union(a, b):
         The lattice coordinates of ``a``'s vertices on ``a``'s lattice, NaN for the others.
     """
     sides = []
-    for (field, verts, lattice, faces), (other, other_verts, *_) in ((a, b), (b, a)):
-        tiles = _near_tiles(field, other_verts, _margin(field, other))
-        if tiles is None:
+    marched = np.isfinite(a[2]).all() and np.isfinite(b[2]).all()
+    for (field, verts, lattice, faces), (other, other_verts, other_lattice, _) in ((a, b), (b, a)):
+        region = surface_region(field, other, other_lattice) if marched else \
+            near_region(field, other_verts, margin(field, other))
+        if region is None:
             return None
-        inner = _inner_faces(lattice, faces, *tiles)
-        values, blocks = _restrict(field, *tiles)
+        inner = inner_faces(lattice, faces, region)
+        values, blocks = restrict(field, region)
         r_lattice, r_faces = march_blocks(values, blocks, field.level)
-        r_inner = _inner_faces(r_lattice, r_faces, *tiles)
+        r_inner = inner_faces(r_lattice, r_faces, region)
         sides.append((field, verts, faces, inner, field.origin + r_lattice * field.voxel, r_faces, r_inner))
     # The whole mesh's faces in cells that reach out of the region lie off the other
     # surface: each lies wholly inside the other solid (the union covers it: dropped) or
@@ -162,97 +146,6 @@ def _used(faces: np.ndarray, n: int) -> np.ndarray:
     used = np.zeros(n, dtype=bool)
     used[faces] = True
     return used
-
-
-def _near_tiles(field: Field, points: np.ndarray, margin: float):
-    """Tiles (cubes of ``tile^3`` samples) of ``field``'s lattice within ``margin`` of any
-    of ``points`` (k, 3) (meters), as a dense boolean grid; None if it would be too big.
-
-    Returns
-    -------
-    region : (tx, ty, tz) bool
-        Every tile with a point within ``margin`` is in it (some a little farther are too).
-    lo : (3,) int
-        Tile coordinates of ``region[0, 0, 0]``.
-    tile : int
-        Samples per tile edge.
-    """
-    block = field.values.shape[1]
-    # Tiles about half the margin: finer ones make bigger grids, coarser ones wider regions.
-    finest = min(margin / (2 * field.voxel), block)
-    for tile in (t for t in range(1, block + 1) if block % t == 0 and 2 * t > finest):
-        per = block // tile
-        k = int(math.ceil(margin / (tile * field.voxel)))
-        lo = (field.blocks.min(axis=0) - 1) * per - k  # from the (empty) lower neighbours' tiles
-        shape = (field.blocks.max(axis=0) + 2) * per + k - lo
-        if int(np.prod(shape)) <= _MAX_TILES:
-            break
-    else:
-        return None
-    t = np.floor((points - field.origin) / (field.voxel * tile)).astype(np.int64) - lo
-    t = t[((t >= 0) & (t < shape)).all(axis=1)]
-    occupied = np.zeros(tuple(shape), dtype=np.uint8)
-    occupied[t[:, 0], t[:, 1], t[:, 2]] = 1
-    # A tile j tiles away from a point's tile is at least (j - 1) tile edges away from it.
-    return ndimage.maximum_filter(occupied, size=2 * k + 1, mode="constant") > 0, lo, tile
-
-
-def _inner_faces(lattice: np.ndarray, faces: np.ndarray, region, lo, tile) -> np.ndarray:
-    """Faces whose marching-cubes cell has all 8 samples in ``region``: marching the
-    restricted field gives them bit for bit.
-
-    A face's cell is the floor of its vertices' least coordinates, the same for all faces
-    of a cell, so a cell's faces (and the vertex some cells add inside) never split between
-    the two sides of the seam. A cell across tiles asks for each tile its samples lie in
-    (asking for the whole 2 x 2 x 2 block left faces near a third field's surface out of the
-    region).
-    """
-    # NaN (a vertex of no marching of this field): a cell far outside every region
-    corner = np.floor(np.where(np.isfinite(lattice), lattice, -2.0**30)).astype(np.int32)
-    shape = np.array(region.shape)
-    lo = lo.astype(np.int32)
-    # A vertex lies in its face's cell, so in one of the tiles the cell's samples lie in: only
-    # the faces whose three vertices lie in the region's tiles can be inner (the bench's
-    # whole meshes: a tenth of their faces).
-    t = corner // tile - lo
-    in_region = (t >= 0).all(axis=1) & (t < shape).all(axis=1)
-    in_region[in_region] = region[t[in_region, 0], t[in_region, 1], t[in_region, 2]]
-    inner = np.zeros(len(faces), dtype=bool)
-    maybe = np.flatnonzero(in_region[faces].all(axis=1))
-    f = faces[maybe]
-    cell = np.minimum(np.minimum(corner[f[:, 0]], corner[f[:, 1]]), corner[f[:, 2]])
-    t = cell // tile - lo
-    across = cell % tile == tile - 1  # per axis: the cell's samples reach the next tile
-    ok = ((t >= 0) & (t < shape - across)).all(axis=1)
-    ok[ok] = region[t[ok, 0], t[ok, 1], t[ok, 2]]
-    for step in list(np.ndindex(2, 2, 2))[1:]:  # every other tile the cell's 8 samples lie in
-        rows = np.flatnonzero(ok & across[:, np.array(step, dtype=bool)].all(axis=1))
-        u = t[rows] + np.array(step, dtype=np.int32)
-        ok[rows] = region[u[:, 0], u[:, 1], u[:, 2]]
-    inner[maybe] = ok
-    return inner
-
-
-def _restrict(field: Field, region, lo, tile):
-    """``field``'s blocks that reach ``region``, with their samples outside it zeroed.
-
-    Returns
-    -------
-    values : (k, B, B, B) float32
-    blocks : (k, 3) int64
-    """
-    block = field.values.shape[1]
-    per = block // tile
-    first = field.blocks * per - lo
-    o = np.arange(per)
-    mask = region[first[:, 0, None, None, None] + o[:, None, None],
-                  first[:, 1, None, None, None] + o[None, :, None],
-                  first[:, 2, None, None, None] + o[None, None, :]]
-    keep = mask.reshape(len(mask), -1).any(axis=1)
-    mask = mask[keep]
-    for axis in (1, 2, 3):
-        mask = np.repeat(mask, tile, axis=axis)
-    return field.values[keep] * mask, field.blocks[keep]
 
 
 def _inside(field: Field, points: np.ndarray) -> np.ndarray:
