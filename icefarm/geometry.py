@@ -40,6 +40,41 @@ def face_cross(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
                             a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]])
 
 
+def face_any(mask: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """``(m,) bool``: the faces ``(m, 3)`` (or edges ``(m, 2)``) with a corner where ``mask``
+    ``(n,) bool`` is set.
+
+    ``mask[faces].any(axis=1)`` column by column: numpy reduces rows of three 6 times slower
+    (731 k faces of Table 2's dragon ice: 1.3 against 8.7 ms).
+    """
+    faces = np.asarray(faces)
+    out = mask[faces[:, 0]].copy()
+    for k in range(1, faces.shape[1]):
+        out |= mask[faces[:, k]]
+    return out
+
+
+def face_all(mask: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """``(m,) bool``: the faces ``(m, 3)`` with all their corners where ``mask`` ``(n,) bool``
+    is set (``mask[faces].all(axis=1)``, as fast as `face_any`)."""
+    faces = np.asarray(faces)
+    out = mask[faces[:, 0]].copy()
+    for k in range(1, faces.shape[1]):
+        out &= mask[faces[:, k]]
+    return out
+
+
+def face_count(mask: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """``(m,) uint8``: how many corners of each face ``(m, 3)`` ``mask`` ``(n,) bool`` sets
+    (``mask[faces].sum(axis=1)``, as fast as `face_any`)."""
+    faces = np.asarray(faces)
+    m = np.asarray(mask, dtype=bool).view(np.uint8)
+    out = m[faces[:, 0]].copy()
+    for k in range(1, faces.shape[1]):
+        out += m[faces[:, k]]
+    return out
+
+
 def signed_volume(vertices: np.ndarray, faces: np.ndarray, *,
                   labels: np.ndarray | None = None) -> float | np.ndarray:
     """Signed volume (m^3) of a closed mesh, or of each of its pieces: negative when wound inwards.

@@ -23,6 +23,19 @@ def test_face_cross_is_trimesh_cross(lumpy):
                                rtol=1e-12, atol=1e-15)
 
 
+@pytest.mark.parametrize("share", [0.0, 0.05, 0.5, 1.0])
+def test_face_any_all_count_are_numpys_reductions(share):
+    rng = np.random.default_rng(1)
+    mask = rng.random(500) < share
+    faces = rng.integers(0, 500, (2000, 3))
+    edges = faces[:, :2]
+    assert np.array_equal(geometry.face_any(mask, faces), mask[faces].any(axis=1))
+    assert np.array_equal(geometry.face_any(mask, edges), mask[edges].any(axis=1))
+    assert np.array_equal(geometry.face_all(mask, faces), mask[faces].all(axis=1))
+    assert np.array_equal(geometry.face_count(mask, faces), mask[faces].sum(axis=1))
+    assert not np.shares_memory(geometry.face_any(mask, faces), mask)
+
+
 def test_signed_volume_is_trimesh_volume(lumpy):
     assert signed_volume(lumpy.vertices, lumpy.faces) == pytest.approx(lumpy.volume, rel=1e-12)
     inverted = lumpy.copy()

@@ -7,6 +7,8 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
+from ..geometry import face_any
+
 
 def sliver_candidates(vertices: np.ndarray, fields, tol: float) -> np.ndarray:
     """``(n,) bool``: the vertices where slivers and needles can be, for `clean_slivers`'
@@ -95,7 +97,7 @@ def _collapse(vertices, faces, tol, near):
         return vertices, faces, None
     # Vertices a hair apart end an edge that short: only those ends are searched (a tree of
     # every vertex of a million-face mesh took most of the time).
-    look = faces if near is None else faces[np.asarray(near, dtype=bool)[faces].any(axis=1)]
+    look = faces if near is None else faces[face_any(np.asarray(near, dtype=bool), faces)]
     a, b, c = vertices[look[:, 0]], vertices[look[:, 1]], vertices[look[:, 2]]
     edges = [(0, 1, b - a), (1, 2, c - b), (2, 0, a - c)]
     ends = np.unique(np.concatenate([look[(d * d).sum(axis=1) < tol * tol][:, [i, j]].ravel() for i, j, d in edges]))
@@ -118,7 +120,7 @@ def _collapse(vertices, faces, tol, near):
     touched[nodes] = True
     # Only faces at a merged vertex change, and every edge at one lies in such faces only,
     # so the collapse is done and checked on those faces alone.
-    hit = touched[faces].any(axis=1)
+    hit = face_any(touched, faces)
     merged = rep[faces[hit]]
     keep = (merged[:, 0] != merged[:, 1]) & (merged[:, 1] != merged[:, 2]) & (merged[:, 0] != merged[:, 2])
     merged = merged[keep]
@@ -171,7 +173,7 @@ def flip_needles(vertices: np.ndarray, faces: np.ndarray, height: float, near: n
     if near is None:
         needles = np.flatnonzero(_flat(vertices, faces, height))
     else:
-        candidates = np.flatnonzero(np.asarray(near, dtype=bool)[faces].any(axis=1))
+        candidates = np.flatnonzero(face_any(np.asarray(near, dtype=bool), faces))
         needles = candidates[_flat(vertices, faces[candidates], height)]
     if len(needles) == 0:
         return faces
@@ -182,9 +184,9 @@ def flip_needles(vertices: np.ndarray, faces: np.ndarray, height: float, near: n
     # argsort of every edge of a million-face mesh took most of the time).
     near = np.zeros(n, dtype=bool)
     near[faces[needles]] = True
-    local = np.flatnonzero(near[faces].any(axis=1))
+    local = np.flatnonzero(face_any(near, faces))
     near[faces[local]] = True
-    local = np.flatnonzero(near[faces].any(axis=1))
+    local = np.flatnonzero(face_any(near, faces))
     sub = faces[local]
     m = len(local)
     keys = np.concatenate([sub[:, 0] * n + sub[:, 1], sub[:, 1] * n + sub[:, 2], sub[:, 2] * n + sub[:, 0]])

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..geometry import face_any, face_count
 from .field import Field, block_keys
 from .march import march_blocks
 from .union_region import inner_faces, margin, near_region, restrict, surface_region
@@ -103,7 +104,7 @@ def _local_union(a, b):
         used = _used(faces[out], len(verts))
         covered = np.zeros(len(verts), dtype=bool)
         covered[used] = _inside(other, verts[used])
-        count = covered[faces[out]].sum(axis=1)
+        count = face_count(covered, faces[out])
         if ((count > 0) & (count < 3)).any():
             return None
         outside.append(out[count == 0])
@@ -165,9 +166,9 @@ def _inside(field: Field, points: np.ndarray) -> np.ndarray:
 def _closed_around(faces: np.ndarray, touched: np.ndarray) -> bool:
     """Whether every edge with an end in ``touched`` (per vertex) joins exactly two faces
     that cross it in opposite directions."""
-    f = faces[touched[faces].any(axis=1)]
+    f = faces[face_any(touched, faces)]
     e = np.stack([f, np.roll(f, -1, axis=1)], axis=-1).reshape(-1, 2)
-    e = e[touched[e].any(axis=1)]
+    e = e[face_any(touched, e)]
     n = len(touched)
     key = np.sort(e[:, 0] * n + e[:, 1])
     back = np.sort(e[:, 1] * n + e[:, 0])

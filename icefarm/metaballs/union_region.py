@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
+from ..geometry import face_all
 from .field import Field
 
 # Most tiles (or cells of the other lattice) in a dense grid built to find a region.
@@ -269,7 +270,7 @@ def inner_faces(lattice: np.ndarray, faces: np.ndarray, region: Region) -> np.nd
     held = finite.copy()
     held[finite] = region.holds(corner[finite])
     inner = np.zeros(len(faces), dtype=bool)
-    maybe = np.flatnonzero(held[faces].all(axis=1))
+    maybe = np.flatnonzero(face_all(held, faces))
     f = faces[maybe]
     cell = np.minimum(np.minimum(corner[f[:, 0]], corner[f[:, 1]]), corner[f[:, 2]])
     ok = np.ones(len(f), dtype=bool)

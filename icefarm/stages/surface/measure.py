@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ...geometry import arc_lengths, nearest, point_index, ragged_arange
+from ...geometry import arc_lengths, face_all, nearest, point_index, ragged_arange
 from ...params import SurfaceParams
 from ..trajectories import TrajectoryResult
 from .profile import points_along, grown_lengths
@@ -355,7 +355,7 @@ def _crossings(vert, sample, along, radial, n_vertices, faces, trunk, x, step):
     r[vert] = radial
     t[vert] = trunk[sample]
     inside = t >= 0
-    faces = faces[inside[faces].all(axis=1)]
+    faces = faces[face_all(inside, faces)]
     a, b = faces.ravel(), np.roll(faces, -1, axis=1).ravel()
     # An edge shared by two faces runs once each way: keep the way up the trunk.
     up = (t[a] == t[b]) & (s[a] < s[b])
