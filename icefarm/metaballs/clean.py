@@ -34,10 +34,13 @@ def sliver_candidates(vertices: np.ndarray, fields, tol: float) -> np.ndarray:
     cornered = np.zeros(len(vertices), dtype=bool)
     for field in fields:
         c = (vertices - field.origin) / field.voxel
-        off = np.sort(np.abs(c - np.rint(c)), axis=1)  # off a lattice plane, per axis, ascending
-        edge = off[:, 1] < 1e-6
+        off = np.abs(c - np.rint(c))  # off a lattice plane, per axis
+        # On two lattice planes, and how far off the third (column by column: numpy sorts
+        # and reduces rows of three several times slower).
+        x, y, z = (off[:, k] < 1e-6 for k in range(3))
+        edge = (x & y) | (x & z) | (y & z)
         on_edge |= edge
-        cornered |= edge & (off[:, 2] < 4.0 * tol / field.voxel)
+        cornered |= edge & (np.maximum(np.maximum(off[:, 0], off[:, 1]), off[:, 2]) < 4.0 * tol / field.voxel)
     return ~on_edge | cornered
 
 

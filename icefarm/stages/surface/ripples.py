@@ -183,7 +183,10 @@ def _waves(vertices: np.ndarray, traj: TrajectoryResult, prof: dict, max_radius:
         return None
     reach = REACH * radius[rippled].max() + amplitude
     lo, hi = axis[rippled].min(axis=0) - reach, axis[rippled].max(axis=0) + reach
-    candidates = np.flatnonzero(((vertices >= lo) & (vertices <= hi)).all(axis=1))
+    within = np.ones(len(vertices), dtype=bool)
+    for k in range(3):  # column by column: numpy reduces rows of three several times slower
+        within &= (vertices[:, k] >= lo[k]) & (vertices[:, k] <= hi[k])
+    candidates = np.flatnonzero(within)
     _, i = nearest(point_index(axis[rippled]), vertices[candidates], reach)
     found = i >= 0
     near, i = candidates[found], rippled[i[found]]
