@@ -114,3 +114,15 @@ def test_inner_faces_are_those_whose_cell_keeps_its_samples():
         cell = np.floor(v).astype(int).min(axis=0)
         assert inner[k] == all(kept(cell + np.array(d)) for d in np.ndindex(2, 2, 2))
     assert 0 < inner[np.isfinite(lattice[faces]).all(axis=(1, 2))].mean() < 1
+
+
+def test_values_at_reads_the_blocks_and_zero_elsewhere():
+    rng = np.random.default_rng(5)
+    block = 4
+    blocks = np.unique(rng.integers(0, 5, (30, 3)), axis=0)
+    values = rng.random((len(blocks), block, block, block)).astype(np.float32)
+    field = M.Field(np.zeros(3), 0.001, 0.5, blocks, values)
+    samples = rng.integers(-6, 26, (3000, 3))
+    where = {tuple(b): k for k, b in enumerate(blocks)}
+    want = [values[(where[tuple(s // block)], *(s % block))] if tuple(s // block) in where else 0.0 for s in samples]
+    assert np.array_equal(M.field.values_at(field, samples), np.array(want, dtype=np.float32))

@@ -144,6 +144,35 @@ def _ball_block_pairs(q, el, lo, hi, block):
     return ball, bc.astype(np.int64), starts, counts
 
 
+def block_grid(blocks: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A dense grid of indices into ``blocks`` (k, 3) over their bounding box and one block
+    more all round, -1 where there is none (the border included): ``(grid, first)``, the
+    block coordinates of ``grid[0, 0, 0]`` in ``first``. A lookup by grid instead of by
+    sorted `block_keys`: one gather per point, no binary search."""
+    first = blocks.min(axis=0) - 1
+    grid = np.full(tuple(blocks.max(axis=0) - first + 2), -1, dtype=np.int64)
+    b = blocks - first
+    grid[b[:, 0], b[:, 1], b[:, 2]] = np.arange(len(b))
+    return grid, first
+
+
+def values_at(field: Field, samples: np.ndarray) -> np.ndarray:
+    """``(n,) float32``: ``field``'s values at lattice samples ``samples`` (n, 3) int, 0 where
+    no block holds them."""
+    block = field.values.shape[1]
+    grid, first = block_grid(field.blocks)
+    flat = np.zeros(len(samples), dtype=np.int64)
+    for k, stride in enumerate((grid.shape[1] * grid.shape[2], grid.shape[2], 1)):
+        # a block off the grid lands on its border (none there)
+        flat += np.clip(samples[:, k] // block - first[k], 0, grid.shape[k] - 1) * stride
+    i = grid.ravel()[flat]
+    out = np.zeros(len(samples), dtype=field.values.dtype)
+    ok = np.flatnonzero(i >= 0)
+    r = samples[ok] % block
+    out[ok] = field.values[i[ok], r[:, 0], r[:, 1], r[:, 2]]
+    return out
+
+
 def block_keys(bc):
     """One sortable int64 per block coordinate (k, 3) (coordinates are >= 0 and < 2^20)."""
     bc = np.asarray(bc, dtype=np.int64)

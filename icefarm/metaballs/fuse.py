@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..geometry import face_any, face_count
-from .field import Field, block_keys
+from .field import Field, values_at
 from .march import march_blocks
 from .union_region import inner_faces, margin, near_region, restrict, surface_region
 
@@ -49,7 +49,7 @@ def fuse_fields(a: Field | None, b: Field | None, detail: Field | None = None):
     if len(parts) < 2:
         fused = (parts[0][1], parts[0][3], parts[0][2] if keeps_a else None) if parts else None
     else:
-        fused = _local_union(*parts)
+        fused = _local_union(*parts, with_lattice=detail is not None)
         if fused is None:
             fused = (*union_meshes([(p[1], p[3]) for p in parts]), None)
     if detail is not None:
@@ -61,7 +61,7 @@ def fuse_fields(a: Field | None, b: Field | None, detail: Field | None = None):
             verts, faces, lattice = fused
             fused = None
             if lattice is not None:  # a's faces near the detail are a's marching: unite there only
-                fused = _local_union(d_part, (a, verts, lattice, faces))
+                fused = _local_union(d_part, (a, verts, lattice, faces), with_lattice=False)
             if fused is None:
                 return union_meshes([(verts, faces), (d_part[1], d_part[3])])
     if fused is None:
@@ -69,7 +69,7 @@ def fuse_fields(a: Field | None, b: Field | None, detail: Field | None = None):
     return fused[0], fused[1]
 
 
-def _local_union(a, b):
+def _local_union(a, b, with_lattice: bool = True):
     """`fuse_fields` near where the surfaces meet; None when a check fails.
 
     ``a``, ``b``: (field, vertices in meters, vertices in lattice coordinates, faces).
@@ -80,8 +80,9 @@ def _local_union(a, b):
     -------
     vertices : (n, 3) float64
     faces : (m, 3) int64
-    lattice : (n, 3) float64
-        The lattice coordinates of ``a``'s vertices on ``a``'s lattice, NaN for the others.
+    lattice : (n, 3) float64 or None
+        The lattice coordinates of ``a``'s vertices on ``a``'s lattice, NaN for the others;
+        None unless ``with_lattice`` (only a later union with a third field reads them).
     """
     sides = []
     marched = np.isfinite(a[2]).all() and np.isfinite(b[2]).all()
@@ -100,11 +101,11 @@ def _local_union(a, b):
     # wholly outside (kept as it is).
     outside = []
     for (_, verts, faces, inner, *_), other in zip(sides, (sides[1][0], sides[0][0])):
-        out = np.flatnonzero(~inner)
-        used = _used(faces[out], len(verts))
+        out = faces[~inner]
+        used = _used(out, len(verts))
         covered = np.zeros(len(verts), dtype=bool)
         covered[used] = _inside(other, verts[used])
-        count = face_count(covered, faces[out])
+        count = face_count(covered, out)
         if ((count > 0) & (count < 3)).any():
             return None
         outside.append(out[count == 0])
@@ -128,7 +129,7 @@ def _local_union(a, b):
                                   return_index=True, return_inverse=True)
     index = np.arange(len(verts))
     index[cand] = cand[first][inverse.reshape(-1)]
-    faces = index[np.concatenate([fa[outside[0]], fb[outside[1]] + na, u_faces + na + nb])]
+    faces = index[np.concatenate([outside[0], outside[1] + na, u_faces + na + nb])]
     if ((faces[:, 0] == faces[:, 1]) | (faces[:, 1] == faces[:, 2]) | (faces[:, 0] == faces[:, 2])).any():
         return None
     # Away from the seams each part is closed already (the marched meshes and the union).
@@ -137,6 +138,8 @@ def _local_union(a, b):
     if not _closed_around(faces, touched):
         return None
     used = _used(faces, len(verts))
+    if not with_lattice:
+        return verts[used], (np.cumsum(used) - 1)[faces], None
     lattice = np.full((len(verts), 3), np.nan)
     lattice[:na] = a[2]
     return verts[used], (np.cumsum(used) - 1)[faces], lattice[used]
@@ -151,16 +154,7 @@ def _used(faces: np.ndarray, n: int) -> np.ndarray:
 
 def _inside(field: Field, points: np.ndarray) -> np.ndarray:
     """Whether the field's nearest sample to each point (n, 3) (meters) is above its level."""
-    block = field.values.shape[1]
-    s = np.rint((points - field.origin) / field.voxel).astype(np.int64)
-    bc = s // block
-    ok = ((bc >= 0) & (bc < 2**20)).all(axis=1)
-    keys = block_keys(field.blocks)
-    key = block_keys(np.where(ok[:, None], bc, 0))
-    i = np.minimum(np.searchsorted(keys, key), len(keys) - 1)
-    ok &= keys[i] == key
-    r = s - bc * block
-    return ok & (field.values[i, r[:, 0], r[:, 1], r[:, 2]] > field.level)
+    return values_at(field, np.rint((points - field.origin) / field.voxel).astype(np.int64)) > field.level
 
 
 def _closed_around(faces: np.ndarray, touched: np.ndarray) -> bool:

@@ -19,7 +19,7 @@ import numpy as np
 from scipy import ndimage
 
 from ..geometry import face_all
-from .field import Field
+from .field import Field, block_grid
 
 # Most tiles (or cells of the other lattice) in a dense grid built to find a region.
 _MAX_TILES = 2**22
@@ -54,12 +54,22 @@ class Region:
         the field (zero either way)."""
         per = self.mask.shape[1]
         block = per * self.tile
-        # Block and tile by shifts (powers of two); a block off the grid lands on its border.
-        shape = np.array(self.index.shape)
-        b = np.clip((samples >> _log2(block)) - self.first, 0, shape - 1)
-        i = self.index.ravel()[b @ np.array([shape[1] * shape[2], shape[2], 1])]
-        t = ((samples & (block - 1)) >> _log2(self.tile)) @ np.array([per * per, per, 1])
-        return np.where(i >= 0, self.mask.reshape(-1)[np.maximum(i, 0) * per**3 + t], True)
+        # Block and tile by shifts (powers of two), column by column; a block off the grid
+        # lands on its border.
+        shape = self.index.shape
+        flat = np.zeros(len(samples), dtype=np.int64)
+        for k, stride in enumerate((shape[1] * shape[2], shape[2], 1)):
+            flat += np.clip((samples[:, k] >> _log2(block)) - self.first[k], 0, shape[k] - 1) * stride
+        i = self.index.ravel()[flat]
+        out = i < 0
+        # Only samples in blocks with tiles in the region need their tile's answer.
+        busy = np.flatnonzero(self.mask.reshape(len(self.mask), -1).any(axis=1)[np.maximum(i, 0)] & ~out)
+        s = samples[busy] & (block - 1)
+        t = i[busy] * per**3
+        for k, stride in enumerate((per * per, per, 1)):
+            t += (s[:, k] >> _log2(self.tile)) * stride
+        out[busy] = self.mask.reshape(-1)[t]
+        return out
 
 
 def _log2(n: int) -> int:
@@ -149,14 +159,6 @@ def _grid(field: Field, finest: float, pad: float):
     return None
 
 
-def _block_index(field: Field):
-    first = field.blocks.min(axis=0) - 1
-    index = np.full(tuple(field.blocks.max(axis=0) - first + 2), -1, dtype=np.int64)
-    b = field.blocks - first
-    index[b[:, 0], b[:, 1], b[:, 2]] = np.arange(len(b))
-    return index, first
-
-
 def _from_dense(field: Field, dense: np.ndarray, lo, tile: int, block: int) -> Region:
     per = block // tile
     first = field.blocks * per - lo
@@ -164,7 +166,7 @@ def _from_dense(field: Field, dense: np.ndarray, lo, tile: int, block: int) -> R
     mask = dense[first[:, 0, None, None, None] + o[:, None, None],
                  first[:, 1, None, None, None] + o[None, :, None],
                  first[:, 2, None, None, None] + o[None, None, :]]
-    return Region(mask, tile, *_block_index(field))
+    return Region(mask, tile, *block_grid(field.blocks))
 
 
 def _cell_range(field: Field, box_lo: np.ndarray, box_hi: np.ndarray):
@@ -251,7 +253,7 @@ def _coarse_cells(field: Field, other: Field, lo: np.ndarray, hi: np.ndarray) ->
     for d in np.ndindex(2, 2, 2):
         ix, iy, iz = (np.minimum(c_lo[:, a] + d[a], c_hi[:, a]) * stride[a] for a in range(3))
         mask |= cells[ix[:, :, None, None] + iy[:, None, :, None] + iz[:, None, None, :]]
-    return Region(mask, tile, *_block_index(field))
+    return Region(mask, tile, *block_grid(field.blocks))
 
 
 def inner_faces(lattice: np.ndarray, faces: np.ndarray, region: Region) -> np.ndarray:
