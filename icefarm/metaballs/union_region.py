@@ -192,17 +192,22 @@ def _boxes(field: Field, box_lo: np.ndarray, box_hi: np.ndarray) -> Region | Non
     t_lo, t_hi = t_lo[ok], t_hi[ok]
     if (t_hi - t_lo <= 1).all():  # one or two tiles per axis: mark them
         return _from_dense(field, _mark_pairs(t_lo, t_hi - t_lo > 0, shape), lo, tile, block)
-    t_hi = t_hi + 1
-    size = shape + 1
+    return _from_dense(field, _union_of_boxes(t_lo, t_hi, shape), lo, tile, block)
+
+
+def _union_of_boxes(lo: np.ndarray, hi: np.ndarray, shape) -> np.ndarray:
+    """A dense bool grid of ``shape`` with the boxes ``lo`` .. ``hi`` (k, 3), inclusive and
+    within the grid, marked: +-1 at each box's corners, summed along each axis."""
+    size = np.asarray(shape) + 1
     count = np.zeros(int(np.prod(size)), dtype=np.int32)
     for corner in np.ndindex(2, 2, 2):
-        at = np.where(np.array(corner, dtype=bool), t_hi, t_lo)
+        at = np.where(np.array(corner, dtype=bool), hi + 1, lo)
         flat = np.bincount(np.ravel_multi_index(at.T, size), minlength=len(count)).astype(np.int32)
         count += -flat if sum(corner) % 2 else flat
     count = count.reshape(size)
     for axis in range(3):
         np.cumsum(count, axis=axis, out=count)
-    return _from_dense(field, count[:-1, :-1, :-1] > 0, lo, tile, block)
+    return count[:-1, :-1, :-1] > 0
 
 
 def _mark_pairs(lo: np.ndarray, two: np.ndarray, shape) -> np.ndarray:
@@ -236,12 +241,21 @@ def _coarse_cells(field: Field, other: Field, lo: np.ndarray, hi: np.ndarray) ->
     shape = g_hi - g_lo
     if int(np.prod(shape)) > _MAX_TILES * 4:
         return None
+    # Only blocks that meet a box of the other's cells have tiles in the region.
+    b_lo = np.floor((other.origin + lo * other.voxel - field.voxel - field.origin) / (block * field.voxel) - _EPS)
+    b_hi = np.floor((other.origin + hi * other.voxel + field.voxel - field.origin) / (block * field.voxel) + _EPS)
+    grid, first = block_grid(field.blocks)
+    b_lo = np.maximum(b_lo.astype(np.int64) - first, 0)
+    b_hi = np.minimum(b_hi.astype(np.int64) - first, np.array(grid.shape) - 1)
+    meets = (b_lo <= b_hi).all(axis=1)
+    busy = np.flatnonzero(_union_of_boxes(b_lo[meets], b_hi[meets], grid.shape)[tuple((field.blocks - first).T)])
+    mask = np.zeros((len(field.blocks), per, per, per), dtype=bool)
     lo = lo - g_lo
     ok = ((lo >= 0) & (lo < shape - 1)).all(axis=1)  # the grid's edges lie past the blocks
     cells = _mark_pairs(lo[ok], (hi[ok] - g_lo - lo[ok]) > 1, shape).ravel()
     stride = np.array([shape[1] * shape[2], shape[2], 1])
-    # Per axis and tile of each block: the other's cells its cells meet (one or two).
-    t = field.blocks[:, :, None] * per + np.arange(per)[None, None, :]  # (k, 3, per) tile coords
+    # Per axis and tile of each such block: the other's cells its cells meet (one or two).
+    t = field.blocks[busy, :, None] * per + np.arange(per)[None, None, :]  # (k, 3, per) tile coords
     first_s = t * tile - 1  # the first sample of the tile's first cell ...
     last_s = t * tile + tile  # ... and the last of its last
     o = other.origin[None, :, None]
@@ -249,11 +263,12 @@ def _coarse_cells(field: Field, other: Field, lo: np.ndarray, hi: np.ndarray) ->
     c_hi = np.floor((field.origin[None, :, None] + last_s * field.voxel - o) / other.voxel + _EPS).astype(np.int64)
     c_lo -= g_lo[None, :, None]
     c_hi -= g_lo[None, :, None]
-    mask = np.zeros((len(field.blocks), per, per, per), dtype=bool)
+    part = np.zeros((len(busy), per, per, per), dtype=bool)
     for d in np.ndindex(2, 2, 2):
         ix, iy, iz = (np.minimum(c_lo[:, a] + d[a], c_hi[:, a]) * stride[a] for a in range(3))
-        mask |= cells[ix[:, :, None, None] + iy[:, None, :, None] + iz[:, None, None, :]]
-    return Region(mask, tile, *block_grid(field.blocks))
+        part |= cells[ix[:, :, None, None] + iy[:, None, :, None] + iz[:, None, None, :]]
+    mask[busy] = part
+    return Region(mask, tile, grid, first)
 
 
 def inner_faces(lattice: np.ndarray, faces: np.ndarray, region: Region) -> np.ndarray:
