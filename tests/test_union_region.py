@@ -38,12 +38,13 @@ def _canonical(vertices, faces):
 
 
 @pytest.mark.parametrize("fine, coarse, max_tiles", [(0.0004, 0.0016, None), (0.0006, 0.001, None),
-                                                    (0.0004, 0.0016, 20_000)])
+                                                    (0.0004, 0.0016, 20_000), (0.0004, 0.0016, 3_000)])
 def test_the_region_holds_every_cell_the_other_surface_meets(fine, coarse, max_tiles, monkeypatch):
     # Both ways round: a fine field against a coarse one's cells (four times: one or two of
     # them per tile and axis) and a coarse one against a fine one's (boxes on a dense grid:
     # summed where they span several tiles, marked where they span one or two, as on a
-    # grid too small for single samples).
+    # grid too small for single samples); on the smallest grids the fine field's blocks go
+    # a group at a time.
     if max_tiles:
         monkeypatch.setattr(union_region, "_MAX_TILES", max_tiles)
     rods = _rods([[0.0, 0.006, 0.0]], 0.004, fine)

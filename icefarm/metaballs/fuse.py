@@ -85,9 +85,11 @@ def _local_union(a, b, with_lattice: bool = True):
         None unless ``with_lattice`` (only a later union with a third field reads them).
     """
     sides = []
-    marched = np.isfinite(a[2]).all() and np.isfinite(b[2]).all()
     for (field, verts, lattice, faces), (other, other_verts, other_lattice, _) in ((a, b), (b, a)):
-        region = surface_region(field, other, other_lattice) if marched else \
+        # The other's vertices of no marching of its field lie away from this surface (the
+        # contract above): the union runs near those of its marching only.
+        marched = np.isfinite(other_lattice).all(axis=1)
+        region = surface_region(field, other, other_lattice[marched]) if marched.any() else \
             near_region(field, other_verts, margin(field, other))
         if region is None:
             return None

@@ -190,8 +190,8 @@ def _boxes(field: Field, box_lo: np.ndarray, box_hi: np.ndarray) -> Region | Non
     t_hi = np.minimum(s_hi // tile - lo, shape - 1)
     ok = (t_lo <= t_hi).all(axis=1)
     t_lo, t_hi = t_lo[ok], t_hi[ok]
-    if (t_hi - t_lo <= 1).all():  # one or two tiles per axis: mark them
-        return _from_dense(field, _mark_pairs(t_lo, t_hi - t_lo > 0, shape), lo, tile, block)
+    if (t_hi - t_lo <= 2).all():  # at most three tiles per axis: mark them
+        return _from_dense(field, _mark_boxes(t_lo, t_hi - t_lo, shape), lo, tile, block)
     return _from_dense(field, _union_of_boxes(t_lo, t_hi, shape), lo, tile, block)
 
 
@@ -210,38 +210,32 @@ def _union_of_boxes(lo: np.ndarray, hi: np.ndarray, shape) -> np.ndarray:
     return count[:-1, :-1, :-1] > 0
 
 
-def _mark_pairs(lo: np.ndarray, two: np.ndarray, shape) -> np.ndarray:
-    """A dense bool grid of ``shape`` with the boxes ``lo`` (k, 3) marked, each one cell
-    wide per axis, or two where ``two`` (k, 3) says (``lo + two`` within the grid)."""
-    stride = np.array([shape[1] * shape[2], shape[2], 1])
-    flat = lo @ stride
+def _mark_boxes(lo: np.ndarray, span: np.ndarray, shape) -> np.ndarray:
+    """A dense bool grid of ``shape`` with the boxes ``lo`` .. ``lo + span`` (k, 3),
+    inclusive and within the grid, marked cell by cell (for boxes a few cells wide)."""
+    stride = (shape[1] * shape[2], shape[2], 1)
+    flat = lo[:, 0] * stride[0] + lo[:, 1] * stride[1] + lo[:, 2]
     out = np.zeros(int(np.prod(shape)), dtype=bool)
     out[flat] = True
-    for corner in list(np.ndindex(2, 2, 2))[1:]:
-        c = np.array(corner, dtype=bool)
-        out[flat[two[:, c].all(axis=1)] + stride[c].sum()] = True
+    wide = int(span.max(initial=0)) + 1
+    for step in list(np.ndindex(wide, wide, wide))[1:]:
+        sel = (span[:, 0] >= step[0]) & (span[:, 1] >= step[1]) & (span[:, 2] >= step[2])
+        out[flat[sel] + (step[0] * stride[0] + step[1] * stride[1] + step[2])] = True
     return out.reshape(tuple(shape))
 
 
-def _coarse_cells(field: Field, other: Field, lo: np.ndarray, hi: np.ndarray) -> Region | None:
+def _coarse_cells(field: Field, other: Field, lo: np.ndarray, hi: np.ndarray) -> Region:
     """`surface_region` where the other's cells are at least twice ``field``'s: the other
     cells ``lo`` .. ``hi`` - 1 (k, 3) (integer, its sample units) go on a dense grid of the
     other's cells, and each tile of ``field``'s blocks asks the one or two cells per axis its
-    cells meet."""
+    cells meet. Only blocks that meet a box of the other's cells are asked, a group at a
+    time, each group's grid within `_MAX_TILES` cells (the 3 m house's icicle tips against its
+    icicles' cells: 69 M cells over all its blocks)."""
     block = field.values.shape[1]
     ratio = other.voxel / field.voxel
     # The largest tile whose cells span at most two other cells per axis: (tile + 1) voxels.
     tile = max(t for t in range(1, block + 1) if block % t == 0 and t + 1.01 < ratio)
     per = block // tile
-    # The other's cells over this field's blocks.
-    f_lo = field.origin + field.blocks.min(axis=0) * block * field.voxel
-    f_hi = field.origin + (field.blocks.max(axis=0) + 1) * block * field.voxel
-    g_lo = np.floor((f_lo - field.voxel - other.origin) / other.voxel).astype(np.int64) - 2
-    g_hi = np.floor((f_hi + field.voxel - other.origin) / other.voxel).astype(np.int64) + 2
-    shape = g_hi - g_lo
-    if int(np.prod(shape)) > _MAX_TILES * 4:
-        return None
-    # Only blocks that meet a box of the other's cells have tiles in the region.
     b_lo = np.floor((other.origin + lo * other.voxel - field.voxel - field.origin) / (block * field.voxel) - _EPS)
     b_hi = np.floor((other.origin + hi * other.voxel + field.voxel - field.origin) / (block * field.voxel) + _EPS)
     grid, first = block_grid(field.blocks)
@@ -250,24 +244,59 @@ def _coarse_cells(field: Field, other: Field, lo: np.ndarray, hi: np.ndarray) ->
     meets = (b_lo <= b_hi).all(axis=1)
     busy = np.flatnonzero(_union_of_boxes(b_lo[meets], b_hi[meets], grid.shape)[tuple((field.blocks - first).T)])
     mask = np.zeros((len(field.blocks), per, per, per), dtype=bool)
-    lo = lo - g_lo
-    ok = ((lo >= 0) & (lo < shape - 1)).all(axis=1)  # the grid's edges lie past the blocks
-    cells = _mark_pairs(lo[ok], (hi[ok] - g_lo - lo[ok]) > 1, shape).ravel()
-    stride = np.array([shape[1] * shape[2], shape[2], 1])
-    # Per axis and tile of each such block: the other's cells its cells meet (one or two).
-    t = field.blocks[busy, :, None] * per + np.arange(per)[None, None, :]  # (k, 3, per) tile coords
-    first_s = t * tile - 1  # the first sample of the tile's first cell ...
-    last_s = t * tile + tile  # ... and the last of its last
-    o = other.origin[None, :, None]
-    c_lo = np.floor((field.origin[None, :, None] + first_s * field.voxel - o) / other.voxel - _EPS).astype(np.int64)
-    c_hi = np.floor((field.origin[None, :, None] + last_s * field.voxel - o) / other.voxel + _EPS).astype(np.int64)
-    c_lo -= g_lo[None, :, None]
-    c_hi -= g_lo[None, :, None]
-    part = np.zeros((len(busy), per, per, per), dtype=bool)
-    for d in np.ndindex(2, 2, 2):
-        ix, iy, iz = (np.minimum(c_lo[:, a] + d[a], c_hi[:, a]) * stride[a] for a in range(3))
-        part |= cells[ix[:, :, None, None] + iy[:, None, :, None] + iz[:, None, None, :]]
-    mask[busy] = part
+    pending = [(busy, np.flatnonzero(meets))]
+    while pending:
+        blocks, boxes = pending.pop()
+        if len(blocks) == 0:
+            continue
+        # The other's cells over these blocks (and a little more: the grid's edges lie past them).
+        bc = field.blocks[blocks]
+        f_lo = field.origin + bc.min(axis=0) * block * field.voxel
+        f_hi = field.origin + (bc.max(axis=0) + 1) * block * field.voxel
+        g_lo = np.floor((f_lo - field.voxel - other.origin) / other.voxel).astype(np.int64) - 2
+        g_hi = np.floor((f_hi + field.voxel - other.origin) / other.voxel).astype(np.int64) + 2
+        shape = g_hi - g_lo
+        if int(np.prod(shape)) > _MAX_TILES and len(blocks) > 1:  # split at the median block
+            axis = int(np.argmax(shape))
+            cut = np.median(bc[:, axis])
+            left = bc[:, axis] <= cut
+            if left.all():
+                left = bc[:, axis] < cut
+            for side in (left, ~left):
+                s_lo = field.origin[axis] + (bc[side, axis].min() * block - 1) * field.voxel
+                s_hi = field.origin[axis] + ((bc[side, axis].max() + 1) * block + 1) * field.voxel
+                near = (other.origin[axis] + hi[boxes, axis] * other.voxel >= s_lo) & \
+                    (other.origin[axis] + lo[boxes, axis] * other.voxel <= s_hi)
+                pending.append((blocks[side], boxes[near]))
+            continue
+        c = lo[boxes] - g_lo
+        ok = ((c >= 0) & (c < shape - 1)).all(axis=1)
+        cells = _mark_boxes(c[ok], hi[boxes][ok] - g_lo - c[ok] - 1, shape).ravel()
+        stride = np.array([shape[1] * shape[2], shape[2], 1])
+        # Per axis and tile of each block: the other's cells its cells meet (one or two,
+        # first and last).
+        t = bc[:, :, None] * per + np.arange(per)[None, None, :]  # (k, 3, per) tile coords
+        first_s = t * tile - 1  # the first sample of the tile's first cell ...
+        last_s = t * tile + tile  # ... and the last of its last
+        o = other.origin[None, :, None]
+        c_lo = np.floor((field.origin[None, :, None] + first_s * field.voxel - o) / other.voxel - _EPS).astype(np.int64)
+        c_hi = np.floor((field.origin[None, :, None] + last_s * field.voxel - o) / other.voxel + _EPS).astype(np.int64)
+        c_lo -= g_lo[None, :, None]
+        c_hi -= g_lo[None, :, None]
+        # Each block's window of the other's cells, then the tiles' one or two cells ORed
+        # along x, y and z in turn (a third of the gathers of asking all eight per tile).
+        w0 = c_lo[:, :, 0]
+        size = int((c_hi[:, :, -1] - w0).max()) + 1
+        r = np.arange(size)
+        ix, iy, iz = (np.minimum(w0[:, a, None] + r, shape[a] - 1) * stride[a] for a in range(3))
+        part = cells[ix[:, :, None, None] + iy[:, None, :, None] + iz[:, None, None, :]]
+        for a in range(3):
+            at = [slice(None), None, None, None]
+            at[a + 1] = slice(None)
+            lo_a, hi_a = (c[:, a] - w0[:, a, None] for c in (c_lo, c_hi))
+            part = np.take_along_axis(part, lo_a[tuple(at)], axis=a + 1) | \
+                np.take_along_axis(part, hi_a[tuple(at)], axis=a + 1)
+        mask[blocks] = part
     return Region(mask, tile, grid, first)
 
 
