@@ -5,9 +5,10 @@ A region is kept per block of the field (`Region`), by tiles of ``tile^3`` sampl
 it can be as fine as a sample on a lattice of millions of blocks' extent. Two ways find it:
 
 * `surface_region`, from the cells of the other lattice that hold the other surface (the
-  four around each of its vertices' lattice edges): tight, for two marched fields;
+  four around each of its vertices' lattice edges): tight; for a mesh united before, from
+  the vertices its field marched (the others lie away from this surface);
 * `near_region`, from the distance to the other surface's vertices (`margin`): for a
-  surface whose vertices are not all on its lattice (a mesh united before).
+  surface none of whose vertices are on its lattice.
 """
 
 from __future__ import annotations
