@@ -65,11 +65,28 @@ class IceFocus:
     clearance: float = 0.0
 
 
-def _edge_length(vertices: np.ndarray, faces: np.ndarray, count: int = 2000) -> float:
-    """Median edge length (m) of up to ``count`` faces spread over the mesh."""
-    step = max(1, len(faces) // count)
-    tri = vertices[faces[::step]]
-    return float(np.median(np.linalg.norm(tri[:, 1] - tri[:, 0], axis=1)))
+def _edge_length(vertices: np.ndarray, faces: np.ndarray) -> float:
+    """Median edge length (m) of the mesh's faces (their first edges: whatever the faces'
+    order, unlike every so-many of them; 2.7 M faces in 0.05 s)."""
+    faces = np.asarray(faces)
+    d = vertices[faces[:, 1]] - vertices[faces[:, 0]]
+    return float(np.median(np.sqrt(np.einsum("kd,kd->k", d, d))))
+
+
+def spread_sample(points: np.ndarray, count: int) -> np.ndarray:
+    """About ``count`` of ``points`` (n, 3), in coordinate order: the same ones for the same
+    points in any order. Those whose single-precision coordinates hash to a multiple of
+    ``n // count``: every so-many in memory order moved an ice view 35 cm along the 0.4 m
+    fountain's rim when marching cubes' batches changed only the ice vertices' order."""
+    points = np.asarray(points, dtype=np.float64)
+    step = len(points) // count
+    if step > 1:
+        bits = np.ascontiguousarray(points, dtype=np.float32).view(np.uint32).astype(np.uint64)
+        mixed = (bits[:, 0] * np.uint64(0x9E3779B1)) ^ (bits[:, 1] * np.uint64(0x85EBCA77)) ^ \
+            (bits[:, 2] * np.uint64(0xC2B2AE3D))
+        mixed ^= mixed >> np.uint64(29)
+        points = points[(mixed * np.uint64(0xBF58476D1CE4E5B9) >> np.uint64(32)) % np.uint64(step) == 0]
+    return points[np.lexsort(points.T[::-1])]
 
 
 def slab_levels(heights: np.ndarray, levels: int = SECTIONS) -> np.ndarray:
@@ -167,11 +184,11 @@ def ice_focus(ice_vertices: np.ndarray, ice_faces: np.ndarray, object_points: np
     IceFocus or None
         None without ice.
     """
-    vertices = np.asarray(ice_vertices, dtype=np.float64)
+    # In single precision, as ice.ply keeps them: `icefarm render` finds the job's icicles.
+    vertices = np.asarray(ice_vertices, dtype=np.float32).astype(np.float64)
     if len(vertices) == 0:
         return None
-    step = max(1, len(vertices) // FOCUS_SAMPLES)
-    sample = vertices[::step]
+    sample = spread_sample(vertices, FOCUS_SAMPLES)
     tree = cKDTree(object_points)
     gap = float(np.median(tree.query(object_points[:: max(1, len(object_points) // 2000)], k=2)[0][:, 1]))
     reach = max(0.02 * size, 3.0 * gap, 0.004)
