@@ -15,9 +15,10 @@ def fuse_fields(a: Field | None, b: Field | None, detail: Field | None = None):
 
     Both are marched whole. The union only cuts them where they come close, so only there
     does it run (manifold3d): each field is marched again with its samples zeroed outside
-    the samples of its cells that may meet the other surface (`icefarm.metaballs.union_region`),
-    which closes it with caps out of the other's reach; the caps are cut off the union and the rest welds, bit for bit, to the
-    faces of the whole meshes outside those tiles, less those wholly inside the other solid
+    the samples of its cells that may meet the other surface
+    (`icefarm.metaballs.union_region`), which closes it with caps out of the other's reach;
+    the caps are cut off the union and the rest welds, bit for bit, to the faces of the
+    whole meshes outside that region, less those wholly inside the other solid
     (nearest-sample test). Should a check fail (a face there half inside, a seam that does
     not close), the whole meshes go through the boolean instead (`union_meshes`).
 
