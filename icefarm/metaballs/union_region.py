@@ -244,9 +244,9 @@ def _coarse_cells(field: Field, other: Field, lo: np.ndarray, hi: np.ndarray) ->
     per = block // tile
     grid, first = block_grid(field.blocks)
     mask = np.zeros((len(field.blocks), per, per, per), dtype=bool)
-    pending = [(np.arange(len(field.blocks)), lo, hi)]
+    pending = [(np.arange(len(field.blocks)), lo, hi, False)]
     while pending:
-        blocks, lo, hi = pending.pop()
+        blocks, lo, hi, whole = pending.pop()
         if len(blocks) == 0:
             continue
         # The other's cells over these blocks (and a little more: the grid's edges lie past them).
@@ -256,18 +256,21 @@ def _coarse_cells(field: Field, other: Field, lo: np.ndarray, hi: np.ndarray) ->
         g_lo = np.floor((f_lo - field.voxel - other.origin) / other.voxel).astype(np.int64) - 2
         g_hi = np.floor((f_hi + field.voxel - other.origin) / other.voxel).astype(np.int64) + 2
         shape = g_hi - g_lo
-        if int(np.prod(shape)) > _MAX_TILES and len(blocks) > 1:  # split at the median block
+        if int(np.prod(shape)) > _MAX_TILES and len(blocks) > 1 and not whole:  # split at the median
             axis = int(np.argmax(shape))
             cut = np.median(bc[:, axis])
             left = bc[:, axis] <= cut
             if left.all():
                 left = bc[:, axis] < cut
+            if not left.any():  # all in one plane of blocks: no smaller group (cannot be long)
+                pending.append((blocks, lo, hi, True))
+                continue
             for side in (left, ~left):
                 s_lo = field.origin[axis] + (bc[side, axis].min() * block - 1) * field.voxel
                 s_hi = field.origin[axis] + ((bc[side, axis].max() + 1) * block + 1) * field.voxel
                 near = (other.origin[axis] + hi[:, axis] * other.voxel >= s_lo) & \
                     (other.origin[axis] + lo[:, axis] * other.voxel <= s_hi)
-                pending.append((blocks[side], lo[near], hi[near]))
+                pending.append((blocks[side], lo[near], hi[near], False))
             continue
         c = lo - g_lo
         ok = np.ones(len(c), dtype=bool)
