@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 from scipy import ndimage
@@ -49,6 +50,12 @@ class Region:
     index: np.ndarray
     first: np.ndarray
 
+    @cached_property
+    def busy_blocks(self) -> np.ndarray:
+        """(k,) bool: the blocks with a tile in the region (`holds` asks it nine times per
+        `inner_faces`: on the 3 m house's tips, 3,319 blocks of 4,096 tiles each)."""
+        return self.mask.reshape(len(self.mask), -1).any(axis=1)
+
     def holds(self, samples: np.ndarray) -> np.ndarray:
         """(n,) bool: whether each lattice sample (n, 3) int keeps its value when the field
         is restricted to the region (`restrict`): it lies in the region, or in no block of
@@ -64,7 +71,7 @@ class Region:
         i = self.index.ravel()[flat]
         out = i < 0
         # Only samples in blocks with tiles in the region need their tile's answer.
-        busy = np.flatnonzero(self.mask.reshape(len(self.mask), -1).any(axis=1)[np.maximum(i, 0)] & ~out)
+        busy = np.flatnonzero(self.busy_blocks[np.maximum(i, 0)] & ~out)
         s = samples[busy] & (block - 1)
         t = i[busy] * per**3
         for k, stride in enumerate((per * per, per, 1)):
@@ -365,7 +372,7 @@ def restrict(field: Field, region: Region):
     values : (k, B, B, B) float32
     blocks : (k, 3) int64
     """
-    keep = region.mask.reshape(len(region.mask), -1).any(axis=1)
+    keep = region.busy_blocks
     mask = region.mask[keep]
     for axis in (1, 2, 3):
         mask = np.repeat(mask, region.tile, axis=axis)
