@@ -291,6 +291,10 @@ PARAMS: tuple[Param, ...] = (
        "edge of a marching-cubes voxel for the glaze (the coat's thickness does not depend on it; "
        "parts thinner than two voxels, wet on one side only, need a finer one); coarser than "
        "surface.voxel_size keeps the mesh light", low=0.0, low_open=True),
+    _p("glaze", "smoothing", "-", "-", _I, 10,
+       "coat mode: Taubin steps that smooth the coat's face (its field is a patchwork of the surface "
+       "samples' planes, whose kinks reflect the sky as ragged flecks up close); vertices move at "
+       "most a tenth of glaze.voxel_size and the icicles keep their shape; 0: off", low=0),
     # Ice where the water dripping off the tips lands (beyond the paper)
     _p("ground_ice", "mode", "-", "-", Kind.CHOICE, "none",
        "ice where the drops from the tips land (on the ground or a lower part of the object): "

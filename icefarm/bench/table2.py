@@ -49,9 +49,11 @@ CALIBRATION_RUNS = 5  # voxel sizes tried at most, the first one coarse
 CALIBRATION_SEEDS = 3  # runs (seeds) per voxel size tried, at most the repeat count
 MIN_VOXEL_M = 0.00012  # the finest voxel calibration may choose; the coarsest resolves the tip radius
 # The paper's stage 2: drip points uniform over the drip region, however close or short; its
-# Table 2 timed the stages on the models themselves (no approximate surface).
+# Table 2 timed the stages on the models themselves (no approximate surface); nor does it
+# smooth the glaze coat (a lookdev step of icefarm's, `glaze.smoothing`).
 PAPER_STAGES = {"storm.mode": "relative", "trajectories.max_branches": 32, "trajectories.contact": "slide", "drips.distribution": "area", "drips.spacing": 0.0, "drips.min_fall": 0.0,
-                "drips.min_length": 0.0, "proxy.mode": "never"}
+                "drips.min_length": 0.0, "proxy.mode": "never",
+                "glaze.smoothing": 0}
 MIN_SCALED_POLYGONS = 1000  # a reduced run keeps meshes fine enough for the water to find its way
 
 

@@ -26,6 +26,7 @@ from .icicles import hang_roots, icicle_balls, root_shifts
 from .measure import IcicleStats, measure_icicles
 from .profile import grown_lengths, profile_args, smooth_radius
 from .ripples import DEPTH_RANGE, carve_ripples_and_bands
+from .smooth import smooth_glaze
 from .tubes import tube_mesh
 
 # Vertices closer than this many voxels are one, and faces flatter than it are flipped
@@ -222,6 +223,9 @@ def build_ice(object_mesh: trimesh.Trimesh, flow_mesh: trimesh.Trimesh, water: W
         verts, faces, kept = clean_slivers(verts, faces, SLIVER * voxel, near=thin)
         if bands is not None:
             bands = bands[kept]
+        if coat is not None and glaze.smoothing:
+            verts = smooth_glaze(verts, faces, coat, [f for f in fields if f is not None and f is not coat],
+                                 coat_surface.mesh, glaze.smoothing)
         n_balls, curtain_area = len(ice), curtains.area
     return IceResult(verts, faces, measure_icicles(verts, faces, trajectories, surface) if measure else None,
                      n_balls, curtain_area, trajectories, coarse, bands)
