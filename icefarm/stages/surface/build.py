@@ -223,8 +223,8 @@ def build_ice(object_mesh: trimesh.Trimesh, flow_mesh: trimesh.Trimesh, water: W
         verts, faces, kept = clean_slivers(verts, faces, SLIVER * voxel, near=thin)
         if bands is not None:
             bands = bands[kept]
-        if coat is not None and glaze.smoothing:
-            verts = smooth_glaze(verts, faces, coat, [f for f in fields if f is not None and f is not coat],
+        if coat is not None and glaze.mode == "coat" and glaze.smoothing:
+            verts = smooth_glaze(verts, faces, coat.voxel, [f for f in fields if f is not None and f is not coat],
                                  coat_surface.mesh, glaze.smoothing)
         n_balls, curtain_area = len(ice), curtains.area
     return IceResult(verts, faces, measure_icicles(verts, faces, trajectories, surface) if measure else None,

@@ -16,7 +16,7 @@ import trimesh
 from ...geometry import face_any, nearest, point_index
 from ...metaballs import Field, values_at
 
-# Taubin's lambda|mu pair (Taubin 1995; trimesh.smoothing.filter_taubin's defaults): a
+# Taubin's lambda|mu pair (Taubin 1995), run by trimesh.smoothing.filter_taubin: a
 # low-pass filter on the mesh that keeps its volume.
 TAUBIN = (0.5, -0.53)
 # Vertices where an icicle field holds more than this share of its level are the icicles'
@@ -30,7 +30,7 @@ MAX_MOVE = 0.3
 CLEAR = 0.75
 
 
-def smooth_glaze(vertices: np.ndarray, faces: np.ndarray, coat: Field, icicles: list[Field],
+def smooth_glaze(vertices: np.ndarray, faces: np.ndarray, voxel: float, icicles: list[Field],
                  surface: trimesh.Trimesh, iterations: int) -> np.ndarray:
     """The ice mesh with the glaze coat's vertices smoothed.
 
@@ -39,16 +39,17 @@ def smooth_glaze(vertices: np.ndarray, faces: np.ndarray, coat: Field, icicles: 
     vertices : (n, 3) float
         Ice mesh vertices, in meters.
     faces : (m, 3) int
-    coat : Field
-        The glaze coat's field: its voxel bounds the moves (`MAX_MOVE`).
+    voxel : float
+        The glaze coat's voxel (``glaze.voxel_size``), meters: it bounds the moves
+        (`MAX_MOVE`, `CLEAR`).
     icicles : list of Field
         The icicles' fields (coarse and fine): where one reaches `ICICLE_SHARE` of its level
-        the vertex is an icicle's and does not move, nor do the vertices around it.
+        the vertex is an icicle's and does not move, nor do the others of its faces.
     surface : trimesh.Trimesh
         What the coat covers: a vertex's height over it is read off the plane of its nearest
         vertex (a flow mesh's vertices are at most ``storm.flow_edge`` apart).
     iterations : int
-        Taubin steps (each a lambda and a mu step); 0 returns ``vertices``.
+        Taubin steps (each a lambda and a mu step, `TAUBIN`); 0 returns ``vertices``.
 
     Returns
     -------
@@ -71,35 +72,25 @@ def smooth_glaze(vertices: np.ndarray, faces: np.ndarray, coat: Field, icicles: 
         return vertices
     _, near = nearest(point_index(surface.vertices), vertices[cand], np.inf)
     height = np.einsum("kd,kd->k", vertices[cand] - surface.vertices[near], surface.vertex_normals[near])
-    free[cand] = height >= CLEAR * coat.voxel
+    free[cand] = height >= CLEAR * voxel
     if not free.any():
         return vertices
-    # Only the faces around the free vertices: their rows of the mesh's adjacency are whole.
-    neighbours = _neighbours(faces[face_any(free, faces)], len(vertices))
-    return _taubin(vertices, neighbours, free, iterations, MAX_MOVE * coat.voxel)
-
-
-def _neighbours(faces: np.ndarray, n: int) -> scipy.sparse.csr_matrix:
-    """(n, n) 0/1 matrix of the mesh's edges (each vertex's neighbours along them)."""
-    edges = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
-    edges = np.concatenate([edges, edges[:, ::-1]])
-    m = scipy.sparse.csr_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(n, n))
-    m.data[:] = 1.0  # an edge of two faces was counted twice
-    return m
-
-
-def _taubin(vertices, neighbours, free, iterations, max_move):
-    """Taubin steps on the ``free`` vertices, each towards (lambda) then away from (mu) the
-    mean of its neighbours; no vertex ends farther than ``max_move`` from where it was."""
-    degree = np.asarray(neighbours.sum(axis=1)).ravel()
-    rows = np.flatnonzero(free & (degree > 0))
-    mean = scipy.sparse.diags(1.0 / degree[rows]) @ neighbours[rows]
-    out = vertices.copy()
-    for _ in range(iterations):
-        for factor in TAUBIN:
-            out[rows] += factor * (mean @ out - out[rows])
-    move = out[rows] - vertices[rows]
+    # trimesh's equal-weight Laplacian (`laplacian_calculation`), built from the faces around
+    # the free vertices only (their rows are whole) and sized for every vertex: it sizes its
+    # matrix by the largest vertex in the faces, and pins the others past it out of bounds
+    # (scipy aborts the process). A pinned vertex is its own only neighbour.
+    around = trimesh.Trimesh(vertices, faces[face_any(free, faces)], process=False, validate=False)
+    edges = around.edges[free[around.edges[:, 0]]]
+    pinned = np.flatnonzero(~free)
+    adjacency = trimesh.graph.edges_to_coo(np.concatenate([edges, np.stack([pinned, pinned], axis=1)]),
+                                           count=len(vertices)).tocsr().astype(np.float64)
+    operator = scipy.sparse.diags(1.0 / np.asarray(adjacency.sum(axis=1)).ravel()) @ adjacency
+    lamb, mu = TAUBIN
+    out = trimesh.smoothing.filter_taubin(around, lamb=lamb, nu=-mu, iterations=2 * iterations,
+                                          laplacian_operator=operator).vertices.view(np.ndarray)
+    move = out - vertices
     length = np.sqrt(np.einsum("kd,kd->k", move, move))
-    far = length > max_move
-    out[rows[far]] = vertices[rows[far]] + move[far] * (max_move / length[far])[:, None]
+    far = np.flatnonzero(length > MAX_MOVE * voxel)
+    out = np.array(out, dtype=np.float64)
+    out[far] = vertices[far] + move[far] * (MAX_MOVE * voxel / length[far])[:, None]
     return out
