@@ -73,3 +73,25 @@ def test_a_shell_close_over_the_object_stays_beside_one_that_moves():
     assert np.array_equal(out[len(v):], inner_v)
     assert np.isfinite(out).all()
     assert (np.linalg.norm(out[:len(v)] - v, axis=1) > 0).mean() > 0.99
+
+
+def test_the_same_as_trimesh_taubin_over_the_whole_mesh(monkeypatch):
+    # Filtering only the free vertices and their neighbours is trimesh's filter over the
+    # whole mesh with every other vertex pinned (moves uncapped for the comparison).
+    v, f = _kinked_sphere()
+    inner = trimesh.creation.icosphere(subdivisions=2, radius=0.04)
+    origin = np.array([-0.032, -0.032, 0.03])
+    values = np.full((1, BLOCK, BLOCK, BLOCK), 2.0, np.float32)
+    icicle = Field(origin, VOXEL, 1.0, np.zeros((1, 3), dtype=np.int64), values)
+    lattice = np.rint((v - origin) / VOXEL).astype(np.int64)
+    icy = ((lattice >= 0) & (lattice < BLOCK)).all(axis=1)
+    pinned = np.zeros(len(v), dtype=bool)
+    pinned[f[icy[f].any(axis=1)]] = True
+    monkeypatch.setattr(smooth, "MAX_MOVE", 1e9)
+    out = smooth.smooth_glaze(v, f, VOXEL, [icicle], inner, 10)
+    mesh = trimesh.Trimesh(v, f, process=False)
+    operator = trimesh.smoothing.laplacian_calculation(mesh, pinned_vertices=np.flatnonzero(pinned))
+    lamb, mu = smooth.TAUBIN
+    ref = trimesh.smoothing.filter_taubin(mesh, lamb=lamb, nu=-mu, iterations=20, laplacian_operator=operator).vertices
+    assert np.allclose(out, ref, rtol=0, atol=1e-12)
+    assert np.abs(out - v).max() > 1e-5

@@ -75,22 +75,29 @@ def smooth_glaze(vertices: np.ndarray, faces: np.ndarray, voxel: float, icicles:
     free[cand] = height >= CLEAR * voxel
     if not free.any():
         return vertices
-    # trimesh's equal-weight Laplacian (`laplacian_calculation`), built from the faces around
-    # the free vertices only (their rows are whole) and sized for every vertex: it sizes its
-    # matrix by the largest vertex in the faces, and pins the others past it out of bounds
-    # (scipy aborts the process). A pinned vertex is its own only neighbour.
-    around = trimesh.Trimesh(vertices, faces[face_any(free, faces)], process=False, validate=False)
-    edges = around.edges[free[around.edges[:, 0]]]
-    pinned = np.flatnonzero(~free)
-    adjacency = trimesh.graph.edges_to_coo(np.concatenate([edges, np.stack([pinned, pinned], axis=1)]),
-                                           count=len(vertices)).tocsr().astype(np.float64)
+    # trimesh's Taubin filter on the free vertices and their neighbours only (a 3 m house:
+    # 0.18 M of 1.36 M vertices move; the filter over the whole mesh took 0.31 s, over these 0.05 s), with the
+    # equal-weight Laplacian of `trimesh.smoothing.laplacian_calculation` in which a pinned
+    # vertex is its own only neighbour. (Built here: that one sizes its matrix by the largest
+    # vertex in the faces, and a pinned vertex past it aborted the process in scipy.)
+    sub = faces[face_any(free, faces)]
+    edges = sub[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
+    edges = edges[free[edges[:, 0]]]
+    in_ring = np.zeros(len(vertices), dtype=bool)
+    in_ring[edges] = True
+    ring = np.flatnonzero(in_ring)
+    local = (np.cumsum(in_ring) - 1)[edges]
+    pinned = np.flatnonzero(~free[ring])
+    adjacency = trimesh.graph.edges_to_coo(np.concatenate([local, np.stack([pinned, pinned], axis=1)]),
+                                           count=len(ring)).tocsr().astype(np.float64)
     operator = scipy.sparse.diags(1.0 / np.asarray(adjacency.sum(axis=1)).ravel()) @ adjacency
     lamb, mu = TAUBIN
-    out = trimesh.smoothing.filter_taubin(around, lamb=lamb, nu=-mu, iterations=2 * iterations,
-                                          laplacian_operator=operator).vertices.view(np.ndarray)
-    move = out - vertices
+    part = trimesh.Trimesh(vertices[ring], np.zeros((0, 3), dtype=np.int64), process=False, validate=False)
+    start = vertices[ring]
+    move = trimesh.smoothing.filter_taubin(part, lamb=lamb, nu=-mu, iterations=2 * iterations,
+                                           laplacian_operator=operator).vertices - start
     length = np.sqrt(np.einsum("kd,kd->k", move, move))
-    far = np.flatnonzero(length > MAX_MOVE * voxel)
-    out = np.array(out, dtype=np.float64)
-    out[far] = vertices[far] + move[far] * (MAX_MOVE * voxel / length[far])[:, None]
+    move *= np.minimum(1.0, MAX_MOVE * voxel / np.maximum(length, 1e-300))[:, None]
+    out = vertices.copy()
+    out[ring] = start + move
     return out
