@@ -169,10 +169,31 @@ def test_ripples_wander_and_break_like_real_ones_not_stacked_rings(monkeypatch, 
     assert 0.1 <= natural.crest_cv <= 0.35
     from icefarm.stages.surface import ripples
 
-    for name, value in (("WANDER", 0.0), ("TILT", 0.0), ("FADE_FLOOR", 1.0), ("FORK_SPACING", 1e9)):
+    for name, value in (("WANDER", 0.0), ("TILT", 0.0), ("FADE_FLOOR", 1.0), ("FORK_SPACING", 1e9),
+                        ("PATCH_FLOOR", 1.0), ("PATCH_GAIN", 1.0)):
         monkeypatch.setattr(ripples, name, value)
     rings = one_icicle(length=0.2).ripple_texture
     assert rings.correlation_3cm > 0.8 and rings.crest_cv < 0.1
+
+
+def test_ripples_run_deep_in_patches_with_calm_stretches_and_partial_rings():
+    """Real ripples are deep on some stretches and sides of a trunk and nearly gone on
+    others: along each of eight 30 cm branches a third or so is calm (under half the full
+    depth) and a third deep, a crest is deeper on one side than the other, and the mean
+    square stays about that of the ripple without patches (the measured depth holds)."""
+    from icefarm.stages.surface.ripples import PATCH_FLOOR, PATCH_GAIN, _patches, _texture
+
+    branches = np.arange(8)
+    texture = _texture(branches, 628.3, branches)
+    x, angle = np.meshgrid(np.linspace(0.0, 0.3, 601), np.linspace(0, 2 * np.pi, 16, endpoint=False), indexing="ij")
+    for b in branches:
+        depth = _patches(texture, np.full(x.size, b), x.ravel(), np.cos(angle).ravel(),
+                         np.sin(angle).ravel()).reshape(x.shape)
+        assert depth.min() >= PATCH_FLOOR * PATCH_GAIN - 1e-12 and depth.max() <= PATCH_GAIN + 1e-12
+        side = depth[:, 0]
+        assert (side < 0.5 * PATCH_GAIN).mean() >= 0.2 and (side > 0.8 * PATCH_GAIN).mean() >= 0.2
+        assert np.median(depth.max(axis=1) / depth.min(axis=1)) >= 1.4
+        assert 0.85 <= np.mean(depth**2) <= 1.3
 
 
 def test_a_crest_forks_on_an_arc_of_the_trunk_and_leaves_the_rest_whole():

@@ -41,7 +41,8 @@ def test_bands_lie_under_the_crests_and_nowhere_off_the_icicle(surface_kit):
     signed = np.einsum("ij,ij->i", push[:, [0, 2]], outward)
     rippled = np.abs(signed) > 1e-12
     crest, trough = rippled & (signed > 0), rippled & (signed < 0)
-    assert bands[crest].mean() > bands[trough].mean() + 0.2
+    # (by a share: the ripple's patches, deep on some stretches and calm on others, scale both)
+    assert bands[crest].mean() > 1.3 * bands[trough].mean()
     # Off the icicle (the sphere it hangs from, away from the root) there are none.
     sphere = surface_kit.sphere().vertices
     far = np.linalg.norm(sphere[:, [0, 2]] - axis_x, axis=1) > 0.05
