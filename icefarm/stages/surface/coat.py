@@ -36,6 +36,7 @@ from ...errors import InputError
 from ...geometry import nearest, point_index, ragged_arange, ray_caster
 from ...metaballs.field import Field, block_keys
 from .coat_band import MAX_BAND_POINTS, Edges, Thickness, sample_band
+from .coat_kernel import PointTree, point_tree
 
 # Depth of the coat's hidden inner face under the surface, in voxels: a coat of any
 # thickness makes a sheet at least this thick, which marching cubes cannot tear.
@@ -347,7 +348,7 @@ class _Rim:
     ``tb[j]`` thick; ``normal`` is its wet face's. ``tree`` holds points along the
     segments (``seg``: theirs)."""
 
-    tree: object  # `icefarm.geometry.point_index`
+    tree: PointTree
     seg: np.ndarray
     a: np.ndarray
     b: np.ndarray
@@ -357,16 +358,8 @@ class _Rim:
 
     def query(self, foot: np.ndarray, bound: float) -> np.ndarray:
         """The segment nearest to each point (-1: none within ``bound``)."""
-        _, j = nearest(self.tree, foot, bound)
+        _, j = self.tree.nearest(foot, bound)
         return np.where(j >= 0, self.seg[j], -1)
-
-    def near(self, foot: np.ndarray, j: np.ndarray):
-        """Distance from ``foot`` (k, 3) to segment ``j`` (k,) and the coat's thickness at
-        its nearest point there."""
-        a, e = self.a[j], self.b[j] - self.a[j]
-        u = np.clip(np.einsum("kd,kd->k", foot - a, e) / np.maximum(np.einsum("kd,kd->k", e, e), 1e-300), 0, 1)
-        off = foot - a - u[:, None] * e
-        return np.sqrt(np.einsum("kd,kd->k", off, off)), self.ta[j] + u * (self.tb[j] - self.ta[j])
 
 
 def _rim(mesh: trimesh.Trimesh, is_wet, blocked, wet, thickness, spacing) -> _Rim | None:
@@ -389,7 +382,7 @@ def _rim(mesh: trimesh.Trimesh, is_wet, blocked, wet, thickness, spacing) -> _Ri
     count = np.maximum(np.ceil(np.linalg.norm(b - a, axis=1) / spacing), 1).astype(np.int64)
     seg = np.repeat(np.arange(len(e_of)), count + 1)
     u = ragged_arange(count + 1) / count[seg]
-    return _Rim(point_index(a[seg] + u[:, None] * (b - a)[seg]), seg, a, b, ta, tb, mesh.face_normals[f_of])
+    return _Rim(point_tree(a[seg] + u[:, None] * (b - a)[seg]), seg, a, b, ta, tb, mesh.face_normals[f_of])
 
 
 def surface_samples(mesh: trimesh.Trimesh, faces: np.ndarray, spacing: float):
