@@ -178,7 +178,7 @@ def test_ripples_wander_and_break_like_real_ones_not_stacked_rings(monkeypatch, 
 
 def test_ripples_run_deep_in_patches_with_calm_stretches_and_partial_rings():
     """Real ripples are deep on some stretches and sides of a trunk and nearly gone on
-    others: along each of eight 30 cm branches a third or so is calm (under half the full
+    others: along each of eight 30 cm branches a third or so is calm (under 0.6 of the full
     depth) and a third deep, a crest is deeper on one side than the other, and the mean
     square stays about that of the ripple without patches (the measured depth holds)."""
     from icefarm.stages.surface.ripples import PATCH_FLOOR, PATCH_GAIN, _patches, _texture
@@ -191,7 +191,7 @@ def test_ripples_run_deep_in_patches_with_calm_stretches_and_partial_rings():
                          np.sin(angle).ravel()).reshape(x.shape)
         assert depth.min() >= PATCH_FLOOR * PATCH_GAIN - 1e-12 and depth.max() <= PATCH_GAIN + 1e-12
         side = depth[:, 0]
-        assert (side < 0.5 * PATCH_GAIN).mean() >= 0.2 and (side > 0.8 * PATCH_GAIN).mean() >= 0.2
+        assert (side < 0.6 * PATCH_GAIN).mean() >= 0.25 and (side > 0.85 * PATCH_GAIN).mean() >= 0.25
         assert np.median(depth.max(axis=1) / depth.min(axis=1)) >= 1.4
         assert 0.85 <= np.mean(depth**2) <= 1.3
 

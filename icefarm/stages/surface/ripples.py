@@ -262,7 +262,8 @@ TIP_RISE = 0.03
 # 0.30 (WANDER 0.25, no forks: 0.54, -0.14, 0.22; 0.56, -0.14, 0.31; 0.60, -0.13, 0.28).
 # Every 3.5 wavelengths the car's CV reached 0.35. Every 8 since the ripples come in
 # patches (`PATCH_FLOOR`): a calm stretch's crests fall under the measure's threshold and
-# widen the gaps it reads (the fountain, relative storm: CV 0.36 every 5, 0.30 every 8).
+# widen the gaps it reads (the fountain, relative storm, floor 0.3: CV 0.36 every 5, 0.30
+# every 8).
 FORK_SPACING = 8.0
 FORK_JITTER = 0.25
 FORK_REACH = 1.5
@@ -349,11 +350,14 @@ def _fork_shift(forks: _Forks, b: np.ndarray, x: np.ndarray, u: np.ndarray, v: n
 # PATCH_TWIST radians around the trunk, so a patch covers one side of a few crests, not
 # whole rings. The gain keeps the ripple's mean square about as it was, so the measured
 # depth stays at least 0.4 mm (issue 25; relative storm, spectral amplitude / texture
-# depth: bunny 0.407 / 0.637 mm without patches, 0.445 / 0.653 with them; fountain 0.421 /
-# 0.535, 0.457 / 0.528). A floor of 0.15 with no gain read better still on the bench, but
-# measured 0.27 mm on one 12 cm icicle.
-PATCH_FLOOR = 0.3
-PATCH_GAIN = 1.5
+# depth / crest CV: bunny 0.407 / 0.637 / 0.14 mm without patches, 0.445 / 0.651 / 0.13 with
+# them; fountain 0.421 / 0.535 / 0.28, 0.460 / 0.524 / 0.24; at the defaults, car 0.428 /
+# 0.543 / 0.33, 0.444 / 0.554 / 0.34). A calmer floor, 0.3 with a gain of 1.5, put the car's
+# crest CV at 0.36, over the natural 0.35 (its calm stretches' crests fall under the
+# measure's threshold); 0.15 with no gain read better still on the bench, but measured
+# 0.27 mm on one 12 cm icicle.
+PATCH_FLOOR = 0.4
+PATCH_GAIN = 1.4
 PATCH_WAVES = (0.035, 0.06)
 PATCH_TWIST = 0.8
 PATCH_SEED = RIPPLE_SEED + 2
