@@ -9,9 +9,9 @@ from .balls import KAPPA, LEVEL, NO_BALLS, SPACING, TIP_WEIGHT, Balls, concat_ba
 from .clean import clean_slivers, collapse_slivers, flip_needles, sliver_candidates
 from .field import BLOCK, CUTOFF, Field, block_keys, sample_field, values_at
 from .fuse import fuse_fields, union_meshes
-from .march import MARCH_POWER, face_estimate, polygonize
+from .march import MARCH_POWER, face_estimate, march_blocks, polygonize
 
 __all__ = ["BLOCK", "CUTOFF", "KAPPA", "LEVEL", "MARCH_POWER", "NO_BALLS", "SPACING", "TIP_WEIGHT", "Balls",
            "Field", "block_keys", "clean_slivers", "collapse_slivers", "concat_balls", "face_estimate",
-           "flip_needles", "fuse_fields", "polygonize", "sample_field", "sheet_balls", "sliver_candidates",
+           "flip_needles", "fuse_fields", "march_blocks", "polygonize", "sample_field", "sheet_balls", "sliver_candidates",
            "union_meshes", "values_at"]

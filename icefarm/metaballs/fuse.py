@@ -10,7 +10,7 @@ from .march import march_blocks
 from .union_region import inner_faces, margin, near_region, restrict, surface_region
 
 
-def fuse_fields(a: Field | None, b: Field | None, detail: Field | None = None):
+def fuse_fields(a: Field | None, b: Field | None, detail: Field | None = None, a_marched=None):
     """Boolean union of the iso-surfaces of two sampled fields, each on its own lattice.
 
     Both are marched whole. The union only cuts them where they come close, so only there
@@ -30,6 +30,8 @@ def fuse_fields(a: Field | None, b: Field | None, detail: Field | None = None):
         A third field, on a finer lattice, whose surface stays away from ``b``'s (the thin
         ends of icicles meshed finer than their thick parts in ``a``): it is united with
         ``a``'s part of the result the same way, after ``a`` and ``b``.
+    a_marched : ((n, 3) float, (m, 3) int), optional
+        ``a`` marched already (`march_blocks` of its values, blocks and level).
 
     Returns
     -------
@@ -43,7 +45,7 @@ def fuse_fields(a: Field | None, b: Field | None, detail: Field | None = None):
     parts = []
     for f in (a, b):
         if f is not None:
-            lattice, faces = march_blocks(f.values, f.blocks, f.level)
+            lattice, faces = a_marched if f is a and a_marched is not None else march_blocks(f.values, f.blocks, f.level)
             if len(faces):
                 parts.append((f, f.origin + lattice * f.voxel, lattice, faces))
     keeps_a = bool(parts) and parts[0][0] is a

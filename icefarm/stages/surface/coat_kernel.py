@@ -32,6 +32,7 @@ LEAF = 8
 BESIDE = 3.0
 _STACK = 128  # a tree of 2^60 leaves is never built
 _GATHER = 4096  # leaves gathered around a tile at most (`_tile_nearest`)
+_EXTENT_SAMPLES = 64  # points that pick the axis a node splits across (`_split`)
 
 
 @dataclass(frozen=True)
@@ -83,26 +84,35 @@ def point_tree(points: np.ndarray) -> PointTree | None:
     leaves = 1 << max(int(count - 1).bit_length(), 0)
     order = _split(points, leaves)
     sorted_points = points[order]
-    padded = np.concatenate([sorted_points, np.repeat(sorted_points[-1:], count * LEAF - n, axis=0)])
+    lo, hi = _boxes(sorted_points, leaves)
+    return PointTree(sorted_points, order, lo, hi, leaves, points)
+
+
+@numba.njit(cache=True, nogil=True)
+def _boxes(points, leaves):
+    """The boxes (lo, hi: (2 leaves, 3)) of the leaves of `LEAF` consecutive ``points``
+    and of the nodes above them; empty leaves' are inside out (inf, -inf)."""
     lo = np.full((2 * leaves, 3), np.inf)
     hi = np.full((2 * leaves, 3), -np.inf)
-    groups = padded.reshape(count, LEAF, 3)
-    lo[leaves:leaves + count] = groups.min(axis=1)
-    hi[leaves:leaves + count] = groups.max(axis=1)
-    width = leaves
-    while width > 1:
-        width //= 2
-        lo[width:2 * width] = np.minimum(lo[2 * width:4 * width:2], lo[2 * width + 1:4 * width:2])
-        hi[width:2 * width] = np.maximum(hi[2 * width:4 * width:2], hi[2 * width + 1:4 * width:2])
-    return PointTree(sorted_points, order, lo, hi, leaves, points)
+    for j in range(len(points)):
+        k = leaves + j // LEAF
+        for a in range(3):
+            lo[k, a] = min(lo[k, a], points[j, a])
+            hi[k, a] = max(hi[k, a], points[j, a])
+    for k in range(leaves - 1, 0, -1):
+        for a in range(3):
+            lo[k, a] = min(lo[2 * k, a], lo[2 * k + 1, a])
+            hi[k, a] = max(hi[2 * k, a], hi[2 * k + 1, a])
+    return lo, hi
 
 
 @numba.njit(cache=True, nogil=True)
 def _split(points, leaves):
     """The order of ``points`` (n, 3) that puts node k's points (its leaves ``l0 .. l1``) in
     rows ``l0 LEAF .. l1 LEAF``, its first child's (the first half of its leaves) on the low
-    side of its widest axis."""
+    side of its widest axis. The points move with their rows (sequential reads)."""
     n = len(points)
+    work = points.copy()
     order = np.arange(n)
     width = leaves
     while width > 1:
@@ -111,35 +121,39 @@ def _split(points, leaves):
             start, mid, end = min(first * LEAF, n), min((first + half) * LEAF, n), min((first + width) * LEAF, n)
             if mid <= start or mid >= end:
                 continue
+            # the widest extent, of at most _EXTENT_SAMPLES of the points
+            stride = max(1, (end - start) // _EXTENT_SAMPLES)
             axis, widest = 0, -1.0
             for a in range(3):
                 low, high = np.inf, -np.inf
-                for j in range(start, end):
-                    v = points[order[j], a]
-                    low = min(low, v)
-                    high = max(high, v)
+                for j in range(start, end, stride):
+                    low = min(low, work[j, a])
+                    high = max(high, work[j, a])
                 if high - low > widest:
                     axis, widest = a, high - low
-            _select(points, order, start, end, mid, axis)
+            _select(work, order, start, end, mid, axis)
         width = half
     return order
 
 
 @numba.njit(cache=True, nogil=True)
-def _select(points, order, start, end, kth, axis):
-    """Reorder ``order[start:end]`` so that no point before row ``kth`` lies above, along
-    ``axis``, any from it on (quickselect, Hoare's partition about a median of three)."""
+def _select(work, order, start, end, kth, axis):
+    """Reorder rows ``start:end`` of ``work`` (and ``order`` with them) so that none before
+    row ``kth`` lies above, along ``axis``, any from it on (quickselect, Hoare's partition
+    about a median of three)."""
     lo, hi = start, end - 1
     while lo < hi:
-        a, b, c = points[order[lo], axis], points[order[(lo + hi) // 2], axis], points[order[hi], axis]
+        a, b, c = work[lo, axis], work[(lo + hi) // 2, axis], work[hi, axis]
         pivot = max(min(a, b), min(max(a, b), c))
         i, j = lo, hi
         while i <= j:
-            while points[order[i], axis] < pivot:
+            while work[i, axis] < pivot:
                 i += 1
-            while points[order[j], axis] > pivot:
+            while work[j, axis] > pivot:
                 j -= 1
             if i <= j:
+                for d in range(3):
+                    work[i, d], work[j, d] = work[j, d], work[i, d]
                 order[i], order[j] = order[j], order[i]
                 i += 1
                 j -= 1
