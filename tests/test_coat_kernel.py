@@ -34,6 +34,13 @@ def test_the_tree_finds_what_pykdtree_finds():
     d, i = tree.nearest_in_tiles(tiles, np.repeat(seed, 8), 8, 0.03 - 0.002 * np.sqrt(3))
     d_ref, i_ref = nearest(point_index(points), tiles, 0.03 - 0.002 * np.sqrt(3))
     assert np.array_equal(i, i_ref) and np.allclose(d, d_ref, rtol=1e-12, atol=0)
+    # a tile far from a dense cluster: more leaves near it than it gathers (each of its
+    # points then descends the tree on its own)
+    cluster = rng.random((40_000, 3)) * 0.01
+    far = (np.array([1.0, 1.0, 1.0]) + 0.004 * (np.indices((2, 2, 2)).reshape(3, -1).T - 0.5)).reshape(-1, 3)
+    d, i = point_tree(cluster).nearest_in_tiles(far, np.zeros(8, dtype=np.int64), 8)
+    d_ref, i_ref = nearest(point_index(cluster), far)
+    assert np.array_equal(i, i_ref) and np.allclose(d, d_ref, rtol=1e-12, atol=0)
     assert point_tree(np.zeros((0, 3))) is None
 
 
