@@ -9,7 +9,8 @@ Table 2's dragon (row c, 846 k lattice samples) the band took 0.62 s of one core
 it in the queries. Here each sample goes through every step at once, compiled (numba,
 without the GIL: the band's threads share the cores), and its nearest sample is looked up
 in a k-d tree (`point_tree`) among the leaves near its tile, gathered once for the tile's
-eight samples and bounded by the tile's nearest sample (`_tile_nearest`).
+eight samples and bounded by the tile's nearest sample (`_tile_nearest`): 0.27 s of one
+core on the dragon.
 
 The numpy code it replaced is kept in tests/test_coat_kernel.py as the reference: they
 agree to 1e-12 m but where two samples lie alike far.
@@ -22,13 +23,13 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-# Points per leaf of a `PointTree`: consecutive in Morton order.
+# Points per leaf of a `PointTree`: consecutive in the tree's order.
 LEAF = 8
 # Under a sample's plane, the coat's bound falls this many meters per meter of lateral
-# offset past the sample's reach, where no sharp edge (`Edges`) says what lies there: the
-# coat's hidden inner part, ``INNER`` voxels deep, otherwise came out beside a convex edge
-# whose other side is dry, as sawtooth spikes up to 1 cm long along a fence's picket edges
-# wet with thin rivulets. At the plane the bound meets the outer face's.
+# offset past the sample's reach, where no sharp edge (`coat_band.Edges`) says what lies
+# there: the coat's hidden inner part, `coat.INNER` voxels deep, otherwise came out beside a
+# convex edge whose other side is dry, as sawtooth spikes up to 1 cm long along a fence's
+# picket edges wet with thin rivulets. At the plane the bound meets the outer face's.
 BESIDE = 3.0
 _STACK = 128  # a tree of 2^60 leaves is never built
 _GATHER = 4096  # leaves gathered around a tile at most (`_tile_nearest`)
