@@ -46,9 +46,9 @@ class IceFocus:
     Attributes
     ----------
     points : (n, 3) float
-        Where the icicles are: the centres of their horizontal sections (or, when too
-        few were found, sampled ice vertices away from the object; for glaze alone,
-        sampled ice vertices).
+        Where the icicles are: given their axes, the axes' points away from the object;
+        else the centres of their horizontal sections (or, when too few were found,
+        sampled ice vertices away from the object; for glaze alone, sampled ice vertices).
     diameter : float or None
         Median icicle diameter (m) measured on horizontal sections; None without icicles.
     icicles : (k, 3) float
@@ -192,7 +192,8 @@ def ice_focus(ice_vertices: np.ndarray, ice_faces: np.ndarray, object_points: np
     tree = cKDTree(object_points)
     gap = float(np.median(tree.query(object_points[:: max(1, len(object_points) // 2000)], k=2)[0][:, 1]))
     reach = max(0.02 * size, 3.0 * gap, 0.004)
-    axis_tree = cKDTree(np.asarray(axes, dtype=np.float64).reshape(-1, 3)) if axes is not None and len(axes) else None
+    axes = None if axes is None else np.asarray(axes, dtype=np.float64).reshape(-1, 3)
+    axis_tree = cKDTree(axes) if axes is not None and len(axes) else None
 
     def hanging(q: np.ndarray) -> np.ndarray:  # away from the object (and on an icicle's axis)
         out = ~np.isfinite(tree.query(q, distance_upper_bound=reach)[0])
@@ -218,8 +219,16 @@ def ice_focus(ice_vertices: np.ndarray, ice_faces: np.ndarray, object_points: np
         return IceFocus(points=icicles, diameter=None)
     diameter = float(np.median(widths))
     thin = widths <= THIN * diameter  # icicles, not lumps of ice
-    return IceFocus(points=centres[thin] if thin.sum() >= 3 else icicles, diameter=diameter,
-                    icicles=icicles, clearance=reach)
+    points = centres[thin] if thin.sum() >= 3 else icicles
+    if axis_tree is not None:
+        # Where the icicles hang, from their axes: those do not move when only the ice's
+        # surface does (impurity, ripples, glaze), and the ice view framed from them stays
+        # put; the sections' centres moved the car's and the fountain's ice views to other
+        # icicles when a change to the ripples moved vertices by a millimetre.
+        hung = axes[~np.isfinite(tree.query(axes, distance_upper_bound=reach)[0])]
+        if len(hung) >= 3:
+            points = hung
+    return IceFocus(points=points, diameter=diameter, icicles=icicles, clearance=reach)
 
 
 def visible(camera: Camera, points: np.ndarray, cast, tolerance: float) -> np.ndarray:
@@ -280,8 +289,11 @@ def zoom_on_ice(full: Camera, focus: IceFocus, width: int, height: int, cast=Non
         seen_px = focus.diameter / pixel_size(full, centre, width)
         zoom = max(MIN_ZOOM, ICICLE_PX / max(seen_px, 1e-9))
     zoom = min(zoom, MAX_ZOOM)
-    # Best window: weights in bins a quarter of the window, summed over 4 x 4 bins.
-    win = np.array([width, height]) / zoom
+    # Best window: weights in bins a quarter of the window, summed over 4 x 4 bins. The
+    # window searched is the zoom's to the nearest power of sqrt 2: the icicles' measured
+    # width moves with their ripples, and a grid of bins that moved with it framed other
+    # icicles.
+    win = np.array([width, height]) / 2.0 ** (np.round(2.0 * np.log2(zoom)) / 2.0)
     bins = win / 4
     ij = np.floor(pixels / bins).astype(np.int64)
     shape = ij.max(axis=0) + 1
