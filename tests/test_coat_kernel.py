@@ -44,6 +44,24 @@ def test_the_tree_finds_what_pykdtree_finds():
     assert point_tree(np.zeros((0, 3))) is None
 
 
+def test_the_kernels_compile_where_no_cache_folder_may_be_written(monkeypatch):
+    """A read-only install on a node whose home is read-only too: numba finds nowhere to
+    cache and refuses ``cache=True``; the kernels compile in each process instead."""
+    import numba
+
+    from icefarm.stages.surface.coat_kernel import _compiled
+
+    real = numba.njit
+
+    def refuse(*args, cache=False, **options):
+        if cache:
+            raise RuntimeError("cannot cache function 'f': no locator available for file 'f.py'")
+        return real(*args, **options)
+
+    monkeypatch.setattr(numba, "njit", refuse)
+    assert _compiled()(lambda x: 2 * x)(21) == 42
+
+
 def _post():
     """A square post on the ground, a rivulet down one face's edge, the rest of that face wet."""
     post = trimesh.creation.box([0.08, 0.3, 0.08])

@@ -36,6 +36,20 @@ _GATHER = 4096  # leaves gathered around a tile at most (`_tile_nearest`)
 _EXTENT_SAMPLES = 64  # points that pick the axis a node splits across (`_split`)
 
 
+def _compiled(**options):
+    """``numba.njit`` without the GIL, cached where numba finds a folder it may write (the
+    package's `__pycache__`, the user's cache folder, ``NUMBA_CACHE_DIR``); where it finds
+    none, compiled anew in each process instead of failing at import."""
+
+    def compile(function):
+        try:
+            return numba.njit(cache=True, nogil=True, **options)(function)
+        except RuntimeError:  # "cannot cache function ...: no locator available"
+            return numba.njit(nogil=True, **options)(function)
+
+    return compile
+
+
 @dataclass(frozen=True)
 class PointTree:
     """Points (n, 3) in the tree's order (``points``; ``index`` their rows in ``source``),
@@ -89,7 +103,7 @@ def point_tree(points: np.ndarray) -> PointTree | None:
     return PointTree(sorted_points, order, lo, hi, leaves, points)
 
 
-@numba.njit(cache=True, nogil=True)
+@_compiled()
 def _boxes(points, leaves):
     """The boxes (lo, hi: (2 leaves, 3)) of the leaves of `LEAF` consecutive ``points``
     and of the nodes above them; empty leaves' are inside out (inf, -inf)."""
@@ -107,7 +121,7 @@ def _boxes(points, leaves):
     return lo, hi
 
 
-@numba.njit(cache=True, nogil=True)
+@_compiled()
 def _split(points, leaves):
     """The order of ``points`` (n, 3) that puts node k's points (its leaves ``l0 .. l1``) in
     rows ``l0 LEAF .. l1 LEAF``, its first child's (the first half of its leaves) on the low
@@ -137,7 +151,7 @@ def _split(points, leaves):
     return order
 
 
-@numba.njit(cache=True, nogil=True)
+@_compiled()
 def _select(work, order, start, end, kth, axis):
     """Reorder rows ``start:end`` of ``work`` (and ``order`` with them) so that none before
     row ``kth`` lies above, along ``axis``, any from it on (quickselect, Hoare's partition
@@ -166,7 +180,7 @@ def _select(work, order, start, end, kth, axis):
             break
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
+@_compiled(inline="always")
 def _box2(lo, hi, k, x, y, z):
     """Squared distance from (x, y, z) to node ``k``'s box."""
     dx = max(lo[k, 0] - x, 0.0, x - hi[k, 0])
@@ -175,7 +189,7 @@ def _box2(lo, hi, k, x, y, z):
     return dx * dx + dy * dy + dz * dz
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
+@_compiled(inline="always")
 def _scan_leaf(points, index, leaves, k, x, y, z, best2, best):
     """The nearest of leaf node ``k``'s points to (x, y, z) if closer than sqrt(``best2``):
     its squared distance and row (else ``best2``, ``best``)."""
@@ -191,7 +205,7 @@ def _scan_leaf(points, index, leaves, k, x, y, z, best2, best):
     return best2, best
 
 
-@numba.njit(cache=True, nogil=True)
+@_compiled()
 def _nearest(x, y, z, best2, best, stack, points, index, lo, hi, leaves):
     """The nearest point to (x, y, z) closer than sqrt(``best2``) (``best``: a row known that
     close, or -1): its squared distance and row (``best2``, ``best`` when none is closer)."""
@@ -225,7 +239,7 @@ def _nearest(x, y, z, best2, best, stack, points, index, lo, hi, leaves):
     return best2, best
 
 
-@numba.njit(cache=True, nogil=True)
+@_compiled()
 def _nearest_many(q, upper, points, index, lo, hi, leaves):
     dist = np.full(len(q), np.inf)
     row = np.full(len(q), -1, dtype=np.int64)
@@ -239,7 +253,7 @@ def _nearest_many(q, upper, points, index, lo, hi, leaves):
     return dist, row
 
 
-@numba.njit(cache=True, nogil=True)
+@_compiled()
 def _tile_nearest(points, seed, shared, per, reach, samples, tree):
     """Nearest ``samples`` row (-1: none within ``reach``) and squared distance of each of
     ``points`` (k, 3), in tiles of ``per`` whose points lie around their mean; ``seed`` and
@@ -318,7 +332,7 @@ def _tile_nearest(points, seed, shared, per, reach, samples, tree):
     return near, dist2
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
+@_compiled(inline="always")
 def _bound(row, inward, level, across, across_level, i, x, y, z):
     """For a point (x, y, z) near sample ``i``: how far it lies past the sharp edges of
     its face along the sample's plane (meters, 0 where it does not or the face has none:
@@ -336,7 +350,7 @@ def _bound(row, inward, level, across, across_level, i, x, y, z):
     return max(off, 0.0), up
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
+@_compiled(inline="always")
 def _signed(vx, vy, vz, nx, ny, nz, dist, tol, past):
     """`icefarm.stages.surface.coat_band._signed` at one point: (d, sd, extra)."""
     sd = vx * nx + vy * ny + vz * nz
@@ -346,7 +360,7 @@ def _signed(vx, vy, vz, nx, ny, nz, dist, tol, past):
     return s * np.sqrt(sd * sd + extra * extra), sd, extra
 
 
-@numba.njit(cache=True, nogil=True)
+@_compiled()
 def band_phi(points, per, seed, shared, seg, reach, tol, tol_shared, taper_end,
              samples, normals, kind, t_value, t_slope, t_low, t_high, depth, tree,
              has_edges, e_row, e_inward, e_level, e_across, e_across_level,
