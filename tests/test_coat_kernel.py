@@ -31,14 +31,14 @@ def test_the_tree_finds_what_pykdtree_finds():
     centre = rng.random((500, 3)) * [1.0, 0.1, 1.0] - [0, 0.05, 0]
     tiles = (centre[:, None, :] + 0.004 * (np.indices((2, 2, 2)).reshape(3, -1).T - 0.5)[None]).reshape(-1, 3)
     _, seed = nearest(point_index(points), centre, 0.03)
-    d, i = tree.nearest_in_tiles(tiles, np.repeat(seed, 8), 8, 0.03 - 0.002 * np.sqrt(3))
+    d, i = tree.nearest_in_tiles(tiles, seed, 8, 0.03 - 0.002 * np.sqrt(3))
     d_ref, i_ref = nearest(point_index(points), tiles, 0.03 - 0.002 * np.sqrt(3))
     assert np.array_equal(i, i_ref) and np.allclose(d, d_ref, rtol=1e-12, atol=0)
     # a tile far from a dense cluster: more leaves near it than it gathers (each of its
     # points then descends the tree on its own)
     cluster = rng.random((40_000, 3)) * 0.01
     far = (np.array([1.0, 1.0, 1.0]) + 0.004 * (np.indices((2, 2, 2)).reshape(3, -1).T - 0.5)).reshape(-1, 3)
-    d, i = point_tree(cluster).nearest_in_tiles(far, np.zeros(8, dtype=np.int64), 8)
+    d, i = point_tree(cluster).nearest_in_tiles(far, np.zeros(1, dtype=np.int64), 8)
     d_ref, i_ref = nearest(point_index(cluster), far)
     assert np.array_equal(i, i_ref) and np.allclose(d, d_ref, rtol=1e-12, atol=0)
     assert point_tree(np.zeros((0, 3))) is None
@@ -117,7 +117,7 @@ def _reference(points, per, seed, shared, seg, reach, tol, tol_shared, taper_end
         if has_wall else None
     tree = point_index(samples)
     phi = np.empty(len(points))
-    flat = shared
+    seed, flat, seg = (np.repeat(a, per)[:len(points)] for a in (seed, shared, seg))  # per tile: per point
     phi[flat] = _reference_phi(tree, samples, points[flat], normals, thick, kind, rim, edge, depth, reach, tol_shared,
                                seed[flat], seg[flat], taper_end=taper_end)
     phi[~flat] = _reference_phi(tree, samples, points[~flat], normals, thick, kind, rim, edge, depth, reach, tol,

@@ -170,7 +170,7 @@ def sample_band(pts, normals, thick: Thickness, kind, depth, rim, features, sole
                     rim_seg[dry] = rim.query(foot, edge + 2.0 * half)
                 break
             size //= 2
-            seed = np.repeat(idx[keep], 8)
+            seed = idx[keep]
             tiles = (2 * tiles[:, None, :] + children[None]).reshape(-1, 3)
             t_lo, t_hi = np.repeat(t_lo, 8), np.repeat(t_hi, 8)
         npoints = len(tiles) * _TILE**3
@@ -182,8 +182,7 @@ def sample_band(pts, normals, thick: Thickness, kind, depth, rim, features, sole
         local = np.stack(np.meshgrid(o, o, o, indexing="ij"), axis=-1).reshape(-1, 3)
         values = np.empty(npoints, dtype=np.float32)
         per = _TILE**3
-        seeds, flat = np.repeat(near_sample, per), np.repeat(shared, per)
-        segs = np.repeat(rim_seg, per) if rim_seg is not None else np.full(len(seeds), -1, dtype=np.int64)
+        segs = rim_seg if rim_seg is not None else np.full(len(tiles), -1, dtype=np.int64)
         args = (pts, normals, np.asarray(kind, dtype=np.int64), thick.value, thick.slope, thick.low, thick.high,
                 np.asarray(depth, dtype=np.float64), tree.arrays(), *_edge_args(edges), *_rim_args(rim, edge),
                 *walls.result())
@@ -193,7 +192,7 @@ def sample_band(pts, normals, thick: Thickness, kind, depth, rim, features, sole
             # Where the surface is flat around a tile, its samples share the centre's nearest
             # surface sample (the same plane: the same distance); elsewhere each finds its own.
             a, b = lo * per, hi * per
-            phi = band_phi(p, per, seeds[a:b], flat[a:b], segs[a:b], reach, 0.6 * h,
+            phi = band_phi(p, per, near_sample[lo:hi], shared[lo:hi], segs[lo:hi], reach, 0.6 * h,
                            0.6 * h + half, TAPER_END * voxel, *args)
             values[a:b] = _encode(phi, voxel)
 
@@ -227,12 +226,11 @@ def sample_band(pts, normals, thick: Thickness, kind, depth, rim, features, sole
 
 
 def _in_tiles(pool, threads, tree, centre, seed, upper):
-    """`PointTree.nearest_in_tiles` of tiles of eight ``centre`` points, in ``threads``
-    chunks on ``pool``."""
-    tiles = len(centre) // 8
-    step = 8 * max(1, -(-tiles // threads))
-    parts = list(pool.map(lambda lo: tree.nearest_in_tiles(centre[lo:lo + step], seed[lo:lo + step], 8, upper),
-                          range(0, len(centre), step)))
+    """`PointTree.nearest_in_tiles` of tiles of eight ``centre`` points (``seed``: one per
+    tile), in ``threads`` chunks on ``pool``."""
+    step = max(1, -(-len(seed) // threads))  # tiles a chunk
+    parts = list(pool.map(lambda t: tree.nearest_in_tiles(centre[8 * t:8 * (t + step)], seed[t:t + step], 8, upper),
+                          range(0, len(seed), step)))
     if not parts:
         return np.zeros(0), np.zeros(0, dtype=np.int64)
     return np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])

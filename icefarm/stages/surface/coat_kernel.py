@@ -72,11 +72,12 @@ class PointTree:
     def nearest_in_tiles(self, points: np.ndarray, seed: np.ndarray, per: int,
                          upper: float = np.inf) -> tuple[np.ndarray, np.ndarray]:
         """`nearest` of ``points`` (k, 3) that come in tiles of ``per`` around their mean,
-        each tile's within ``upper`` of the ``seed`` (k,) row (-1: none within ``upper``
-        plus its half-diagonal): `_tile_nearest`."""
+        each tile's within ``upper`` of its ``seed`` row (one per tile; -1: none within
+        ``upper`` plus its half-diagonal): `_tile_nearest`."""
         q = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
-        row, d2 = _tile_nearest(q, np.asarray(seed, dtype=np.int64), np.zeros(len(q), dtype=np.bool_), per,
-                                float(upper), self.source, self.arrays())
+        seed = np.asarray(seed, dtype=np.int64)
+        row, d2 = _tile_nearest(q, seed, np.zeros(len(seed), dtype=np.bool_), per, float(upper), self.source,
+                                self.arrays())
         return np.where(row >= 0, np.sqrt(d2), np.inf), row
 
     def arrays(self):
@@ -257,7 +258,8 @@ def _nearest_many(q, upper, points, index, lo, hi, leaves):
 def _tile_nearest(points, seed, shared, per, reach, samples, tree):
     """Nearest ``samples`` row (-1: none within ``reach``) and squared distance of each of
     ``points`` (k, 3), in tiles of ``per`` whose points lie around their mean; ``seed`` and
-    ``shared`` as in `band_phi` (a shared point takes its seed, distance not computed).
+    ``shared``, one per tile, as in `band_phi` (a shared tile's points take its seed, their
+    distance not computed).
 
     A point's nearest sample lies no farther from it than its tile's seed does, so within
     that distance plus the point's offset from the tile's centre: the leaves of the tree
@@ -276,8 +278,8 @@ def _tile_nearest(points, seed, shared, per, reach, samples, tree):
     reach2 = reach * reach
     for base in range(0, n, per):
         end = min(base + per, n)
-        s = seed[base]
-        if shared[base]:
+        s = seed[base // per]
+        if shared[base // per]:
             for m in range(base, end):
                 near[m] = s
             continue
@@ -369,11 +371,13 @@ def band_phi(points, per, seed, shared, seg, reach, tol, tol_shared, taper_end,
     """The coat's ``phi`` (meters, positive inside) at ``points`` (k, 3): see
     `icefarm.stages.surface.coat_band.sample_band`.
 
-    The points come in tiles of ``per``; ``seed`` (k,): each point's tile's nearest surface
-    sample (-1: none within reach). Where ``shared``, that is the point's own (no crease
-    near its tile: the same plane), its rim segment is ``seg`` (-1: none), its tolerance
-    ``tol_shared``, and no sharp edge or wall counts (`sample_band`); elsewhere the point's
-    nearest sample is found (`_tile_nearest`). Trees are `PointTree.arrays`.
+    The points come in tiles of ``per``; ``seed``, ``shared`` and ``seg`` hold one value per
+    tile (not per point: a band of tens of millions of samples would repeat them in memory).
+    ``seed``: the tile's nearest surface sample (-1: none within reach). Where ``shared``,
+    that is each of its points' own (no crease near the tile: the same plane), its rim
+    segment is ``seg`` (-1: none), its tolerance ``tol_shared``, and no sharp edge or wall
+    counts (`sample_band`); elsewhere each point's nearest sample is found
+    (`_tile_nearest`). Trees are `PointTree.arrays`.
     """
     near, dist2 = _tile_nearest(points, seed, shared, per, reach, samples, tree)
     phi = np.empty(len(points))
@@ -381,7 +385,7 @@ def band_phi(points, per, seed, shared, seg, reach, tol, tol_shared, taper_end,
     reach2 = reach * reach
     for m in range(len(points)):
         x, y, z = points[m, 0], points[m, 1], points[m, 2]
-        own = shared[m]
+        own = shared[m // per]
         i = near[m]
         if i >= 0:
             vx, vy, vz = x - samples[i, 0], y - samples[i, 1], z - samples[i, 2]
@@ -408,7 +412,7 @@ def band_phi(points, per, seed, shared, seg, reach, tol, tol_shared, taper_end,
         elif k == 0 and has_rim:
             fx, fy, fz = x - sd * nx, y - sd * ny, z - sd * nz
             if own:
-                j = seg[m]
+                j = seg[m // per]
             else:
                 rp, ri, rlo, rhi, rleaves = rim_tree
                 _, r = _nearest(fx, fy, fz, edge * edge, -1, stack, rp, ri, rlo, rhi, rleaves)
