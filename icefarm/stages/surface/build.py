@@ -200,7 +200,7 @@ def build_ice(object_mesh: trimesh.Trimesh, flow_mesh: trimesh.Trimesh, water: W
             # A lattice that needs no coat is sampled and marched while the coat's band runs
             # (its kernel leaves the GIL that marching cubes holds): Table 2's dragon's stage 4
             # took a median 1.06-1.22 s against 1.17-1.36 s (three alternated rounds of five);
-            # the 3 m house's preview 21.3 s and 1.77 GB against 21.6 s and 1.67 GB.
+            # the 3 m house's preview peaks at 1.67 GB either way.
             early = pool.submit(_marched, ice, voxel) if one and len(ice) else None
             note(f"glaze coat over {len(coat_surface.mesh.faces):,} faces")
             coat = glaze_field(coat_surface.mesh, coat_surface.water, glaze, rng, exclude=coat_surface.exclude,
