@@ -208,7 +208,7 @@ def _run(prepared, p, seed, placement, exclude, overrides, source, until, mesh_k
         if physical:
             result = storm_water(flow, gravity, storm, lifetime=p.glaze.lifetime,
                                  drip_limit=p.drips.drip_limit, cast=caster(flow),
-                                 source=source() if source else None)
+                                 source=source() if source else None, pools=p.water.pools)
         else:
             result = compute_water(flow, gravity, p.water.rays, p.water.influence_radius,
                                    stage_rng(seed, Stage.WATER), source() if source else None, caster(flow),

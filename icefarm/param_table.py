@@ -160,7 +160,9 @@ PARAMS: tuple[Param, ...] = (
        "vertices this close to a rain hit join the water supply", low=0.0, low_open=True),
     _p("water", "pools", "-", "-", Kind.CHOICE, "ignore",
        "water caught in basins: ignore (the paper: it stays there) or overflow (a full basin spills "
-       "over its rim, adding its depth to the water of walks that end there: fountains, gutters)",
+       "over its rim: fountains, gutters; a physical storm's pooled water runs on over the lip "
+       "to the next basin or a drip rim, the relative mode adds the basin's depth to the water "
+       "of walks that end there)",
        choices=("ignore", "overflow")),
     # Stage 2: drip points (paper 4.2)
     _p("drips", "count", "ns", "-", _I, 24, "number of drip points, one icicle each (storm.mode relative; physical runs them along "

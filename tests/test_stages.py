@@ -7,7 +7,8 @@ import trimesh
 from icefarm.mesh import prepare
 from icefarm.stages.drips import find_drips
 from icefarm.stages.trajectories import GOLDEN_ROLL, grow_trajectories
-from icefarm.stages.water import compute_water, overflow_heights, spill_levels, water_coefficients
+from icefarm.stages.basins import overflow_heights, spill_levels, spill_over, spill_routes
+from icefarm.stages.water import compute_water, water_coefficients
 
 G = np.array([0.0, -1.0, 0.0])
 TRAJ = dict(curve_angle=2.0, division_probability=0.1, roll_angle=360.0, step_length=0.004,
@@ -96,6 +97,23 @@ def test_a_tilted_cup_spills_at_its_lowest_rim_point_and_a_ball_holds_nothing(sp
     assert np.flatnonzero(bonus) == [lowest]  # water leaves over the lowest point of the lip
     assert bonus[lowest] == pytest.approx(0.08 * np.cos(np.radians(10.0)))  # lip to the floor's low edge
     assert not overflow_heights(sphere, np.ones(len(sphere.vertices), bool), G).any()  # nowhere to pool
+
+
+def test_a_full_cup_spills_all_round_a_level_lip_and_at_the_low_point_of_a_tilted_one():
+    mesh = cup()
+    routes = spill_routes(mesh, G)
+    angle = np.arctan2(mesh.vertices[routes.target, 2], mesh.vertices[routes.target, 0])
+    assert np.all(np.hypot(mesh.vertices[routes.target, 0], mesh.vertices[routes.target, 2]) > 0.0995)  # outside
+    assert np.ptp(np.sort(angle)) > 1.9 * np.pi and np.diff(np.sort(angle)).max() < 0.3  # all round
+    pooled = np.where(routes.basin >= 0, 1e-6, 0.0)
+    spilled, kept = spill_over(pooled, routes)
+    assert spilled.sum() == pytest.approx(pooled.sum()) and not kept.any()
+    top = np.flatnonzero(np.isclose(mesh.vertices[:, 1], 0.18))
+    mesh.apply_transform(trimesh.transformations.rotation_matrix(np.radians(10.0), (0, 0, 1)))
+    tilted = spill_routes(mesh, G)
+    low = mesh.vertices[top[np.argmin(mesh.vertices[top, 1])]]
+    assert len(tilted.target) and np.linalg.norm(mesh.vertices[tilted.target] - low, axis=1).max() < 0.02  # the notch
+    assert spill_routes(trimesh.creation.icosphere(3), G).target.size == 0  # nothing to spill from
 
 
 def test_water_dripping_clear_of_the_object_leaves_it():

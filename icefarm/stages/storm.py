@@ -22,7 +22,8 @@ Here the weather sets the ice, whatever the asset's size:
 * **Drip.** Where the surface turns towards gravity past the drip limit, the film sheds as
   the tilt rises (the share ``tilt - seen``, ``seen`` the largest tilt the water already
   passed, so a fine mesh sheds no faster than a coarse one); where the walk ends facing
-  down, all of it drips; in a basin it pools.
+  down, all of it drips; in a basin it pools, or with ``water.pools: overflow`` the full
+  basin spills over its rim and the water runs on (`icefarm.stages.basins`).
 
 Every drop is counted once: caught = frozen + shed + pooled (`StormBudget`). The water shed
 along the drip rims feeds the icicles (`icefarm.stages.drips.find_drips` with ``flux``); a
@@ -45,6 +46,7 @@ from scipy.spatial import cKDTree
 
 from ..geometry import unit
 from ..tol import tol
+from .basins import spill_over, spill_routes
 from .rain import FALL_SPEED, facing_rain, open_sky, rain_vector
 
 # Density of water and of glaze (clear, dense ice: 917 kg/m^3), kg/m^3; one meter of
@@ -80,6 +82,9 @@ GLAZE_MIN_M = 0.001
 # glaze.lifetime moves the freezing budget along the water's walk by at most this share
 # (lt 0: 1.5x at the top, 0.5x at the bottom; lt 0.5: even).
 LIFETIME_CONTRAST = 1.0
+# A fountain's bowls spill one into the next: the overflow is followed down at most this
+# many basins.
+SPILL_CASCADE = 8
 # Largest growth ratio (base radius added per meter of length) of a storm's icicle: a stub
 # that thickened as the storm does is at most a cone half as wide as it is long.
 GROWTH_MAX = 0.25
@@ -178,7 +183,8 @@ def vertex_areas(mesh: trimesh.Trimesh) -> np.ndarray:
 
 def accrete(mesh: trimesh.Trimesh, gravity, sky: np.ndarray, precipitation: float, *, kind: str,
             freeze: float, wall_freeze: float, lifetime: float, drip_limit: float,
-            d_up: np.ndarray, d_down: np.ndarray, rain=None) -> StormResult:
+            d_up: np.ndarray, d_down: np.ndarray, rain=None, pools: str = "ignore",
+            cast=None) -> StormResult:
     """Catch, freeze, run off and shed a storm's water over ``mesh``.
 
     Parameters
@@ -204,6 +210,12 @@ def accrete(mesh: trimesh.Trimesh, gravity, sky: np.ndarray, precipitation: floa
     rain : (3,) float, optional
         `icefarm.stages.rain.rain_vector`: freezing rain slanted by the wind lands on the
         faces that turn towards it; None: along gravity.
+    pools : {"ignore", "overflow"}
+        ``water.pools``: ``overflow`` takes basins as full (a fountain's bowls, a gutter),
+        so what pools in them spills over their rims and runs on
+        (`icefarm.stages.basins.spill_routes`), down to the next basin or a drip rim.
+    cast : callable, optional
+        A `icefarm.geometry.ray_caster` of ``mesh`` to reuse (``overflow`` only).
 
     Returns
     -------
@@ -238,6 +250,14 @@ def accrete(mesh: trimesh.Trimesh, gravity, sky: np.ndarray, precipitation: floa
     runout = RUNOUT_M * 2.0 * lifetime
     passing = 1.0 - np.exp(-step / runout) if runout > 0 else np.ones(n)
     frozen, shed, pooled = _flow(catch, capacity, passing, tilt, (start, target, share), order, outlet)
+    if pools == "overflow" and pooled.any():
+        spills = spill_routes(mesh, g, cast)
+        for _ in range(SPILL_CASCADE):
+            arriving, kept = spill_over(pooled, spills)
+            if not arriving.any():
+                break
+            f, s, p = _flow(arriving, capacity - frozen, passing, tilt, (start, target, share), order, outlet)
+            frozen, shed, pooled = frozen + f, shed + s, kept + p
     ice = np.divide(_spread(mesh, frozen * WATER_TO_ICE, area), area, out=np.zeros(n), where=area > 0)
     ice[ice < GLAZE_MIN_M] = 0.0  # a film the blur thinned to nothing: no coat there
     budget = StormBudget(float(catch.sum()), float(frozen.sum()), float(shed.sum()), float(pooled.sum()))
@@ -400,7 +420,7 @@ def _flow(catch, capacity, passing, tilt, routes, order, outlet):
 
 
 def storm_water(mesh: trimesh.Trimesh, gravity, storm, *, lifetime: float, drip_limit: float, cast,
-                source: trimesh.Trimesh | None = None):
+                source: trimesh.Trimesh | None = None, pools: str = "ignore"):
     """Stage 1 under a physical storm: the supply is every upward vertex under open sky,
     Algorithm 1 walks on it (where each vertex lies on its walk) and `accrete` runs the storm.
 
@@ -418,6 +438,8 @@ def storm_water(mesh: trimesh.Trimesh, gravity, storm, *, lifetime: float, drip_
     source : trimesh.Trimesh, optional
         ``water.source``: the storm falls only from this surface (a vertex must also see it
         straight up); None: the whole sky.
+    pools : {"ignore", "overflow"}
+        ``water.pools`` (`accrete`).
 
     Returns
     -------
@@ -440,7 +462,7 @@ def storm_water(mesh: trimesh.Trimesh, gravity, storm, *, lifetime: float, drip_
     water, top, d_up, bottom, d_down = water_coefficients(mesh, supply, g)
     result = accrete(mesh, g, sky, precipitation_m(storm.intensity, storm.precipitation), kind=storm.kind,
                      freeze=storm.freeze, wall_freeze=storm.wall_freeze, lifetime=lifetime,
-                     drip_limit=drip_limit, d_up=d_up, d_down=d_down, rain=rain)
+                     drip_limit=drip_limit, d_up=d_up, d_down=d_down, rain=rain, pools=pools, cast=cast)
     return WaterResult(supply=supply, water=water, top=top, d_up=d_up, bottom=bottom, d_down=d_down,
                        hits=np.asarray(mesh.vertices)[supply], storm=result)
 

@@ -2,18 +2,16 @@
 
 from __future__ import annotations
 
-import heapq
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 import trimesh
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from ..geometry import chain_sums, perpendicular_basis, ray_caster, sample_faces, unit
 from ..tol import tol
+from .basins import overflow_heights
 
 
 @dataclass(frozen=True)
@@ -158,121 +156,6 @@ def water_coefficients(mesh: trimesh.Trimesh, supply: np.ndarray, gravity: np.nd
     sums, top = chain_sums(up, np.column_stack([gain, length]))
     d_down, bottom = chain_sums(down, down_length[:, None])
     return sums[:, 0], top, sums[:, 1], bottom, d_down[:, 0]
-
-
-def spill_levels(heights: np.ndarray, edges: np.ndarray, outlets: np.ndarray) -> np.ndarray:
-    """Height to which water stands at each vertex before it can flow out (a priority flood).
-
-    The level of a vertex is the lowest, over paths to an outlet, of the highest vertex on
-    the path: a vertex in a basin stands under water up to the basin's lowest rim point;
-    any other vertex's level is its own height.
-
-    Parameters
-    ----------
-    heights : (n,) float
-        Height of each vertex against gravity, in meters.
-    edges : (k, 2) int
-        Edges of the mesh.
-    outlets : (n,) bool
-        Vertices where water leaves the surface (it drips or runs off there).
-
-    Returns
-    -------
-    (n,) float
-        Level per vertex, in meters (>= its height; inf where no outlet can be reached).
-    """
-    n = len(heights)
-    sources = np.concatenate([edges[:, 0], edges[:, 1]])  # both directions of every edge
-    order = np.argsort(sources, kind="stable")
-    neighbours = np.concatenate([edges[:, 1], edges[:, 0]])[order].tolist()
-    starts = np.searchsorted(sources[order], np.arange(n + 1)).tolist()
-    h = heights.tolist()
-    level = [float("inf")] * n
-    heap = [(h[v], v) for v in np.flatnonzero(outlets).tolist()]
-    for lv, v in heap:
-        level[v] = lv
-    heapq.heapify(heap)
-    while heap:  # Dijkstra with max() for + : sequential by nature, so plain Python lists
-        lv, v = heapq.heappop(heap)
-        if lv > level[v]:
-            continue
-        for u in neighbours[starts[v]:starts[v + 1]]:
-            candidate = lv if lv > h[u] else h[u]
-            if candidate < level[u]:
-                level[u] = candidate
-                heapq.heappush(heap, (candidate, u))
-    return np.asarray(level)
-
-
-def overflow_heights(mesh: trimesh.Trimesh, supply: np.ndarray, gravity: np.ndarray,
-                     caster=None) -> np.ndarray:
-    """What full basins add to the water where they spill: their depth, on their rims.
-
-    A basin is a connected set of vertices under water (`spill_levels`) that rain reaches
-    (a supply vertex). Water leaves the object (outlets) at its lowest points, over open
-    edges, and where it drips clear of the object: a downward-facing vertex whose drop
-    falls without landing on it again (a drop from a finial's flare lands back in its
-    bowl; a drop from a foot's sole does not).
-    Filled, it spills over its lowest rim points, the dry vertices next to it at its
-    level, and the flat rim top around them; each gets the basin's depth (level minus
-    its lowest point): the height its water climbed by filling, in Algorithm 1's terms.
-
-    Parameters
-    ----------
-    mesh : trimesh.Trimesh
-        The surface the water flows on, in meters.
-    supply : (n,) bool
-    gravity : (3,) float
-    caster : callable, optional
-        A `icefarm.geometry.ray_caster` of ``mesh`` to reuse.
-
-    Returns
-    -------
-    (n,) float
-        Meters to add at each rim vertex; 0 elsewhere.
-    """
-    g = unit(gravity)
-    heights = -(np.asarray(mesh.vertices) @ g)
-    edges = np.asarray(mesh.edges_unique)
-    n = len(heights)
-    if len(edges) == 0:
-        return np.zeros(n)
-    level_tol = tol.level * float(np.ptp(mesh.vertices, axis=0).max())
-    uses = np.bincount(mesh.edges_unique_inverse, minlength=len(edges))
-    outlets = heights <= heights.min() + level_tol
-    outlets[edges[uses == 1].ravel()] = True
-    normals = np.asarray(mesh.vertex_normals)
-    facing_down = np.flatnonzero(normals @ g > 0)
-    if len(facing_down):
-        cast = caster or ray_caster(mesh)
-        lifted = mesh.vertices[facing_down] + tol.hair * float(np.linalg.norm(mesh.extents)) * normals[facing_down]
-        outlets[facing_down] |= ~np.isfinite(cast(lifted, np.broadcast_to(g, lifted.shape))[0])
-    level = spill_levels(heights, edges, outlets)
-    wet = np.isfinite(level) & (level > heights + level_tol)
-    inside = wet[edges[:, 0]] & wet[edges[:, 1]]
-    graph = coo_matrix((np.ones(inside.sum()), (edges[inside, 0], edges[inside, 1])), shape=(n, n))
-    _, basin = connected_components(graph, directed=False)
-    basin = np.where(wet, basin, -1)
-    count = basin.max() + 1
-    bottom, top = np.full(count, np.inf), np.full(count, -np.inf)
-    np.minimum.at(bottom, basin[wet], heights[wet])
-    np.maximum.at(top, basin[wet], level[wet])  # one level per basin
-    rained = np.zeros(count, dtype=bool)
-    rained[basin[wet & supply]] = True
-    depth = np.where(rained, top - bottom, 0.0)
-    bonus = np.zeros(n)
-    for a, b in (edges.T, edges[:, ::-1].T):  # rim: dry vertices at their basin's level, next to it
-        at_rim = wet[a] & ~wet[b] & (np.abs(heights[b] - level[a]) <= level_tol)
-        np.maximum.at(bonus, b[at_rim], depth[basin[a[at_rim]]])
-    flat = ~wet[edges[:, 0]] & ~wet[edges[:, 1]] & (np.abs(heights[edges[:, 0]] - heights[edges[:, 1]]) <= level_tol)
-    a, b = edges[flat, 0], edges[flat, 1]
-    while True:  # across the flat rim top, where the upward walks stop
-        spread = bonus.copy()
-        np.maximum.at(spread, a, bonus[b])
-        np.maximum.at(spread, b, bonus[a])
-        if np.array_equal(spread, bonus):
-            return bonus
-        bonus = spread
 
 
 def compute_water(mesh: trimesh.Trimesh, gravity, rays: int, influence_radius: float,
