@@ -193,9 +193,10 @@ def run_job(spec: JobSpec, job_dir: Path, cache_dir: Path | None = None,
     return JobOutcome(JobState.DONE, dict(run.seconds), tuple(cache.reused))
 
 
-def _storm_stats(storm, group: StormParams) -> dict:
+def _storm_stats(storm, group: StormParams, pools: str) -> dict:
     """What a physical storm did, for timings.json and the run summary: its kind, class and
-    precipitation, the glaze's median thickness where the rain lands, and where the water went."""
+    precipitation, the glaze's median thickness where the rain lands, where the water went, and
+    whether full basins spilled (``water.pools``)."""
     from .stages.storm import precipitation_m
 
     ice = storm.ice[storm.catch > 0]  # where the rain lands (films thinned by running are not the storm's glaze)
@@ -204,7 +205,7 @@ def _storm_stats(storm, group: StormParams) -> dict:
             "precipitation_mm": round(1000 * precipitation_m(group.intensity, group.precipitation), 2),
             "storm_glaze_p50_mm": round(1000 * float(np.median(ice)), 2) if len(ice) else 0.0,
             "water_frozen": round(storm.budget.frozen / caught, 4), "water_shed": round(storm.budget.shed / caught, 4),
-            "water_pooled": round(storm.budget.pooled / caught, 4)}
+            "water_pooled": round(storm.budget.pooled / caught, 4), "water_pools": pools}
 
 
 def _run_stages(spec: JobSpec, job_dir: Path, run: _Run, cache: StageCache, until: Stage | None) -> dict:
@@ -228,7 +229,7 @@ def _run_stages(spec: JobSpec, job_dir: Path, run: _Run, cache: StageCache, unti
             stats["flow_faces"] = len(r.flow.faces)
             artifacts.write_water_ply(job_dir / WATER, r.flow, r.water.supply, r.water.water)
             if r.water.storm is not None:
-                stats.update(_storm_stats(r.water.storm, p.storm))
+                stats.update(_storm_stats(r.water.storm, p.storm, p.water.pools))
         elif name == "drips":
             artifacts.write_json(job_dir / DRIPS, artifacts.drips_to_json(r.drips))
             stats["icicles"] = len(r.drips.positions)

@@ -220,3 +220,19 @@ def test_the_summary_says_when_the_face_budget_left_the_ripples_off(capsys):
     print_job_summary({**timings, "coarse_voxel_mm": 7.3})
     line = next(s for s in capsys.readouterr().out.splitlines() if "face budget" in s)
     assert "7.3 mm" in line and "surface.error_px=0" in line
+
+
+def test_the_summary_hints_at_overflow_when_much_water_stands_in_basins(capsys):
+    """A fountain under the defaults keeps 27 % of its water in its bowls: the run says how to
+    let full basins spill, and says nothing once they do or when little pools."""
+    from icefarm.cli_summary import print_storm
+
+    timings = {"storm_kind": "freezing_rain", "storm_intensity": "moderate", "precipitation_mm": 37.0,
+               "storm_glaze_p50_mm": 18.1, "icicles": 103, "icicles_per_m": 34.0, "water_frozen": 0.67,
+               "water_shed": 0.06, "water_pooled": 0.27, "water_pools": "ignore"}
+    print_storm(timings)
+    hint = next(s for s in capsys.readouterr().out.splitlines() if "basins" in s)
+    assert "27 %" in hint and "water.pools=overflow" in hint
+    for quiet in ({"water_pools": "overflow"}, {"water_pooled": 0.02}):
+        print_storm({**timings, **quiet})
+        assert "water.pools" not in capsys.readouterr().out
