@@ -1,8 +1,10 @@
 """One job through the pipeline: ground clearance, the stage cache, failures that lose nothing."""
 
 import json
+import sys
 
 import numpy as np
+import pytest
 
 from icefarm import params
 from icefarm.pipeline import JobSpec, Stage, run_job
@@ -104,3 +106,21 @@ def test_cache_entries_round_trip_every_stage_result_without_pickle(tmp_path):
                    {"dataclass": "icefarm.stage_codec:encode", "fields": {}}):
         with pytest.raises(ValueError):
             _decode(forged, {})
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's malloc_trim")
+def test_freed_heap_goes_back_to_the_system_before_the_render():
+    """Small temporaries freed between survivors stay mapped (the heap's top is not free, so
+    glibc cannot shrink it); the pipeline hands their pages back before the render."""
+    from icefarm.pipeline import _return_freed_memory
+
+    def resident_mb():
+        return next(int(line.split()[1]) for line in open("/proc/self/status") if line.startswith("VmRSS")) / 1024
+
+    chunks = [bytearray(2000) for _ in range(100_000)]  # past pymalloc: glibc's heap, 200 MB
+    survivors = chunks[::8]
+    del chunks
+    before = resident_mb()
+    _return_freed_memory()
+    assert before - resident_mb() > 60  # 175 MB freed in 14 kB holes (measured: 119 MB returned)
+    assert len(survivors) == 12_500
