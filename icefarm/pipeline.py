@@ -204,7 +204,7 @@ def _return_freed_memory() -> None:
 
     try:
         trim = getattr(ctypes.CDLL(None), "malloc_trim", None)
-    except OSError:
+    except (OSError, TypeError):  # no handle on the process's own symbols (Windows)
         return
     if trim is not None:
         trim(0)
