@@ -115,29 +115,24 @@ def _find_basins(mesh: trimesh.Trimesh, gravity: np.ndarray, caster=None) -> _Ba
     return _Basins(heights, level, wet, basin, top - bottom, edges, level_tol)
 
 
-def _rims(b: _Basins) -> np.ndarray:
-    """``(n,)`` int: the basin each dry vertex is the rim of (-1: none): the dry vertices at
-    their basin's level next to it, and the flat rim top around them (where the level runs
-    on across a wide lip), each the deepest basin's it touches."""
+def _rim_max(b: _Basins, value: np.ndarray) -> np.ndarray:
+    """``(n,)`` the largest ``value`` (one per basin, >= 0) of the basins each dry vertex is a
+    rim of, 0 off the rims: the dry vertices at their basin's level next to it, and the flat
+    rim top around them (where the level runs on across a wide lip)."""
     edges, wet, level, heights = b.edges, b.wet, b.level, b.heights
-    rim = np.full(len(heights), -1)
-    rim_depth = np.full(len(heights), -np.inf)
+    out = np.zeros(len(heights))
     for a, c in (edges.T, edges[:, ::-1].T):
         at_rim = wet[a] & ~wet[c] & (np.abs(heights[c] - level[a]) <= b.level_tol)
-        for v, k in zip(c[at_rim].tolist(), b.basin[a[at_rim]].tolist()):
-            if b.depth[k] > rim_depth[v]:
-                rim[v], rim_depth[v] = k, b.depth[k]
+        np.maximum.at(out, c[at_rim], value[b.basin[a[at_rim]]])
     flat = ~wet[edges[:, 0]] & ~wet[edges[:, 1]] & (np.abs(heights[edges[:, 0]] - heights[edges[:, 1]]) <= b.level_tol)
     a, c = edges[flat, 0], edges[flat, 1]
     while True:  # across the flat rim top
-        grew = False
-        for s, t in ((a, c), (c, a)):
-            take = (rim[s] >= 0) & (rim[t] < 0)
-            if take.any():
-                rim[t[take]] = rim[s[take]]
-                grew = True
-        if not grew:
-            return rim
+        spread = out.copy()
+        np.maximum.at(spread, a, out[c])
+        np.maximum.at(spread, c, out[a])
+        if np.array_equal(spread, out):
+            return out
+        out = spread
 
 
 def overflow_heights(mesh: trimesh.Trimesh, supply: np.ndarray, gravity: np.ndarray,
@@ -170,21 +165,7 @@ def overflow_heights(mesh: trimesh.Trimesh, supply: np.ndarray, gravity: np.ndar
         return np.zeros(n)
     rained = np.zeros(len(b.depth), dtype=bool)
     rained[b.basin[b.wet & np.asarray(supply, dtype=bool)]] = True
-    depth = np.where(rained, b.depth, 0.0)
-    edges, wet, level, heights = b.edges, b.wet, b.level, b.heights
-    bonus = np.zeros(n)
-    for a, c in (edges.T, edges[:, ::-1].T):  # rim: dry vertices at their basin's level, next to it
-        at_rim = wet[a] & ~wet[c] & (np.abs(heights[c] - level[a]) <= b.level_tol)
-        np.maximum.at(bonus, c[at_rim], depth[b.basin[a[at_rim]]])
-    flat = ~wet[edges[:, 0]] & ~wet[edges[:, 1]] & (np.abs(heights[edges[:, 0]] - heights[edges[:, 1]]) <= b.level_tol)
-    a, c = edges[flat, 0], edges[flat, 1]
-    while True:  # across the flat rim top, where the upward walks stop
-        spread = bonus.copy()
-        np.maximum.at(spread, a, bonus[c])
-        np.maximum.at(spread, c, bonus[a])
-        if np.array_equal(spread, bonus):
-            return bonus
-        bonus = spread
+    return _rim_max(b, np.where(rained, b.depth, 0.0))
 
 
 @dataclass(frozen=True)
@@ -220,7 +201,12 @@ def spill_routes(mesh: trimesh.Trimesh, gravity, caster=None) -> SpillRoutes:
     if not b.wet.any():
         empty = np.zeros(0, dtype=np.int64)
         return SpillRoutes(b.basin, empty, np.zeros(0), empty)
-    rim = _rims(b)
+    # each rim vertex spills the deepest basin it bounds: rank them by depth, 1 the shallowest
+    by_depth = np.argsort(b.depth, kind="stable")
+    rank = np.empty(len(by_depth))
+    rank[by_depth] = np.arange(1, len(by_depth) + 1)
+    top = _rim_max(b, rank).astype(np.int64)
+    rim = np.where(top > 0, by_depth[np.maximum(top - 1, 0)], -1)
     src = np.r_[b.edges[:, 0], b.edges[:, 1]]
     dst = np.r_[b.edges[:, 1], b.edges[:, 0]]
     lip = rim[src]
