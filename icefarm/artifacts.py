@@ -171,15 +171,22 @@ def drips_from_json(path: Path) -> DripResult:
 
 def trajectories_to_json(traj: TrajectoryResult) -> dict:
     icicles: dict[int, dict] = {}
-    first_branch: dict[int, int] = {}
+    # Parents are named by their place in their icicle's list of branches. An icicle's
+    # branches need not be contiguous in the trajectories (the car's, the 3 m house's, the
+    # overflowing fountain's are not), and naming them by the distance from the icicle's
+    # first branch wrote parents past the list's end.
+    icicle_of = np.asarray(traj.branch_icicle, dtype=np.int64)
+    local = np.zeros(traj.n_branches, dtype=np.int64)
+    for i in np.unique(icicle_of):
+        own = np.flatnonzero(icicle_of == i)
+        local[own] = np.arange(len(own))
     cut = traj.cut
     for b in range(traj.n_branches):
         i = int(traj.branch_icicle[b])
         entry = icicles.setdefault(i, {"id": len(icicles), "drip_point": i, "branches": []})
-        first_branch.setdefault(i, b)
         parent = int(traj.branch_parent[b])
         entry["branches"].append({
-            "parent": -1 if parent < 0 else parent - first_branch[i],
+            "parent": -1 if parent < 0 else int(local[parent]),
             "points": np.round(traj.branch(b), 6).tolist(),
         })
         if cut[b] > 0:  # the ground stopped it: meters it would have grown on

@@ -124,3 +124,23 @@ def test_freed_heap_goes_back_to_the_system_before_the_render():
     _return_freed_memory()
     assert before - resident_mb() > 60  # 175 MB freed in 14 kB holes (measured: 119 MB returned)
     assert len(survivors) == 12_500
+
+
+def test_trajectories_json_keeps_the_branch_tree_when_an_icicles_branches_are_apart(tmp_path):
+    """trajectories.json names a parent by its place in its icicle's list of branches: with
+    branches stored icicle 0, 1, 0, 1, 0 (a fork's branches come after other trunks, as on
+    the car and the 3 m house), counting from the icicle's first branch named parents past
+    the list's end."""
+    from icefarm.artifacts import trajectories_from_json, trajectories_to_json
+    from icefarm.stages.trajectories import TrajectoryResult
+
+    tops = np.array([[0, 1, 0], [1, 1, 0], [0, 0.9, 0], [1, 0.9, 0], [0.01, 0.8, 0]], dtype=float)
+    pts = np.repeat(tops, 2, axis=0) - np.tile([[0, 0, 0], [0, 0.05, 0]], (5, 1))
+    traj = TrajectoryResult(pts, np.arange(0, 11, 2), np.array([0, 1, 0, 1, 0]), np.array([-1, -1, 0, 1, 2]))
+    path = tmp_path / "trajectories.json"
+    path.write_text(json.dumps(trajectories_to_json(traj)))
+    back = trajectories_from_json(path)  # icicle 0's branches (0, 2, 4), then icicle 1's (1, 3)
+    np.testing.assert_array_equal(back.branch_parent, [-1, 0, 1, -1, 3])
+    np.testing.assert_array_equal(back.branch_icicle, [0, 0, 0, 1, 1])
+    for new, old in enumerate([0, 2, 4, 1, 3]):
+        np.testing.assert_allclose(back.branch(new), traj.branch(old))
