@@ -28,7 +28,7 @@ from .placement import Placement, ground_height, ground_level, sole_vertices, st
 from .stage_cache import digest, file_digest
 from .stages.drips import DripResult, find_drips
 from .stages.trajectories import TrajectoryResult, grow_trajectories
-from .stages.icicle_size import growth_ratios, icicle_lengths, thickening_m
+from .stages.icicle_size import IcicleSizing, growth_ratios, thickening_m
 from .stages.storm import refine, storm_water
 from .stages.water import WaterResult, compute_water
 from .params import GlazeParams, Params
@@ -237,20 +237,21 @@ def _run(prepared, p, seed, placement, exclude, overrides, source, until, mesh_k
         if physical and placement != Placement.GROUND.value:
             grounded[:] = False  # a hanging sign's lowest rim is where it drips, not where it stands
         kl = p.trajectories.length_scale
-        shed = to_water = None
+        shed = sizing = None
         if physical and water.storm is not None:
             shed = water.storm.shed
-            to_water = lambda volume: icicle_lengths(volume, storm, p.surface) / kl  # noqa: E731
+            sizing = IcicleSizing(storm, p.surface)
         found = find_drips(flow, water.water, gravity, storm.max_icicles if physical else d.count,
                            d.drip_limit, stage_rng(seed, Stage.DRIPS),
                            exclude_boxes=exclude, exclude_vertices=grounded if d.ground_clearance > 0 else None,
                            caster=caster(flow), spacing=d.spacing, distribution=d.distribution,
                            min_fall=d.min_fall, floor=ground_level(placement, obj, gravity),
-                           min_water=d.min_length / kl, shed=shed, to_water=to_water)
+                           min_water=d.min_length / kl, shed=shed, sizing=sizing,
+                           length_scale=kl)
         if shed is not None and len(found.positions):
             # Each icicle thickens as the storm does, whatever its water; and the glaze at the
             # rim swallows its first centimetres: it hangs its length below the ice.
-            growth = growth_ratios(found.water * kl, thickening_m(storm), p.surface.growth_ratio)
+            growth = growth_ratios(found.water * kl, thickening_m(storm, found.active), p.surface.growth_ratio)
             coat = water.storm.ice[flow.faces[found.faces]].max(axis=1)
             found = dataclasses.replace(found, water=found.water + coat / kl, growth=growth)
         if flow is obj:
@@ -259,7 +260,7 @@ def _run(prepared, p, seed, placement, exclude, overrides, source, until, mesh_k
 
         # Icicles hang from the real object: move each drip point onto it.
         points, normals, faces = snap_to_surface(found.positions, obj, reference=found.normals)
-        return DripResult(found.region_faces, points, normals, found.water, faces, found.growth)
+        return dataclasses.replace(found, positions=points, normals=normals, faces=faces)
 
     drips = advance("drips", drips_key, drips_stage, "drips")
     if stops(until, Stage.DRIPS):

@@ -80,6 +80,13 @@ def print_job_summary(timings: dict) -> None:
         click.echo(f"  ripple texture on {timings.get('ripple_trunks', 0)} trunks of 10 cm and more: {depth:.2f} mm "
                    f"deep, radius 3 cm apart correlates {corr:.2f}, crest spacing varies {cv:.2f} (CV) "
                    "(natural: at most 0.6, and 0.1-0.35)")
+    free, contrast = timings.get("fringe_free_share"), timings.get("fringe_length_contrast")
+    if free is not None or contrast is not None:
+        click.echo("  fringe: " + ("-" if free is None else f"{100 * free:.0f} %")
+                   + f" of {timings.get('fringe_free_checked', 0)} icicles of 3 cm and more hang free at half "
+                   "their length; the longest of each and its 4 nearest (10 cm) "
+                   + ("-" if contrast is None else f"{contrast:.1f}") + " times the shortest "
+                   "(real fringes: 85 % and more free, 2.5 times and more)")
     coverage = timings.get("glaze_coverage")
     if coverage is not None:
         p10, p50, p90, ratio = (timings.get(k) for k in ("glaze_p10_mm", "glaze_p50_mm", "glaze_p90_mm",

@@ -16,6 +16,32 @@ def unit(vectors: np.ndarray) -> np.ndarray:
     return np.divide(vectors, norm, out=np.zeros_like(vectors), where=norm > 0)
 
 
+def world_frame(gravity) -> np.ndarray:
+    """Rows ``right, up, front`` ``(3, 3)``: an orthonormal right-handed frame with up = -gravity.
+
+    ``front`` is the first of +Z, -Y, +X that is not close to ``up``: Y-up assets face +Z
+    and Z-up ones -Y, as their authors expect (cameras at azimuth 0 and the default wind
+    come from there).
+
+    Raises
+    ------
+    ValueError
+        Gravity is zero or not finite.
+    """
+    g = np.asarray(gravity, dtype=np.float64).reshape(3)
+    norm = np.linalg.norm(g)
+    if not np.isfinite(norm) or norm == 0:
+        raise ValueError(f"gravity must be a non-zero finite vector, got {gravity!r}")
+    up = -g / norm
+    for ref in ((0.0, 0.0, 1.0), (0.0, -1.0, 0.0), (1.0, 0.0, 0.0)):
+        ref = np.asarray(ref)
+        if abs(ref @ up) < 0.9:
+            break
+    front = ref - (ref @ up) * up
+    front /= np.linalg.norm(front)
+    return np.stack([np.cross(up, front), up, front])
+
+
 def perpendicular_basis(direction: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Two unit vectors ``(3,)`` that complete ``direction`` to a right-handed frame."""
     d = unit(direction)

@@ -110,6 +110,9 @@ def _p(group, name, symbol, unit, kind, default, doc, **domain) -> Param:
 
 
 _F, _I = Kind.FLOAT, Kind.INT
+# The default storm's breeze, m/s (storm.wind): from the asset's front, whichever axis is up
+# (`icefarm.params.resolve` turns it with the gravity).
+DEFAULT_WIND_MPS = 3.0
 
 PARAMS: tuple[Param, ...] = (
     # The storm in physical units (beyond the paper; icefarm.stages.storm)
@@ -139,10 +142,13 @@ PARAMS: tuple[Param, ...] = (
     _p("storm", "icicle_share", "-", "-", _F, 0.7,
        "share of the water reaching a drip point that freezes on its icicle; the rest drips off "
        "the tip to the ground (Makkonen 1988)", low=0.0, high=1.0, low_open=True),
-    _p("storm", "wind", "-", "m/s", Kind.VECTOR, [0.0, 0.0, 0.0],
+    _p("storm", "wind", "-", "m/s", Kind.VECTOR, [0.0, 0.0, -DEFAULT_WIND_MPS],
        "the wind during freezing rain, a velocity (its part across gravity counts): the rain "
        "slants (drops fall at about 5 m/s), walls and signs facing the wind glaze and drip, the "
-       "lee stays dry; 0 0 0: still air, rain along gravity. trajectories.wind bends the icicles",
+       "lee stays dry. Default: a light 3 m/s breeze from the asset's front (+Z for Y-up, -Y for "
+       "Z-up: the side cameras see at azimuth 0), as freezing rain nearly always comes with some "
+       "wind; 0,0,0: still air, rain along gravity. "
+       "trajectories.wind bends the icicles",
        zero_ok=True),
     _p("storm", "max_icicles", "-", "-", _I, 2000,
        "budget of icicles for huge assets: drip points run along every wet drip rim at "

@@ -17,7 +17,8 @@ import numpy as np
 import yaml
 
 from .errors import InputError
-from .param_table import PARAMS, Kind, Param
+from .geometry import world_frame
+from .param_table import DEFAULT_WIND_MPS, PARAMS, Kind, Param
 
 __all__ = ["GROUPS", "PARAMS", "Kind", "Param", "Params", "defaults", "flatten", "group_type", "lookup",
            "param_index", "parse_assignment", "parse_value", "resolve", "table", "typed"]
@@ -83,8 +84,10 @@ def resolve(*layers: Mapping[str, Any] | Params | None) -> Params:
         For an unknown key (with the nearest valid one) or a value outside its domain.
     """
     out = defaults()
+    wind_given = False
     for layer in layers:
         flat = flatten(layer.as_dict() if isinstance(layer, Params) else layer or {})
+        wind_given |= "storm.wind" in flat
         for key, value in flat.items():
             param = lookup(key)
             out[param.group][param.name] = param.validate(value)
@@ -107,6 +110,8 @@ def resolve(*layers: Mapping[str, Any] | Params | None) -> Params:
     del out["glaze"]["balls"]  # stood for glaze.mode (above)
     g = np.asarray(out["water"]["gravity"], dtype=np.float64)
     out["water"]["gravity"] = (g / np.linalg.norm(g)).tolist()  # normalised here, once
+    if not wind_given:  # the default breeze blows from the asset's front, whichever way is up
+        out["storm"]["wind"] = ((-DEFAULT_WIND_MPS * world_frame(g)[2]).round(12) + 0.0).tolist()
     return Params(**{group: _build(group, values) for group, values in out.items()})
 
 

@@ -285,7 +285,7 @@ def _run_stages(spec: JobSpec, job_dir: Path, run: _Run, cache: StageCache, unti
 def _surface_and_render(spec: JobSpec, job_dir: Path, run: _Run, until: Stage | None, r: StageResults,
                         gravity: np.ndarray) -> dict:
     from .stages.surface.glaze import measure_glaze
-    from .stages.surface import measure_icicles
+    from .stages.surface import fringe_figures, measure_icicles
 
     p = spec.params
     obj, ice = r.mesh, r.ice
@@ -300,9 +300,10 @@ def _surface_and_render(spec: JobSpec, job_dir: Path, run: _Run, until: Stage | 
         with ThreadPoolExecutor(1) as pool:
             glaze = pool.submit(measure_glaze, ice.vertices, ice.faces, wet.mesh, wet.water, gravity,
                                 exclude=_not_glaze(wet.mesh, r.drips, wet.exclude, p.surface))
-            return measure_icicles(ice.vertices, ice.faces, axes, p.surface), glaze.result()
+            icicles = measure_icicles(ice.vertices, ice.faces, axes, p.surface)
+            return icicles, fringe_figures(ice.vertices, ice.faces, axes, gravity), glaze.result()
 
-    m, glaze = run.timed("measure", measure)
+    m, fringe, glaze = run.timed("measure", measure)
     ice_mesh = trimesh.Trimesh(ice.vertices, ice.faces, process=False)
     if ice.bands is not None:  # the ripples' milky bands, for the render's shimmer
         ice_mesh.vertex_attributes[ICE_BANDS] = ice.bands
@@ -318,6 +319,8 @@ def _surface_and_render(spec: JobSpec, job_dir: Path, run: _Run, until: Stage | 
         "ripple_depth_mm": _finite(m.ripple_texture.depth_mm),
         "ripple_correlation_3cm": _finite(m.ripple_texture.correlation_3cm),
         "ripple_crest_cv": _finite(m.ripple_texture.crest_cv), "ripple_trunks": m.ripple_texture.trunks,
+        "fringe_free_share": _finite(fringe.free_share), "fringe_free_checked": fringe.checked,
+        "fringe_length_contrast": _finite(fringe.length_contrast),
     }
     if ice.coarse_voxel is not None:
         stats["coarse_voxel_mm"] = round(1000 * ice.coarse_voxel, 3)

@@ -21,7 +21,7 @@ def _plate(max_edge=0.03):
 
 
 def _storm(mesh, **kw):
-    p = params.typed("storm", kw)
+    p = params.typed("storm", {"wind": (0.0, 0.0, 0.0), **kw})  # still air unless a test blows
     return storm_water(mesh, G, p, lifetime=0.5, drip_limit=75.0, cast=ray_caster(mesh)).storm
 
 

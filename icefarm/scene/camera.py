@@ -14,6 +14,8 @@ import numpy as np
 import trimesh
 from scipy.spatial import ConvexHull, QhullError
 
+from ..geometry import world_frame
+
 
 def along(points: np.ndarray, direction: np.ndarray) -> np.ndarray:
     """``points @ direction`` for ``(n, 3)`` points, written out: measured several times
@@ -60,28 +62,6 @@ class Camera:
         u = along(q, right) / (z * np.tan(np.radians(self.fov_x) / 2))
         v = along(q, cam_up) / (z * np.tan(np.radians(self.fov_y) / 2))
         return np.column_stack([(u + 1) * width / 2, (1 - v) * height / 2])
-
-
-def world_frame(gravity) -> np.ndarray:
-    """Rows ``right, up, front`` ``(3, 3)``: an orthonormal right-handed frame with up = -gravity.
-
-    Raises
-    ------
-    ValueError
-        Gravity is zero or not finite.
-    """
-    g = np.asarray(gravity, dtype=np.float64).reshape(3)
-    norm = np.linalg.norm(g)
-    if not np.isfinite(norm) or norm == 0:
-        raise ValueError(f"gravity must be a non-zero finite vector, got {gravity!r}")
-    up = -g / norm
-    for ref in ((0.0, 0.0, 1.0), (0.0, -1.0, 0.0), (1.0, 0.0, 0.0)):
-        ref = np.asarray(ref)
-        if abs(ref @ up) < 0.9:
-            break
-    front = ref - (ref @ up) * up
-    front /= np.linalg.norm(front)
-    return np.stack([np.cross(up, front), up, front])
 
 
 def direction(frame: np.ndarray, azimuth: float, elevation: float) -> np.ndarray:

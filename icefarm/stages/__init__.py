@@ -15,11 +15,11 @@ import lazy_loader as _lazy
 __getattr__, __dir__, __all__ = _lazy.attach(__name__, submod_attrs={
     "drips": ["DripResult", "find_drips"],
     "growth": ["MAX_FRAMES", "frame_fractions", "noise_draws", "stage4_inputs_at", "trajectories_at"],
-    "icicle_size": ["growth_ratios", "icicle_lengths", "thickening_m"],
+    "icicle_size": ["IcicleSizing", "growth_ratios", "icicle_lengths", "thickening_m"],
     "landing": ["find_landings"],
     "proxy": ["ProxyMethod", "build_proxy", "proxy_reason", "snap_to_surface"],
     "storm": ["constants", "drip_rim_length", "precipitation_m", "refine", "storm_water"],
-    "surface": ["SLIVER", "CoatSurface", "build_ice", "carry_water", "ground_ice_balls", "icicle_balls", "measure_glaze", "measure_icicles",
+    "surface": ["SLIVER", "CoatSurface", "build_ice", "carry_water", "fringe_figures", "ground_ice_balls", "icicle_balls", "measure_glaze", "measure_icicles",
                 "profile_args", "ripple_bands"],
     "trajectories": ["TrajectoryResult", "grow_trajectories"],
     "trajectory_stats": ["measure_trajectories"],

@@ -21,7 +21,7 @@ import trimesh
 from ..geometry import inside, ray_caster, sample_faces, unit
 from ..tol import tol
 from .rims import (RIM_REACH, SAMPLES_PER_SPACING, catchment_volume, catchment_water, compete, drip_flux,
-                   rim_half_edges, rim_points)
+                   rim_half_edges, rim_points, swallow)
 
 
 @dataclass(frozen=True)
@@ -42,6 +42,9 @@ class DripResult:
         (``water``, `catchment_water`).
     faces : (k,) int
         Face holding each drip point.
+    active : (k,) float or None
+        A physical storm's share of the storm each icicle was fed while its neighbours
+        competed for the rim (`icefarm.stages.rims.compete`); None: all of it.
     growth : (k,) float or None
         A physical storm's growth ratio of each drip point's icicle (`icefarm.stages.storm.
         growth_ratios`); None: ``surface.growth_ratio``.
@@ -53,6 +56,7 @@ class DripResult:
     water: np.ndarray
     faces: np.ndarray
     growth: np.ndarray | None = None
+    active: np.ndarray | None = None
 
 
 def drip_criterion(normals: np.ndarray, gravity: np.ndarray, drip_limit: float) -> np.ndarray:
@@ -193,7 +197,7 @@ def find_drips(mesh: trimesh.Trimesh, water: np.ndarray, gravity, count: int, dr
                exclude_vertices: np.ndarray | None = None, caster=None,
                spacing: float = 0.0, distribution: str = "area", min_fall: float = 0.0,
                floor: float | None = None, min_water: float = 0.0, shed: np.ndarray | None = None,
-               to_water=None) -> DripResult:
+               sizing=None, length_scale: float = 1.0) -> DripResult:
     """Stage 2: the drip region and up to ``count`` drip points on it.
 
     ``distribution="area"`` spreads the points area-weighted over the region's faces (the
@@ -246,9 +250,13 @@ def find_drips(mesh: trimesh.Trimesh, water: np.ndarray, gravity, count: int, dr
         m^3. It replaces the water coefficients' `drip_flux`: the region is where it sheds,
         points are drawn by it along the rims (as many as the rims hold at ``spacing``, at
         most ``count``), each point's water is the volume its stretch of rim sheds
-        (`catchment_volume`), turned into a water coefficient by ``to_water``.
-    to_water : callable, optional
-        ``(k,) m^3 -> (k,)`` meters of water coefficient (with ``shed``); identity if None.
+        (`catchment_volume`); the icicles compete for the rim (`icefarm.stages.rims.compete`)
+        and those a bigger one would fuse with feed it (`icefarm.stages.rims.swallow`).
+    sizing : icefarm.stages.icicle_size.IcicleSizing, optional
+        With ``shed``: icicles' lengths and radii from their water; ``water`` is then the
+        length over ``length_scale`` (kL).
+    length_scale : float
+        kL, meters (with ``sizing``).
     """
     water = np.asarray(water, dtype=np.float64)
     if water.shape != (len(mesh.vertices),):
@@ -313,12 +321,10 @@ def find_drips(mesh: trimesh.Trimesh, water: np.ndarray, gravity, count: int, dr
     coefficients = np.einsum("ij,ij->i", bary, water[corners])
     step = (spacing or float(np.median(mesh.edges_unique_length))) / SAMPLES_PER_SPACING
 
-    def drained(positions: np.ndarray, final: bool = False) -> np.ndarray:
+    def drained(positions: np.ndarray) -> np.ndarray:
         if shed is not None:
             volume = catchment_volume(mesh, flux, region, gravity, positions, step, reach=RIM_REACH * max(spacing, step))
-            if final:  # after the dry points are gone: competing then would starve the weak ones in turn
-                volume = compete(volume, positions)
-            return volume if to_water is None else np.asarray(to_water(volume), dtype=np.float64)
+            return volume if sizing is None else sizing.length(volume) / length_scale
         return catchment_water(mesh, water, flux, region, gravity, positions, step)
 
     if by_water:
@@ -332,7 +338,18 @@ def find_drips(mesh: trimesh.Trimesh, water: np.ndarray, gravity, count: int, dr
             coefficients = drained(positions)
     wet = coefficients >= min_water
     positions, normals, face, coefficients = positions[wet], normals[wet], face[wet], coefficients[wet]
+    active = None
     if by_water and shed is not None and len(positions):
-        coefficients = drained(positions, final=True)
+        # Only now do the icicles compete for the rim: those it starves stay short or, under
+        # drips.min_length, freeze into the glaze, their water dripping off the rim.
+        volume = catchment_volume(mesh, flux, region, gravity, positions, step, reach=RIM_REACH * max(spacing, step))
+        volume, active = compete(volume, positions, rng, spacing)
+        kept = np.ones(len(volume), dtype=bool)
+        if sizing is not None:
+            volume, active, kept = swallow(volume, active, positions, sizing)
+        coefficients = volume if sizing is None else sizing.length(volume, active) / length_scale
+        wet = kept & (coefficients >= min_water)
+        positions, normals, face, coefficients, active = (positions[wet], normals[wet], face[wet],
+                                                          coefficients[wet], active[wet])
     return DripResult(region_faces=region, positions=positions, normals=normals,
-                      water=coefficients, faces=face)
+                      water=coefficients, faces=face, active=active)

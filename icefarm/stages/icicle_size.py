@@ -4,10 +4,26 @@ icicle profile, and its growth ratio (``storm.mode: physical``; `icefarm.stages.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
 from .storm import GROWTH_MAX, WATER_TO_ICE, precipitation_m
+from .surface.profile import smooth_radius
+
+# An icicle freezes what the heat its surface loses allows (Makkonen 1988: its growth is
+# limited by heat transfer; more water lowers lengthening, not thickening; the rest drips
+# off the tip). Its surface freezes this many times the ice a level face's budget would
+# (storm.freeze of the precipitation per area): a thin cylinder loses heat faster than a
+# broad face, but its water film is warmed by all the water running over it. Chosen so a
+# moderate freezing rain's longest icicles are about 0.4 m (light 0.2 m, severe 0.8 m);
+# meltwater feeds icicles over days of thaw and frost, twice that.
+ICICLE_HEAT = {"freezing_rain": 0.5, "meltwater": 1.0}
+# Past that limit the water's warmth slows the lengthening (Makkonen 1988; Maeno et al. 1994:
+# more water, slower lengthening): an icicle fed x times what it can freeze reaches
+# x^-WARM_WATER of the longest.
+WARM_WATER = 0.25
 
 
 def icicle_volume(length, tip: float, growth, shape: str = "physical"):
@@ -32,6 +48,33 @@ def growth_ratios(length, thickening: float, growth: float) -> np.ndarray:
     return np.clip(thickening / L, growth, max(growth, GROWTH_MAX))
 
 
+def icicle_area(length, tip: float, growth, shape: str = "physical"):
+    """Lateral area of an icicle of ``length`` meters (array-like), m^2: ``2 pi`` times the
+    integral of its profile's radius, ``2 pi (tip L + 4/7 t L^2)`` (``physical``) or
+    ``2 pi (tip L + t L^2 / 2)`` (``paper``)."""
+    L = np.asarray(length, dtype=np.float64)
+    t = np.asarray(growth, dtype=np.float64)
+    return 2.0 * math.pi * (tip * L + (4.0 / 7.0 if shape == "physical" else 0.5) * t * L * L)
+
+
+def _bisect(below, lo: np.ndarray) -> np.ndarray:
+    """``(k,)``: the least L >= ``lo`` where ``below(L)`` (a (k,) bool test, True up to one
+    crossing) turns False, to 2^-50 of its bracket."""
+    lo = np.array(lo, dtype=np.float64)
+    hi = np.maximum(2.0 * lo, 1.0)
+    while True:  # widen until every crossing is bracketed
+        short = below(hi)
+        if not short.any():
+            break
+        hi[short] *= 2.0
+    for _ in range(50):
+        mid = 0.5 * (lo + hi)
+        small = below(mid)
+        lo = np.where(small, mid, lo)
+        hi = np.where(small, hi, mid)
+    return 0.5 * (lo + hi)
+
+
 def length_from_volume(volume, tip: float, growth: float, shape: str = "physical",
                        thickening: float | None = None) -> np.ndarray:
     """``(k,)`` length in meters of icicles holding ``volume`` m^3 of ice (`icicle_volume`
@@ -43,36 +86,78 @@ def length_from_volume(volume, tip: float, growth: float, shape: str = "physical
     def held(L):
         return icicle_volume(L, tip, growth if thickening is None else growth_ratios(L, thickening, growth), shape)
 
-    lo = np.zeros_like(volume)
-    hi = np.full_like(volume, 1.0)
-    while True:  # widen until every volume is bracketed
-        short = held(hi) < volume
-        if not short.any():
-            break
-        hi[short] *= 2.0
-    for _ in range(50):
-        mid = 0.5 * (lo + hi)
-        small = held(mid) < volume
-        lo = np.where(small, mid, lo)
-        hi = np.where(small, hi, mid)
-    return 0.5 * (lo + hi)
+    return _bisect(lambda L: held(L) < volume, np.zeros_like(volume))
 
 
-def thickening_m(storm) -> float:
+def heat_limited_length(storm, surface, active=None, count: int = 1) -> np.ndarray:
+    """``(k,)`` meters: the longest icicle the storm's cold can freeze, whatever its water.
+
+    Its ice (`icicle_volume`) grows about as L^3 and the heat its surface loses over the
+    storm (`icicle_area` times `ICICLE_HEAT` times a level face's budget, ``storm.freeze``
+    of the precipitation) as L^2: past the length where they meet, more water drips off the
+    tip instead of lengthening it. ``active`` (k,) thins the icicles its neighbours starved
+    (`thickening_m`). Stubs (the growth ratio above ``surface.growth_ratio``) are never
+    limited."""
+    share = np.ones(count) if active is None else np.asarray(active, dtype=np.float64).reshape(-1)
+    budget = ICICLE_HEAT[storm.kind] * storm.freeze * precipitation_m(storm.intensity, storm.precipitation) * WATER_TO_ICE
+    thick = thickening_m(storm, share)
+    tip, growth, shape = surface.tip_radius, surface.growth_ratio, surface.profile
+
+    def within(L):
+        t = growth_ratios(L, thick, growth)
+        return icicle_volume(L, tip, t, shape) <= budget * icicle_area(L, tip, t, shape)
+
+    stub = np.maximum(thick / max(growth, 1e-12), 1e-6)
+    return np.where(within(stub), _bisect(within, stub), stub)
+
+
+def thickening_m(storm, active=None):
     """Meters an icicle's base thickens at least over the storm: the radial ice of a bar that
     freezes ``storm.freeze`` of its rain, ``freeze P rho_w / (pi rho_i)`` (Jones 1998).
     Thickening is set by the heat the icicle loses more than by its water (Makkonen 1988:
     more water lowers lengthening, not thickening), so a short icicle is a stubby cone, not a
-    straw; a long one widens by ``surface.growth_ratio`` of its length, as real ones do."""
-    return storm.freeze * precipitation_m(storm.intensity, storm.precipitation) * WATER_TO_ICE / math.pi
+    straw; a long one widens by ``surface.growth_ratio`` of its length, as real ones do.
+    ``active`` ((k,), 0 to 1): the share of the storm each icicle was fed; one its neighbours
+    starved stopped thickening then (a float without it, a (k,) array with it)."""
+    full = storm.freeze * precipitation_m(storm.intensity, storm.precipitation) * WATER_TO_ICE / math.pi
+    return full if active is None else full * np.asarray(active, dtype=np.float64)
 
 
-def icicle_lengths(volume, storm, surface) -> np.ndarray:
+def icicle_lengths(volume, storm, surface, active=None) -> np.ndarray:
     """``(k,)`` meters: icicles from ``volume`` (k,) m^3 of water reaching their drip points.
 
     ``storm.icicle_share`` of it freezes on the icicle (the rest drips off its tip); the
     ice's volume gives the length through the icicle's profile (`length_from_volume` with
-    ``surface.tip_radius`` and ``profile``; each icicle thickens `thickening_m`)."""
-    ice = np.asarray(volume, dtype=np.float64) * storm.icicle_share * WATER_TO_ICE
-    return length_from_volume(ice, surface.tip_radius, surface.growth_ratio, surface.profile,
-                              thickening=thickening_m(storm))
+    ``surface.tip_radius`` and ``profile``; each icicle thickens `thickening_m`, for the share
+    ``active`` (k,) of the storm it was fed), up to what the storm's cold can freeze
+    (`heat_limited_length`), and less the more water it was fed past that (`WARM_WATER`)."""
+    ice = np.asarray(volume, dtype=np.float64).reshape(-1) * storm.icicle_share * WATER_TO_ICE
+    fed = length_from_volume(ice, surface.tip_radius, surface.growth_ratio, surface.profile,
+                             thickening=thickening_m(storm, active))
+    cap = heat_limited_length(storm, surface, active, len(ice))
+    thick = thickening_m(storm, active)
+    frozen = icicle_volume(cap, surface.tip_radius, growth_ratios(cap, thick, surface.growth_ratio), surface.profile)
+    excess = np.divide(ice, frozen, out=np.ones_like(ice), where=frozen > 0)
+    return np.where(fed > cap, cap * np.maximum(excess, 1.0) ** -WARM_WATER, fed)
+
+
+@dataclass(frozen=True)
+class IcicleSizing:
+    """How a storm's water sizes its icicles: `icicle_lengths` and their profile's radius,
+    for stage 2 to weigh which icicles fuse (`icefarm.stages.rims.swallow`)."""
+
+    storm: Any
+    surface: Any
+
+    def length(self, volume, active=None) -> np.ndarray:
+        """``(k,)`` meters: `icicle_lengths` of ``volume`` (k,) m^3 of water."""
+        return icicle_lengths(volume, self.storm, self.surface, active)
+
+    def radius(self, length, active, depth) -> np.ndarray:
+        """``(k,)`` meters: the smooth radius of icicles ``length`` (k,) long, fed ``active``
+        (k,) of the storm, ``depth`` (k,) meters below their roots (0 past their tips)."""
+        length = np.asarray(length, dtype=np.float64)
+        growth = growth_ratios(length, thickening_m(self.storm, active), self.surface.growth_ratio)
+        below = np.asarray(depth, dtype=np.float64)
+        radius = smooth_radius(below, length, self.surface.tip_radius, growth, shape=self.surface.profile)
+        return np.where(below < length, radius, 0.0)
