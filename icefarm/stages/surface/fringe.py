@@ -179,13 +179,13 @@ def hangs_free(vertices: np.ndarray, faces: np.ndarray, traj: TrajectoryResult, 
             continue
         flat = np.stack([cut @ u, cut @ v], axis=-1)
         piece, closed = _loops(flat)
-        inside = _enclosing(flat, piece, len(closed), np.array([centre @ u, centre @ v]))
+        # Only closed loops enclose anything: a piece the window cut (a sheet running on, a
+        # neighbour's edge) is open, and the ray's parity through it means nothing.
+        inside = _enclosing(flat, piece, len(closed), np.array([centre @ u, centre @ v])) & closed
         around = np.flatnonzero(inside)
         if len(around) == 0:
             continue
         own = around[np.argmin([np.ptp(flat[piece == k].reshape(-1, 2), axis=0).prod() for k in around])]
-        if not closed[own]:
-            continue
         # Other icicles whose axes cross this level inside the loop share it: a sheet.
         others = np.asarray(seg_tree.query_ball_point(centre, window), dtype=np.int64)
         others = others[seg_icicle[others] != traj.branch_icicle[trunk]]
