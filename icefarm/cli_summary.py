@@ -91,9 +91,12 @@ def print_job_summary(timings: dict) -> None:
     if coverage is not None:
         p10, p50, p90, ratio = (timings.get(k) for k in ("glaze_p10_mm", "glaze_p50_mm", "glaze_p90_mm",
                                                         "glaze_top_bottom"))
+        relief = timings.get("glaze_relief")
         click.echo(f"  glaze: covers {100 * coverage:.1f} % of the wet surface, "
                    + ("-" if p50 is None else f"{p10:.1f} / {p50:.1f} / {p90:.1f} mm thick (p10/p50/p90)")
-                   + ("" if ratio is None else f", top/bottom {ratio:.2f}"))
+                   + ("" if ratio is None else f", top/bottom {ratio:.2f}")
+                   + ("" if relief is None else f"; runnels on steep faces: the thickness strays {100 * relief:.0f} % "
+                      "from the storm's even coat (an even varnish: a few %)"))
     gap = timings.get("ground_gap_mm")
     if gap is not None:
         click.echo(f"  ground: the object's lowest point {gap:.1f} mm above the ground plane"

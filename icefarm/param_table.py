@@ -299,6 +299,11 @@ PARAMS: tuple[Param, ...] = (
        "edge of a marching-cubes voxel for the glaze (the coat's thickness does not depend on it; "
        "parts thinner than two voxels, wet on one side only, need a finer one); coarser than "
        "surface.voxel_size keeps the mesh light", low=0.0, low_open=True),
+    _p("glaze", "runnels", "-", "-", _F, 0.5,
+       "coat mode: relief of the runnels and frozen drops the film leaves as it freezes running down "
+       "sloped and vertical faces, a share of the coat's thickness on a vertical face (ridges 1-4 cm "
+       "apart, beads along them; level tops stay smooth, the ice's volume stays); 0: an even coat",
+       low=0.0, high=1.0),
     _p("glaze", "smoothing", "-", "-", _I, 10,
        "coat mode: Taubin steps that smooth the coat's face (its field is a patchwork of the surface "
        "samples' planes, whose kinks reflect the sky as ragged flecks up close); vertices move at "

@@ -311,7 +311,7 @@ def _surface_and_render(spec: JobSpec, job_dir: Path, run: _Run, until: Stage | 
     stats = {
         "glaze_coverage": _finite(glaze.coverage), "glaze_p10_mm": _finite(glaze.p10_mm),
         "glaze_p50_mm": _finite(glaze.p50_mm), "glaze_p90_mm": _finite(glaze.p90_mm),
-        "glaze_top_bottom": _finite(glaze.top_bottom),
+        "glaze_top_bottom": _finite(glaze.top_bottom), "glaze_relief": _finite(glaze.relief),
         "ice_faces": len(ice.faces), "metaballs": ice.balls, "tip_radius_mm": _finite(m.tip_radius_mm),
         "taper": _finite_list(m.taper), "growth_ratio": _finite_list(m.growth_ratio, 4),
         "profile_exponent": _finite_list(m.profile_exponent),

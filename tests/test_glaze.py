@@ -327,3 +327,46 @@ def test_water_carried_from_a_wrap_skips_faces_buried_in_the_object():
     buried, open_ = inner.all(axis=1), ~inner.any(axis=1)  # (those across the seam are neither)
     assert buried.any() and not (glazed & buried).any()
     assert glazed[open_].mean() > 0.9
+
+
+def test_runnels_streak_down_steep_faces_and_leave_level_ones_even():
+    from icefarm.stages.surface.runnels import FLOOR, PEAK, runnel_relief
+
+    g = np.array([0.0, -1.0, 0.0])
+    x, y = np.meshgrid(np.linspace(0, 0.3, 121), np.linspace(0, 0.3, 121))
+    wall = np.column_stack([x.ravel(), y.ravel(), np.zeros(x.size)])  # a wall facing +z
+    rng = np.random.default_rng(0)
+    f = runnel_relief(wall, np.tile([0.0, 0.0, 1.0], (len(wall), 1)), g, 0.5, rng)
+    assert FLOOR <= f.min() and f.max() <= PEAK
+    assert abs(f.mean() - 1.0) < 0.1 and f.std() > 0.15  # the ice moves into ridges, none is made
+    grid = f.reshape(121, 121)  # rows down the wall (y), columns across it (x): 2.5 mm apart
+    down = np.corrcoef(grid[:-4].ravel(), grid[4:].ravel())[0, 1]  # 1 cm down
+    across = np.corrcoef(grid[:, :-4].ravel(), grid[:, 4:].ravel())[0, 1]  # 1 cm across
+    assert down > across + 0.2  # streaks run down the slope
+    top = np.column_stack([x.ravel(), np.zeros(x.size), y.ravel()])
+    assert np.allclose(runnel_relief(top, np.tile([0.0, 1.0, 0.0], (len(top), 1)), g, 0.5, rng), 1.0)
+    assert np.allclose(runnel_relief(wall, np.tile([0.0, 0.0, 1.0], (len(wall), 1)), g, 0.0, rng), 1.0)
+
+
+def test_runnels_carve_the_coat_not_the_object(tmp_path):
+    """A job's glaze on a box: its walls' coat strays from the storm's even thickness by the
+    runnels (measured), its top stays even, and no coat vertex comes under CLEAR voxels."""
+    import trimesh as tm
+
+    from icefarm import params
+    from icefarm.chain import Stage, glaze_surface, run_stages, sole
+    from icefarm.mesh import prepare
+    from icefarm.stages.surface import measure_glaze
+
+    box = tm.creation.box([0.3, 0.3, 0.3])
+    figures = {}
+    for runnels in (0.0, 0.5):
+        p = params.resolve({"glaze.runnels": runnels, "drips.min_length": 1.0})  # glaze only
+        prep = prepare(box, 0.3)
+        r = run_stages(prep, p, 1, until=Stage.SURFACE)
+        g = np.asarray(p.gravity)
+        wet = glaze_surface(r.mesh, r.flow, r.water, sole(r.flow, p, g, "ground"), p.glaze, r.proxy)
+        figures[runnels] = measure_glaze(r.ice.vertices, r.ice.faces, wet.mesh, wet.water, g,
+                                         exclude=wet.exclude)
+    assert figures[0.0].relief < 0.08 and figures[0.5].relief > 0.15
+    assert figures[0.5].coverage > 0.95

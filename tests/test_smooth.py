@@ -27,7 +27,7 @@ def _roughness(v, f):
 def test_smoothing_removes_kinks_and_keeps_the_volume():
     v, f = _kinked_sphere()
     inner = trimesh.creation.icosphere(subdivisions=2, radius=0.04)  # the object, 1 cm under the coat
-    out = smooth.smooth_glaze(v, f, VOXEL, [], inner, 10)
+    out = smooth.smooth_glaze(v, f, VOXEL, smooth.coat_vertices(v, f, VOXEL, [], inner), 10)
     assert _roughness(out, f) < 0.5 * _roughness(v, f)
     before = trimesh.Trimesh(v, f, process=False).volume
     assert abs(trimesh.Trimesh(out, f, process=False).volume - before) < 0.01 * before
@@ -39,9 +39,9 @@ def test_smoothing_removes_kinks_and_keeps_the_volume():
 def test_nothing_moves_close_over_the_object_or_when_off():
     v, f = _kinked_sphere()
     skin = trimesh.creation.icosphere(subdivisions=4, radius=0.0495)  # the coat lies 0.5 mm over it
-    assert np.array_equal(smooth.smooth_glaze(v, f, VOXEL, [], skin, 10), v)
+    assert np.array_equal(smooth.smooth_glaze(v, f, VOXEL, smooth.coat_vertices(v, f, VOXEL, [], skin), 10), v)
     inner = trimesh.creation.icosphere(subdivisions=2, radius=0.04)
-    assert np.array_equal(smooth.smooth_glaze(v, f, VOXEL, [], inner, 0), v)
+    assert np.array_equal(smooth.smooth_glaze(v, f, VOXEL, smooth.coat_vertices(v, f, VOXEL, [], inner), 0), v)
 
 
 def test_icicle_vertices_and_their_neighbours_stay():
@@ -57,7 +57,7 @@ def test_icicle_vertices_and_their_neighbours_stay():
     assert 0 < icy.sum() < len(v)
     anchored = np.zeros(len(v), dtype=bool)
     anchored[f[icy[f].any(axis=1)]] = True
-    out = smooth.smooth_glaze(v, f, VOXEL, [icicle], inner, 10)
+    out = smooth.smooth_glaze(v, f, VOXEL, smooth.coat_vertices(v, f, VOXEL, [icicle], inner), 10)
     assert np.array_equal(out[anchored], v[anchored])
     assert (np.linalg.norm(out[~anchored] - v[~anchored], axis=1) > 0).mean() > 0.99
 
@@ -69,7 +69,7 @@ def test_a_shell_close_over_the_object_stays_beside_one_that_moves():
     inner_v, inner_f = _kinked_sphere(radius=0.038, seed=1)
     verts, faces = np.concatenate([v, inner_v]), np.concatenate([f, inner_f + len(v)])
     surface = trimesh.creation.icosphere(subdivisions=2, radius=0.04)
-    out = smooth.smooth_glaze(verts, faces, VOXEL, [], surface, 10)
+    out = smooth.smooth_glaze(verts, faces, VOXEL, smooth.coat_vertices(verts, faces, VOXEL, [], surface), 10)
     assert np.array_equal(out[len(v):], inner_v)
     assert np.isfinite(out).all()
     assert (np.linalg.norm(out[:len(v)] - v, axis=1) > 0).mean() > 0.99
@@ -88,7 +88,7 @@ def test_the_same_as_trimesh_taubin_over_the_whole_mesh(monkeypatch):
     pinned = np.zeros(len(v), dtype=bool)
     pinned[f[icy[f].any(axis=1)]] = True
     monkeypatch.setattr(smooth, "MAX_MOVE", 1e9)
-    out = smooth.smooth_glaze(v, f, VOXEL, [icicle], inner, 10)
+    out = smooth.smooth_glaze(v, f, VOXEL, smooth.coat_vertices(v, f, VOXEL, [icicle], inner), 10)
     mesh = trimesh.Trimesh(v, f, process=False)
     operator = trimesh.smoothing.laplacian_calculation(mesh, pinned_vertices=np.flatnonzero(pinned))
     lamb, mu = smooth.TAUBIN

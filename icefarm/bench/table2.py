@@ -53,7 +53,7 @@ MIN_VOXEL_M = 0.00012  # the finest voxel calibration may choose; the coarsest r
 # smooth the glaze coat (a lookdev step of icefarm's, `glaze.smoothing`).
 PAPER_STAGES = {"storm.mode": "relative", "trajectories.max_branches": 32, "trajectories.contact": "slide", "drips.distribution": "area", "drips.spacing": 0.0, "drips.min_fall": 0.0,
                 "drips.min_length": 0.0, "proxy.mode": "never",
-                "glaze.smoothing": 0}
+                "glaze.smoothing": 0, "glaze.runnels": 0.0}
 MIN_SCALED_POLYGONS = 1000  # a reduced run keeps meshes fine enough for the water to find its way
 
 

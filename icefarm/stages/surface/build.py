@@ -27,7 +27,8 @@ from .icicles import hang_roots, icicle_balls, root_shifts
 from .measure import IcicleStats, measure_icicles
 from .profile import grown_lengths, profile_args, smooth_radius
 from .ripples import DEPTH_RANGE, carve_ripples_and_bands
-from .smooth import smooth_glaze
+from .runnels import carve_runnels
+from .smooth import coat_vertices, smooth_glaze
 from .tubes import tube_mesh
 
 # Vertices closer than this many voxels are one, and faces flatter than it are flipped
@@ -234,9 +235,11 @@ def build_ice(object_mesh: trimesh.Trimesh, flow_mesh: trimesh.Trimesh, water: W
         verts, faces, kept = clean_slivers(verts, faces, SLIVER * voxel, near=thin)
         if bands is not None:
             bands = bands[kept]
-        if coat is not None and glaze.mode == "coat" and glaze.smoothing:
-            verts = smooth_glaze(verts, faces, coat.voxel, [f for f in fields if f is not None and f is not coat],
-                                 coat_surface.mesh, glaze.smoothing)
+        if coat is not None and glaze.mode == "coat" and (glaze.smoothing or glaze.runnels > 0):
+            on_coat = coat_vertices(verts, faces, coat.voxel, [f for f in fields if f is not None and f is not coat],
+                                    coat_surface.mesh)
+            verts = smooth_glaze(verts, faces, coat.voxel, on_coat, glaze.smoothing)
+            verts = carve_runnels(verts, on_coat, coat_surface.mesh, gravity, glaze.runnels, coat.voxel, rng)
         n_balls, curtain_area = len(ice), curtains.area
     return IceResult(verts, faces, measure_icicles(verts, faces, trajectories, surface) if measure else None,
                      n_balls, curtain_area, trajectories, coarse, bands)

@@ -383,6 +383,11 @@ class GlazeStats:
         Area of the wet faces, in square meters.
     samples : int
         Points measured.
+    relief : float
+        Runnels and frozen drops on steep faces (`RELIEF_STEEP`): the median over their
+        points of how far the glaze's thickness strays from the ice the storm froze there,
+        as a share of it (an even coat: the marching's few percent; runnels: 0.15 and more).
+        nan: no storm in physical units, or no such points.
     """
 
     coverage: float
@@ -392,6 +397,13 @@ class GlazeStats:
     top_bottom: float
     wet_area_m2: float
     samples: int
+    relief: float = math.nan
+
+
+# `glaze_relief`: faces whose normal lies within this cosine of level (steeper than 60
+# degrees), where the storm froze this much ice at least (m).
+RELIEF_STEEP = 0.5
+RELIEF_MIN_ICE = 0.003
 
 
 def measure_glaze(ice_vertices: np.ndarray, ice_faces: np.ndarray, flow_mesh: trimesh.Trimesh,
@@ -441,7 +453,7 @@ def measure_glaze(ice_vertices: np.ndarray, ice_faces: np.ndarray, flow_mesh: tr
     nan = math.nan
     if area <= 0:
         return GlazeStats(nan, nan, nan, nan, nan, 0.0, 0)
-    pts, face, _ = sample_faces(flow_mesh, wet_faces, samples, np.random.default_rng(seed))
+    pts, face, bary = sample_faces(flow_mesh, wet_faces, samples, np.random.default_rng(seed))
     normal = flow_mesh.face_normals[face]
     thick = np.zeros(len(pts))
     covered = np.zeros(len(pts), dtype=bool)
@@ -472,4 +484,18 @@ def measure_glaze(ice_vertices: np.ndarray, ice_faces: np.ndarray, flow_mesh: tr
     top, bottom = float(np.median(thick[h >= hi])), float(np.median(thick[h <= lo]))
     ratio = top / bottom if bottom > 0 else (math.inf if top > 0 else nan)
     p10, p50, p90 = (np.quantile(thick[covered], [0.1, 0.5, 0.9]) * 1000) if covered.any() else (nan,) * 3
-    return GlazeStats(float(covered.mean()), float(p10), float(p50), float(p90), ratio, area, len(pts))
+    relief = nan
+    if water.storm is not None:
+        storm_ice = np.einsum("kc,kc->k", bary, np.asarray(water.storm.ice, dtype=np.float64)[faces[face]])
+        relief = glaze_relief(normal, thick, storm_ice, gravity)
+    return GlazeStats(float(covered.mean()), float(p10), float(p50), float(p90), ratio, area, len(pts), relief)
+
+
+def glaze_relief(normals: np.ndarray, thickness: np.ndarray, storm_ice: np.ndarray, gravity) -> float:
+    """`GlazeStats.relief` of glaze ``thickness`` (k,) meters measured at surface points of
+    unit ``normals`` (k, 3) where the storm froze ``storm_ice`` (k,) meters."""
+    g = unit(np.asarray(gravity, dtype=np.float64).reshape(3))
+    steep = (np.abs(normals @ g) < RELIEF_STEEP) & (thickness > 0) & (storm_ice >= RELIEF_MIN_ICE)
+    if steep.sum() < 10:
+        return math.nan
+    return float(np.median(np.abs(thickness[steep] / storm_ice[steep] - 1.0)))

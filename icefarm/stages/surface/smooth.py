@@ -9,6 +9,8 @@ off): a few Taubin steps, which do not shrink the coat, turn them into smooth hi
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 import scipy.sparse
 import trimesh
@@ -30,8 +32,65 @@ MAX_MOVE = 0.3
 CLEAR = 0.75
 
 
-def smooth_glaze(vertices: np.ndarray, faces: np.ndarray, voxel: float, icicles: list[Field],
-                 surface: trimesh.Trimesh, iterations: int) -> np.ndarray:
+@dataclass(frozen=True)
+class CoatVertices:
+    """Which ice vertices belong to the glaze coat's face, free to move (`coat_vertices`).
+
+    Attributes
+    ----------
+    free : (n,) bool
+        Coat vertices at least `CLEAR` voxels over the object and on no icicle's face.
+    near : (n,) int
+        Each free vertex's nearest vertex of the covered surface (-1 elsewhere).
+    height : (n,) float
+        Each free vertex's height over that vertex's plane, meters (0 elsewhere).
+    """
+
+    free: np.ndarray
+    near: np.ndarray
+    height: np.ndarray
+
+
+def coat_vertices(vertices: np.ndarray, faces: np.ndarray, voxel: float, icicles: list[Field],
+                  surface: trimesh.Trimesh) -> CoatVertices:
+    """The coat's free vertices in an ice mesh (``vertices`` (n, 3) meters, ``faces`` (m, 3)).
+
+    Parameters
+    ----------
+    voxel : float
+        The glaze coat's voxel (``glaze.voxel_size``), meters (`CLEAR`).
+    icicles : list of Field
+        The icicles' fields (coarse and fine): where one reaches `ICICLE_SHARE` of its level
+        the vertex is an icicle's, and so are the others of its faces (they anchor the coat
+        where it meets one).
+    surface : trimesh.Trimesh
+        What the coat covers: a vertex's height over it is read off the plane of its nearest
+        vertex (a flow mesh's vertices are at most ``storm.flow_edge`` apart).
+    """
+    vertices = np.asarray(vertices, dtype=np.float64)
+    faces = np.asarray(faces, dtype=np.int64)
+    n = len(vertices)
+    icy = np.zeros(n, dtype=bool)
+    for field in icicles:
+        lattice = np.rint((vertices - field.origin) / field.voxel).astype(np.int64)
+        icy |= values_at(field, lattice) > ICICLE_SHARE * field.level
+    free = ~icy
+    if len(faces):
+        free[faces[face_any(icy, faces)]] = False
+    near_all = np.full(n, -1, dtype=np.int64)
+    height_all = np.zeros(n)
+    cand = np.flatnonzero(free)
+    if len(cand):
+        _, near = nearest(point_index(surface.vertices), vertices[cand], np.inf)
+        height = np.einsum("kd,kd->k", vertices[cand] - surface.vertices[near], surface.vertex_normals[near])
+        free[cand] = height >= CLEAR * voxel
+        near_all[cand], height_all[cand] = near, height
+    near_all[~free], height_all[~free] = -1, 0.0
+    return CoatVertices(free, near_all, height_all)
+
+
+def smooth_glaze(vertices: np.ndarray, faces: np.ndarray, voxel: float, coat: CoatVertices,
+                 iterations: int) -> np.ndarray:
     """The ice mesh with the glaze coat's vertices smoothed.
 
     Parameters
@@ -41,13 +100,9 @@ def smooth_glaze(vertices: np.ndarray, faces: np.ndarray, voxel: float, icicles:
     faces : (m, 3) int
     voxel : float
         The glaze coat's voxel (``glaze.voxel_size``), meters: it bounds the moves
-        (`MAX_MOVE`, `CLEAR`).
-    icicles : list of Field
-        The icicles' fields (coarse and fine): where one reaches `ICICLE_SHARE` of its level
-        the vertex is an icicle's and does not move, nor do the others of its faces.
-    surface : trimesh.Trimesh
-        What the coat covers: a vertex's height over it is read off the plane of its nearest
-        vertex (a flow mesh's vertices are at most ``storm.flow_edge`` apart).
+        (`MAX_MOVE`).
+    coat : CoatVertices
+        Which vertices may move (`coat_vertices`).
     iterations : int
         Taubin steps (each a lambda and a mu step, `TAUBIN`); 0 returns ``vertices``.
 
@@ -58,22 +113,8 @@ def smooth_glaze(vertices: np.ndarray, faces: np.ndarray, voxel: float, icicles:
     """
     vertices = np.asarray(vertices, dtype=np.float64)
     faces = np.asarray(faces, dtype=np.int64)
-    if iterations <= 0 or len(faces) == 0:
-        return vertices
-    icy = np.zeros(len(vertices), dtype=bool)
-    for field in icicles:
-        lattice = np.rint((vertices - field.origin) / field.voxel).astype(np.int64)
-        icy |= values_at(field, lattice) > ICICLE_SHARE * field.level
-    free = ~icy
-    # The vertices of a face with an icicle's stay too: they anchor the coat where it meets one.
-    free[faces[face_any(icy, faces)]] = False
-    cand = np.flatnonzero(free)
-    if len(cand) == 0:
-        return vertices
-    _, near = nearest(point_index(surface.vertices), vertices[cand], np.inf)
-    height = np.einsum("kd,kd->k", vertices[cand] - surface.vertices[near], surface.vertex_normals[near])
-    free[cand] = height >= CLEAR * voxel
-    if not free.any():
+    free = coat.free
+    if iterations <= 0 or len(faces) == 0 or not free.any():
         return vertices
     # trimesh's Taubin filter on the free vertices and their neighbours only (a 3 m house:
     # 0.18 M of 1.36 M vertices move; the filter over the whole mesh took 0.31 s, over these 0.05 s), with the
