@@ -225,7 +225,8 @@ def _run(prepared, p, seed, placement, exclude, overrides, source, until, mesh_k
 
     drips_key = digest(water_key, p.drips, exclude, placement, p.trajectories.length_scale,
                        override_digest("drips"),
-                       *((p.surface.tip_radius, p.surface.growth_ratio, p.surface.profile)
+                       *((p.surface.tip_radius, p.surface.growth_ratio, p.surface.profile,
+                          p.trajectories.branch_spread, p.trajectories.division_probability)
                          if physical else ()))
 
     def drips_stage() -> DripResult:
@@ -240,7 +241,8 @@ def _run(prepared, p, seed, placement, exclude, overrides, source, until, mesh_k
         shed = sizing = None
         if physical and water.storm is not None:
             shed = water.storm.shed
-            sizing = IcicleSizing(storm, p.surface)
+            sizing = IcicleSizing(storm, p.surface, p.trajectories.branch_spread
+                                  if p.trajectories.division_probability > 0 else 0.0)
         found = find_drips(flow, water.water, gravity, storm.max_icicles if physical else d.count,
                            d.drip_limit, stage_rng(seed, Stage.DRIPS),
                            exclude_boxes=exclude, exclude_vertices=grounded if d.ground_clearance > 0 else None,

@@ -113,7 +113,12 @@ def test_a_table_top_gets_icicles_along_every_rim_at_the_spacing():
     p = params.resolve({"surface.mode": "tubes"})
     r = run_stages(prep, p, until=Stage.DRIPS)
     pts = r.drips.positions
-    assert len(pts) >= 40  # 3.6 m of rim at 2.5 cm spacing holds about 100
+    # 3.6 m of rim at 2.5 cm spacing holds about 100; the icicles' competition for the film
+    # leaves a ragged fringe of fewer, on every side
+    assert len(pts) >= 25
+    for axis in (0, 2):
+        for side in (-1, 1):
+            assert (np.abs(pts[:, axis] - side * 0.45) < 0.02).sum() >= 4
     d, _ = __import__("scipy.spatial", fromlist=["cKDTree"]).cKDTree(pts).query(pts, k=2)
     assert 0.025 - 1e-9 <= d[:, 1].min() and np.median(d[:, 1]) < 0.05
     top = prep.mesh.vertices[:, 1].max()
@@ -187,7 +192,8 @@ def test_the_bunny_at_3_m_gets_the_same_glaze_and_more_icicles_at_the_same_spaci
         figures.append((np.median(storm.ice[storm.catch > 0]), len(r.drips.positions), np.median(d[:, 1])))
     (glaze_small, n_small, gap_small), (glaze_large, n_large, gap_large) = figures
     assert 1 / 1.5 <= glaze_large / glaze_small <= 1.5
-    assert n_large >= 5 * n_small and n_small >= 10
+    # (the small one's rims feed a ragged fringe: 8-9 icicles, 11-15 before they competed)
+    assert n_large >= 5 * n_small and n_small >= 6
     # a ragged fringe: short icicles 2.5-5 cm from the long ones whose flanks took in the
     # drip points between them (`icefarm.stages.rims.swallow`)
     assert gap_small <= 0.06 and gap_large <= 0.06

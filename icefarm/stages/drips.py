@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 import trimesh
 
-from ..geometry import inside, ray_caster, sample_faces, unit
+from ..geometry import inside, perpendicular_basis, ray_caster, sample_faces, unit
 from ..tol import tol
 from .rims import (RIM_REACH, SAMPLES_PER_SPACING, catchment_volume, catchment_water, compete, drip_flux,
                    rim_half_edges, rim_points, swallow)
@@ -128,6 +128,13 @@ DISTRIBUTIONS = ("water", "area")
 POOL_PER_POINT = 50
 MIN_POOL = 1000
 MAX_POOL = 50_000
+# Drip points the competition for the rim starved stay as nubs down to this share of
+# drips.min_length (a row of frozen pendant drops and short stubs between the long icicles).
+NUB_SHARE = 0.4
+# An icicle needs this much room (m) around its drip point, half drips.min_fall below it, in
+# ROOM_RAYS level directions (`side_room`): about its base's radius in a moderate storm.
+ROOM = 0.01
+ROOM_RAYS = 8
 # Dropping the dry drip points gives their rim to the rest; these many rounds of dropping and
 # re-draining settle every case seen (then whatever is still dry goes too).
 MAX_DRY_PASSES = 4
@@ -146,6 +153,29 @@ def free_fall(cast, points: np.ndarray, normals: np.ndarray, gravity, floor: flo
     if floor is not None:
         distance = np.minimum(distance, np.maximum(points @ -g - floor, 0.0))
     return distance
+
+
+def side_room(cast, face_normals: np.ndarray, points: np.ndarray, gravity, depth: float,
+              clearance: float = ROOM) -> np.ndarray:
+    """``(k,) bool``: each of ``points`` (k, 3) has ``clearance`` meters of room around it
+    ``depth`` meters below it: level rays from there in `ROOM_RAYS` directions hit nothing
+    of the object (``cast``, a `icefarm.geometry.ray_caster` of a mesh whose
+    ``face_normals`` (f, 3) these are) within ``clearance``. A drip
+    point beside a leg or a wall under its rim has none: its icicle would hang glued to
+    the leg (its water runs down the leg instead). A ray that starts inside the object (it
+    first meets a face from behind) is not counted."""
+    g = unit(np.asarray(gravity, dtype=np.float64))
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    e1, e2 = perpendicular_basis(g)
+    start = points + depth * g
+    room = np.ones(len(points), dtype=bool)
+    for angle in np.linspace(0.0, 2.0 * np.pi, ROOM_RAYS, endpoint=False):
+        direction = np.cos(angle) * e1 + np.sin(angle) * e2
+        distance, face = cast(start, np.tile(direction, (len(points), 1)))
+        hit = np.isfinite(distance) & (distance < clearance)
+        hit[hit] = face_normals[face[hit]] @ direction < 0  # met from outside
+        room &= ~hit
+    return room
 
 
 def _spaced(points: np.ndarray, spacing: float, count: int) -> np.ndarray:
@@ -300,6 +330,7 @@ def find_drips(mesh: trimesh.Trimesh, water: np.ndarray, gravity, count: int, dr
         face, bary, points = face[free], bary[free], points[free]
     if min_fall > 0:
         room = free_fall(caster, points, mesh.face_normals[face], gravity, floor) >= min_fall
+        room[room] = side_room(caster, mesh.face_normals, points[room], gravity, 0.5 * min_fall)
         face, bary, points = face[room], bary[room], points[room]
     keep = _spaced(points, spacing, count)
     face, bary = face[keep], bary[keep]
@@ -340,15 +371,16 @@ def find_drips(mesh: trimesh.Trimesh, water: np.ndarray, gravity, count: int, dr
     positions, normals, face, coefficients = positions[wet], normals[wet], face[wet], coefficients[wet]
     active = None
     if by_water and shed is not None and len(positions):
-        # Only now do the icicles compete for the rim: those it starves stay short or, under
-        # drips.min_length, freeze into the glaze, their water dripping off the rim.
+        # Only now do the icicles compete for the rim: those it starves stay short, as nubs
+        # (frozen pendant drops) down to NUB_SHARE of drips.min_length; shorter ones freeze
+        # into the glaze, their water dripping off the rim.
         volume = catchment_volume(mesh, flux, region, gravity, positions, step, reach=RIM_REACH * max(spacing, step))
         volume, active = compete(volume, positions, rng, spacing)
         kept = np.ones(len(volume), dtype=bool)
         if sizing is not None:
             volume, active, kept = swallow(volume, active, positions, sizing)
         coefficients = volume if sizing is None else sizing.length(volume, active) / length_scale
-        wet = kept & (coefficients >= min_water)
+        wet = kept & (coefficients >= NUB_SHARE * min_water)  # the starved stay as frozen pendant drops
         positions, normals, face, coefficients, active = (positions[wet], normals[wet], face[wet],
                                                           coefficients[wet], active[wet])
     return DripResult(region_faces=region, positions=positions, normals=normals,

@@ -19,7 +19,11 @@ from .surface.profile import smooth_radius
 # broad face, but its water film is warmed by all the water running over it. Chosen so a
 # moderate freezing rain's longest icicles are about 0.4 m (light 0.2 m, severe 0.8 m);
 # meltwater feeds icicles over days of thaw and frost, twice that.
-ICICLE_HEAT = {"freezing_rain": 0.5, "meltwater": 1.0}
+ICICLE_HEAT = {"freezing_rain": 0.5, "meltwater": 0.75}
+# An icicle its neighbours starved keeps at least this share of a fed one's thickening: the
+# film's share it still gets, the rain on it and its freezing drop keep its base growing
+# (real short icicles between long ones are carrots too, taper 3 and more).
+STARVED_BASE = 0.7
 # Past that limit the water's warmth slows the lengthening (Makkonen 1988; Maeno et al. 1994:
 # more water, slower lengthening): an icicle fed x times what it can freeze reaches
 # x^-WARM_WATER of the longest.
@@ -118,9 +122,12 @@ def thickening_m(storm, active=None):
     more water lowers lengthening, not thickening), so a short icicle is a stubby cone, not a
     straw; a long one widens by ``surface.growth_ratio`` of its length, as real ones do.
     ``active`` ((k,), 0 to 1): the share of the storm each icicle was fed; one its neighbours
-    starved stopped thickening then (a float without it, a (k,) array with it)."""
+    starved thickens less, down to `STARVED_BASE` of it (a float without it, a (k,) array
+    with it)."""
     full = storm.freeze * precipitation_m(storm.intensity, storm.precipitation) * WATER_TO_ICE / math.pi
-    return full if active is None else full * np.asarray(active, dtype=np.float64)
+    if active is None:
+        return full
+    return full * (STARVED_BASE + (1.0 - STARVED_BASE) * np.asarray(active, dtype=np.float64))
 
 
 def icicle_lengths(volume, storm, surface, active=None) -> np.ndarray:
@@ -144,10 +151,19 @@ def icicle_lengths(volume, storm, surface, active=None) -> np.ndarray:
 @dataclass(frozen=True)
 class IcicleSizing:
     """How a storm's water sizes its icicles: `icicle_lengths` and their profile's radius,
-    for stage 2 to weigh which icicles fuse (`icefarm.stages.rims.swallow`)."""
+    for stage 2 to weigh which icicles fuse (`icefarm.stages.rims.swallow`).
+
+    Attributes
+    ----------
+    storm, surface : StormParams, SurfaceParams
+    branch_reach : float
+        How far aside a long icicle's side branches hang (``trajectories.branch_spread``
+        where icicles branch), meters: a neighbour that close to it fuses with them.
+    """
 
     storm: Any
     surface: Any
+    branch_reach: float = 0.0
 
     def length(self, volume, active=None) -> np.ndarray:
         """``(k,)`` meters: `icicle_lengths` of ``volume`` (k,) m^3 of water."""

@@ -53,6 +53,8 @@ ACTIVE_FEED = 0.25
 # the metaball field (`swallow`); the passes settle the few that grew into a neighbour.
 FUSE_MARGIN = 0.010
 SWALLOW_PASSES = 3
+# Icicles this long (m) and more carry side branches often enough to count them (`swallow`).
+BRANCHY = 0.15
 
 
 def chain_max(parent: np.ndarray, values: np.ndarray) -> np.ndarray:
@@ -387,7 +389,8 @@ def swallow(volume: np.ndarray, active: np.ndarray, positions: np.ndarray, sizin
         for i in np.argsort(-length, kind="stable"):
             if not kept[i]:
                 continue
-            near = np.asarray(tree.query_ball_point(positions[i], 2.0 * widest + margin), dtype=np.int64)
+            near = np.asarray(tree.query_ball_point(positions[i], 2.0 * widest + margin + sizing.branch_reach),
+                              dtype=np.int64)
             near = near[kept[near] & (near != i) & (length[near] <= length[i])]
             if len(near) == 0:
                 continue
@@ -395,7 +398,9 @@ def swallow(volume: np.ndarray, active: np.ndarray, positions: np.ndarray, sizin
             gap = (np.linalg.norm(positions[near] - positions[i], axis=1)
                    - sizing.radius(np.full(len(near), length[i]), np.full(len(near), active[i]), depth)
                    - sizing.radius(length[near], active[near], depth))
-            fused = near[gap < margin]
+            # side branches hang up to branch_reach aside of a long trunk, low enough to meet a
+            # long neighbour at its half length (a short one's half length is above them)
+            fused = near[gap < margin + np.where(length[near] >= BRANCHY, sizing.branch_reach, 0.0)]
             if len(fused) == 0:
                 continue
             volume[i] += volume[fused].sum()

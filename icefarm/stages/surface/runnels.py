@@ -100,10 +100,11 @@ def carve_runnels(vertices: np.ndarray, coat: CoatVertices, surface: trimesh.Tri
                   voxel: float, rng: np.random.Generator) -> np.ndarray:
     """The ice mesh with runnels and frozen drops carved into the glaze coat's face.
 
-    Each free coat vertex (`icefarm.stages.surface.smooth.coat_vertices`) moves along the
-    normal of the covered surface at its nearest vertex so that its height over it is
-    `runnel_relief` times what it was; none comes closer than
-    `icefarm.stages.surface.smooth.CLEAR` voxels to the object.
+    Each vertex of the coat's outer face (`icefarm.stages.surface.smooth.coat_vertices`)
+    moves along the normal of the covered surface at its nearest vertex so that its height
+    over it is `runnel_relief` times what it was; none comes closer than
+    `icefarm.stages.surface.smooth.CLEAR` voxels to the object (one already closer only
+    rises).
 
     Parameters
     ----------
@@ -124,13 +125,14 @@ def carve_runnels(vertices: np.ndarray, coat: CoatVertices, surface: trimesh.Tri
     (n, 3) float64
     """
     vertices = np.asarray(vertices, dtype=np.float64)
-    free = np.flatnonzero(coat.free)
-    if amplitude <= 0 or len(free) == 0:
+    outer = np.flatnonzero(coat.outer)
+    if amplitude <= 0 or len(outer) == 0:
         return vertices
-    normals = np.asarray(surface.vertex_normals)[coat.near[free]]
-    height = coat.height[free]
-    factor = runnel_relief(vertices[free], normals, gravity, amplitude, rng)
-    move = np.maximum((factor - 1.0) * height, CLEAR * voxel - height)
+    normals = np.asarray(surface.vertex_normals)[coat.near[outer]]
+    height = coat.height[outer]
+    factor = runnel_relief(vertices[outer], normals, gravity, amplitude, rng)
+    # A coat thinner than CLEAR voxels only gains its ridges: it never comes nearer the object.
+    move = np.maximum((factor - 1.0) * height, np.minimum(CLEAR * voxel - height, 0.0))
     out = vertices.copy()
-    out[free] += move[:, None] * normals
+    out[outer] += move[:, None] * normals
     return out

@@ -38,14 +38,17 @@ class CoatVertices:
 
     Attributes
     ----------
+    outer : (n,) bool
+        The coat's outer face: over the object and on no icicle's face.
     free : (n,) bool
-        Coat vertices at least `CLEAR` voxels over the object and on no icicle's face.
+        Those at least `CLEAR` voxels over the object, free to move either way.
     near : (n,) int
-        Each free vertex's nearest vertex of the covered surface (-1 elsewhere).
+        Each outer vertex's nearest vertex of the covered surface (-1 elsewhere).
     height : (n,) float
-        Each free vertex's height over that vertex's plane, meters (0 elsewhere).
+        Each outer vertex's height over that vertex's plane, meters (0 elsewhere).
     """
 
+    outer: np.ndarray
     free: np.ndarray
     near: np.ndarray
     height: np.ndarray
@@ -79,14 +82,16 @@ def coat_vertices(vertices: np.ndarray, faces: np.ndarray, voxel: float, icicles
         free[faces[face_any(icy, faces)]] = False
     near_all = np.full(n, -1, dtype=np.int64)
     height_all = np.zeros(n)
+    outer = free.copy()
     cand = np.flatnonzero(free)
     if len(cand):
         _, near = nearest(point_index(surface.vertices), vertices[cand], np.inf)
         height = np.einsum("kd,kd->k", vertices[cand] - surface.vertices[near], surface.vertex_normals[near])
         free[cand] = height >= CLEAR * voxel
+        outer[cand] = height > 0
         near_all[cand], height_all[cand] = near, height
-    near_all[~free], height_all[~free] = -1, 0.0
-    return CoatVertices(free, near_all, height_all)
+    near_all[~outer], height_all[~outer] = -1, 0.0
+    return CoatVertices(outer, free, near_all, height_all)
 
 
 def smooth_glaze(vertices: np.ndarray, faces: np.ndarray, voxel: float, coat: CoatVertices,
