@@ -202,11 +202,14 @@ def params_command(as_json):
             group = row["group"]
             click.echo(f"[{group}]")
         click.echo("  ".join(v.ljust(w) for v, w in zip(line, widths)) + "  " + row["doc"])
+    from .stages.icicle_size import constants as icicle_constants
     from .stages.storm import constants
 
-    click.echo("[constants of the storm model (icefarm.stages.storm)]")
-    for c in constants():
-        click.echo(f"{c.name:<24} {c.value:<10g} {c.unit:<7} {c.domain:<8} {c.source}")
+    for title, listed in (("the storm model (icefarm.stages.storm)", constants()),
+                          ("the icicles' sizes and fringe (icefarm.stages.icicle_size, rims)", icicle_constants())):
+        click.echo(f"[constants of {title}]")
+        for c in listed:
+            click.echo(f"{c.name:<27} {c.value:<10g} {c.unit:<7} {c.domain:<8} {c.source}")
 
 
 @main.command()

@@ -141,3 +141,18 @@ def test_a_street_sign_in_the_default_breeze_glazes_its_windward_face_and_drips_
     assert under.sum() >= 10
     still = run_stages(prep, params.resolve({"storm.wind": "0,0,0"}), 3, until=Stage.DRIPS)
     assert (np.abs(still.drips.positions[:, 1] - bottom) < 0.01).sum() < under.sum()
+
+
+def test_no_icicle_hangs_glued_to_a_leg_under_its_rim():
+    from icefarm.geometry import ray_caster
+    from icefarm.stages.drips import side_room
+
+    seat = trimesh.creation.box([1.0, 0.04, 0.4])
+    leg = trimesh.creation.box([0.05, 0.5, 0.05])
+    leg.apply_translation([0.0, -0.27, 0.175])  # flush with the seat's front edge (z = 0.2)
+    mesh = trimesh.util.concatenate([seat, leg])
+    rim = np.array([[0.0, -0.02, 0.2], [0.02, -0.02, 0.2], [0.3, -0.02, 0.2]])  # beside the leg, at it, clear
+    room = side_room(ray_caster(mesh), mesh.face_normals, rim, G, 0.025)
+    assert room.tolist() == [False, False, True]
+    # a ray that starts inside the object is not counted: a point under a thick seat's rim
+    assert side_room(ray_caster(mesh), mesh.face_normals, np.array([[0.3, 0.0, 0.19]]), G, 0.01).all()

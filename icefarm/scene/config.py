@@ -77,8 +77,9 @@ SCATTERING_PER_M = 15.0
 # Impure icicles hold milky inclusions under their ripple crests (Ladan & Morris, Phys. Rev.
 # E 106, 2022): seen through the ice the ripples are a shimmer of bands, not grooves. Under a
 # full crest of ice from the most impure water (surface.impurity = 1) this share of the
-# light goes through a frosted surface instead of a clear one (`IceShading.shimmer`).
-SHIMMER = 1.0
+# light goes through a frosted surface instead of a clear one (`IceShading.shimmer`). At 1 the
+# bands read as screw threads down a dense fringe; real impure ice shows them faintly.
+SHIMMER = 0.4
 
 
 @dataclass(frozen=True)

@@ -330,7 +330,8 @@ def find_drips(mesh: trimesh.Trimesh, water: np.ndarray, gravity, count: int, dr
         face, bary, points = face[free], bary[free], points[free]
     if min_fall > 0:
         room = free_fall(caster, points, mesh.face_normals[face], gravity, floor) >= min_fall
-        room[room] = side_room(caster, mesh.face_normals, points[room], gravity, 0.5 * min_fall)
+        if shed is not None:  # a physical storm's fringe; the relative mode keeps the paper's points
+            room[room] = side_room(caster, mesh.face_normals, points[room], gravity, 0.5 * min_fall)
         face, bary, points = face[room], bary[room], points[room]
     keep = _spaced(points, spacing, count)
     face, bary = face[keep], bary[keep]

@@ -9,7 +9,8 @@ from typing import Any
 
 import numpy as np
 
-from .storm import GROWTH_MAX, WATER_TO_ICE, precipitation_m
+from .rims import CAPTURE_POWER, CAPTURE_REACH, CAPTURE_ROUNDS, CAPTURE_SCALE, FUSE_MARGIN, NUCLEUS_SPREAD
+from .storm import GROWTH_MAX, WATER_TO_ICE, Constant, precipitation_m
 from .surface.profile import smooth_radius
 
 # An icicle freezes what the heat its surface loses allows (Makkonen 1988: its growth is
@@ -18,7 +19,7 @@ from .surface.profile import smooth_radius
 # (storm.freeze of the precipitation per area): a thin cylinder loses heat faster than a
 # broad face, but its water film is warmed by all the water running over it. Chosen so a
 # moderate freezing rain's longest icicles are about 0.4 m (light 0.2 m, severe 0.8 m);
-# meltwater feeds icicles over days of thaw and frost, twice that.
+# meltwater feeds icicles over days of thaw and frost: 1.5 times the budget (0.6 m moderate).
 ICICLE_HEAT = {"freezing_rain": 0.5, "meltwater": 0.75}
 # An icicle its neighbours starved keeps at least this share of a fed one's thickening: the
 # film's share it still gets, the rain on it and its freezing drop keep its base growing
@@ -177,3 +178,25 @@ class IcicleSizing:
         below = np.asarray(depth, dtype=np.float64)
         radius = smooth_radius(below, length, self.surface.tip_radius, growth, shape=self.surface.profile)
         return np.where(below < length, radius, 0.0)
+
+
+def constants() -> tuple[Constant, ...]:
+    """The constants that size a storm's icicles and their fringe, for ``icefarm params``."""
+    return (
+        Constant("ICICLE_HEAT[freezing_rain]", ICICLE_HEAT["freezing_rain"], "-", "> 0",
+                 "icicle surface's freezing over a level face's (heat-limited growth, Makkonen 1988; chosen: "
+                 "longest 0.18 / 0.41 / 0.87 m light / moderate / severe)"),
+        Constant("ICICLE_HEAT[meltwater]", ICICLE_HEAT["meltwater"], "-", "> 0",
+                 "the same for meltwater, fed over days of thaw and frost (chosen: 1.5 times)"),
+        Constant("WARM_WATER", WARM_WATER, "-", ">= 0",
+                 "past the heat limit, length x (water / what freezes)^-this (more water, slower "
+                 "lengthening: Makkonen 1988, Maeno et al. 1994)"),
+        Constant("STARVED_BASE", STARVED_BASE, "-", "[0, 1]", "a starved icicle's least share of the base's thickening"),
+        Constant("CAPTURE_ROUNDS", CAPTURE_ROUNDS, "-", ">= 1", "rounds of the icicles' competition for the rim's film"),
+        Constant("CAPTURE_REACH", CAPTURE_REACH, "spacing", "> 0", "how far an icicle draws the film from"),
+        Constant("CAPTURE_SCALE", CAPTURE_SCALE, "spacing", "> 0", "Gaussian scale of its pull"),
+        Constant("CAPTURE_POWER", CAPTURE_POWER, "-", ">= 0", "its pull grows as its ice to this power"),
+        Constant("NUCLEUS_SPREAD", NUCLEUS_SPREAD, "-", ">= 0", "how much the first drops differ (log-normal sigma)"),
+        Constant("FUSE_MARGIN", FUSE_MARGIN, "m", ">= 0",
+                 "closer at half length, a drip point feeds the bigger icicle (the metaball field fuses them)"),
+    )
