@@ -43,7 +43,7 @@ def test_a_drip_point_under_a_bigger_icicle_feeds_it():
     rim = _rim(40)
     water, active = compete(np.full(len(rim), 2e-4), rim, np.random.default_rng(1), 0.025)
     sizing = _sizing()
-    kept_water, kept_active, kept = swallow(water, active, rim, sizing)
+    kept_water, kept_active, kept = swallow(water, active, rim, sizing, G)
     assert kept_water.sum() == pytest.approx(water.sum()) and (~kept).any()
     assert (kept_water[~kept] == 0).all()
     length = sizing.length(kept_water, kept_active)
@@ -61,8 +61,9 @@ def test_the_storm_s_cold_limits_how_long_an_icicle_grows():
     light, moderate, severe = (heat_limited_length(params.resolve({"storm.intensity": i}).storm, p.surface)[0]
                                for i in ("light", "moderate", "severe"))
     assert 0.1 < light < moderate < severe < 1.5
-    melt = heat_limited_length(params.resolve({"storm.kind": "meltwater"}).storm, p.surface)[0]
-    assert melt > moderate  # days of thaw and frost grow the long eave icicles
+    melt = [heat_limited_length(params.resolve({"storm.kind": "meltwater", "storm.intensity": i}).storm,
+                                p.surface)[0] for i in ("light", "moderate", "severe")]
+    assert melt[0] == pytest.approx(melt[1]) and moderate < melt[1] < melt[2]  # nights of frost
     water = np.geomspace(1e-6, 1e-1, 60)  # m^3 reaching one drip point
     length = icicle_lengths(water, p.storm, p.surface)
     assert length.max() <= moderate + 1e-9

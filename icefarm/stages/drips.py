@@ -20,7 +20,7 @@ import trimesh
 
 from ..geometry import inside, perpendicular_basis, ray_caster, sample_faces, unit
 from ..tol import tol
-from .rims import (RIM_REACH, SAMPLES_PER_SPACING, catchment_volume, catchment_water, compete, drip_flux,
+from .rims import (FUSE_MARGIN, RIM_REACH, SAMPLES_PER_SPACING, catchment_volume, catchment_water, compete, drip_flux,
                    rim_half_edges, rim_points, swallow)
 
 
@@ -155,19 +155,20 @@ def free_fall(cast, points: np.ndarray, normals: np.ndarray, gravity, floor: flo
     return distance
 
 
-def side_room(cast, face_normals: np.ndarray, points: np.ndarray, gravity, depth: float,
-              clearance: float = ROOM) -> np.ndarray:
+def side_room(cast, face_normals: np.ndarray, points: np.ndarray, gravity, depth,
+              clearance=ROOM) -> np.ndarray:
     """``(k,) bool``: each of ``points`` (k, 3) has ``clearance`` meters of room around it
     ``depth`` meters below it: level rays from there in `ROOM_RAYS` directions hit nothing
     of the object (``cast``, a `icefarm.geometry.ray_caster` of a mesh whose
     ``face_normals`` (f, 3) these are) within ``clearance``. A drip
     point beside a leg or a wall under its rim has none: its icicle would hang glued to
     the leg (its water runs down the leg instead). A ray that starts inside the object (it
-    first meets a face from behind) is not counted."""
+    first meets a face from behind) is not counted. ``depth`` and ``clearance`` (meters) may
+    be (k,) arrays."""
     g = unit(np.asarray(gravity, dtype=np.float64))
     points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     e1, e2 = perpendicular_basis(g)
-    start = points + depth * g
+    start = points + np.reshape(depth, (-1, 1)) * g
     room = np.ones(len(points), dtype=bool)
     for angle in np.linspace(0.0, 2.0 * np.pi, ROOM_RAYS, endpoint=False):
         direction = np.cos(angle) * e1 + np.sin(angle) * e2
@@ -379,7 +380,12 @@ def find_drips(mesh: trimesh.Trimesh, water: np.ndarray, gravity, count: int, dr
         volume, active = compete(volume, positions, rng, spacing)
         kept = np.ones(len(volume), dtype=bool)
         if sizing is not None:
-            volume, active, kept = swallow(volume, active, positions, sizing)
+            volume, active, kept = swallow(volume, active, positions, sizing, gravity)
+            if min_fall > 0 and kept.any():  # an icicle that would touch a wall below its rim runs down it
+                length = sizing.length(volume[kept], active[kept])
+                depth = 0.5 * length
+                clear = sizing.radius(length, active[kept], depth) + FUSE_MARGIN
+                kept[kept] = side_room(caster, mesh.face_normals, positions[kept], gravity, depth, clear)
         coefficients = volume if sizing is None else sizing.length(volume, active) / length_scale
         wet = kept & (coefficients >= NUB_SHARE * min_water)  # the starved stay as frozen pendant drops
         positions, normals, face, coefficients, active = (positions[wet], normals[wet], face[wet],

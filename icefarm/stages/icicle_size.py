@@ -19,7 +19,8 @@ from .surface.profile import smooth_radius
 # (storm.freeze of the precipitation per area): a thin cylinder loses heat faster than a
 # broad face, but its water film is warmed by all the water running over it. Chosen so a
 # moderate freezing rain's longest icicles are about 0.4 m (light 0.2 m, severe 0.8 m);
-# meltwater feeds icicles over days of thaw and frost: 1.5 times the budget (0.6 m moderate).
+# meltwater feeds icicles over nights of thaw and frost: 1.5 times the budget, at least a
+# moderate storm's (light and moderate 0.6 m, severe 1.3 m).
 ICICLE_HEAT = {"freezing_rain": 0.5, "meltwater": 0.75}
 # An icicle its neighbours starved keeps at least this share of a fed one's thickening: the
 # film's share it still gets, the rain on it and its freezing drop keep its base growing
@@ -104,7 +105,12 @@ def heat_limited_length(storm, surface, active=None, count: int = 1) -> np.ndarr
     (`thickening_m`). Stubs (the growth ratio above ``surface.growth_ratio``) are never
     limited."""
     share = np.ones(count) if active is None else np.asarray(active, dtype=np.float64).reshape(-1)
-    budget = ICICLE_HEAT[storm.kind] * storm.freeze * precipitation_m(storm.intensity, storm.precipitation) * WATER_TO_ICE
+    # Freezing rain's cold comes with its rain; meltwater refreezes at the eave in the nights'
+    # frost, for as many nights as the snow lasts: at least a moderate storm's budget.
+    depth = precipitation_m(storm.intensity, storm.precipitation)
+    if storm.kind == "meltwater":
+        depth = max(depth, precipitation_m("moderate"))
+    budget = ICICLE_HEAT[storm.kind] * storm.freeze * depth * WATER_TO_ICE
     thick = thickening_m(storm, share)
     tip, growth, shape = surface.tip_radius, surface.growth_ratio, surface.profile
 
@@ -146,7 +152,9 @@ def icicle_lengths(volume, storm, surface, active=None) -> np.ndarray:
     thick = thickening_m(storm, active)
     frozen = icicle_volume(cap, surface.tip_radius, growth_ratios(cap, thick, surface.growth_ratio), surface.profile)
     excess = np.divide(ice, frozen, out=np.ones_like(ice), where=frozen > 0)
-    return np.where(fed > cap, cap * np.maximum(excess, 1.0) ** -WARM_WATER, fed)
+    # (meltwater's extra water is more nights of thaw, not a faster film: no warming)
+    warm = WARM_WATER if storm.kind == "freezing_rain" else 0.0
+    return np.where(fed > cap, cap * np.maximum(excess, 1.0) ** -warm, fed)
 
 
 @dataclass(frozen=True)
@@ -172,12 +180,13 @@ class IcicleSizing:
 
     def radius(self, length, active, depth) -> np.ndarray:
         """``(k,)`` meters: the smooth radius of icicles ``length`` (k,) long, fed ``active``
-        (k,) of the storm, ``depth`` (k,) meters below their roots (0 past their tips)."""
+        (k,) of the storm, ``depth`` (k,) meters below their roots (0 above the roots and past
+        the tips)."""
         length = np.asarray(length, dtype=np.float64)
         growth = growth_ratios(length, thickening_m(self.storm, active), self.surface.growth_ratio)
         below = np.asarray(depth, dtype=np.float64)
         radius = smooth_radius(below, length, self.surface.tip_radius, growth, shape=self.surface.profile)
-        return np.where(below < length, radius, 0.0)
+        return np.where((below >= 0.0) & (below < length), radius, 0.0)
 
 
 def constants() -> tuple[Constant, ...]:
@@ -187,10 +196,11 @@ def constants() -> tuple[Constant, ...]:
                  "icicle surface's freezing over a level face's (heat-limited growth, Makkonen 1988; chosen: "
                  "longest 0.18 / 0.41 / 0.87 m light / moderate / severe)"),
         Constant("ICICLE_HEAT[meltwater]", ICICLE_HEAT["meltwater"], "-", "> 0",
-                 "the same for meltwater, fed over days of thaw and frost (chosen: 1.5 times)"),
+                 "the same for meltwater, fed over nights of thaw and frost, at least a moderate storm's "
+                 "budget (chosen: longest 0.62 m, severe 1.3 m)"),
         Constant("WARM_WATER", WARM_WATER, "-", ">= 0",
-                 "past the heat limit, length x (water / what freezes)^-this (more water, slower "
-                 "lengthening: Makkonen 1988, Maeno et al. 1994)"),
+                 "freezing rain past the heat limit: length x (water / what freezes)^-this (more water, "
+                 "slower lengthening: Makkonen 1988, Maeno et al. 1994)"),
         Constant("STARVED_BASE", STARVED_BASE, "-", "[0, 1]", "a starved icicle's least share of the base's thickening"),
         Constant("CAPTURE_ROUNDS", CAPTURE_ROUNDS, "-", ">= 1", "rounds of the icicles' competition for the rim's film"),
         Constant("CAPTURE_REACH", CAPTURE_REACH, "spacing", "> 0", "how far an icicle draws the film from"),

@@ -350,7 +350,7 @@ def compete(volume: np.ndarray, positions: np.ndarray, rng: np.random.Generator,
     return water * (volume.sum() / water.sum()), active / CAPTURE_ROUNDS
 
 
-def swallow(volume: np.ndarray, active: np.ndarray, positions: np.ndarray, sizing,
+def swallow(volume: np.ndarray, active: np.ndarray, positions: np.ndarray, sizing, gravity,
             margin: float = FUSE_MARGIN) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Drip points under the flank of a bigger icicle feed it instead of hanging their own.
 
@@ -366,6 +366,8 @@ def swallow(volume: np.ndarray, active: np.ndarray, positions: np.ndarray, sizin
     positions : (k, 3) float
         Drip points, meters.
     sizing : icefarm.stages.icicle_size.IcicleSizing
+    gravity : (3,) float
+        Roots at different heights are compared at the same level.
     margin : float
         Meters the surfaces of two icicles keep apart: the metaball field fuses closer ones.
 
@@ -382,6 +384,7 @@ def swallow(volume: np.ndarray, active: np.ndarray, positions: np.ndarray, sizin
     if k < 2:
         return volume, active, kept
     length = sizing.length(volume, active)
+    up = -unit(np.asarray(gravity, dtype=np.float64).reshape(3))
     tree = cKDTree(positions)
     widest = float(sizing.radius(length[[int(np.argmax(length))]], active[[int(np.argmax(length))]], [0.0])[0])
     for _ in range(SWALLOW_PASSES):
@@ -389,14 +392,17 @@ def swallow(volume: np.ndarray, active: np.ndarray, positions: np.ndarray, sizin
         for i in np.argsort(-length, kind="stable"):
             if not kept[i]:
                 continue
-            near = np.asarray(tree.query_ball_point(positions[i], 2.0 * widest + margin + sizing.branch_reach),
-                              dtype=np.int64)
+            reach = 2.0 * widest + margin + sizing.branch_reach
+            near = np.asarray(tree.query_ball_point(positions[i], reach), dtype=np.int64)
             near = near[kept[near] & (near != i) & (length[near] <= length[i])]
             if len(near) == 0:
                 continue
+            # compared at the level of the shorter one's half length, level distances apart
+            offset = positions[near] - positions[i]
+            rise = offset @ up  # how far the shorter one's root lies above this one's
+            level = np.linalg.norm(offset - rise[:, None] * up, axis=1)
             depth = 0.5 * length[near]
-            gap = (np.linalg.norm(positions[near] - positions[i], axis=1)
-                   - sizing.radius(np.full(len(near), length[i]), np.full(len(near), active[i]), depth)
+            gap = (level - sizing.radius(np.full(len(near), length[i]), np.full(len(near), active[i]), depth - rise)
                    - sizing.radius(length[near], active[near], depth))
             # side branches hang up to branch_reach aside of a long trunk, low enough to meet a
             # long neighbour at its half length (a short one's half length is above them)

@@ -25,9 +25,11 @@ from ..trajectories import TrajectoryResult
 
 # Trunks this long and more are checked for hanging free (meters).
 FREE_MIN_LENGTH = 0.03
-# Half-width of the window around a trunk's axis whose faces are cut (meters): the widest
-# icicle of a real fringe is about 6 cm across.
+# Half-width of the window around a trunk's axis whose faces are cut (meters), at least
+# WINDOW, and WINDOW_PER_LENGTH of the trunk's length: a metre-long eave icicle is 10 cm
+# across at half its length, and a loop the window cuts reads as fused.
 WINDOW = 0.06
+WINDOW_PER_LENGTH = 0.12
 # At most this many trunks are cut, evenly over the icicles.
 MAX_CUT = 400
 # Roots an icicle's length is compared with, and how far they may lie (meters).
@@ -168,7 +170,8 @@ def hangs_free(vertices: np.ndarray, faces: np.ndarray, traj: TrajectoryResult, 
         half = 0.5 * x[stop - 1]
         centre = np.array([np.interp(half, x[start:stop], points[start:stop, k]) for k in range(3)])
         level = float(centre @ -g)
-        near = np.asarray(face_tree.query_ball_point(centre, face_reach), dtype=np.int64)
+        own_window = max(window, WINDOW_PER_LENGTH * 2.0 * half)
+        near = np.asarray(face_tree.query_ball_point(centre, face_reach - window + own_window), dtype=np.int64)
         near = near[(low[near] <= level) & (high[near] >= level)]
         if len(near) == 0:
             continue
@@ -187,7 +190,7 @@ def hangs_free(vertices: np.ndarray, faces: np.ndarray, traj: TrajectoryResult, 
             continue
         own = around[np.argmin([np.ptp(flat[piece == k].reshape(-1, 2), axis=0).prod() for k in around])]
         # Other icicles whose axes cross this level inside the loop share it: a sheet.
-        others = np.asarray(seg_tree.query_ball_point(centre, window), dtype=np.int64)
+        others = np.asarray(seg_tree.query_ball_point(centre, own_window), dtype=np.int64)
         others = others[seg_icicle[others] != traj.branch_icicle[trunk]]
         ha, hb = seg_a[others] @ -g, seg_b[others] @ -g
         crosses = others[(np.minimum(ha, hb) <= level) & (np.maximum(ha, hb) > level)]
