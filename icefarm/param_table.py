@@ -299,7 +299,7 @@ PARAMS: tuple[Param, ...] = (
        "edge of a marching-cubes voxel for the glaze (the coat's thickness does not depend on it; "
        "parts thinner than two voxels, wet on one side only, need a finer one); coarser than "
        "surface.voxel_size keeps the mesh light", low=0.0, low_open=True),
-    _p("glaze", "runnels", "-", "-", _F, 0.5,
+    _p("glaze", "runnels", "-", "-", _F, 0.35,
        "coat mode: relief of the runnels and frozen drops the film leaves as it freezes running down "
        "sloped and vertical faces, a share of the coat's thickness on a vertical face (ridges 1-4 cm "
        "apart, beads along them; level tops stay smooth, the ice's volume stays); 0: an even coat",
