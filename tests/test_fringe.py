@@ -157,3 +157,19 @@ def test_no_icicle_hangs_glued_to_a_leg_under_its_rim():
     assert room.tolist() == [False, False, True]
     # a ray that starts inside the object is not counted: a point under a thick seat's rim
     assert side_room(ray_caster(mesh), mesh.face_normals, np.array([[0.3, 0.0, 0.19]]), G, 0.01).all()
+
+
+def test_an_icicle_stops_short_of_what_lies_below_it():
+    """A severe storm's winners under a 0.74 m garden table would reach the ground and be cut
+    into pillars; they stop short of it, the rest of their water dripping down."""
+    from icefarm.chain import Stage, run_stages
+    from icefarm.generators import generate, natural_size
+    from icefarm.mesh import prepare
+
+    prep = prepare(generate("table"), natural_size("table"))
+    r = run_stages(prep, params.resolve({"storm.intensity": "severe"}), 3, until=Stage.TRAJECTORIES)
+    trunks = r.trajectories.branch_parent < 0
+    assert trunks.sum() >= 10
+    assert not r.trajectories.cut[trunks].any()  # none reached the ground
+    _, lengths = trunk_lengths(r.trajectories)
+    assert lengths.max() > 0.3  # the winners still grow long

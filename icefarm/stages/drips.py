@@ -131,6 +131,8 @@ MAX_POOL = 50_000
 # Drip points the competition for the rim starved stay as nubs down to this share of
 # drips.min_length (a row of frozen pendant drops and short stubs between the long icicles).
 NUB_SHARE = 0.4
+# A physical storm's icicle hangs at most this share of the free fall below its drip point.
+FALL_SHARE = 0.85
 # An icicle needs this much room (m) around its drip point, half drips.min_fall below it, in
 # ROOM_RAYS level directions (`side_room`): about its base's radius in a moderate storm.
 ROOM = 0.01
@@ -387,6 +389,12 @@ def find_drips(mesh: trimesh.Trimesh, water: np.ndarray, gravity, count: int, dr
                 clear = sizing.radius(length, active[kept], depth) + FUSE_MARGIN
                 kept[kept] = side_room(caster, mesh.face_normals, positions[kept], gravity, depth, clear)
         coefficients = volume if sizing is None else sizing.length(volume, active) / length_scale
+        if sizing is not None and min_fall > 0:
+            # An icicle stops short of what lies below it (the water then drips onto it): grown
+            # down to it, the icicle was cut there and thickened into a pillar (the fountain's
+            # winners, down to its lower bowl; the bench's, down to the ground).
+            fall = free_fall(caster, positions, normals, gravity, floor)
+            coefficients = np.minimum(coefficients, FALL_SHARE * fall / length_scale)
         wet = kept & (coefficients >= NUB_SHARE * min_water)  # the starved stay as frozen pendant drops
         positions, normals, face, coefficients, active = (positions[wet], normals[wet], face[wet],
                                                           coefficients[wet], active[wet])
