@@ -172,3 +172,12 @@ def test_shipped_scenes_validate():
     for path in paths:
         m = load_manifest(path)
         assert m.objects and m.name
+
+
+@pytest.mark.parametrize("bad", ["ball\n", "bäll", "_ball", "ball/x"])
+def test_folder_names_must_match_whole(tmp_path, ball, bad):
+    data = manifest(ball)
+    data["objects"][0]["id"] = bad
+    assert "objects[0].id: expected a folder-safe name (ASCII letters" in problems(tmp_path, data)
+    data = manifest(ball, name=bad)
+    assert "name: expected a folder-safe name" in problems(tmp_path, data)

@@ -43,7 +43,7 @@ from ..errors import InputError, short_repr
 from .manifest_model import Axis, Distribution, Manifest, ObjectSpec, Sweep, SweepMethod
 from .manifest_objects import GENERATOR_PREFIX, parse_objects, parse_params
 from .manifest_sweep import parse_sweep
-from .manifest_yaml import FOLDER_SAFE, describe, read_yaml, unknown_keys
+from .manifest_yaml import FOLDER_SAFE_RULE, describe, folder_safe, read_yaml, unknown_keys
 
 __all__ = ["Axis", "Distribution", "Manifest", "ObjectSpec", "Sweep", "SweepMethod", "SOURCE_KEY",
            "load_manifest", "manifest_to_dict", "parse_manifest", "source_path", "source_problems"]
@@ -82,8 +82,8 @@ def _parse(data: Any, path: Path, errors: list[str]) -> Manifest | None:
         return None
     unknown_keys(data, TOP_KEYS, "", errors)
     name = data.get("name", path.stem)
-    if not isinstance(name, str) or not FOLDER_SAFE.match(name):
-        errors.append(f"name: expected a folder-safe name (letters, digits, _ . -), got {short_repr(name)}")
+    if not folder_safe(name):
+        errors.append(f"name: expected a folder-safe name ({FOLDER_SAFE_RULE}), got {short_repr(name)}")
     seed = data.get("seed", 0)
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
         errors.append(f"seed: expected an integer >= 0, got {short_repr(seed)}")

@@ -17,7 +17,7 @@ from .. import params as P
 from ..errors import InputError, short_repr
 from ..placement import PLACEMENTS
 from .manifest_model import ObjectSpec
-from .manifest_yaml import FOLDER_SAFE, MAX_VALUE_ITEMS, describe, key_path, too_big, unknown_keys
+from .manifest_yaml import FOLDER_SAFE_RULE, MAX_VALUE_ITEMS, describe, folder_safe, key_path, too_big, unknown_keys
 
 GENERATOR_PREFIX = "generator:"
 OVERRIDE_STAGES = {"water": (".ply",), "drips": (".json",), "trajectories": (".json",)}
@@ -88,8 +88,8 @@ def parse_objects(value: Any, path: Path, errors: list[str]) -> list[ObjectSpec]
         mesh = _mesh(item.get("mesh"), path, f"{where}.mesh", errors)
         default_id = mesh.removeprefix(GENERATOR_PREFIX) if mesh.startswith(GENERATOR_PREFIX) else Path(mesh).stem
         obj_id = item.get("id", default_id)
-        if not isinstance(obj_id, str) or not FOLDER_SAFE.match(obj_id):
-            errors.append(f"{where}.id: expected a folder-safe name (letters, digits, _ . -), got {short_repr(obj_id)}")
+        if not folder_safe(obj_id):
+            errors.append(f"{where}.id: expected a folder-safe name ({FOLDER_SAFE_RULE}), got {short_repr(obj_id)}")
         elif obj_id in seen:
             errors.append(f"{where}.id: {short_repr(obj_id)} is used by an earlier object; ids must be unique")
         seen.add(str(obj_id))

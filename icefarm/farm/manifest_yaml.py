@@ -14,7 +14,14 @@ import yaml
 from ..errors import InputError, short_repr
 
 MAX_VALUE_ITEMS = 10_000  # a parameter value holding more items is refused (a YAML alias bomb)
-FOLDER_SAFE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")  # a job or sweep folder name
+FOLDER_SAFE = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]*")  # a job or sweep folder name, ASCII only
+FOLDER_SAFE_RULE = "ASCII letters, digits, _ . -, not starting with _ . -"
+
+
+def folder_safe(name: Any) -> bool:
+    """Whether ``name`` may name a job or sweep folder: the whole string must match
+    `FOLDER_SAFE` (``$`` alone would let a final newline through into the folder name)."""
+    return isinstance(name, str) and FOLDER_SAFE.fullmatch(name) is not None
 
 
 def read_yaml(path: Path) -> Any:
