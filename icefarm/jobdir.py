@@ -62,6 +62,7 @@ from typing import Any
 import yaml
 
 from .params import flatten
+from .yaml_io import load_yaml
 
 # ---------------------------------------------------------------- the job folder's files
 PARAMS = "params.yaml"      # the resolved parameters the job ran with
@@ -269,7 +270,7 @@ def read_json(path: Path) -> dict:
 
 def _read_params(path: Path) -> dict | None:
     try:
-        data = yaml.safe_load(path.read_text())
+        data = load_yaml(path.read_text())
     except (OSError, yaml.YAMLError):
         return None
     return flatten(data) if isinstance(data, Mapping) else None
@@ -401,7 +402,7 @@ class SweepFolder:
     def manifest(self) -> dict:
         """``manifest.resolved.yaml``; empty when missing, unreadable or not a mapping."""
         try:
-            loaded = yaml.safe_load((self.path / MANIFEST).read_text())
+            loaded = load_yaml((self.path / MANIFEST).read_text())
         except (OSError, yaml.YAMLError):
             return {}
         return loaded if isinstance(loaded, Mapping) else {}

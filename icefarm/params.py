@@ -19,6 +19,7 @@ import yaml
 from .errors import InputError
 from .geometry import world_frame
 from .param_table import DEFAULT_WIND_MPS, PARAMS, Kind, Param
+from .yaml_io import load_yaml
 
 __all__ = ["GROUPS", "PARAMS", "Kind", "Param", "Params", "defaults", "flatten", "group_type", "lookup",
            "param_index", "parse_assignment", "parse_value", "resolve", "table", "typed"]
@@ -223,7 +224,7 @@ def typed(group: str, values: Any) -> Any:
 def parse_value(text: str) -> Any:
     """A command-line value: YAML scalars (``2``, ``0.5``, ``tubes``, ``[0,-1,0]``)."""
     try:
-        return yaml.safe_load(text)
+        return load_yaml(text)
     except yaml.YAMLError:
         return text
 

@@ -12,6 +12,7 @@ from typing import Any
 import yaml
 
 from ..errors import InputError, short_repr
+from ..yaml_io import NumberLoader
 
 MAX_VALUE_ITEMS = 10_000  # a parameter value holding more items is refused (a YAML alias bomb)
 FOLDER_SAFE = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]*")  # a job or sweep folder name, ASCII only
@@ -50,9 +51,10 @@ def read_yaml(path: Path) -> Any:
         raise InputError(f"{path}: not valid YAML: {exc}") from None
 
 
-class StrictLoader(yaml.SafeLoader):
-    """`yaml.SafeLoader` that refuses a key given twice in one mapping (the plain loader
-    keeps the last silently). Keys brought in by a merge (``<<: *base``) may be overridden."""
+class StrictLoader(NumberLoader):
+    """`NumberLoader` (``5e-2`` is a float) that refuses a key given twice in one mapping (the
+    plain loader keeps the last silently). Keys brought in by a merge (``<<: *base``) may be
+    overridden."""
 
     def construct_mapping(self, node, deep=False):
         if isinstance(node, yaml.MappingNode):
