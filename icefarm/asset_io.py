@@ -4,11 +4,14 @@ USD stages (usd-core) and glTF scenes carry units and an up axis: their meshes a
 with every prim's or node's world transform applied, and come with their meters per unit
 and up axis, so they need no ``size_m`` and set gravity. OBJ, PLY, STL and OFF carry
 neither: they need a ``size_m``, and keep the default gravity (-Y). Text files in latin-1
-or cp1252 (a comment with an accented letter) read as well as UTF-8 ones.
+or cp1252 (a comment with an accented letter), or starting with a byte-order mark (as some
+Windows tools save them), read as well as plain UTF-8 ones: `_as_utf8` is the one place that
+makes a mesh file's text readable, for every format.
 """
 
 from __future__ import annotations
 
+import codecs
 import io
 import logging
 from dataclasses import dataclass
@@ -26,6 +29,9 @@ GLTF_SUFFIXES = (".glb", ".gltf")
 # Gravity for each up axis a file may declare: USD knows Y and Z; glTF is always +Y up.
 UP_GRAVITY = {"Y": (0.0, -1.0, 0.0), "Z": (0.0, 0.0, -1.0)}
 GRAVITY_KEY = "water.gravity"
+# Byte-order marks and the text they start: trimesh and usd-core read the mark as text (an
+# OBJ's first vertex is lost and every face index shifts; a .usda or .gltf is refused).
+BOMS = ((codecs.BOM_UTF8, "utf-8"), (codecs.BOM_UTF16_LE, "utf-16-le"), (codecs.BOM_UTF16_BE, "utf-16-be"))
 
 
 @dataclass(frozen=True)
@@ -60,6 +66,11 @@ def carries_units(path: str | Path) -> bool:
     return Path(path).suffix.lower() in USD_SUFFIXES + GLTF_SUFFIXES
 
 
+# Sizes (m) past which `size_hint` asks whether the unit was meant: a 5 cm trinket, a 100 m
+# tower; outside them the physical storm's 2.5 cm icicle spacing is either nothing or kilometres.
+UNLIKELY_SIZE_M = (0.05, 100.0)
+
+
 def missing_size(mesh: str) -> str | None:
     """Why ``mesh`` (a path or ``generator:NAME``) needs a ``size_m``, or None when it carries
     its own size (USD, glTF/GLB, the generators' real-size assets)."""
@@ -70,6 +81,18 @@ def missing_size(mesh: str) -> str | None:
     if carries_units(mesh):
         return None
     return f"{mesh}: the {Path(mesh).suffix.lstrip('.').upper() or 'file'} format carries no units"
+
+
+def size_hint(size_m: float) -> str | None:
+    """A line asking about a ``size_m`` no asset is likely to have (a size in millimetres or
+    centimetres given as meters), or None. The size still runs: a 10 km object is valid."""
+    if size_m > UNLIKELY_SIZE_M[1]:
+        return (f"size {size_m:g} m is taller than most buildings: if it is in centimetres or millimetres, "
+                f"the size in meters is {size_m / 100:g} or {size_m / 1000:g}")
+    if size_m < UNLIKELY_SIZE_M[0]:
+        return (f"size {size_m:g} m is {size_m * 1000:g} mm, too small to hang an icicle "
+                f"(drips.spacing is 2.5 cm): the size is a height in meters")
+    return None
 
 
 def read_asset(path: str | Path) -> Asset:
@@ -123,7 +146,7 @@ def asset_gravity(mesh: str) -> tuple[float, float, float] | None:
     from pxr import Usd, UsdGeom
 
     try:
-        stage = Usd.Stage.Open(str(mesh), load=Usd.Stage.LoadNone)
+        stage = _open_usd(Path(mesh), Usd.Stage.LoadNone)
     except Exception as exc:
         raise InputError(f"cannot read USD stage {mesh}: {exc}") from None
     return UP_GRAVITY[_usd_up_axis(stage, UsdGeom)]
@@ -142,10 +165,27 @@ def _usd_up_axis(stage, UsdGeom) -> str:
     return "Z" if UsdGeom.GetStageUpAxis(stage) == UsdGeom.Tokens.z else "Y"
 
 
+def _open_usd(path: Path, load=None):
+    """``Usd.Stage.Open`` of ``path``; a .usda starting with a byte-order mark (which usd-core
+    refuses) is read from its text, in a layer that keeps the file's path so that relative
+    references still resolve beside it."""
+    from pxr import Sdf, Usd
+
+    load = Usd.Stage.LoadAll if load is None else load
+    if path.suffix.lower() != ".usda" or not _bom(path):
+        return Usd.Stage.Open(str(path), load=load)
+    text = _as_utf8(path.read_bytes(), ".usda").decode("utf-8")
+    layer = Sdf.Layer.New(Sdf.FileFormat.FindById("usda"), str(path.resolve())) \
+        or Sdf.Layer.CreateAnonymous(".usda")  # New refuses a path already open in this process
+    if not layer.ImportFromString(text):
+        raise InputError(f"cannot read USD stage {path}")
+    return Usd.Stage.Open(layer, load=load)
+
+
 def _read_usd(path: Path) -> Asset:
     from pxr import Usd, UsdGeom
 
-    stage = Usd.Stage.Open(str(path))
+    stage = _open_usd(path)
     if stage is None:
         raise InputError(f"cannot read USD stage {path}")
     time = Usd.TimeCode.EarliestTime()  # a static value, or the first frame of an animation
@@ -222,7 +262,7 @@ def fan_triangulate(counts: np.ndarray, indices: np.ndarray, keep: np.ndarray | 
 
 
 def _read_gltf(path: Path) -> Asset:
-    scene = trimesh.load(path, process=False)
+    scene = _load_trimesh(path, path.suffix.lower())
     if isinstance(scene, trimesh.Trimesh):
         scene = trimesh.Scene(scene)
     parts = []
@@ -240,31 +280,59 @@ def _read_gltf(path: Path) -> Asset:
 
 
 def _read_unitless(path: Path, suffix: str) -> Asset:
-    try:
-        loaded = trimesh.load(path, force="mesh", process=False)
-    except (UnicodeDecodeError, ImportError):
-        # Not UTF-8: trimesh asks charset_normalizer (not installed) to guess, or fails.
-        # The geometry is ASCII in every such format; only comments and names are not.
-        data = _as_utf8(path.read_bytes(), suffix)
-        loaded = trimesh.load(file_obj=io.BytesIO(data), file_type=suffix.lstrip("."), force="mesh",
-                              process=False, resolver=trimesh.resolvers.FilePathResolver(path))
+    loaded = _load_trimesh(path, suffix, force="mesh")
     if not isinstance(loaded, trimesh.Trimesh):
         raise InputError(f"mesh {path} holds no triangles")
     return Asset(np.asarray(loaded.vertices, dtype=np.float64), np.asarray(loaded.faces, dtype=np.int64))
 
 
-def _as_utf8(data: bytes, suffix: str) -> bytes:
-    """A mesh file's bytes with its non-UTF-8 text made readable.
+def _load_trimesh(path: Path, suffix: str, **kwargs):
+    """``trimesh.load`` of ``path``, its text first made readable (`_as_utf8`) when it starts
+    with a byte-order mark or is not UTF-8; files beside it (an OBJ's .mtl, a glTF's buffers)
+    are still found."""
+    if not _bom(path):
+        try:
+            return trimesh.load(path, process=False, **kwargs)
+        except (UnicodeDecodeError, ImportError):
+            # Not UTF-8: trimesh asks charset_normalizer (not installed) to guess, or fails.
+            # The geometry is ASCII in every such format; only comments and names are not.
+            pass
+    data = _as_utf8(path.read_bytes(), suffix)
+    return trimesh.load(file_obj=io.BytesIO(data), file_type=suffix.lstrip("."), process=False,
+                        resolver=trimesh.resolvers.FilePathResolver(path), **kwargs)
 
-    PLY: bytes over 127 in the (ASCII) header become ``?``, byte for byte, so a binary body
-    stays where it was. Other text formats (OBJ, OFF, ASCII STL): decoded as latin-1, which
-    maps every byte (cp1252's letters too, as their latin-1 code points), written as UTF-8.
+
+def _bom(path: Path) -> bool:
+    """Whether the file at ``path`` starts with a byte-order mark."""
+    with open(path, "rb") as f:
+        head = f.read(4)
+    return any(head.startswith(mark) for mark, _ in BOMS)
+
+
+def _as_utf8(data: bytes, suffix: str) -> bytes:
+    """A mesh file's bytes with its text made readable as plain UTF-8.
+
+    A leading byte-order mark is dropped (UTF-16 text, which only text formats can be,
+    re-encoded as UTF-8). PLY: bytes over 127 in the (ASCII) header become ``?``, byte for
+    byte, so a binary body stays where it was. Other text formats (OBJ, OFF, ASCII STL, glTF,
+    USDA): UTF-8 as it is, else decoded as latin-1, which maps every byte (cp1252's letters
+    too, as their latin-1 code points), written as UTF-8.
     """
+    for mark, codec in BOMS:
+        if data.startswith(mark):
+            data = data[len(mark):]
+            if codec != "utf-8" and suffix != ".ply":
+                data = data.decode(codec, errors="replace").encode("utf-8")
+            break
     if suffix == ".ply":
         end = data.find(b"end_header")
         header = bytes(b if b < 128 else ord("?") for b in data[:max(end, 0)])
         return header + data[len(header):]
-    return data.decode("latin-1").encode("utf-8")
+    try:
+        data.decode("utf-8")
+        return data
+    except UnicodeDecodeError:
+        return data.decode("latin-1").encode("utf-8")
 
 
 def _concatenate(parts: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 import sys
 from pathlib import Path
 
@@ -81,7 +82,7 @@ def run(mesh, size_m, assignments, seed, out, until, render, no_render, placemen
     red, water blue), drips.json, trajectories.json, ice.ply, scene.xml/scene.pov,
     render.exr/png and timings.json.
     """
-    from .asset_io import missing_size, with_asset_gravity
+    from .asset_io import missing_size, size_hint, with_asset_gravity
     from .pipeline import GENERATOR_PREFIX, JobSpec, Stage, run_job
     from .progress import ProgressMode
 
@@ -100,7 +101,13 @@ def run(mesh, size_m, assignments, seed, out, until, render, no_render, placemen
         mesh = str(Path(mesh).resolve())
     if size_m is None and (why := missing_size(mesh)):
         raise InputError(f"{why}: pass the object's real height in meters with --size-m")
+    if size_m is not None and not (math.isfinite(size_m) and size_m > 0):
+        raise InputError(f"--size-m {size_m:g}: the object's real height in meters is a number above 0")
+    if size_m is not None and (hint := size_hint(size_m)):
+        click.echo(f"warning: {hint}", err=True)
     resolved = params.resolve(with_asset_gravity(mesh, values))
+    for line in params.idle_keys(values, resolved.storm.mode):
+        click.echo(f"warning: {line}", err=True)
     if not no_render:  # a bad config name fails now, in one line, not after the stages
         from .scene.config import load_render_config
 
@@ -131,20 +138,37 @@ def run(mesh, size_m, assignments, seed, out, until, render, no_render, placemen
 
 @main.command(name="render")
 @click.argument("job_dir", type=click.Path(file_okay=False, exists=True))
-@click.option("--render", "render", default="final", show_default=True, metavar="CONFIG",
-              help="Render config: a name in render_configs/ (preview, lookdev, final) or a YAML path.")
+@click.option("--render", "render", default="lookdev", show_default=True, metavar="CONFIG",
+              help="Render config: a name in render_configs/ (preview, lookdev, final) or a YAML path. "
+                   "final is 1920x1080 at 512 spp: many minutes on a few cores.")
 @click.option("-o", "--out", type=click.Path(file_okay=False),
-              help="Folder for the new scenes and images (default: JOB_DIR/renders/<config name>).")
+              help="Folder for the new scenes and images (default: JOB_DIR/renders/<config name>); an "
+                   "earlier render there is replaced.")
 def render_command(job_dir, render, out):
     """Render a finished job again with another render config, without recomputing it.
 
     For the contact-sheet cell worth a final frame: the job's object and ice get new
     scene.xml/scene.pov and renders in their own folder; the job folder is left as it is.
+    Says first how long it expects the render to take (from the job's own render), prints
+    progress lines when its output is not a terminal, and leaves INCOMPLETE.txt in the
+    folder until the render is done.
     """
-    from .export.rerender import render_again
+    from .export.rerender import RENDER_FILES, estimate_seconds, render_again
+    from .scene.config import load_render_config
 
     out = Path(out) if out else Path(job_dir) / RENDERS_DIR / Path(render).stem
-    result = render_again(Path(job_dir), render, out, progress=sys.stderr.isatty())
+    config = load_render_config(render)
+    estimate = estimate_seconds(Path(job_dir), config)
+    if estimate is not None:
+        seconds, basis = estimate
+        took = f"{seconds / 60:.0f} min" if seconds >= 90 else f"{seconds:.0f} s"
+        click.echo(f"render {config.name}: {config.width}x{config.height} at {config.spp} spp x "
+                   f"{len(config.views)} view{'s' * (len(config.views) != 1)}, about {took} ({basis})")
+    if any((out / name).is_file() for name in RENDER_FILES):
+        click.echo(f"replacing the earlier render in {out}")
+    tty = sys.stdout.isatty()
+    result = render_again(Path(job_dir), render, out, progress=sys.stderr.isatty(),
+                          report=None if tty else lambda line: click.echo(f"  render: {line}"))
     click.echo(f"  render        {result.seconds:8.3f} s ({result.variant}, {result.integrator})")
     click.echo(f"  scene         {result.scene_seconds:8.3f} s")
     if result.povray_seconds:
@@ -187,13 +211,16 @@ def export_command(job_dir, fmt, out):
 @main.command(name="params")
 @click.option("--json", "as_json", is_flag=True, help="Print the table as JSON for scripts.")
 def params_command(as_json):
-    """List every parameter: group, name, the paper's symbol, unit, domain, default."""
+    """List every parameter: group, name, the paper's symbol, unit, domain, default, and the
+    storm.mode that reads it (physical: the storm in real units, the default; relative: the
+    paper's knobs, relative to the object; both)."""
     rows = params.table()
     if as_json:
         click.echo(json.dumps(rows, indent=1))
         return
-    header = ("parameter", "symbol", "unit", "domain", "default")
-    lines = [(f"{r['group']}.{r['name']}", r["symbol"], r["unit"], r["domain"], str(r["default"])) for r in rows]
+    header = ("parameter", "symbol", "unit", "domain", "default", "mode")
+    lines = [(f"{r['group']}.{r['name']}", r["symbol"], r["unit"], r["domain"], str(r["default"]), r["mode"])
+             for r in rows]
     widths = [max(len(x[i]) for x in [header, *lines]) for i in range(len(header))]
     click.echo("  ".join(h.ljust(w) for h, w in zip(header, widths)))
     group = None

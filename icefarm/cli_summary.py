@@ -17,6 +17,32 @@ THIN_GLAZE_MM = 0.5
 POOLED_HINT = 0.1
 
 
+# Where a figure's real range lies, and the knob that moves it back: (low, high, below, above).
+VERDICTS = {
+    "taper": (3.0, None, "surface.growth_ratio up, or surface.profile=physical", ""),
+    "growth_ratio": (0.03, 0.13, "surface.growth_ratio up",
+                     "a lighter storm.intensity (short icicles thicken with the glaze) or a lower surface.growth_ratio"),
+    "profile_exponent": (0.6, 0.9, "surface.profile=physical", "surface.profile=physical"),
+    "tip_radius_mm": (2.0, 3.0, "surface.tip_radius up (2.44 mm)", "surface.tip_radius down (2.44 mm)"),
+    "fringe_free_share": (0.85, None, "drips.spacing up (icicles crowd each other)", ""),
+    "fringe_length_contrast": (2.5, None, "an even fringe: storm.kind=meltwater or a severer storm lets a few "
+                               "icicles outgrow the others", ""),
+}
+
+
+def verdict(key: str, value: float | None) -> str:
+    """``""`` when ``value`` lies in the real range of figure ``key`` (`VERDICTS`), else the
+    words that say it does not and which knob moves it."""
+    if value is None or key not in VERDICTS:
+        return ""
+    low, high, below, above = VERDICTS[key]
+    if low is not None and value < low:
+        return f" -- below the real range: {below}"
+    if high is not None and value > high:
+        return f" -- above the real range: {above}"
+    return ""
+
+
 def print_storm(timings: dict) -> None:
     """What a physical storm did, and one warning line when it left almost nothing visible."""
     kind = timings["storm_kind"].replace("_", " ")
@@ -70,7 +96,7 @@ def print_job_summary(timings: dict) -> None:
     click.echo(f"  tip radius {'-' if tip is None else f'{tip:.2f}'} mm (real: 2.44 mm); ripples "
                + ("none above the mesh's noise in the radius spectrum" if amplitude is None
                   else f"{amplitude:.2f} mm deep, {ripple:.2f} cm apart")
-               + " (real: 0.5-1 mm, about 1 cm apart, where the water is impure)")
+               + " (real: 0.5-1 mm, about 1 cm apart, where the water is impure)" + verdict("tip_radius_mm", tip))
     coarse = timings.get("coarse_voxel_mm")
     if coarse is not None:
         click.echo(f"  face budget: the icicles' thick parts meshed at {coarse:.1f} mm, too coarse to carry ripples; "
@@ -86,7 +112,8 @@ def print_job_summary(timings: dict) -> None:
                    + f" of {timings.get('fringe_free_checked', 0)} icicles of 3 cm and more hang free at half "
                    "their length; the longest of each and its 4 nearest (10 cm) "
                    + ("-" if contrast is None else f"{contrast:.1f}") + " times the shortest "
-                   "(real fringes: 85 % and more free, 2.5 times and more)")
+                   "(real fringes: 85 % and more free, 2.5 times and more)"
+                   + (verdict("fringe_free_share", free) or verdict("fringe_length_contrast", contrast)))
     coverage = timings.get("glaze_coverage")
     if coverage is not None:
         p10, p50, p90, ratio = (timings.get(k) for k in ("glaze_p10_mm", "glaze_p50_mm", "glaze_p90_mm",
@@ -107,5 +134,6 @@ def print_job_summary(timings: dict) -> None:
                                  ("profile_exponent", "profile exponent n of r - tip ~ d^n", "3/4", ".2f")):
         values = [v for v in timings.get(key) or [] if v is not None]  # None: too short to measure
         if values:
-            click.echo(f"  {what}: median {statistics.median(values):{fmt}}, "
-                       f"range {min(values):{fmt}}-{max(values):{fmt}} (real: {real})")
+            median = statistics.median(values)
+            click.echo(f"  {what}: median {median:{fmt}}, "
+                       f"range {min(values):{fmt}}-{max(values):{fmt}} (real: {real}){verdict(key, median)}")

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import enum
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 from .errors import InputError
@@ -36,6 +36,8 @@ class Param:
     high_open: bool = False
     choices: tuple[str, ...] = ()
     zero_ok: bool = False  # a VECTOR that may be (0, 0, 0), meaning "none"
+    mode: str = ""  # the only storm.mode that reads it ("": both)
+    instead: str = ""  # what the other storm.mode uses in its place
 
     @property
     def key(self) -> str:
@@ -346,3 +348,19 @@ PARAMS: tuple[Param, ...] = (
        "target edge of the remeshed proxy as a fraction of the bounding-box diagonal",
        low=0.0, low_open=True),
 )
+
+
+# What only one storm.mode reads, and what the other one uses in its place: a knob the job's
+# mode ignores is warned about (`icefarm.params.idle_keys`) and marked in `icefarm params`.
+_RELATIVE_USES = "the paper's water coefficients (water.rays), drips.count and glaze.scale"
+_MODE_ONLY: dict[str, tuple[str, str]] = {
+    "water.rays": ("relative", "storm.precipitation or storm.intensity (every face gets its share of the rain)"),
+    "water.influence_radius": ("relative", "storm.precipitation or storm.intensity"),
+    "drips.count": ("relative", "drips.spacing (icicles along every drip rim) and storm.max_icicles"),
+    "glaze.scale": ("relative", "storm.intensity or storm.precipitation (glaze in mm of ice) and storm.freeze"),
+    "surface.face_budget": ("physical", "surface.voxel_size and glaze.voxel_size"),
+    "surface.error_px": ("physical", "surface.voxel_size"),
+    **{p.key: ("physical", _RELATIVE_USES) for p in PARAMS if p.group == "storm" and p.name != "mode"},
+}
+PARAMS = tuple(replace(p, mode=_MODE_ONLY[p.key][0], instead=_MODE_ONLY[p.key][1]) if p.key in _MODE_ONLY else p
+               for p in PARAMS)

@@ -9,7 +9,7 @@ from __future__ import annotations
 import dataclasses
 import difflib
 import functools
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -22,7 +22,7 @@ from .param_table import DEFAULT_WIND_MPS, PARAMS, Kind, Param
 from .yaml_io import load_yaml
 
 __all__ = ["GROUPS", "PARAMS", "Kind", "Param", "Params", "defaults", "flatten", "group_type", "lookup",
-           "param_index", "parse_assignment", "parse_value", "resolve", "table", "typed"]
+           "idle_keys", "param_index", "parse_assignment", "parse_value", "resolve", "table", "typed"]
 
 
 GROUPS: tuple[str, ...] = ("storm", "water", "drips", "trajectories", "surface", "glaze", "ground_ice", "growth", "proxy")
@@ -238,9 +238,26 @@ def parse_assignment(text: str) -> tuple[str, Any]:
 
 
 def table() -> list[dict[str, Any]]:
-    """One row per parameter: group, name, symbol, unit, domain, default, doc."""
+    """One row per parameter: group, name, symbol, unit, domain, default, the storm mode that
+    reads it (``physical``, ``relative`` or ``both``), doc."""
     return [
         {"group": p.group, "name": p.name, "symbol": p.symbol, "unit": p.unit,
-         "domain": p.domain, "default": p.default, "doc": p.doc}
+         "domain": p.domain, "default": p.default, "mode": p.mode or "both", "doc": p.doc}
         for p in PARAMS
     ]
+
+
+def idle_keys(keys: Iterable[str], mode: str) -> list[str]:
+    """One line per key of ``keys`` that a job under storm ``mode`` does not read.
+
+    ``idle_keys(["drips.count"], "physical")`` says that the physical storm places its icicles
+    along the rims at ``drips.spacing`` instead. Unknown keys are left to `lookup`.
+    """
+    index = param_index()
+    lines = []
+    for key in dict.fromkeys(keys):
+        p = index.get(key)
+        if p is not None and p.mode and p.mode != mode:
+            lines.append(f"{key} does nothing under storm.mode {mode}, which uses {p.instead}; "
+                         f"only storm.mode={p.mode} reads it")
+    return lines

@@ -143,9 +143,34 @@ def test_render_again_makes_new_frames_and_leaves_the_job_as_it_was(sphere_file,
 
     result = run("render", job, "--render", wide)
     assert result.exit_code == 0, result.output
+    # how long it will take, from the job's own render; a line per view through a pipe
+    assert "64x32 at 4 spp x 2 views, about" in result.output and "40x30 at 2 spp x 1 view" in result.output
+    assert "view 1 of 2 done" in result.output and "view 2 of 2 done" in result.output
     out = job / "renders" / "wide"
     for name in ("scene.xml", "scene.pov", "ice.ply", "object.ply", "render.exr", "render.png", "render_view1.png"):
         assert (out / name).is_file(), name
+    assert not (out / "INCOMPLETE.txt").exists()
+    # stopped half way: the folder says it is not a finished render; the next one replaces it
+    import icefarm.scene.render as render_module
+
+    def stopped(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    real = render_module.render_job
+    render_module.render_job = stopped
+    try:
+        assert run("render", job, "--render", wide).exit_code == 130
+    finally:
+        render_module.render_job = real
+    assert (out / "INCOMPLETE.txt").is_file() and not (out / "render.png").exists()
+    again = run("render", job, "--render", wide)
+    assert again.exit_code == 0 and f"replacing the earlier render in {out}" in again.output
+    assert (out / "render_view1.png").is_file() and not (out / "INCOMPLETE.txt").exists()
+    (tmp_path / "mine").mkdir()
+    (tmp_path / "mine" / "notes.txt").write_text("mine")
+    refused = run("render", job, "--render", wide, "-o", tmp_path / "mine")
+    assert refused.exit_code == 2 and "not a render's" in refused.output
+    assert (tmp_path / "mine" / "notes.txt").read_text() == "mine"
     from icefarm.scene.images import read_image
 
     assert read_image(out / "render.png").shape[:2] == (32, 64)

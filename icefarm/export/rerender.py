@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import json
+import shutil
+import time
+from collections.abc import Callable
 from pathlib import Path
 
 import trimesh
@@ -12,7 +16,35 @@ from ..jobdir import DONE, ICE, OBJECT, PARAMS, SCENE_XML, TRAJECTORIES, JobStat
 from ..placement import Placement
 
 
-def render_again(job_dir: Path, render: str, out_dir: Path, progress: bool = False):
+# Written first into a render's folder and removed last: a folder holding it is not a finished
+# render (stopped, or still running), whatever images it has.
+INCOMPLETE = "INCOMPLETE.txt"
+# What marks a folder as a render of `render_again`'s, which a new render may clear.
+RENDER_FILES = (INCOMPLETE, SCENE_XML)
+
+
+def estimate_seconds(job_dir: Path, config) -> tuple[float, str] | None:
+    """How long ``config`` will take to render ``job_dir``'s scene, from the job's own render
+    scaled by the samples (pixels x spp x views), and the words that say so; None when the job
+    recorded no render time. Denoising and the scene's load are in the job's time too, so
+    this errs long for small frames."""
+    try:
+        scene = json.loads((job_dir / "scene.json").read_text())
+        seconds = float(read_job(job_dir).stats["render_seconds"])
+        width, height = scene["resolution"]
+        spp, views = scene["sampling"]["spp"], len(scene["views"])
+    except (OSError, KeyError, TypeError, ValueError):
+        return None
+    before = width * height * spp * views
+    after = config.width * config.height * config.spp * len(config.views)
+    if not (before > 0 and seconds > 0):
+        return None
+    return seconds * after / before, (f"from this job's own render, {width}x{height} at {spp} spp x {views} "
+                                      f"view{'s' * (views != 1)}: {seconds:.1f} s")
+
+
+def render_again(job_dir: Path, render: str, out_dir: Path, progress: bool = False,
+                 report: Callable[[str], None] | None = None):
     """Render a finished job's object and ice again with another render config, into ``out_dir``.
 
     For a contact-sheet cell worth a final frame: nothing is recomputed and the job folder
@@ -29,8 +61,12 @@ def render_again(job_dir: Path, render: str, out_dir: Path, progress: bool = Fal
     render : str
         Render config name or YAML path.
     out_dir : Path
+        Its own folder: an earlier render there (`RENDER_FILES`) is cleared first; a folder
+        holding anything else is refused. It holds `INCOMPLETE` until the render is done.
     progress : bool
         Progress bar over long renders.
+    report : callable, optional
+        ``report(line)``: progress lines for a log.
 
     Returns
     -------
@@ -39,7 +75,8 @@ def render_again(job_dir: Path, render: str, out_dir: Path, progress: bool = Fal
     Raises
     ------
     InputError
-        Not a finished job, a job that never rendered, or a bad render config.
+        Not a finished job, a job that never rendered, a bad render config, or an ``out_dir``
+        holding files that are not a render's.
     """
     from .rendered import read_rendered
     from ..scene.config import load_render_config
@@ -57,6 +94,14 @@ def render_again(job_dir: Path, render: str, out_dir: Path, progress: bool = Fal
     if out_dir.resolve() == job_dir.resolve():
         raise InputError("render into a folder of its own, not the job folder: its files belong to the job")
     config = load_render_config(render)
+    if out_dir.is_dir() and any(out_dir.iterdir()):
+        if not any((out_dir / name).is_file() for name in RENDER_FILES):
+            raise InputError(f"{out_dir} holds files that are not a render's: pick an empty or new folder with -o")
+        shutil.rmtree(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    (out_dir / INCOMPLETE).write_text(f"icefarm render of {job_dir.resolve()} with {render}, started "
+                                      f"{time.strftime('%Y-%m-%d %H:%M:%S')}: not finished (stopped or still "
+                                      "running); render it again to finish\n")
     rendered = read_rendered(job_dir)
     obj = trimesh.load(job_dir / OBJECT, process=False)
     obj.merge_vertices(merge_norm=True)  # object.ply splits vertices along creases
@@ -66,4 +111,6 @@ def render_again(job_dir: Path, render: str, out_dir: Path, progress: bool = Fal
                       material=rendered.material, placement=job.stats.get("placement", Placement.HANGING.value),
                       impurity=float((job.params or {}).get("surface.impurity", 0.0)),  # 0 for jobs older than it
                       icicle_axes=axes)
-    return render_job(out_dir, config, scene, progress=progress)
+    result = render_job(out_dir, config, scene, progress=progress, report=report)
+    (out_dir / INCOMPLETE).unlink()
+    return result

@@ -20,7 +20,7 @@ from ..jobdir import DONE, JOBS_CSV, JOBS_DIR, JobState, error_line, stage_phras
 from .manifest import load_manifest
 from .manifest_model import Manifest
 from .points import MAX_JOBS, apply_sets, check_job_count, count_points
-from .plan import JobRecord
+from .plan import JobRecord, manifest_warnings
 from .sweep import SweepSummary, run_sweep
 
 
@@ -126,10 +126,11 @@ class TqdmProgress:
 
 
 def default_progress():
-    """A tqdm bar when stderr is a terminal, plain lines otherwise."""
+    """A tqdm bar on stderr when it is a terminal, else plain lines on stdout (with the
+    summary; stderr keeps warnings and errors)."""
     if sys.stderr.isatty():
         return TqdmProgress()
-    return LineProgress(lambda line: click.echo(line, err=True))
+    return LineProgress(click.echo)
 
 
 def _short(value) -> str:
@@ -170,20 +171,23 @@ def validate(manifest: Path, sets: tuple[str, ...], max_jobs: int) -> None:
     Reports every problem at once, each with the file, the key path and what was expected
     (unknown keys come with the nearest valid one; parameter values are checked against
     their domains, see `icefarm params`; mesh and override files must exist).
-    Prints the number of jobs the sweep would run. Exit status 2 when the manifest is invalid.
+    Prints the number of jobs the sweep would run, and warns (on stderr) about parameters the
+    jobs' storm.mode does not read. Exit status 2 when the manifest is invalid.
     """
     try:
-        _, text = validate_manifest(manifest, sets, max_jobs)
+        checked, text = validate_manifest(manifest, sets, max_jobs)
     except InputError as exc:
         raise BadInput(str(exc)) from None
     click.echo(text)
+    for line in manifest_warnings(checked):
+        click.echo(f"warning: {line}", err=True)
 
 
 # --------------------------------------------------------------------------- sweep
 
 def format_summary(summary: SweepSummary) -> str:
     """The end-of-sweep report: counts, reuse, failures with their reasons, where things are."""
-    ran = len(summary.jobs) - summary.resumed
+    ran = sum(r.status is not JobState.PENDING and not r.resumed for r in summary.jobs)
     lines = [f"sweep {summary.name}: {summary.done} done, {summary.failed} failed"
              + (f", {summary.pending} not run" if summary.pending else "")
              + f" of {len(summary.jobs)} jobs"
@@ -269,7 +273,10 @@ def make_sweep_command(after: Callable[[SweepSummary], None] | None = None) -> c
         """
         progress = None if dry_run else default_progress()
         try:
-            summary = run_sweep(manifest, out, workers=workers, backend=backend, scheduler=scheduler,
+            loaded = load_manifest(manifest)
+            for line in manifest_warnings(apply_sets(loaded, sets)):
+                click.echo(f"warning: {line}", err=True)
+            summary = run_sweep(loaded, out, workers=workers, backend=backend, scheduler=scheduler,
                                 sets=sets, resume=resume, overwrite=overwrite, dry_run=dry_run,
                                 render=not no_render, until=until, max_tasks_per_child=tasks_per_worker,
                                 use_cache=not no_cache, progress=progress, max_jobs=max_jobs,

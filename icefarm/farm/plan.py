@@ -138,6 +138,27 @@ def plan_jobs(manifest: Manifest, render: bool = True) -> tuple[tuple[PlannedJob
     return tuple(jobs), duplicates
 
 
+def manifest_warnings(manifest: Manifest) -> list[str]:
+    """What a valid manifest may not mean, one line each, said once for the whole sweep: the
+    parameters it (or ``--set``) gives that its jobs' storm.mode does not read
+    (`icefarm.params.idle_keys`), and the objects' unlikely sizes (`icefarm.asset_io.size_hint`)."""
+    from ..asset_io import size_hint
+
+    swept = swept_keys(manifest.sweep)
+    points = expand(manifest.sweep, manifest.seed) if "storm.mode" in swept else [{}]
+    lines: dict[str, None] = {}
+    for obj in manifest.objects:
+        defaults, own, fixed = (P.flatten(layer or {}) for layer in (manifest.defaults, obj.params, manifest.fixed))
+        keys = [*defaults, *own, *fixed, *swept]
+        for point in points:  # the layers in the reverse of `plan_jobs`'s order: the last wins
+            mode = next((layer["storm.mode"] for layer in (fixed, point, own, defaults) if "storm.mode" in layer),
+                        P.lookup("storm.mode").default)
+            lines.update(dict.fromkeys(P.idle_keys(keys, mode)))
+        if obj.size_m is not None and (hint := size_hint(obj.size_m)):
+            lines[f"object {obj.id}: {hint}"] = None
+    return list(lines)
+
+
 def leaders(jobs: Sequence[PlannedJob]) -> dict[str, str]:
     """``{job id: id of the earlier job it waits for}``.
 

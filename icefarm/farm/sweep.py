@@ -31,7 +31,8 @@ from typing import Protocol
 
 from ..artifacts import atomic_write
 from ..errors import InputError, Interrupted
-from ..jobdir import CACHE_DIR, DONE, JOBS_CSV, JOBS_DIR, MANIFEST, JobState, check_done, read_job, total_seconds
+from ..jobdir import (CACHE_DIR, DONE, JOBS_CSV, JOBS_DIR, MANIFEST, JobState, check_done, read_job, read_jobs_csv,
+                      total_seconds)
 from .manifest import load_manifest
 from .manifest_model import Manifest
 from .plan import JobRecord, leaders, plan_jobs, private_stages
@@ -80,7 +81,7 @@ class SweepSummary:
 
     @property
     def retried(self) -> int:
-        return sum(r.attempts > 1 for r in self.jobs)
+        return sum(r.attempts > 1 and not r.resumed for r in self.jobs)
 
     @property
     def ok(self) -> bool:
@@ -235,12 +236,15 @@ def run_sweep(manifest: Manifest | str | Path, out: str | Path = "out", *, worke
                                    job_dir=job_dir(sweep_dir, j)) for j in jobs}
     stale: list[Path] = []
     if resume or dry_run:
+        earlier = {row["job_id"]: row for row in read_jobs_csv(sweep_dir / JOBS_CSV)[0]}
         for j in jobs:
             path = records[j.job_id].job_dir
             why = check_done(path)
-            if why is None:
+            if why is None:  # the attempts it took, as the earlier run's jobs.csv has them
+                attempts = earlier.get(j.job_id, {}).get("attempts", "")
                 records[j.job_id] = replace(records[j.job_id], status=JobState.DONE, resumed=True,
-                                            seconds=read_job(path).total_seconds or 0.0)
+                                            seconds=read_job(path).total_seconds or 0.0,
+                                            attempts=max(1, int(attempts) if attempts.isdigit() else 1))
             elif path.is_dir() and why != f"no {DONE}":
                 note(f"{path.relative_to(sweep_dir)}: {why}: {'would be' if dry_run else 'it is'} redone")
         stale = stale_folders(sweep_dir, jobs)

@@ -33,6 +33,7 @@ __all__ = ["JobScene", "MitsubaRun", "RenderResult", "SceneFiles", "render_job",
            "write_scenes"]
 
 PASS_SAMPLES = 1 << 25  # camera samples per Mitsuba render call: bounded memory, visible progress
+REPORT_S = 10.0  # a render's progress lines in a log: at most one per this many seconds, and one per view
 
 
 def _vertex_normals(scene, shape_id: str) -> np.ndarray | None:
@@ -125,14 +126,16 @@ def sample_passes(pixels: int, spp: int, budget: int = PASS_SAMPLES) -> list[int
 
 def render_mitsuba(job_dir: Path, config: RenderConfig, variant: str,
                    on_loaded: Callable[[object], None] | None = None,
-                   progress: bool = False) -> tuple[float, float, list[Path], str]:
+                   progress: bool = False, report: Callable[[str], None] | None = None) -> MitsubaRun:
     """Load ``scene.xml`` with ``variant`` and render every view; ``on_loaded(scene)`` runs in between.
 
     Scenes with ice render with the ice-aware path tracer (`integrator.ice_integrator`:
     sunlight reaches what the glaze covers; the ice's medium as the XML gives it) on JIT
     variants, with the XML's ``path`` or ``volpath`` otherwise. Large frames render in
     passes (`sample_passes`, each with its own seed, averaged), with a progress bar over
-    them when ``progress`` is set.
+    them when ``progress`` is set. ``report(line)``, for a log or a pipe, is told as each view
+    ends and at most every `REPORT_S` seconds in between: how far the samples are, and the
+    time left at that pace.
 
     With ``config.denoise`` set, each view is denoised (`denoise.denoise`) with the
     albedo and normal icepath writes beside it.
@@ -167,6 +170,14 @@ def render_mitsuba(job_dir: Path, config: RenderConfig, variant: str,
     bar = tqdm(total=n_views * config.spp, unit="spp", desc="render", dynamic_ncols=True,
                disable=not progress or len(passes) == 1 and n_views == 1)
     view_seconds, denoise_seconds, files = [], 0.0, []
+    began = reported = time.perf_counter()
+    total, done = n_views * config.spp, 0
+
+    def tell(now: float, what: str) -> None:
+        left = (now - began) * (total - done) / max(done, 1)
+        report(f"{what}: {100 * done / total:.0f} % of {total} samples per pixel in {now - began:.0f} s"
+               + (f", about {left:.0f} s left" if done < total else ""))
+
     for i in range(n_views):
         start = time.perf_counter()
         image = np.zeros((config.height, config.width, channels))
@@ -174,6 +185,10 @@ def render_mitsuba(job_dir: Path, config: RenderConfig, variant: str,
             rendered = np.asarray(mi.render(scene, sensor=i, spp=spp, seed=seed, integrator=integrator))
             image += _channels(rendered, channels) * (spp / config.spp)
             bar.update(spp)
+            done += spp
+            if report is not None and (now := time.perf_counter()) - reported >= REPORT_S and done < total:
+                tell(now, f"view {i + 1} of {n_views}")
+                reported = now
         rgb = image[..., :3]
         if denoised:
             rendered_at = time.perf_counter()
@@ -184,6 +199,8 @@ def render_mitsuba(job_dir: Path, config: RenderConfig, variant: str,
         write_exr(job_dir / f"{stem}.exr", rgb, attributes=_denoise_note(config, channels) if denoised else None)
         write_png(job_dir / f"{stem}.png", rgb)
         files += [job_dir / f"{stem}.exr", job_dir / f"{stem}.png"]
+        if report is not None:
+            tell(time.perf_counter(), f"view {i + 1} of {n_views} done ({stem}.png)")
     bar.close()
     name = "icepath" if integrator is not None else _integrator_name(scene)
     del scene  # no scene outlives the job (Mitsuba's memory grows with loads)
@@ -246,7 +263,8 @@ def _cpu_seconds(task: Callable[[], None]) -> float:
 
 
 def render_job(job_dir: str | Path, config: RenderConfig, scene: JobScene | SceneFiles | None = None,
-               progress: bool = False, povray_files: bool = True) -> RenderResult:
+               progress: bool = False, povray_files: bool = True,
+               report: Callable[[str], None] | None = None) -> RenderResult:
     """Render a job's scene in ``job_dir`` with the config's renderer(s): the one way a job's
     scene is rendered (the pipeline, ``icefarm render``, growth frames and the benchmarks).
 
@@ -270,6 +288,8 @@ def render_job(job_dir: str | Path, config: RenderConfig, scene: JobScene | Scen
         after the render counts too.
     progress : bool
         A progress bar over the samples of long renders (several passes or views).
+    report : callable, optional
+        ``report(line)``: progress lines for a log (`render_mitsuba`).
     povray_files : bool
         Write the POV-Ray files of a `JobScene` even when the config renders with Mitsuba
         alone (False: only when POV-Ray renders).
@@ -311,7 +331,7 @@ def render_job(job_dir: str | Path, config: RenderConfig, scene: JobScene | Scen
             views, denoise_seconds = (), 0.0
             if config.uses_mitsuba:
                 variant = pick_variant(config.variant)
-                run = render_mitsuba(job_dir, config, variant, on_loaded=loaded, progress=progress)
+                run = render_mitsuba(job_dir, config, variant, on_loaded=loaded, progress=progress, report=report)
                 load_seconds, views, denoise_seconds = run.load_seconds, run.view_seconds, run.denoise_seconds
                 files, integrator = list(run.files), run.integrator
         finally:  # the job is not over while its scene.pov is missing or being written
