@@ -13,7 +13,9 @@ from __future__ import annotations
 
 import codecs
 import io
+import json
 import logging
+import struct
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -29,6 +31,13 @@ GLTF_SUFFIXES = (".glb", ".gltf")
 # Gravity for each up axis a file may declare: USD knows Y and Z; glTF is always +Y up.
 UP_GRAVITY = {"Y": (0.0, -1.0, 0.0), "Z": (0.0, 0.0, -1.0)}
 GRAVITY_KEY = "water.gravity"
+# glTF extensions a file may require that change only its look (materials, textures, lights),
+# not its triangles: icefarm reads the geometry without them.
+GLTF_LOOK_PREFIXES = ("KHR_materials_", "KHR_texture_", "EXT_texture_", "KHR_lights_")
+DRACO = "KHR_draco_mesh_compression"  # decoded by trimesh's handler with DracoPy
+# Integer positions: trimesh reads them as they are, which is right unless they are normalized
+# (to [-1, 1], to be scaled back by the reader, which trimesh does not do).
+QUANTIZED = "KHR_mesh_quantization"
 # Byte-order marks and the text they start: trimesh and usd-core read the mark as text (an
 # OBJ's first vertex is lost and every face index shifts; a .usda or .gltf is refused).
 BOMS = ((codecs.BOM_UTF8, "utf-8"), (codecs.BOM_UTF16_LE, "utf-16-le"), (codecs.BOM_UTF16_BE, "utf-16-be"))
@@ -262,6 +271,7 @@ def fan_triangulate(counts: np.ndarray, indices: np.ndarray, keep: np.ndarray | 
 
 
 def _read_gltf(path: Path) -> Asset:
+    required = _gltf_required(path)
     scene = _load_trimesh(path, path.suffix.lower())
     if isinstance(scene, trimesh.Trimesh):
         scene = trimesh.Scene(scene)
@@ -270,6 +280,10 @@ def _read_gltf(path: Path) -> Asset:
         world, name = scene.graph[node]
         geometry = scene.geometry.get(name)
         if isinstance(geometry, trimesh.Trimesh) and len(geometry.faces):  # not points or lines
+            if DRACO in required and not np.ptp(geometry.vertices, axis=0).any():
+                # trimesh leaves zeros where its Draco handler failed, and only logs it
+                raise InputError(f"glTF file {path}: a Draco-compressed mesh did not decode "
+                                 "(a damaged file?); export it again, or without Draco compression")
             faces = np.asarray(geometry.faces, dtype=np.int64)
             parts.append((trimesh.transform_points(geometry.vertices, world),
                           faces[:, ::-1] if np.linalg.det(world[:3, :3]) < 0 else faces))
@@ -277,6 +291,69 @@ def _read_gltf(path: Path) -> Asset:
         raise InputError(f"glTF file {path} holds no triangle mesh")
     vertices, faces = _concatenate(parts)
     return Asset(vertices, faces, 1.0, "Y")  # the glTF spec: meters, +Y up
+
+
+def _gltf_required(path: Path) -> set[str]:
+    """The extensions the glTF or GLB at ``path`` lists as required, once checked readable.
+
+    Raises
+    ------
+    InputError
+        A required extension that changes the geometry and that icefarm cannot decode (named),
+        or Draco compression without the DracoPy package.
+    """
+    try:
+        from trimesh.exchange.gltf.extensions import unregistered
+    except ImportError:  # a trimesh before extension handlers decodes none
+        def unregistered(names, scope):
+            return set(names)
+
+    header = _gltf_header(path)
+    required = header.get("extensionsRequired") if isinstance(header, dict) else None
+    required = {str(name) for name in required} if isinstance(required, list) else set()
+    for name in sorted(required):
+        if name.startswith(GLTF_LOOK_PREFIXES) or (name == QUANTIZED and not _normalized_positions(header)):
+            continue
+        if name in unregistered([name], "primitive_preprocess"):
+            raise InputError(f"glTF file {path} requires the extension {name}, which icefarm cannot read: "
+                             f"export it without {name}")
+        if name == DRACO:
+            try:
+                import DracoPy  # noqa: F401
+            except ImportError:
+                raise InputError(f"glTF file {path} is Draco-compressed ({DRACO}): "
+                                 "install DracoPy (pip install DracoPy) to read it") from None
+    return required
+
+
+def _normalized_positions(header: dict) -> bool:
+    """Whether any mesh of the glTF JSON ``header`` has normalized integer positions."""
+    try:
+        accessors = header.get("accessors") or []
+        for mesh in header.get("meshes") or []:
+            for primitive in mesh.get("primitives") or []:
+                index = (primitive.get("attributes") or {}).get("POSITION")
+                if isinstance(index, int) and 0 <= index < len(accessors) and accessors[index].get("normalized"):
+                    return True
+    except (AttributeError, TypeError):  # not the shape glTF has: trimesh will say what is wrong
+        return False
+    return False
+
+
+def _gltf_header(path: Path) -> object:
+    """The JSON of a .gltf, or of a .glb's first chunk; None when there is none to read
+    (trimesh then says what is wrong with the file)."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(20)
+            if head[:4] == b"glTF":
+                length, kind = struct.unpack("<I4s", head[12:20])
+                text = f.read(length) if kind == b"JSON" else b""
+            else:
+                text = _as_utf8(head + f.read(), ".gltf")
+        return json.loads(text)
+    except (OSError, ValueError, struct.error):
+        return None
 
 
 def _read_unitless(path: Path, suffix: str) -> Asset:

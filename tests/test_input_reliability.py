@@ -3,13 +3,19 @@ byte-order mark, compressed glTF, reused and full and read-only folders."""
 
 from __future__ import annotations
 
+import base64
 import codecs
+import json
+import struct
+import sys
 
 import numpy as np
 import pytest
 import trimesh
+from scipy.spatial import cKDTree
 
 from icefarm.asset_io import asset_gravity, read_asset
+from icefarm.errors import InputError
 from icefarm.farm.manifest import load_manifest
 from icefarm.farm.points import parse_set
 from icefarm.yaml_io import load_yaml
@@ -82,3 +88,100 @@ def test_gltf_json_with_a_byte_order_mark_reads(tmp_path):
         (tmp_path / name).write_bytes(codecs.BOM_UTF8 * name.endswith(".gltf") + data)
     asset = read_asset(tmp_path / "model.gltf")
     assert len(asset.faces) == 12 and np.allclose(np.ptp(asset.vertices, axis=0), 1.0)
+
+
+# ---------------------------------------------------------------- compressed and extended glTF
+def glb(tree: dict, binary: bytes) -> bytes:
+    """A GLB file: the JSON chunk (padded with spaces) and the binary chunk (with zeros)."""
+    text = json.dumps(tree).encode()
+    text += b" " * (-len(text) % 4)
+    binary += b"\0" * (-len(binary) % 4)
+    chunks = struct.pack("<I4s", len(text), b"JSON") + text + struct.pack("<I4s", len(binary), b"BIN\0") + binary
+    return struct.pack("<4sII", b"glTF", 2, 12 + len(chunks)) + chunks
+
+
+def draco_glb(mesh: trimesh.Trimesh, node: dict) -> bytes:
+    """``mesh`` Draco-compressed (14-bit positions, as Blender writes them) in a GLB whose one
+    node is ``node`` (its translation, rotation, scale)."""
+    import DracoPy
+
+    blob = DracoPy.encode(np.asarray(mesh.vertices, np.float32), np.asarray(mesh.faces, np.uint32),
+                          quantization_bits=14, compression_level=7)
+    position = DracoPy.decode(blob).attributes[0]["unique_id"]
+    tree = {
+        "asset": {"version": "2.0", "generator": "hand-built"}, "scene": 0, "scenes": [{"nodes": [0]}],
+        "nodes": [{"mesh": 0, **node}],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1, "mode": 4, "extensions": {
+            "KHR_draco_mesh_compression": {"bufferView": 0, "attributes": {"POSITION": position}}}}]}],
+        "accessors": [
+            {"componentType": 5126, "type": "VEC3", "count": len(mesh.vertices),
+             "min": mesh.bounds[0].tolist(), "max": mesh.bounds[1].tolist()},
+            {"componentType": 5125, "type": "SCALAR", "count": mesh.faces.size}],
+        "bufferViews": [{"buffer": 0, "byteOffset": 0, "byteLength": len(blob)}],
+        "buffers": [{"byteLength": len(blob)}],
+        "extensionsUsed": ["KHR_draco_mesh_compression"], "extensionsRequired": ["KHR_draco_mesh_compression"],
+    }
+    return glb(tree, blob)
+
+
+def plain_gltf(extensions: list[str], normalized: bool = False) -> dict:
+    """A one-triangle .gltf (its buffer inline) that requires ``extensions``."""
+    points = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], np.float32)
+    data = base64.b64encode(points.tobytes()).decode()
+    return {"asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0]}], "nodes": [{"mesh": 0}],
+            "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}],
+            "accessors": [{"bufferView": 0, "componentType": 5126, "type": "VEC3", "count": 3,
+                           "min": [0, 0, 0], "max": [1, 1, 0], **({"normalized": True} if normalized else {})}],
+            "bufferViews": [{"buffer": 0, "byteLength": 36}],
+            "buffers": [{"byteLength": 36, "uri": f"data:application/octet-stream;base64,{data}"}],
+            "extensionsUsed": extensions, "extensionsRequired": extensions}
+
+
+def test_a_draco_glb_reads_as_the_same_mesh_uncompressed(tmp_path):
+    pytest.importorskip("DracoPy")
+    mesh = trimesh.creation.icosphere(subdivisions=3, radius=0.15)
+    node = {"translation": [1.0, 2.0, 0.0], "scale": [2.0, 2.0, 2.0]}
+    path = tmp_path / "ball.glb"
+    path.write_bytes(draco_glb(mesh, node))
+    asset = read_asset(path)
+    assert asset.faces.shape == mesh.faces.shape and asset.meters_per_unit == 1.0 and asset.up_axis == "Y"
+    want = mesh.vertices * 2.0 + [1.0, 2.0, 0.0]
+    # Draco orders vertices its own way; 14 bits over the 0.3 m ball, scaled by 2, move each
+    # one less than 0.6 m / 2**14 along each axis
+    moved, _ = cKDTree(want).query(asset.vertices)
+    assert moved.max() < np.sqrt(3) * 0.6 / 2**14
+    placed = trimesh.Trimesh(asset.vertices, asset.faces)
+    assert placed.is_watertight and placed.volume == pytest.approx(mesh.volume * 8, rel=1e-3)
+
+
+def test_a_draco_glb_without_dracopy_says_what_to_install(tmp_path, monkeypatch):
+    pytest.importorskip("DracoPy")
+    path = tmp_path / "ball.glb"
+    path.write_bytes(draco_glb(trimesh.creation.box(), {}))
+    monkeypatch.setitem(sys.modules, "DracoPy", None)  # the import raises ImportError
+    with pytest.raises(InputError, match="Draco-compressed .*pip install DracoPy"):
+        read_asset(path)
+
+
+@pytest.mark.parametrize("extensions, normalized, refused", [
+    (["EXT_meshopt_compression"], False, "EXT_meshopt_compression"),
+    (["KHR_texture_transform", "EXT_mesh_gpu_instancing"], False, "EXT_mesh_gpu_instancing"),
+    (["KHR_mesh_quantization"], True, "KHR_mesh_quantization"),
+    (["KHR_mesh_quantization"], False, None),
+    (["KHR_materials_pbrSpecularGlossiness", "KHR_texture_transform", "KHR_lights_punctual"], False, None),
+])
+def test_a_required_gltf_extension_is_read_or_refused_by_name(tmp_path, extensions, normalized, refused):
+    path = tmp_path / "tri.gltf"
+    path.write_text(json.dumps(plain_gltf(extensions, normalized)))
+    as_glb = tmp_path / "tri.glb"
+    tree = plain_gltf(extensions, normalized)
+    binary = base64.b64decode(tree["buffers"][0].pop("uri").partition(",")[2])
+    as_glb.write_bytes(glb(tree, binary))
+    for file in (path, as_glb):
+        if refused:
+            with pytest.raises(InputError) as info:
+                read_asset(file)
+            message = str(info.value)
+            assert "\n" not in message and f"requires the extension {refused}, which icefarm cannot read" in message
+        else:
+            assert read_asset(file).faces.tolist() == [[0, 1, 2]]
