@@ -54,6 +54,7 @@ import csv
 import enum
 import hashlib
 import json
+import shutil
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -113,6 +114,11 @@ CACHE_DIR = "cache"
 REPORT_MD = "report.md"
 REPORT_CSV = "report.csv"
 SHEETS_DIR = "sheets"
+
+#: The files of a job folder (not the sweep folder's).
+JOB_FILES = (PARAMS, PROXY, WATER, DRIPS, TRAJECTORIES, LANDING, ICE, OBJECT, SCENE_SPEC, SCENE_XML, SCENE_POV,
+             OBJECT_INC, ICE_INC, VIEWS, RENDER_EXR, RENDER_PNG, SCENE_USDA, OBJECT_USDC, ICE_USDC, TIMINGS, DONE,
+             ERROR)
 
 #: Every file name above, for the test that keeps them out of other modules.
 FILE_NAMES = (PARAMS, PROXY, WATER, DRIPS, TRAJECTORIES, LANDING, ICE, OBJECT, SCENE_SPEC, SCENE_XML, SCENE_POV,
@@ -366,6 +372,37 @@ def read_jobs_csv(path: Path) -> tuple[list[dict], tuple[str, ...]]:
     if "object" in fields and "status" in fields:
         swept = tuple(fields[fields.index("object") + 1:fields.index("status")])
     return rows, swept
+
+
+# What a job writes beside `JOB_FILES`: its folders and the files named by pattern (views,
+# POV-Ray's renders, sky images).
+JOB_FOLDERS = (GROWTH_DIR, *LATER)
+JOB_PATTERNS = (f"{RENDER_STEM}_view*.*", f"{POVRAY_STEM}*.png", "sky_*.*", ".*.tmp")
+
+
+def clear_job(job_dir: Path) -> list[str]:
+    """Remove from ``job_dir`` everything an earlier job wrote there (its files, ``growth/``,
+    and the ``renders/`` and ``export/`` made from it), so that a new job's ``done.json``
+    vouches only for the new job's files; other files are left where they are.
+
+    Returns
+    -------
+    list of str
+        The names removed (top level), sorted; empty for a new or an empty folder.
+    """
+    job_dir = Path(job_dir)
+    if not job_dir.is_dir():
+        return []
+    removed = []
+    for path in sorted(job_dir.iterdir()):
+        name = path.name
+        if name in JOB_FILES or name in JOB_FOLDERS or any(path.match(p) for p in JOB_PATTERNS):
+            if path.is_dir() and not path.is_symlink():
+                shutil.rmtree(path)
+            else:
+                path.unlink()
+            removed.append(name)
+    return removed
 
 
 def is_job_dir(path: Path) -> bool:

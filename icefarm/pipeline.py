@@ -24,7 +24,7 @@ from . import artifacts
 from .errors import InputError
 from .geometry import ray_caster
 from .jobdir import (DONE, DRIPS, ERROR, GROWTH_DIR, ICE, ICE_BANDS, LANDING, OBJECT_USDC, PARAMS, PROXY,
-                     SCENE_USDA, TIMINGS, TRAJECTORIES, WATER, JobState)
+                     SCENE_USDA, TIMINGS, TRAJECTORIES, WATER, JobState, clear_job)
 from .chain import Stage, StageResults, build_surface, glaze_surface, run_stages, sole, stage_rng, stops
 from .mesh import PreparedMesh, prepare
 from .params import Params, StormParams, SurfaceParams
@@ -161,16 +161,17 @@ def run_job(spec: JobSpec, job_dir: Path, cache_dir: Path | None = None,
             until: Stage | None = None, progress: bool | ProgressMode = False) -> JobOutcome:
     """Run one job into ``job_dir``; never raises for a failure of the job itself.
 
-    A failure writes ``error.json`` (stage, message, traceback) and returns status
-    ``failed``; success writes ``done.json`` last. ``until`` stops after that stage;
+    What an earlier job wrote in ``job_dir`` is removed first (`icefarm.jobdir.clear_job`;
+    other files stay). A failure writes ``error.json`` (stage, message, traceback) and returns
+    status ``failed``; success writes ``done.json`` last. ``until`` stops after that stage;
     ``progress`` shows what the job is doing on stderr (`icefarm.progress`): ``BAR`` (or
     True) a live line per step and bars over a render's samples and growth frames,
     ``LINES`` a plain line as each step starts and ends, ``OFF`` (or False) nothing.
     """
     job_dir = Path(job_dir)
     job_dir.mkdir(parents=True, exist_ok=True)
-    for stale in (DONE, ERROR):
-        (job_dir / stale).unlink(missing_ok=True)
+    # A folder reused for a new job: its done.json must vouch for this job's files only
+    clear_job(job_dir)
     mode = progress if isinstance(progress, ProgressMode) else (ProgressMode.BAR if progress else ProgressMode.OFF)
     run = _Run(progress=mode is ProgressMode.BAR, steps=step_progress(mode))
     cache = StageCache(Path(cache_dir) if cache_dir else None)

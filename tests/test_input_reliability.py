@@ -14,10 +14,13 @@ import pytest
 import trimesh
 from scipy.spatial import cKDTree
 
+from icefarm import params
 from icefarm.asset_io import asset_gravity, read_asset
 from icefarm.errors import InputError
 from icefarm.farm.manifest import load_manifest
 from icefarm.farm.points import parse_set
+from icefarm.jobdir import check_done
+from icefarm.pipeline import JobSpec, Stage, run_job
 from icefarm.yaml_io import load_yaml
 
 
@@ -185,3 +188,25 @@ def test_a_required_gltf_extension_is_read_or_refused_by_name(tmp_path, extensio
             assert "\n" not in message and f"requires the extension {refused}, which icefarm cannot read" in message
         else:
             assert read_asset(file).faces.tolist() == [[0, 1, 2]]
+
+
+# ---------------------------------------------------------------- a reused job folder
+def test_a_second_job_into_the_same_folder_clears_the_first(tmp_path, sphere):
+    mesh = tmp_path / "sphere.ply"
+    sphere.export(mesh)
+    spec = JobSpec("sphere", str(mesh), 0.3, params.resolve({"storm.mode": "relative", "water.rays": 500}), seed=3)
+    job_dir = tmp_path / "job"
+    assert run_job(spec, job_dir, until=Stage.WATER).status == "done"
+    # what a full earlier job and its later render and export had left, and a file of the user's
+    earlier = ["render.png", "render.exr", "scene.usda", "ice.usdc", "ice.ply", "drips.json", "render_view1.png",
+               "render_povray.png", "sky_az135_el30.exr", "growth/frame_0001.png", "renders/final/render.png",
+               "export/scene.usdz"]
+    for name in earlier + ["notes.txt"]:
+        (job_dir / name).parent.mkdir(parents=True, exist_ok=True)
+        (job_dir / name).write_bytes(b"earlier")
+    assert run_job(spec, job_dir, until=Stage.WATER).status == "done"
+    assert not [name for name in earlier if (job_dir / name).exists()]
+    assert (job_dir / "notes.txt").read_bytes() == b"earlier"
+    listed = json.loads((job_dir / "done.json").read_text())["artifacts"]
+    assert "water.ply" in listed and not set(listed) & set(earlier)
+    assert check_done(job_dir) is None
