@@ -47,6 +47,39 @@ def alive(pid: int) -> bool:
     return state[state.rindex(")") + 2] != "Z"
 
 
+_KILLED_WORKER = """
+import os, sys, time, multiprocessing
+from concurrent.futures import ProcessPoolExecutor
+from icefarm.farm.local import _worker_init, _kill_workers
+
+def bar():
+    from tqdm import tqdm
+    tqdm(total=1, disable=True).close()  # as a job's render and growth bars do
+    time.sleep(60)
+
+if __name__ == "__main__":
+    init = _worker_init if sys.argv[1] == "icefarm" else None
+    pool = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"), initializer=init,
+                               initargs=(os.getpid(),) if init else ())
+    pool.submit(bar)
+    time.sleep(8)
+    _kill_workers(pool)
+    pool.shutdown(wait=True, cancel_futures=True)
+"""
+
+
+@pytest.mark.slow  # spawns worker processes
+def test_a_worker_killed_on_ctrl_c_leaks_no_semaphore(tmp_path):
+    # tqdm's default lock is a named semaphore: a worker killed with one made it leak, and the
+    # driver's exit printed Python's "leaked semaphore objects" warning after the summary.
+    script = tmp_path / "killed.py"
+    script.write_text(_KILLED_WORKER)
+    plain = subprocess.run([sys.executable, str(script), "plain"], capture_output=True, text=True, timeout=120)
+    ours = subprocess.run([sys.executable, str(script), "icefarm"], capture_output=True, text=True, timeout=120)
+    assert "leaked semaphore" in plain.stderr  # the check sees the leak when there is one
+    assert ours.returncode == 0 and "leaked" not in ours.stderr, ours.stderr
+
+
 # --------------------------------------------------------------------------- the driver killed
 
 @pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc")

@@ -90,3 +90,14 @@ def test_render_again_defaults_to_lookdev_not_a_ten_minute_final():
 
     option = next(p for p in render_command.params if p.name == "render")
     assert option.default == "lookdev"
+
+
+def test_a_sweep_over_the_icicles_look_without_an_ice_view_says_to_use_lookdev(tmp_path):
+    manifest = tmp_path / "m.yaml"
+    sweep = {"method": "grid", "parameters": {"surface.growth_ratio": {"values": [0.03, 0.06]}}}
+    for render, warned in (("preview", True), ("lookdev", False)):
+        manifest.write_text(yaml.safe_dump({"name": "t", "seed": 1, "render": render, "sweep": sweep,
+                                            "objects": [{"id": "sign", "mesh": "generator:sign"}]}))
+        result = CliRunner().invoke(main, ["validate", str(manifest)])
+        assert result.exit_code == 0
+        assert ("has no ice view" in result.stderr and "render: lookdev" in result.stderr) is warned

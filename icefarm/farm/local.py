@@ -43,6 +43,12 @@ def _worker_init(driver: int) -> None:
     import threading
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    # tqdm's default lock is a multiprocessing semaphore, named and left to the resource
+    # tracker: a worker killed on Ctrl-C never unlinks it, and the driver's exit then warns of
+    # a "leaked semaphore". A worker's bars are its own: a thread lock is enough.
+    from tqdm import tqdm
+
+    tqdm.set_lock(threading.RLock())
     if sys.platform.startswith("linux"):
         with contextlib.suppress(Exception):
             import ctypes

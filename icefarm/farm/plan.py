@@ -138,10 +138,16 @@ def plan_jobs(manifest: Manifest, render: bool = True) -> tuple[tuple[PlannedJob
     return tuple(jobs), duplicates
 
 
+# Parameter groups that change how icicles and glaze look more than where they are: a sweep
+# over them needs a view close enough to see it (`manifest_warnings`).
+LOOK_GROUPS = ("surface", "trajectories", "glaze", "ground_ice")
+
+
 def manifest_warnings(manifest: Manifest) -> list[str]:
     """What a valid manifest may not mean, one line each, said once for the whole sweep: the
     parameters it (or ``--set``) gives that its jobs' storm.mode does not read
-    (`icefarm.params.idle_keys`), and the objects' unlikely sizes (`icefarm.asset_io.size_hint`)."""
+    (`icefarm.params.idle_keys`), the objects' unlikely sizes (`icefarm.asset_io.size_hint`),
+    and a sweep over the icicles' look rendered without a view that shows them."""
     from ..asset_io import size_hint
 
     swept = swept_keys(manifest.sweep)
@@ -156,6 +162,15 @@ def manifest_warnings(manifest: Manifest) -> list[str]:
             lines.update(dict.fromkeys(P.idle_keys(keys, mode)))
         if obj.size_m is not None and (hint := size_hint(obj.size_m)):
             lines[f"object {obj.id}: {hint}"] = None
+    shape = [k for k in swept if k.split(".")[0] in LOOK_GROUPS]
+    if shape and manifest.render is not None:
+        from ..scene.config import load_render_config
+
+        config = load_render_config(manifest.render)
+        if not any(view.frame == "ice" for view in config.views):
+            lines[f"the sweep varies how icicles look ({', '.join(shape)}) but render config {config.name!r} "
+                  f"has no ice view: at {config.width}x{config.height} the icicles are a few pixels wide and the "
+                  "cells look alike; use render: lookdev (its second view zooms on the icicles)"] = None
     return list(lines)
 
 
