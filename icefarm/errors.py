@@ -40,6 +40,12 @@ class Interrupted(KeyboardInterrupt):
         return 128 + self.signum
 
 
+def cannot_write(exc: OSError, what: str) -> InputError:
+    """One line for ``exc``, met writing ``what`` (a full disk, a folder made read-only), in
+    place of a traceback: ``cannot write WHAT: No space left on device (FILE)``."""
+    return InputError(f"cannot write {what}: {exc.strerror or exc} ({exc.filename or what})")
+
+
 _SHORT = reprlib.Repr()
 _SHORT.maxstring = _SHORT.maxother = 60
 _SHORT.maxlist = _SHORT.maxtuple = _SHORT.maxdict = _SHORT.maxset = 6

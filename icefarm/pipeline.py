@@ -21,7 +21,7 @@ import numpy as np
 import trimesh
 
 from . import artifacts
-from .errors import InputError
+from .errors import InputError, cannot_write
 from .geometry import ray_caster
 from .jobdir import (DONE, DRIPS, ERROR, GROWTH_DIR, ICE, ICE_BANDS, LANDING, OBJECT_USDC, PARAMS, PROXY,
                      SCENE_USDA, TIMINGS, TRAJECTORIES, WATER, JobState, clear_job)
@@ -167,11 +167,20 @@ def run_job(spec: JobSpec, job_dir: Path, cache_dir: Path | None = None,
     ``progress`` shows what the job is doing on stderr (`icefarm.progress`): ``BAR`` (or
     True) a live line per step and bars over a render's samples and growth frames,
     ``LINES`` a plain line as each step starts and ends, ``OFF`` (or False) nothing.
+
+    Raises
+    ------
+    InputError
+        ``job_dir`` cannot take the job's records (a full disk, a folder made read-only):
+        one line, where writing ``error.json`` in the handler had added a second traceback.
     """
     job_dir = Path(job_dir)
-    job_dir.mkdir(parents=True, exist_ok=True)
-    # A folder reused for a new job: its done.json must vouch for this job's files only
-    clear_job(job_dir)
+    try:
+        job_dir.mkdir(parents=True, exist_ok=True)
+        # A folder reused for a new job: its done.json must vouch for this job's files only
+        clear_job(job_dir)
+    except OSError as exc:
+        raise cannot_write(exc, f"the job folder {job_dir}") from None
     mode = progress if isinstance(progress, ProgressMode) else (ProgressMode.BAR if progress else ProgressMode.OFF)
     run = _Run(progress=mode is ProgressMode.BAR, steps=step_progress(mode))
     cache = StageCache(Path(cache_dir) if cache_dir else None)
@@ -179,19 +188,27 @@ def run_job(spec: JobSpec, job_dir: Path, cache_dir: Path | None = None,
         summary = _run_stages(spec, job_dir, run, cache, until)
     except Exception as exc:
         message = str(exc) if isinstance(exc, InputError) else f"{type(exc).__name__}: {exc}"
-        artifacts.write_json(job_dir / ERROR, {
+        _record(job_dir / ERROR, {
             "stage": run.stage, "message": message, "traceback": traceback.format_exc(),
             "seconds": run.seconds,
         })
         return JobOutcome(JobState.FAILED, dict(run.seconds), tuple(cache.reused), run.stage, message)
-    artifacts.write_json(job_dir / TIMINGS, {"seconds": run.seconds, **summary, "reused": cache.reused})
+    _record(job_dir / TIMINGS, {"seconds": run.seconds, **summary, "reused": cache.reused})
     # Last, and listing every artifact with its size and digest: `--resume` checks them.
-    artifacts.write_json(job_dir / DONE, {
+    _record(job_dir / DONE, {
         "job": spec.object_id, "seconds": run.seconds, "reused": cache.reused, **summary,
         **({"cache_warnings": cache.warnings} if cache.warnings else {}),
         "artifacts": artifacts.list_artifacts(job_dir),
     })
     return JobOutcome(JobState.DONE, dict(run.seconds), tuple(cache.reused))
+
+
+def _record(path: Path, value: dict) -> None:
+    """Write one of the job's records; a folder that cannot take it is one line (`run_job`)."""
+    try:
+        artifacts.write_json(path, value)
+    except OSError as exc:
+        raise cannot_write(exc, f"the job folder {path.parent}") from None
 
 
 def _return_freed_memory() -> None:

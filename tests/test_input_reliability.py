@@ -5,7 +5,9 @@ from __future__ import annotations
 
 import base64
 import codecs
+import errno
 import json
+import os
 import struct
 import sys
 
@@ -210,3 +212,28 @@ def test_a_second_job_into_the_same_folder_clears_the_first(tmp_path, sphere):
     listed = json.loads((job_dir / "done.json").read_text())["artifacts"]
     assert "water.ply" in listed and not set(listed) & set(earlier)
     assert check_done(job_dir) is None
+
+
+# ---------------------------------------------------------------- a full disk
+def test_a_full_disk_in_run_is_one_line(tmp_path, sphere, monkeypatch):
+    from click.testing import CliRunner
+
+    from icefarm import artifacts
+    from icefarm.cli import main
+
+    def full(path, data):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
+
+    mesh = tmp_path / "sphere.ply"
+    sphere.export(mesh)
+    monkeypatch.setattr(artifacts, "atomic_write", full)
+    spec = JobSpec("sphere", str(mesh), 0.3, params.resolve({"storm.mode": "relative", "water.rays": 500}), seed=3)
+    with pytest.raises(InputError, match="No space left on device") as info:
+        run_job(spec, tmp_path / "job", until=Stage.WATER)
+    assert info.value.__suppress_context__ and "\n" not in str(info.value)
+
+    result = CliRunner().invoke(main, ["run", str(mesh), "--size-m", "0.3", "-o", str(tmp_path / "cli"),
+                                       "--until", "water", "--no-render", "--set", "water.rays=500"])
+    lines = result.output.strip().splitlines()
+    assert result.exit_code == 2 and "Traceback" not in result.output
+    assert lines[-1].startswith(f"error: cannot write the job folder {tmp_path / 'cli'}: No space left on device")

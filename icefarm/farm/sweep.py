@@ -30,7 +30,7 @@ from pathlib import Path
 from typing import Protocol
 
 from ..artifacts import atomic_write
-from ..errors import InputError, Interrupted
+from ..errors import InputError, Interrupted, cannot_write
 from ..jobdir import (CACHE_DIR, DONE, JOBS_CSV, JOBS_DIR, MANIFEST, JobState, check_done, read_job, read_jobs_csv,
                       total_seconds)
 from .manifest import load_manifest
@@ -136,10 +136,6 @@ def stop_on_signals() -> Iterator[None]:
 
 def _stderr_note(text: str) -> None:
     print(f"note: {text}", file=sys.stderr, flush=True)
-
-
-def _os_error(exc: OSError, what: str) -> InputError:
-    return InputError(f"cannot write {what}: {exc.strerror or exc} ({exc.filename or what})")
 
 
 # --------------------------------------------------------------------------- running
@@ -286,7 +282,7 @@ def run_sweep(manifest: Manifest | str | Path, out: str | Path = "out", *, worke
         except OSError as exc:
             if made:
                 shutil.rmtree(sweep_dir, ignore_errors=True)  # nothing half-made left behind
-            raise _os_error(exc, f"the sweep folder {sweep_dir}") from None
+            raise cannot_write(exc, f"the sweep folder {sweep_dir}") from None
 
         tasks = [Task(spec=j.spec, job_id=j.job_id, object_id=j.object_id,
                       job_dir=str(records[j.job_id].job_dir),
