@@ -10,14 +10,19 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import errno
 import hashlib
 import json
+import os
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from . import artifacts, jobdir
 from .stage_codec import Unencodable, decode, encode
+
+
+READ_ONLY = (errno.EACCES, errno.EPERM, errno.EROFS)  # a write refused: the cache is read, not written
 
 
 def digest(*parts: Any) -> str:
@@ -65,8 +70,13 @@ class StageCache:
     dataclasses, so an entry written by someone else runs no code. A result the codec does
     not store is computed each time.
 
-    ``root/policy.json`` (a sweep writes it) may name ``private`` stages: their results
-    are used by one job only, so they are not stored (they are still read when there).
+    ``root/policy.json`` (a sweep writes it, `write_policy`) may name ``private`` stages:
+    their results are used by one job only, so they are not stored (they are still read when
+    there).
+
+    A cache that cannot be written (a studio's shared cache, read-only to the user) is read:
+    what is there is reused, the rest computed and not stored (``read_only`` becomes True at
+    the first write refused; whoever opened the cache says so once).
     """
 
     MAGIC = b"icefarm-cache 2"
@@ -78,6 +88,7 @@ class StageCache:
         self.reused: list[str] = []
         self.warnings: list[str] = []
         self.private: set[str] = set()
+        self.read_only = root is not None and root.is_dir() and not os.access(root, os.W_OK)
         if root is not None:
             try:
                 self.private = {str(s) for s in json.loads((root / self.POLICY).read_text()).get("private", ())}
@@ -109,13 +120,18 @@ class StageCache:
                 self.reused.append(stage)
                 return value
         value = compute()
-        if path is not None and stage not in self.private:
+        if path is not None and stage not in self.private and not self.read_only:
             try:
                 payload = encode(value)
             except Unencodable:
                 return value
             header = self.MAGIC + b" " + hashlib.sha256(payload).hexdigest().encode() + b"\n"
-            artifacts.atomic_write(path, header + payload)
+            try:
+                artifacts.atomic_write(path, header + payload)
+            except OSError as exc:
+                if exc.errno not in READ_ONLY:
+                    raise
+                self.read_only = True  # the result stands; the next ones are not offered
         return value
 
     def _load(self, path: Path) -> tuple[bool, Any]:
@@ -143,5 +159,21 @@ class StageCache:
         message = f"stage cache entry {path} is damaged ({problem}): recomputed"
         self.warnings.append(message)
         warnings.warn(message, CacheWarning, stacklevel=2)
-        path.unlink(missing_ok=True)
+        try:
+            path.unlink(missing_ok=True)
+        except OSError:  # a read-only cache keeps it; it is never trusted all the same
+            pass
         return False, None
+
+
+def write_policy(root: Path, private: list[str]) -> bool:
+    """Write ``root/policy.json`` naming the ``private`` stages (`StageCache`); False, with
+    nothing written, when ``root`` is read-only to this user (a shared cache)."""
+    try:
+        root.mkdir(parents=True, exist_ok=True)
+        artifacts.atomic_write(root / StageCache.POLICY, json.dumps({"private": list(private)}) + "\n")
+    except OSError as exc:
+        if exc.errno not in READ_ONLY:
+            raise
+        return False
+    return True

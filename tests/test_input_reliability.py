@@ -10,6 +10,7 @@ import json
 import os
 import struct
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -23,6 +24,7 @@ from icefarm.farm.manifest import load_manifest
 from icefarm.farm.points import parse_set
 from icefarm.jobdir import check_done
 from icefarm.pipeline import JobSpec, Stage, run_job
+from icefarm.stage_cache import StageCache, write_policy
 from icefarm.yaml_io import load_yaml
 
 
@@ -237,3 +239,44 @@ def test_a_full_disk_in_run_is_one_line(tmp_path, sphere, monkeypatch):
     lines = result.output.strip().splitlines()
     assert result.exit_code == 2 and "Traceback" not in result.output
     assert lines[-1].startswith(f"error: cannot write the job folder {tmp_path / 'cli'}: No space left on device")
+
+
+# ---------------------------------------------------------------- a read-only shared cache
+def read_only(monkeypatch, folder):
+    """Make writes under ``folder`` fail as a read-only folder's do (EACCES), for root too."""
+    from icefarm import artifacts
+
+    write = artifacts.atomic_write
+
+    def refuse(path, data):
+        if Path(path).resolve().is_relative_to(folder.resolve()):
+            raise PermissionError(errno.EACCES, os.strerror(errno.EACCES), str(path))
+        write(path, data)
+
+    monkeypatch.setattr(artifacts, "atomic_write", refuse)
+
+
+def test_a_read_only_cache_is_read_and_the_rest_computed(tmp_path, sphere, monkeypatch):
+    mesh = tmp_path / "sphere.ply"
+    sphere.export(mesh)
+    p = params.resolve({"storm.mode": "relative", "water.rays": 500, "drips.count": 10})
+    cache = tmp_path / "shared"
+    assert run_job(JobSpec("sphere", str(mesh), 0.3, p, seed=3), tmp_path / "a", cache, until=Stage.WATER).status == "done"
+    entries = sorted(cache.rglob("*.npz"))
+    read_only(monkeypatch, cache)
+    assert not write_policy(cache, ["drips"])
+    outcome = run_job(JobSpec("sphere", str(mesh), 0.3, p, seed=3), tmp_path / "b", cache, until=Stage.DRIPS)
+    assert outcome.status == "done" and outcome.reused == ("water",)
+    assert sorted(cache.rglob("*.npz")) == entries  # drips computed, not stored
+
+
+def test_a_chmod_read_only_cache_is_seen_as_such(tmp_path):
+    cache = tmp_path / "shared"
+    cache.mkdir()
+    cache.chmod(0o555)
+    try:
+        if os.access(cache, os.W_OK):
+            pytest.skip("this user (root) writes a folder chmod made read-only")
+        assert StageCache(cache).read_only and not write_policy(cache, [])
+    finally:
+        cache.chmod(0o755)

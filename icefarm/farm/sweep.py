@@ -18,7 +18,6 @@ other objects run meanwhile.
 from __future__ import annotations
 
 import contextlib
-import json
 import shutil
 import signal
 import sys
@@ -273,10 +272,11 @@ def run_sweep(manifest: Manifest | str | Path, out: str | Path = "out", *, worke
             shutil.rmtree(running, ignore_errors=True)  # markers of an earlier run that was stopped
             running.mkdir(parents=True, exist_ok=True)
             if cache_dir is not None:
-                cache_dir.mkdir(exist_ok=True)
-                from ..stage_cache import StageCache
+                from ..stage_cache import write_policy
 
-                atomic_write(cache_dir / StageCache.POLICY, json.dumps({"private": private_stages(jobs)}) + "\n")
+                if not write_policy(cache_dir, private_stages(jobs)):
+                    note(f"the stage cache {cache_dir} is read-only: its results are reused, "
+                         "the others computed and not stored")
             atomic_write(sweep_dir / MANIFEST, resolved_yaml(manifest, jobs, sweep_dir, until))
             atomic_write(csv_path, jobs_csv_text(list(records.values()), swept))
         except OSError as exc:
