@@ -11,17 +11,18 @@ import click
 
 from . import __version__, params
 from .bench.commands import bench
-from .cli_options import exclusion_box, set_values, writable_folder
+from .cli_options import exclusion_box, readable_cache, set_values, writable_folder
 from .cli_summary import print_job_summary
-from .errors import InputError, Interrupted, one_line_each
+from .errors import InputError, Interrupted, cannot_write, one_line_each
 from .jobdir import (ERROR, EXPORT_DIR, FRAMES, GROWTH_DIR, GROWTH_MP4, GROWTH_USDA, MANIFEST, RENDER_EXR, RENDERS_DIR,
                      SCENE_USDA, SHEETS_DIR, JobState, growth_frame, growth_ice, read_job, stage_phrase)
 from .placement import PLACEMENTS
 
 
 class _Group(click.Group):
-    """Turns `InputError` into one clean line and exit status 2 instead of a traceback;
-    Ctrl-C exits 130 (128 + the signal), not 1 like a failed job."""
+    """Turns `InputError` into one clean line and exit status 2 instead of a traceback, and
+    a write that failed (a full disk) into one line and status 1; Ctrl-C exits 130 (128 + the
+    signal), not 1 like a failed job."""
 
     def invoke(self, ctx):
         try:
@@ -33,6 +34,9 @@ class _Group(click.Group):
             stop = exc if isinstance(exc, Interrupted) else Interrupted()
             click.echo(f"interrupted by {stop.name}", err=True)
             sys.exit(stop.exit_code)
+        except OSError as exc:  # a full disk, a folder made read-only while rendering or exporting
+            click.echo(one_line_each(f"error: {cannot_write(exc, exc.filename or 'a file')}"), err=True)
+            sys.exit(1)
 
 
 @click.group(cls=_Group, context_settings={"help_option_names": ["-h", "--help"]})
@@ -55,7 +59,8 @@ def main():
               help="Override a parameter (repeatable); `icefarm params` lists them.")
 @click.option("--seed", type=int, default=0, show_default=True, help="Random seed of the job.")
 @click.option("-o", "--out", type=click.Path(file_okay=False), required=True,
-              help="Folder that receives the job's artifacts.")
+              help="Folder that receives the job's artifacts. One that holds an earlier job is first cleared "
+                   "of that job's files (its renders/ and export/ too); other files stay.")
 @click.option("--until", type=click.Choice(["water", "drips", "trajectories", "surface"]),
               help="Stop after this stage (default: all four stages, then the render).")
 @click.option("--render", "render", default="preview", show_default=True, metavar="CONFIG",
@@ -67,7 +72,8 @@ def main():
 @click.option("--exclude", multiple=True, metavar="X0,Y0,Z0,X1,Y1,Z1",
               help="Keep icicles out of this box (meters, object centred on the origin); repeatable.")
 @click.option("--cache", type=click.Path(file_okay=False),
-              help="Stage cache folder to reuse results across runs (default: none).")
+              help="Stage cache folder to reuse results across runs (default: none). A shared cache this "
+                   "user may only read is read: its results are reused, the others computed and not stored.")
 @click.option("--growth-frames", type=int, metavar="N",
               help="Also grow the ice over time: N frames (1-240) from the first drip to full growth, "
                    "each containing the one before (icicles lengthen, branches appear, bases and glaze "
@@ -119,7 +125,7 @@ def run(mesh, size_m, assignments, seed, out, until, render, no_render, placemen
                    placement=placement)
     writable_folder(out)
     if cache:
-        writable_folder(cache)
+        readable_cache(cache)
     outcome = run_job(spec, Path(out), Path(cache) if cache else None, Stage(until) if until else None,
                       progress=ProgressMode.for_stream(sys.stderr))
     if outcome.status is not JobState.DONE:
@@ -153,7 +159,7 @@ def render_command(job_dir, render, out):
     progress lines when its output is not a terminal, and leaves INCOMPLETE.txt in the
     folder until the render is done.
     """
-    from .export.rerender import RENDER_FILES, estimate_seconds, render_again
+    from .export import RENDER_FILES, estimate_seconds, render_again
     from .scene.config import load_render_config
 
     out = Path(out) if out else Path(job_dir) / RENDERS_DIR / Path(render).stem

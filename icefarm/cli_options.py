@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 from . import params
@@ -20,6 +21,26 @@ def writable_folder(out: str | Path) -> Path:
     except OSError as exc:
         raise InputError(f"cannot write the output folder {out}: {exc.strerror or exc}") from None
     return out
+
+
+def readable_cache(cache: str | Path) -> Path:
+    """``cache``, created when missing; one this user may read but not write (a studio's shared
+    cache) is used read-only, said once on stderr; one that cannot be read is refused."""
+    import click
+
+    from .stage_cache import StageCache
+
+    cache = Path(cache)
+    try:
+        cache.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(f"cannot use the stage cache {cache}: {exc.strerror or exc}") from None
+    if not os.access(cache, os.R_OK | os.X_OK):
+        raise InputError(f"cannot read the stage cache {cache}: permission denied")
+    if StageCache(cache).read_only:
+        click.echo(f"note: the stage cache {cache} is read-only: its results are reused, the others computed "
+                   "and not stored", err=True)
+    return cache
 
 
 def set_values(values: tuple[str, ...]) -> dict:

@@ -30,15 +30,22 @@ VERDICTS = {
 }
 
 
+# The icicles' shapes are measured on the mesh (its voxels, ripples, glaze at the base): a
+# median within this share of its real range's ends is not called out of it.
+SHAPE_SLACK = 0.1
+SHAPE_FIGURES = ("taper", "growth_ratio", "profile_exponent", "tip_radius_mm")
+
+
 def verdict(key: str, value: float | None) -> str:
-    """``""`` when ``value`` lies in the real range of figure ``key`` (`VERDICTS`), else the
-    words that say it does not and which knob moves it."""
+    """``""`` when ``value`` lies in the real range of figure ``key`` (`VERDICTS`; shapes
+    within `SHAPE_SLACK`), else the words that say it does not and which knob moves it."""
     if value is None or key not in VERDICTS:
         return ""
     low, high, below, above = VERDICTS[key]
-    if low is not None and value < low:
+    slack = SHAPE_SLACK if key in SHAPE_FIGURES else 0.0
+    if low is not None and value < low * (1 - slack):
         return f" -- below the real range: {below}"
-    if high is not None and value > high:
+    if high is not None and value > high * (1 + slack):
         return f" -- above the real range: {above}"
     return ""
 

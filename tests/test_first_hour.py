@@ -75,6 +75,8 @@ def test_a_size_that_cannot_be_is_a_usage_error_and_an_unlikely_one_a_hint(tmp_p
     ("growth_ratio", 0.25, "above the real range: a lighter storm.intensity"),
     ("growth_ratio", 0.01, "below the real range: surface.growth_ratio up"),
     ("taper", 2.1, "below the real range"),
+    ("taper", 2.8, ""),  # within the measuring slack
+    ("growth_ratio", 0.132, ""),
     ("fringe_free_share", 0.5, "drips.spacing up"),
     ("growth_ratio", 0.1, ""),
     ("taper", 5.0, ""),
@@ -101,3 +103,30 @@ def test_a_sweep_over_the_icicles_look_without_an_ice_view_says_to_use_lookdev(t
         result = CliRunner().invoke(main, ["validate", str(manifest)])
         assert result.exit_code == 0
         assert ("has no ice view" in result.stderr and "render: lookdev" in result.stderr) is warned
+
+
+def test_run_reads_a_shared_cache_it_may_not_write(tmp_path, monkeypatch):
+    import os
+
+    import icefarm.stage_cache as stage_cache
+
+    cache = tmp_path / "cache"
+    first = run("run", "generator:sign", "--until", "water", "--cache", cache, "-o", tmp_path / "a")
+    assert first.exit_code == 0 and any(cache.rglob("*")), first.output
+    stored = sorted(p.name for p in cache.rglob("*") if p.is_file())
+    real = os.access  # as root every folder is writable: the cache is made read-only here
+    monkeypatch.setattr(stage_cache.os, "access", lambda path, mode: not (mode & os.W_OK) and real(path, mode))
+    again = CliRunner().invoke(main, ["run", "generator:sign", "--until", "drips", "--cache", str(cache),
+                                      "-o", str(tmp_path / "b")])
+    assert again.exit_code == 0, again.output
+    assert again.stderr.count("is read-only: its results are reused") == 1
+    assert sorted(p.name for p in cache.rglob("*") if p.is_file()) == stored  # nothing stored
+    assert "water" in json.loads((tmp_path / "b" / "done.json").read_text())["reused"]
+
+
+def test_still_air_is_one_setting_in_a_sweep_as_in_a_run():
+    from icefarm.farm.points import parse_set
+
+    assert parse_set("storm.wind=0,0,0") == ("storm.wind", ([0.0, 0.0, 0.0],))
+    assert parse_set("storm.wind=[0,0,0],[0,0,-5]")[1] == ([0.0, 0.0, 0.0], [0.0, 0.0, -5.0])
+    assert parse_set("drips.spacing=0.02,0.03")[1] == (0.02, 0.03)

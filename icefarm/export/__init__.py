@@ -15,7 +15,7 @@ import lazy_loader as _lazy
 __getattr__, __dir__, __all__ = _lazy.attach(__name__, submod_attrs={
     "gltf": ["write_glb"],
     "growth_usd": ["write_growth_usd"],
-    "rerender": ["render_again"],
+    "rerender": ["RENDER_FILES", "estimate_seconds", "render_again"],
     "usd": ["write_job_usd", "write_usdz"],
 })
 

@@ -41,7 +41,9 @@ def split_values(text: str) -> list[str]:
 
 
 def parse_set(text: str) -> tuple[str, tuple]:
-    """``"group.param=v1,v2"`` to ``(key, (v1, v2))``, every value validated.
+    """``"group.param=v1,v2"`` to ``(key, (v1, v2))``, every value validated. A vector's
+    three numbers are one value (``storm.wind=0,0,0``); vectors swept are bracketed
+    (``storm.wind=[0,0,0],[0,0,-5]``).
 
     Raises
     ------
@@ -53,6 +55,8 @@ def parse_set(text: str) -> tuple[str, tuple]:
         raise InputError(f"--set {text!r}: expected group.param=value or group.param=v1,v2,...")
     param = P.lookup(key.strip())
     items = split_values(raw)
+    if param.kind is P.Kind.VECTOR and len(items) == 3 and not any(i.startswith("[") for i in items):
+        items = [raw]  # storm.wind=0,0,0 is one vector, as `icefarm run --set` reads it; [..],[..] sweeps
     if any(not item for item in items):
         raise InputError(f"--set {text!r}: empty value; give group.param=value or a comma list")
     values = tuple(param.validate(P.parse_value(item)) for item in items)

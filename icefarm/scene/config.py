@@ -21,6 +21,7 @@ from typing import Any, Callable
 import yaml
 
 from ..errors import InputError
+from ..yaml_io import load_yaml
 from .config_checks import (MAX_ABSORPTION, check_absorption, choice_check, number_check, refusal, check_resolution, check_sky,
                             triple_check)
 
@@ -406,7 +407,7 @@ def load_render_config(name_or_path: str | Path,
             raise InputError(f"render config {str(name_or_path)!r} is neither a file nor one of "
                              f"{', '.join(names) or '(none found)'}{tip}")
     try:
-        data = yaml.safe_load(path.read_text())
+        data = load_yaml(path.read_text())
     except (OSError, yaml.YAMLError) as exc:
         raise InputError(f"cannot read render config {path}: {exc}") from None
     try:
