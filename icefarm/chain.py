@@ -28,7 +28,7 @@ from .placement import Placement, ground_height, ground_level, sole_vertices, st
 from .stage_cache import digest, file_digest
 from .stages.drips import DripResult, find_drips
 from .stages.trajectories import TrajectoryResult, grow_trajectories
-from .stages.icicle_size import IcicleSizing, growth_ratios, thickening_m
+from .stages.icicle_size import BRANCH_LIFE, IcicleSizing, growth_ratios, thickening_m
 from .stages.storm import refine, storm_water
 from .stages.water import WaterResult, compute_water
 from .params import GlazeParams, Params
@@ -283,7 +283,8 @@ def _run(prepared, p, seed, placement, exclude, overrides, source, until, mesh_k
                 (drips.faces >= 0)[:, None], obj.face_normals[faces], drips.normals)
             result = grow_trajectories(obj, drips.positions, lift, drips.water, gravity,
                                        stage_rng(seed, Stage.TRAJECTORIES), drip_limit=p.drips.drip_limit,
-                                       caster=caster(obj), **dataclasses.asdict(p.trajectories))
+                                       caster=caster(obj), branch_life=BRANCH_LIFE if physical else 1.0,
+                                       **dataclasses.asdict(p.trajectories))
         if drips.growth is not None and result.n_branches:
             result = dataclasses.replace(result, branch_growth=drips.growth[result.branch_icicle])
         if grounded:  # an icicle that reaches the ground stops at it

@@ -273,3 +273,22 @@ def test_a_drop_onto_the_object_grows_no_icicle_and_one_that_meets_it_stops_on_i
         pts = traj.branch(b)
         assert 0.005 < pts[-1, 1] < 0.005 + 0.004  # its tip rests on the step's top (y = 5 mm)
         assert (np.diff(pts[:, 1]) < 0).all()
+
+
+def test_a_storms_side_branch_ends_above_its_trunks_tip_not_beside_it(plate):
+    # With the paper's branch life every branch grows to the icicle's last generation and ends
+    # beside the trunk's tip: three or four equal fingers, a claw. A storm's branch takes part
+    # of the water and grows for half the generations left: a side tip above the trunk's.
+    def gaps(life):
+        traj = grow(*plate, curve_angle=0.0, division_probability=0.3, max_branches=4, branch_life=life)
+        trunk_tip = {i: traj.branch(b)[-1] @ G for b, i in enumerate(traj.branch_icicle) if traj.branch_parent[b] < 0}
+        return np.array([trunk_tip[traj.branch_icicle[b]] - traj.branch(b)[-1] @ G
+                         for b in np.flatnonzero(traj.branch_parent >= 0)])
+
+    paper, storm = gaps(1.0), gaps(0.5)
+    assert len(paper) > 20 and len(storm) > 20
+    level = lambda gap: np.mean(np.abs(gap) < 0.015)  # noqa: E731 - ends level with the trunk's tip
+    assert level(paper) > 0.6 and abs(np.median(paper)) < 0.01  # fingers
+    assert level(storm) < 0.3 and np.median(storm) > 0.03  # side tips (the last ones born are short)
+    with pytest.raises(ValueError, match="branch_life"):
+        gaps(0.0)

@@ -30,6 +30,10 @@ STARVED_BASE = 0.7
 # more water, slower lengthening): an icicle fed x times what it can freeze reaches
 # x^-WARM_WATER of the longest.
 WARM_WATER = 0.25
+# A side branch of a storm's icicle takes part of its water and grows for this share of the
+# generations left when it splits off: it ends above the trunk's tip (1, the paper's, ends
+# every branch beside it: three or four equal fingers read as a claw). Chosen, by eye.
+BRANCH_LIFE = 0.5
 
 
 def icicle_volume(length, tip: float, growth, shape: str = "physical"):
@@ -201,6 +205,8 @@ def constants() -> tuple[Constant, ...]:
         Constant("WARM_WATER", WARM_WATER, "-", ">= 0",
                  "freezing rain past the heat limit: length x (water / what freezes)^-this (more water, "
                  "slower lengthening: Makkonen 1988, Maeno et al. 1994)"),
+        Constant("BRANCH_LIFE", BRANCH_LIFE, "-", "]0, 1]",
+                 "a side branch grows for this share of its icicle's generations left (chosen: no claws)"),
         Constant("STARVED_BASE", STARVED_BASE, "-", "[0, 1]", "a starved icicle's least share of the base's thickening"),
         Constant("CAPTURE_ROUNDS", CAPTURE_ROUNDS, "-", ">= 1", "rounds of the icicles' competition for the rim's film"),
         Constant("CAPTURE_REACH", CAPTURE_REACH, "spacing", "> 0", "how far an icicle draws the film from"),

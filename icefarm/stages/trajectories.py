@@ -91,7 +91,8 @@ def grow_trajectories(mesh: trimesh.Trimesh, positions: np.ndarray, normals: np.
                       curve_angle: float, division_probability: float, roll_angle: float,
                       step_length: float, length_scale: float, max_branches: int,
                       drip_limit: float, max_tilt: float = 60.0, wind=(0.0, 0.0, 0.0),
-                      branch_spread: float = 0.02, contact: str = "slide", caster=None) -> TrajectoryResult:
+                      branch_spread: float = 0.02, contact: str = "slide", caster=None,
+                      branch_life: float = 1.0) -> TrajectoryResult:
     """Stage 3: grow one icicle per drip point with the paper's L-system.
 
     ``w: FX;  p1': X -(1-d)-> +(c)FFF/(a)X;  p1'': X -(d)-> [(c)+(30)F-(30)FX]A;
@@ -143,6 +144,10 @@ def grow_trajectories(mesh: trimesh.Trimesh, positions: np.ndarray, normals: np.
         Where a step meets the object: the paper's slide, or the branch ends on the surface.
     caster : callable, optional
         A `icefarm.geometry.ray_caster` of ``mesh`` to reuse (stage 1 may have built one).
+    branch_life : float
+        In ]0, 1]: a branch grows for this share of the generations its icicle has left when
+        it splits off (1: the paper's, to the icicle's last generation, so that every branch
+        ends beside the trunk's tip; a physical storm's `BRANCH_LIFE`).
     """
     positions = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
     normals = np.asarray(normals, dtype=np.float64).reshape(-1, 3)
@@ -157,6 +162,8 @@ def grow_trajectories(mesh: trimesh.Trimesh, positions: np.ndarray, normals: np.
         raise ValueError(f"max_tilt must lie in [0, 90] degrees, got {max_tilt}")
     if branch_spread < 0:
         raise ValueError(f"branch_spread must be >= 0, got {branch_spread}")
+    if not 0 < branch_life <= 1:
+        raise ValueError(f"branch_life must lie in ]0, 1], got {branch_life}")
     n = len(positions)
     g = unit(np.asarray(gravity, dtype=np.float64).reshape(3))
     wind = np.asarray(wind, dtype=np.float64).reshape(3)
@@ -176,6 +183,7 @@ def grow_trajectories(mesh: trimesh.Trimesh, positions: np.ndarray, normals: np.
         pending_a=np.zeros(n, dtype=bool),
         alive=np.ones(n, dtype=bool),
         rest=np.zeros(n, dtype=np.int64),
+        last=generations.astype(np.int64),
     )
     grower.points = [[p.copy()] for p in turtles.pos]
     parents = [-1] * n
@@ -187,7 +195,7 @@ def grow_trajectories(mesh: trimesh.Trimesh, positions: np.ndarray, normals: np.
         for r in met:
             grower.points[r] = []
     for gen in range(int(generations.max(initial=0))):
-        active = turtles.alive & (generations[turtles.icicle] > gen)
+        active = turtles.alive & (turtles.last > gen)
         draws = rng.random(len(turtles.alive))
         resting = active & (turtles.rest > 0)
         turtles.rest[resting] -= 1
@@ -217,7 +225,8 @@ def grow_trajectories(mesh: trimesh.Trimesh, positions: np.ndarray, normals: np.
             # left, so a late branch is a short side tip hanging beside its parent's (as on
             # real icicles) instead of a finger splayed at 30 degrees to its end: three or
             # four of those made the fence's and the eaves' tips into claws
-            left_gens = generations[turtles.icicle[rows]] - gen - 1
+            left_gens = np.ceil(branch_life * (generations[turtles.icicle[rows]] - gen - 1)).astype(np.int64)
+            turtles.last[rows] = gen + 1 + left_gens
             steps = np.clip(1 + left_gens, 1, n_spread)
             spreading = np.ones(len(rows), dtype=bool)
             for k in range(int(steps.max())):

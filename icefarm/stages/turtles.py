@@ -29,6 +29,7 @@ class _Turtles:
     pending_a: np.ndarray  # (t,) bool, next rewrite is p2 (A), not X
     alive: np.ndarray      # (t,) bool, False once a trajectory ends against the object
     rest: np.ndarray       # (t,) int, generations a new branch waits: its spread used them
+    last: np.ndarray       # (t,) int, generations it grows in all (a branch: its share of the water)
 
     def append(self, other: "_Turtles") -> "_Turtles":
         return _Turtles(*(np.concatenate([a, b]) for a, b in zip(vars(self).values(), vars(other).values())))
