@@ -17,6 +17,8 @@ new example cannot go unchecked:
   job, with the exports of its folder, run for real in the slow tests below. Other commands
   are known one by one (``.ci/setup.sh``, pytest, the Dask cluster's ``dask scheduler`` and
   ``dask worker``, ``usdview``).
+- ``python`` blocks: compiled here; in the slow test below, each page's blocks run in order in
+  one namespace (as a reader pastes them into one session), in the same workspace folder.
 
 Links between the pages must lead to a page and a heading that exist.
 """
@@ -239,6 +241,8 @@ def test_every_block_runs_validates_or_parses(block, workspace, monkeypatch):
     monkeypatch.chdir(workspace)
     if block.info in ("yaml", "yml"):
         check_yaml(block, workspace)
+    elif block.info == "python":
+        compile(block.text, block.name, "exec")
     elif block.info in SHELL:
         found = commands(block)
         assert found, f"{block.name}: an empty block"
@@ -302,6 +306,17 @@ def test_jobs_stopped_early_run_as_written(workspace, monkeypatch):
         result = invoke(moved_out(args, workspace))
         assert result.exit_code == 0, result.output
         assert "warning" not in result.stderr, result.stderr
+
+
+@pytest.mark.slow  # grows ice and renders thumbnails through the Python API (docs/api.md: about 20 s)
+def test_python_blocks_run_as_written(workspace, monkeypatch):
+    monkeypatch.chdir(workspace)
+    pages = {block.page for block in BLOCKS if block.info == "python"}
+    assert pages
+    for page in sorted(pages):
+        namespace: dict = {"__name__": "__main__"}
+        for block in (b for b in BLOCKS if b.page == page and b.info == "python"):
+            exec(compile(block.text, block.name, "exec"), namespace)
 
 
 @pytest.mark.slow  # runs and renders the README's first job (about 20 s), then exports it

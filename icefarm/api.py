@@ -1,0 +1,543 @@
+"""icefarm as a library: grow ice on a mesh, get typed results, write or render them.
+
+`grow` takes a `trimesh.Trimesh` (or a file, or ``generator:NAME``), a storm by name or by
+values and a seed, runs the job as ``icefarm run`` does (`icefarm.pipeline.run_job`: the
+same stages, the same figures, the same errors) and returns an `Ice`: the ice mesh, the
+icicles with their roots, tips, lengths and axes, the storm's glaze per vertex of the
+object, and the figures of ``timings.json``. `write` turns an `Ice` into a job folder that
+``icefarm render`` and ``icefarm export`` read; `render` renders it with a render config.
+
+Everything is in meters, in the job's frame: the object scaled to its real size and
+centred on the origin (as ``ice.ply`` and ``--exclude`` have it). `Ice.input_transform`
+takes it back to the frame and units of the mesh that was given.
+
+Examples
+--------
+>>> import trimesh, icefarm
+>>> ice = icefarm.grow(trimesh.creation.box((0.3, 0.3, 0.3)), placement="hanging")  # doctest: +SKIP
+>>> ice.icicles.lengths  # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import tempfile
+import warnings
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Union
+
+import numpy as np
+import numpy.typing as npt
+import trimesh
+
+from . import artifacts
+from .chain import Stage, run_stages
+from .errors import InputError, cannot_write
+from .generators import GENERATOR_PREFIX
+from .jobdir import (DONE, ERROR, ICE, PARAMS, TIMINGS, TRAJECTORIES, JobState, clear_job, read_job,
+                     stage_phrase)
+from .mesh import PreparedMesh
+from .params import Params, flatten, idle_keys, resolve
+from .pipeline import Box, JobSpec, load_object, mesh_digest, run_job
+from .placement import PLACEMENTS
+from .stage_cache import StageCache, digest, write_policy
+from .stages.trajectories import TrajectoryResult
+from .stages.trajectory_stats import measure_trajectories
+
+if TYPE_CHECKING:
+    from .scene.render import RenderResult
+    from .scene.write import JobScene
+
+__all__ = ["Ice", "Icicles", "MeshInput", "grow", "render", "write"]
+
+MeshInput = Union[trimesh.Trimesh, str, os.PathLike]
+"""What `grow` takes as the object: a mesh in memory (meters, +Y up), the path of any file
+``icefarm run`` reads (USD, glTF/GLB, OBJ, PLY, STL, OFF, ...) or ``generator:NAME``."""
+
+# `grow`'s own stage cache keeps only the proxy and the water, which it reads back (the
+# storm's glaze per vertex is not in the job folder); the other steps are not stored there.
+_PRIVATE_STEPS = ("drips", "trajectories", "landing", "ground_ice", "surface")
+_IN_MEMORY = "mesh"  # object id of a job grown on a mesh in memory
+
+
+@dataclass(frozen=True)
+class Icicles:
+    """The icicles of a grown `Ice`: one per trunk of stage 3's trajectories that grew.
+
+    Attributes
+    ----------
+    roots : (k, 3) float
+        Where each icicle hangs from the object (its trunk's first point), meters.
+    tips : (k, 3) float
+        Each icicle's tip (its trunk's last point), meters: below its root along gravity.
+    lengths : (k,) float
+        Arc length of each trunk, meters (``timings.json``'s ``trunk_lengths_m``).
+    trunks : (k,) int
+        Each icicle's trunk: its branch index in `trajectories`.
+    trajectories : TrajectoryResult
+        Every branch's axis polyline, trunks and side branches, stored flat
+        (`icefarm.stages.trajectories.TrajectoryResult`), meters; as ``trajectories.json``.
+    """
+
+    roots: npt.NDArray[np.float64]
+    tips: npt.NDArray[np.float64]
+    lengths: npt.NDArray[np.float64]
+    trunks: npt.NDArray[np.int64]
+    trajectories: TrajectoryResult
+
+    def __len__(self) -> int:
+        return len(self.trunks)
+
+    def axis(self, i: int) -> npt.NDArray[np.float64]:
+        """``(n, 3) float``: icicle ``i``'s trunk polyline, root to tip, meters."""
+        return self.trajectories.branch(int(self.trunks[i]))
+
+    @property
+    def axes(self) -> list[npt.NDArray[np.float64]]:
+        """Every icicle's trunk polyline (`axis`), ``(n_i, 3)`` meters each."""
+        return [self.axis(i) for i in range(len(self))]
+
+    @classmethod
+    def from_trajectories(cls, trajectories: TrajectoryResult, gravity: npt.ArrayLike) -> Icicles:
+        """The icicles of stage 3's ``trajectories``: the trunks (``branch_parent == -1``) of
+        more than one point, as the job counts them (a drop that falls straight onto the
+        object grows none).
+
+        Parameters
+        ----------
+        trajectories : TrajectoryResult
+            Polylines in meters.
+        gravity : (3,) float
+            Direction of gravity.
+        """
+        parent = np.asarray(trajectories.branch_parent, dtype=np.int64)
+        offsets = np.asarray(trajectories.branch_offsets, dtype=np.int64)
+        trunk = np.flatnonzero(parent < 0)
+        grew = np.diff(offsets)[trunk] > 1
+        lengths = measure_trajectories(trajectories, gravity).trunk_lengths[grew]
+        trunks = trunk[grew]
+        points = np.asarray(trajectories.points, dtype=np.float64).reshape(-1, 3)
+        return cls(roots=points[offsets[trunks]], tips=points[offsets[trunks + 1] - 1],
+                   lengths=np.asarray(lengths, dtype=np.float64), trunks=trunks, trajectories=trajectories)
+
+
+@dataclass(frozen=True, repr=False)
+class Ice:
+    """Ice grown on one object by `grow`: what a job computes, in memory.
+
+    Attributes
+    ----------
+    mesh : trimesh.Trimesh
+        The ice (icicles, their bases, the glaze, ground ice), watertight, meters; as
+        ``ice.ply``, with the ripples' bands in ``vertex_attributes`` where it has them.
+    icicles : Icicles
+        Roots, tips, lengths and axes of the icicles.
+    glaze_thickness : (n,) float or None
+        The storm's glaze per vertex of `object_mesh`, meters of ice: what the physical
+        storm froze where its rain landed and ran (`icefarm.stages.storm.StormResult.ice`,
+        taken from the nearest vertex of the surface the water ran on, a proxy or a refined
+        copy of the object). None under ``storm.mode=relative`` or painted water.
+    figures : dict
+        The job's figures as ``timings.json`` holds them (icicles, ice faces, glaze
+        coverage and percentiles, fringe, ripples, storm budget, ...), without its seconds.
+    params : Params
+        The resolved parameters the job ran with (``params.yaml``).
+    object_mesh : trimesh.Trimesh
+        The object as the stages saw it: cleaned, in meters, centred on the origin.
+    seconds : dict
+        Each step's time, seconds (``timings.json``'s ``seconds``).
+    seed : int
+    placement : {"ground", "hanging"}
+    input_transform : (4, 4) float
+        Takes the job's frame (meters, object centred) to the input mesh's frame and
+        units: ``ice.mesh.copy().apply_transform(ice.input_transform)`` lies on the asset.
+    name : str
+        The object's id: the file's stem, the generator's name, or ``mesh``.
+    """
+
+    mesh: trimesh.Trimesh
+    icicles: Icicles
+    glaze_thickness: npt.NDArray[np.float64] | None
+    figures: dict[str, Any]
+    params: Params
+    object_mesh: trimesh.Trimesh
+    seconds: dict[str, float] = field(default_factory=dict)
+    seed: int = 0
+    placement: str = "ground"
+    input_transform: npt.NDArray[np.float64] = field(default_factory=lambda: np.eye(4))
+    name: str = _IN_MEMORY
+
+    @property
+    def gravity(self) -> npt.NDArray[np.float64]:
+        """``(3,) float`` unit vector: the direction water fell (``water.gravity``)."""
+        return self.params.gravity
+
+    def write(self, folder: str | os.PathLike[str], *, config: str | os.PathLike[str] = "preview") -> Path:
+        """`write` this ice into ``folder``."""
+        return write(self, folder, config=config)
+
+    def render(self, folder: str | os.PathLike[str], config: str | os.PathLike[str] = "lookdev", *,
+               material: Mapping[str, Any] | None = None, progress: bool = False) -> RenderResult:
+        """`render` this ice into ``folder``."""
+        return render(self, folder, config, material=material, progress=progress)
+
+    def __repr__(self) -> str:
+        glaze = self.figures.get("glaze_p50_mm")
+        return (f"Ice({self.name}: {len(self.icicles)} icicles, {len(self.mesh.faces)} ice faces, "
+                f"glaze p50 {'-' if glaze is None else f'{glaze:.1f} mm'}, seed {self.seed})")
+
+
+def grow(mesh: MeshInput, *, size_m: float | None = None, storm: str | Mapping[str, Any] = "moderate",
+         kind: str = "freezing_rain", params: Mapping[str, Any] | None = None, seed: int = 0,
+         placement: str = "ground", exclude: Sequence[tuple[Sequence[float], Sequence[float]]] = (),
+         cache: str | os.PathLike[str] | None = None, progress: bool = False) -> Ice:
+    """Grow icicles and glaze on ``mesh`` under a storm, as ``icefarm run --no-render`` does.
+
+    The job runs in a temporary folder (`icefarm.pipeline.run_job`: the same stages, cache
+    keys, figures and failures as the command line) and is read back; nothing is left on
+    disk. Write it with `write`, render it with `render`.
+
+    Parameters
+    ----------
+    mesh : trimesh.Trimesh, path or str
+        A mesh in memory, in meters with +Y up (``water.gravity`` in ``params`` says
+        otherwise); the path of a file ``icefarm run`` reads (USD, glTF/GLB: their own
+        units and up axis; OBJ, PLY, STL, OFF: give ``size_m``); or ``generator:NAME``.
+    size_m : float, optional
+        The object's real height along gravity, meters (its largest extent when it lies
+        flat); the mesh is scaled to it. None: the size the mesh carries (a mesh in
+        memory, USD, glTF, a real-size generator).
+    storm : str or mapping
+        An intensity, ``light``, ``moderate`` or ``severe`` (``storm.intensity``), or
+        ``storm.*`` values, ``{"precipitation": 20, "wind": [0, 0, -8]}`` (the ``storm.``
+        prefix optional; `icefarm params` lists them).
+    kind : {"freezing_rain", "meltwater"}
+        ``storm.kind``.
+    params : mapping, optional
+        Further ``"group.param": value`` overrides (or ``{group: {param: value}}``), laid
+        last: their ``storm.*`` keys win over ``storm`` and ``kind``.
+    seed : int
+        Seed of the job's random streams: the same seed gives the same ice.
+    placement : {"ground", "hanging"}
+        ``ground``: the object stands on the ground (its sole stays dry, icicles stop at
+        the ground); ``hanging``: a sign, a branch, a lamp.
+    exclude : sequence of ((3,), (3,)) float
+        Boxes, lowest and highest corners in meters in the job's frame (object centred),
+        where no icicle hangs (``--exclude``).
+    cache : path, optional
+        A stage cache folder (``--cache``) to reuse stage results across calls.
+    progress : bool
+        Show the job's steps on stderr.
+
+    Returns
+    -------
+    Ice
+
+    Raises
+    ------
+    InputError
+        Bad input, with the message ``icefarm run`` prints: a missing file, a mesh without
+        units and no ``size_m``, an unknown storm, parameter or generator, a value out of
+        its domain, a mesh with nothing to grow on; or a job that failed on its input.
+    RuntimeError
+        A job that failed otherwise (the stage and the traceback in its message's notes).
+    """
+    source, name, written = _mesh_source(mesh)
+    size_m = _checked_size(size_m)
+    if size_m is None and written is None:
+        from .asset_io import missing_size
+
+        if why := missing_size(source):
+            raise InputError(f"{why}: pass the object's real height in meters with size_m")
+    if placement not in PLACEMENTS:
+        raise InputError(f"placement {placement!r}: one of {', '.join(PLACEMENTS)}")
+    given = {**_storm_values(storm), **flatten(dict(params or {}))}
+    values = {"storm.kind": kind, **given}
+    resolved = _resolved(source, written, values)
+    for line in idle_keys(given, resolved.storm.mode):
+        warnings.warn(line, UserWarning, stacklevel=2)
+    if resolved.growth.frames:
+        raise InputError("growth.frames: grow() returns the full-grown ice; the frames are the job folder's "
+                         "(icefarm run --growth-frames)")
+    boxes = _boxes(exclude)
+    with tempfile.TemporaryDirectory(prefix="icefarm-") as tmp:
+        if written is not None:
+            source = str(_write_input(written, Path(tmp)))
+        spec = JobSpec(object_id=name, mesh=source, size_m=size_m, params=resolved, seed=int(seed),
+                       exclude=boxes, placement=placement)
+        prepared = load_object(spec)  # a bad mesh fails here, in its own words
+        cache_dir = Path(cache) if cache is not None else Path(tmp) / "cache"
+        if cache is None:
+            write_policy(cache_dir, list(_PRIVATE_STEPS))
+        job_dir = Path(tmp) / "job"
+        outcome = run_job(spec, job_dir, cache_dir, progress=progress)
+        if outcome.status is not JobState.DONE:
+            _raise_failure(job_dir, outcome.failed_stage, outcome.error)
+        job = read_job(job_dir)
+        ice_mesh = artifacts.read_ice_mesh(job_dir / ICE)
+        trajectories = artifacts.trajectories_from_json(job_dir / TRAJECTORIES)
+        glaze = _glaze_thickness(spec, prepared, StageCache(cache_dir))
+    if not isinstance(ice_mesh, trimesh.Trimesh):  # no ice at all reads back as an empty scene
+        ice_mesh = trimesh.Trimesh()
+    return Ice(mesh=ice_mesh, icicles=Icicles.from_trajectories(trajectories, resolved.gravity),
+               glaze_thickness=glaze, figures=dict(job.stats), params=resolved, object_mesh=prepared.mesh,
+               seconds=dict(job.seconds), seed=int(seed), placement=placement,
+               input_transform=_input_transform(prepared), name=name)
+
+
+def write(ice: Ice, folder: str | os.PathLike[str], *, config: str | os.PathLike[str] = "preview") -> Path:
+    """Write ``ice`` into ``folder`` as a finished job that ``icefarm render`` and ``icefarm
+    export`` read: ``params.yaml``, ``ice.ply``, ``trajectories.json``, the scene of render
+    config ``config`` without rendering it (``object.ply``, ``scene.json``, ``scene.xml``,
+    ``scene.pov``, ``views.json``, the sky), ``timings.json`` and ``done.json`` last.
+
+    What an earlier job wrote in ``folder`` is removed first (`icefarm.jobdir.clear_job`);
+    other files stay. Stage 1-2's diagnostics (``water.ply``, ``drips.json``) are
+    ``icefarm run``'s only.
+
+    Parameters
+    ----------
+    ice : Ice
+    folder : path
+    config : str or path
+        A render config name (``preview``, ``lookdev``, ``final``) or YAML path: the
+        cameras and look the scene files are written with.
+
+    Returns
+    -------
+    Path
+        ``folder``.
+
+    Raises
+    ------
+    InputError
+        A bad render config, or a folder that cannot be written.
+    """
+    from .scene.config import load_render_config
+    from .scene.write import write_scenes
+
+    render_config = load_render_config(config)
+    scene = _scene(ice, None)
+    folder = _job_folder(ice, folder)
+    try:  # as `render_job` writes a job's scene, without rendering it
+        write_scenes(folder, scene.object_mesh, scene.ice_mesh, render_config, scene.gravity, scene.material,
+                     frame_points=scene.frame_points, impurity=scene.impurity, ground_level=scene.ground_level,
+                     icicle_axes=scene.icicle_axes)
+    except OSError as exc:
+        raise cannot_write(exc, f"the job folder {folder}") from None
+    _finish(ice, folder, {})
+    return folder
+
+
+def render(ice: Ice, folder: str | os.PathLike[str], config: str | os.PathLike[str] = "lookdev", *,
+           material: Mapping[str, Any] | None = None, progress: bool = False) -> RenderResult:
+    """Write ``ice`` into ``folder`` (as `write` does) and render it, as a job renders.
+
+    The scene and the renders are `icefarm.scene.render.render_job`'s: ``render.exr``,
+    ``render.png`` and one pair per further view of the config.
+
+    Parameters
+    ----------
+    ice : Ice
+    folder : path
+    config : str or path
+        A render config name (``preview``, ``lookdev``, ``final``) or YAML path.
+    material : mapping, optional
+        The object's material, ``{type, color, roughness, metal}``; default clay.
+    progress : bool
+        A progress bar over long renders.
+
+    Returns
+    -------
+    icefarm.scene.render.RenderResult
+        Timings, the renderer and variant, and the images (``files``, the main view's first).
+
+    Raises
+    ------
+    InputError
+        A bad render config or material, a renderer that cannot run here, or a folder that
+        cannot be written.
+    """
+    from .scene.config import load_render_config
+    from .scene.render import render_job
+
+    render_config = load_render_config(config)
+    scene = _scene(ice, material)  # a bad material fails before the folder is touched
+    folder = _job_folder(ice, folder)
+    result = render_job(folder, render_config, scene, progress=progress)
+    _finish(ice, folder, {"render": round(result.seconds, 6)}, {
+        "object_material": scene.material.to_dict(), "render_variant": result.variant,
+        "render_integrator": result.integrator, "renderer": result.renderer, "render_seconds": result.seconds,
+        "scene_seconds": result.scene_seconds})
+    return result
+
+
+# ---------------------------------------------------------------- grow's input
+def _mesh_source(mesh: MeshInput) -> tuple[str, str, trimesh.Trimesh | None]:
+    """``(source, name, in memory)``: the path or ``generator:NAME`` a job reads (empty for
+    a mesh in memory, written later), its object id, and the mesh in memory if it is one."""
+    if isinstance(mesh, trimesh.Trimesh):
+        if len(mesh.faces) == 0 or not np.isfinite(mesh.vertices).all():
+            raise InputError("the mesh is empty or has non-finite vertices")
+        return "", _IN_MEMORY, mesh
+    if isinstance(mesh, trimesh.Scene):
+        raise InputError("a trimesh.Scene: pass one mesh (scene.to_geometry() or scene.dump(concatenate=True))")
+    if not isinstance(mesh, (str, os.PathLike)):
+        raise InputError(f"mesh must be a trimesh.Trimesh, a path or generator:NAME, not {type(mesh).__name__}")
+    text = os.fspath(mesh)
+    if isinstance(text, str) and text.startswith(GENERATOR_PREFIX):
+        return text, text[len(GENERATOR_PREFIX):], None
+    path = Path(text)
+    if not path.is_file():
+        raise InputError(f"mesh file not found: {text}")
+    return str(path.resolve()), path.stem, None
+
+
+def _checked_size(size_m: float | None) -> float | None:
+    if size_m is None:
+        return None
+    try:
+        size = float(size_m)
+    except (TypeError, ValueError):
+        size = math.nan
+    if not (math.isfinite(size) and size > 0):
+        raise InputError(f"size_m {size_m!r}: the object's real height in meters is a number above 0")
+    from .asset_io import size_hint
+
+    if hint := size_hint(size):
+        warnings.warn(hint, UserWarning, stacklevel=3)
+    return size
+
+
+def _storm_values(storm: str | Mapping[str, Any]) -> dict[str, Any]:
+    """``storm`` as flat ``storm.*`` values: a name is ``storm.intensity``."""
+    if isinstance(storm, str):
+        return {"storm.intensity": storm}
+    if not isinstance(storm, Mapping):
+        raise InputError(f"storm must be an intensity (light, moderate, severe) or a mapping of storm.* "
+                         f"values, not {type(storm).__name__}")
+    return {key if str(key).startswith("storm.") else f"storm.{key}": value for key, value in storm.items()}
+
+
+def _resolved(source: str, written: trimesh.Trimesh | None, values: dict[str, Any]) -> Params:
+    """The job's parameters: ``values`` over the defaults, gravity from a file's up axis
+    unless they set it (a mesh in memory is +Y up)."""
+    if written is not None:
+        return resolve(values)
+    from .asset_io import with_asset_gravity
+
+    return resolve(with_asset_gravity(source, values))
+
+
+def _write_input(mesh: trimesh.Trimesh, folder: Path) -> Path:
+    """A mesh in memory as a GLB in ``folder``: glTF carries meters, so the job keeps its size
+    (``size_m`` None) as it would a GLB's."""
+    path = folder / f"{_IN_MEMORY}.glb"
+    plain = trimesh.Trimesh(np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.faces), process=False)
+    path.write_bytes(plain.export(file_type="glb"))
+    return path
+
+
+def _glaze_thickness(spec: JobSpec, prepared: PreparedMesh, cache: StageCache) -> npt.NDArray[np.float64] | None:
+    """The storm's glaze per vertex of the object, from the job's water stage in ``cache``;
+    None without a storm, or when the water is not there (not recomputed)."""
+    class Missing(Exception):
+        pass
+
+    def cached(name: str, key: str | None, work: Any) -> Any:
+        def missing() -> Any:
+            raise Missing(name)
+
+        return cache.get(name, key, missing) if key else missing()
+
+    p = spec.params
+    try:  # the pipeline's mesh key (icefarm.pipeline._run_stages), so the same entries are read
+        r = run_stages(prepared, p, spec.seed, placement=spec.placement, exclude=spec.exclude, until=Stage.WATER,
+                       mesh_key=digest(mesh_digest(spec.mesh), spec.size_m, p.water.gravity), step=cached)
+    except Missing:
+        return None
+    storm = r.water.storm if r.water is not None else None
+    if storm is None:
+        return None
+    ice = np.asarray(storm.ice, dtype=np.float64)
+    obj = prepared.mesh
+    if r.flow is obj:
+        return ice
+    from scipy.spatial import cKDTree
+
+    return ice[cKDTree(r.flow.vertices).query(obj.vertices)[1]]
+
+
+def _raise_failure(job_dir: Path, stage: str | None, message: str | None) -> None:
+    """A failed job as an exception: its own `InputError` again, anything else a RuntimeError
+    carrying the traceback."""
+    error = read_job(job_dir)
+    text = error.traceback or ""
+    last = text.strip().splitlines()[-1] if text.strip() else ""
+    if last.startswith(f"{InputError.__module__}.{InputError.__name__}:"):
+        raise InputError(message)
+    exc = RuntimeError(f"job failed {stage_phrase(stage)}: {message}")
+    if hasattr(exc, "add_note"):  # Python 3.11 and later
+        exc.add_note(f"the job's traceback (its {ERROR}):\n{text}")
+    raise exc
+
+
+def _boxes(exclude: Sequence[tuple[Sequence[float], Sequence[float]]]) -> tuple[Box, ...]:
+    """``exclude`` as the job's `Box` es, each corner three finite numbers."""
+    boxes = []
+    for box in exclude:
+        try:
+            lo, hi = (np.asarray(corner, dtype=np.float64) for corner in box)
+        except (TypeError, ValueError):
+            lo = hi = np.zeros(0)
+        if lo.shape != (3,) or hi.shape != (3,) or not (np.isfinite(lo).all() and np.isfinite(hi).all()):
+            raise InputError(f"exclude box {box!r}: two corners of three numbers, meters, lowest first")
+        boxes.append(Box(tuple(lo.tolist()), tuple(hi.tolist())))
+    return tuple(boxes)
+
+
+def _input_transform(prepared: PreparedMesh) -> npt.NDArray[np.float64]:
+    """``(4, 4)``: the job's frame back to the input's, ``(v + offset) / scale``."""
+    matrix = np.eye(4) / prepared.scale
+    matrix[3, 3] = 1.0
+    matrix[:3, 3] = np.asarray(prepared.offset, dtype=np.float64) / prepared.scale
+    return matrix
+
+
+# ---------------------------------------------------------------- write's and render's folder
+def _scene(ice: Ice, material: Mapping[str, Any] | None) -> JobScene:
+    """The `JobScene` of ``ice``, framed as the pipeline frames a job's."""
+    from .scene.write import job_scene
+
+    return job_scene(ice.object_mesh, ice.mesh, ice.gravity, material=material, placement=ice.placement,
+                     impurity=ice.params.surface.impurity, icicle_axes=ice.icicles.trajectories.points)
+
+
+def _job_folder(ice: Ice, folder: str | os.PathLike[str]) -> Path:
+    """``folder`` cleared of an earlier job's files (as `run_job` clears it), with this
+    job's parameters, ice and trajectories."""
+    path = Path(folder)
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+        clear_job(path)
+        artifacts.write_yaml(path / PARAMS, ice.params.as_dict())
+        artifacts.write_mesh(path / ICE, ice.mesh)
+        artifacts.write_json(path / TRAJECTORIES, artifacts.trajectories_to_json(ice.icicles.trajectories))
+    except OSError as exc:
+        raise cannot_write(exc, f"the job folder {path}") from None
+    return path
+
+
+def _finish(ice: Ice, folder: Path, seconds: dict[str, float], figures: Mapping[str, Any] | None = None) -> None:
+    """The job's ``timings.json`` and, last, ``done.json`` listing every file."""
+    stats = {**ice.figures, **(figures or {})}
+    steps = {**ice.seconds, **seconds}
+    try:
+        artifacts.write_json(folder / TIMINGS, {"seconds": steps, **stats, "reused": []})
+        artifacts.write_json(folder / DONE, {"job": ice.name, "seconds": steps, "reused": [], **stats,
+                                             "artifacts": artifacts.list_artifacts(folder)})
+    except OSError as exc:
+        raise cannot_write(exc, f"the job folder {folder}") from None
