@@ -25,7 +25,7 @@ import os
 import tempfile
 import warnings
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Union
 
@@ -51,7 +51,7 @@ if TYPE_CHECKING:
     from .scene.render import RenderResult
     from .scene.write import JobScene
 
-__all__ = ["Ice", "Icicles", "MeshInput", "grow", "render", "write"]
+__all__ = ["Ice", "Icicles", "MeshInput", "grow", "job_spec", "render", "write"]
 
 MeshInput = Union[trimesh.Trimesh, str, os.PathLike]
 """What `grow` takes as the object: a mesh in memory (meters, +Y up), the path of any file
@@ -63,7 +63,7 @@ _PRIVATE_STEPS = ("drips", "trajectories", "landing", "ground_ice", "surface")
 _IN_MEMORY = "mesh"  # object id of a job grown on a mesh in memory
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Icicles:
     """The icicles of a grown `Ice`: one per trunk of stage 3's trajectories that grew.
 
@@ -124,7 +124,7 @@ class Icicles:
                    lengths=np.asarray(lengths, dtype=np.float64), trunks=trunks, trajectories=trajectories)
 
 
-@dataclass(frozen=True, repr=False)
+@dataclass(frozen=True, eq=False, repr=False)
 class Ice:
     """Ice grown on one object by `grow`: what a job computes, in memory.
 
@@ -246,29 +246,23 @@ def grow(mesh: MeshInput, *, size_m: float | None = None, storm: str | Mapping[s
         A job that failed otherwise (the stage and the traceback in its message's notes).
     """
     source, name, written = _mesh_source(mesh)
-    size_m = _checked_size(size_m)
-    if size_m is None and written is None:
-        from .asset_io import missing_size
-
-        if why := missing_size(source):
-            raise InputError(f"{why}: pass the object's real height in meters with size_m")
-    if placement not in PLACEMENTS:
-        raise InputError(f"placement {placement!r}: one of {', '.join(PLACEMENTS)}")
-    given = {**_storm_values(storm), **flatten(dict(params or {}))}
-    values = {"storm.kind": kind, **given}
-    resolved = _resolved(source, written, values)
-    for line in idle_keys(given, resolved.storm.mode):
-        warnings.warn(line, UserWarning, stacklevel=2)
-    if resolved.growth.frames:
-        raise InputError("growth.frames: grow() returns the full-grown ice; the frames are the job folder's "
-                         "(icefarm run --growth-frames)")
-    boxes = _boxes(exclude)
+    options = dict(size_m=size_m, storm=storm, kind=kind, params=params, seed=seed, placement=placement,
+                   exclude=exclude)
     with tempfile.TemporaryDirectory(prefix="icefarm-") as tmp:
-        if written is not None:
-            source = str(_write_input(written, Path(tmp)))
-        spec = JobSpec(object_id=name, mesh=source, size_m=size_m, params=resolved, seed=int(seed),
-                       exclude=boxes, placement=placement)
-        prepared = load_object(spec)  # a bad mesh fails here, in its own words
+        try:
+            if written is not None:  # glTF carries meters and +Y up: the job keeps the mesh as it is
+                source = str(_write_input(written, Path(tmp)))
+            spec = job_spec(source, **options, warn_stacklevel=3)
+            if written is not None:
+                spec = replace(spec, object_id=name)
+            prepared = load_object(spec)  # a bad mesh fails here, in its own words
+        except InputError as exc:
+            if written is None:
+                raise
+            raise InputError(str(exc).replace(f"mesh {source}", "the mesh").replace(source, "the mesh")) from None
+        if spec.params.growth.frames:
+            raise InputError("growth.frames: grow() returns the full-grown ice; the frames are the job folder's "
+                             "(icefarm run --growth-frames)")
         cache_dir = Path(cache) if cache is not None else Path(tmp) / "cache"
         if cache is None:
             write_policy(cache_dir, list(_PRIVATE_STEPS))
@@ -282,10 +276,71 @@ def grow(mesh: MeshInput, *, size_m: float | None = None, storm: str | Mapping[s
         glaze = _glaze_thickness(spec, prepared, StageCache(cache_dir))
     if not isinstance(ice_mesh, trimesh.Trimesh):  # no ice at all reads back as an empty scene
         ice_mesh = trimesh.Trimesh()
-    return Ice(mesh=ice_mesh, icicles=Icicles.from_trajectories(trajectories, resolved.gravity),
-               glaze_thickness=glaze, figures=dict(job.stats), params=resolved, object_mesh=prepared.mesh,
-               seconds=dict(job.seconds), seed=int(seed), placement=placement,
-               input_transform=_input_transform(prepared), name=name)
+    return Ice(mesh=ice_mesh, icicles=Icicles.from_trajectories(trajectories, spec.params.gravity),
+               glaze_thickness=glaze, figures=dict(job.stats), params=spec.params, object_mesh=prepared.mesh,
+               seconds=dict(job.seconds), seed=spec.seed, placement=spec.placement,
+               input_transform=_input_transform(prepared), name=spec.object_id)
+
+
+def job_spec(mesh: str | os.PathLike[str], *, size_m: float | None = None, storm: str | Mapping[str, Any] = "moderate",
+             kind: str = "freezing_rain", params: Mapping[str, Any] | None = None, seed: int = 0,
+             placement: str = "ground", exclude: Sequence[tuple[Sequence[float], Sequence[float]]] = (),
+             render: str | os.PathLike[str] | None = None, warn_stacklevel: int = 2) -> JobSpec:
+    """The `icefarm.pipeline.JobSpec` of a job on a file or a generator, its input checked
+    once, as `grow` checks it: for a caller that runs the job into a folder of its own
+    (`icefarm.pipeline.run_job`), as ``icefarm run`` does.
+
+    Parameters
+    ----------
+    mesh : path or str
+        A file ``icefarm run`` reads, or ``generator:NAME``.
+    size_m, storm, kind, params, seed, placement, exclude
+        As `grow` takes them.
+    render : str or path, optional
+        A render config name or YAML path (checked here, a path made absolute); None: no
+        render.
+    warn_stacklevel : int
+        Where the warnings point (a parameter the storm's mode does not read, an unlikely
+        size): 2, the caller.
+
+    Returns
+    -------
+    JobSpec
+
+    Raises
+    ------
+    InputError
+        As `grow` raises it for its input.
+    """
+    source, name, _ = _mesh_source(mesh)
+    if isinstance(mesh, trimesh.Trimesh):
+        raise InputError("job_spec takes a file or generator:NAME; grow() takes a mesh in memory")
+    size = _checked_size(size_m, warn_stacklevel + 1)
+    if size is None:
+        from .asset_io import missing_size
+
+        if why := missing_size(source):
+            raise InputError(f"{why}: pass the object's real height in meters with size_m")
+    if placement not in PLACEMENTS:
+        raise InputError(f"placement {placement!r}: one of {', '.join(PLACEMENTS)}")
+    given = {**_storm_values(storm), **flatten(dict(params or {}))}
+    from .asset_io import with_asset_gravity
+
+    resolved = resolve(with_asset_gravity(source, {"storm.kind": kind, **given}))
+    # Warned about: what the caller set that the storm's mode does not read (the defaults
+    # of ``storm`` and ``kind`` stand for no choice)
+    chosen = [key for key in given if not (key == "storm.intensity" and storm == "moderate")]
+    chosen += ["storm.kind"] if kind != "freezing_rain" else []
+    for line in idle_keys(chosen, resolved.storm.mode):
+        warnings.warn(line, UserWarning, stacklevel=warn_stacklevel)
+    if render is not None:
+        from .scene.config import load_render_config
+
+        load_render_config(render)  # a bad config fails now, in one line, not after the stages
+        if Path(render).expanduser().is_file():
+            render = str(Path(render).expanduser().resolve())
+    return JobSpec(object_id=name, mesh=source, size_m=size, params=resolved, seed=int(seed),
+                   render=None if render is None else str(render), exclude=_boxes(exclude), placement=placement)
 
 
 def write(ice: Ice, folder: str | os.PathLike[str], *, config: str | os.PathLike[str] = "preview") -> Path:
@@ -396,7 +451,7 @@ def _mesh_source(mesh: MeshInput) -> tuple[str, str, trimesh.Trimesh | None]:
     return str(path.resolve()), path.stem, None
 
 
-def _checked_size(size_m: float | None) -> float | None:
+def _checked_size(size_m: float | None, stacklevel: int) -> float | None:
     if size_m is None:
         return None
     try:
@@ -408,7 +463,7 @@ def _checked_size(size_m: float | None) -> float | None:
     from .asset_io import size_hint
 
     if hint := size_hint(size):
-        warnings.warn(hint, UserWarning, stacklevel=3)
+        warnings.warn(hint, UserWarning, stacklevel=stacklevel)
     return size
 
 
@@ -420,16 +475,6 @@ def _storm_values(storm: str | Mapping[str, Any]) -> dict[str, Any]:
         raise InputError(f"storm must be an intensity (light, moderate, severe) or a mapping of storm.* "
                          f"values, not {type(storm).__name__}")
     return {key if str(key).startswith("storm.") else f"storm.{key}": value for key, value in storm.items()}
-
-
-def _resolved(source: str, written: trimesh.Trimesh | None, values: dict[str, Any]) -> Params:
-    """The job's parameters: ``values`` over the defaults, gravity from a file's up axis
-    unless they set it (a mesh in memory is +Y up)."""
-    if written is not None:
-        return resolve(values)
-    from .asset_io import with_asset_gravity
-
-    return resolve(with_asset_gravity(source, values))
 
 
 def _write_input(mesh: trimesh.Trimesh, folder: Path) -> Path:

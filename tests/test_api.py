@@ -5,6 +5,7 @@ words."""
 from __future__ import annotations
 
 import ast
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -110,6 +111,52 @@ def test_write_makes_a_job_that_icefarm_render_renders(box_ice, tiny_config, tmp
     assert jobdir.read_job(tmp_path / "rendered").stats["render_variant"] == rendered.variant
 
 
+TUBES = {"surface.mode": "tubes"}  # swept tubes, no glaze mesh: a job in about a second
+
+
+def test_a_file_at_a_real_size_and_the_relative_storm(tmp_path):
+    path = tmp_path / "crate.ply"
+    trimesh.creation.box((3.0, 3.0, 3.0)).export(path)  # a file without units
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # the storm's defaults are no choice to warn about
+        ice = icefarm.grow(path, size_m=0.3, params={**TUBES, "storm.mode": "relative"}, placement="hanging")
+    assert ice.name == "crate" and ice.params.storm.mode == "relative" and ice.glaze_thickness is None
+    assert np.allclose(ice.object_mesh.extents, 0.3, atol=1e-6)
+    back = ice.object_mesh.copy().apply_transform(ice.input_transform)
+    assert np.allclose(back.bounds, [[-1.5] * 3, [1.5] * 3], atol=1e-5)  # the file's own units
+    assert len(ice.icicles) == ice.figures["icicles"]
+
+
+def test_a_job_spec_for_the_command_line(tmp_path):
+    config = tmp_path / "tiny.yaml"
+    config.write_text("resolution: [64, 48]\n")
+    spec = api.job_spec("generator:sign", storm={"precipitation": 12}, seed=4, render=config,
+                        exclude=[((-1, -1, -1), (0, 0, 0))])
+    assert spec.mesh == "generator:sign" and spec.object_id == "sign" and spec.seed == 4
+    assert spec.params.storm.precipitation == 12 and spec.render == str(config.resolve())
+    assert spec.exclude == (((-1.0, -1.0, -1.0), (0.0, 0.0, 0.0)),)
+    with pytest.raises(InputError, match="render config 'previw'.*did you mean 'preview'"):
+        api.job_spec("generator:sign", render="previw")
+
+
+@pytest.mark.parametrize("raised, caught, message", [
+    (InputError("a painted water.ply with 3 vertices"), InputError, "^a painted water.ply with 3 vertices$"),
+    (ValueError("a bug"), RuntimeError, "^job failed after stage prepare: ValueError: a bug"),
+])
+def test_a_job_that_fails_inside_raises_its_error(raised, caught, message, monkeypatch):
+    from icefarm import pipeline
+
+    def fail(*args, **kwargs):
+        raise raised
+
+    monkeypatch.setattr(pipeline, "run_stages", fail)
+    with pytest.raises(caught, match=message) as info:
+        icefarm.grow("generator:sign")
+    assert "\n" not in str(info.value)
+    if caught is RuntimeError:  # the job's traceback in the notes (Python 3.11 and later)
+        assert "Traceback" in "".join(getattr(info.value, "__notes__", ["Traceback"]))
+
+
 # ---------------------------------------------------------------- errors, as the command line says them
 def cli_error(args: list[str], tmp_path: Path) -> str:
     """What ``icefarm run ARGS`` says after ``error:`` (it fails before running anything)."""
@@ -142,7 +189,7 @@ def test_bad_input_raises_the_clis_message(args, kwargs, tmp_path, monkeypatch):
 
 @pytest.mark.parametrize("kwargs, message", [
     ({"mesh": trimesh.Trimesh()}, "the mesh is empty"),
-    ({"mesh": trimesh.Trimesh([[0, 0, 0], [0, 0, 0], [0, 0, 0]], [[0, 1, 2]])}, "no extent"),
+    ({"mesh": trimesh.Trimesh([[0, 0, 0], [0, 0, 0], [0, 0, 0]], [[0, 1, 2]])}, "^the mesh has no extent"),
     ({"mesh": trimesh.creation.box(), "placement": "floating"}, "placement 'floating': one of ground, hanging"),
     ({"mesh": trimesh.creation.box(), "size_m": 0}, "size_m 0: the object's real height"),
     ({"mesh": trimesh.creation.box(), "storm": 3}, "storm must be an intensity"),
