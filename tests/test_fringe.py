@@ -173,3 +173,18 @@ def test_an_icicle_stops_short_of_what_lies_below_it():
     assert not r.trajectories.cut[trunks].any()  # none reached the ground
     _, lengths = trunk_lengths(r.trajectories)
     assert lengths.max() > 0.3  # the winners still grow long
+
+
+def test_the_icicles_the_cold_limits_are_not_all_one_length():
+    # A meltwater eave's winners all reached the heat limit and hung as an even comb; each
+    # icicle's share of the cold (exposure, start) varies, and so does its limit.
+    sizing = _sizing(kind="meltwater")
+    flood = np.full(5, 1e-2)  # far more water than any of them can freeze
+    alike = sizing.length(flood, np.ones(5))
+    assert np.ptp(alike) == pytest.approx(0.0)
+    exposure = np.array([0.5, 0.8, 1.0, 1.25, 2.0])
+    varied = sizing.length(flood, np.ones(5), exposure)
+    assert (np.diff(varied) > 0).all() and varied[-1] / varied[0] > 2.5
+    assert varied[2] == pytest.approx(alike[2])
+    short = np.full(5, 1e-6)  # icicles their water limits keep their length
+    assert np.allclose(sizing.length(short, np.ones(5), exposure), sizing.length(short, np.ones(5)))

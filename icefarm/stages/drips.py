@@ -20,9 +20,8 @@ import trimesh
 
 from ..geometry import inside, perpendicular_basis, ray_caster, sample_faces, unit
 from ..tol import tol
-from .rims import (FUSE_MARGIN, RIM_REACH, SAMPLES_PER_SPACING, catchment_volume, catchment_water, compete, drip_flux,
-                   rim_half_edges, rim_points, swallow)
-
+from .rims import (FUSE_MARGIN, HEAT_SPREAD, RIM_REACH, SAMPLES_PER_SPACING, catchment_volume, catchment_water,
+                   compete, drip_flux, rim_half_edges, rim_points, swallow)
 
 @dataclass(frozen=True)
 class DripResult:
@@ -380,15 +379,17 @@ def find_drips(mesh: trimesh.Trimesh, water: np.ndarray, gravity, count: int, dr
         # into the glaze, their water dripping off the rim.
         volume = catchment_volume(mesh, flux, region, gravity, positions, step, reach=RIM_REACH * max(spacing, step))
         volume, active = compete(volume, positions, rng, spacing)
+        # half of them had the storm's whole cold, the others less (a later start, shelter)
+        exposure = np.minimum(1.0, rng.lognormal(0.0, HEAT_SPREAD, len(volume)))
         kept = np.ones(len(volume), dtype=bool)
         if sizing is not None:
-            volume, active, kept = swallow(volume, active, positions, sizing, gravity)
+            volume, active, kept = swallow(volume, active, positions, sizing, gravity, exposure=exposure)
             if min_fall > 0 and kept.any():  # an icicle that would touch a wall below its rim runs down it
-                length = sizing.length(volume[kept], active[kept])
+                length = sizing.length(volume[kept], active[kept], exposure[kept])
                 depth = 0.5 * length
                 clear = sizing.radius(length, active[kept], depth) + FUSE_MARGIN
                 kept[kept] = side_room(caster, mesh.face_normals, positions[kept], gravity, depth, clear)
-        coefficients = volume if sizing is None else sizing.length(volume, active) / length_scale
+        coefficients = volume if sizing is None else sizing.length(volume, active, exposure) / length_scale
         if sizing is not None and min_fall > 0:
             # An icicle stops short of what lies below it (the water then drips onto it): grown
             # down to it, the icicle was cut there and thickened into a pillar (the fountain's

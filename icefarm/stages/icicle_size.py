@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from .rims import CAPTURE_POWER, CAPTURE_REACH, CAPTURE_ROUNDS, CAPTURE_SCALE, FUSE_MARGIN, NUCLEUS_SPREAD
+from .rims import CAPTURE_POWER, CAPTURE_REACH, CAPTURE_ROUNDS, CAPTURE_SCALE, FUSE_MARGIN, HEAT_SPREAD, NUCLEUS_SPREAD
 from .storm import GROWTH_MAX, WATER_TO_ICE, Constant, precipitation_m
 from .surface.profile import smooth_radius
 
@@ -99,15 +99,15 @@ def length_from_volume(volume, tip: float, growth: float, shape: str = "physical
     return _bisect(lambda L: held(L) < volume, np.zeros_like(volume))
 
 
-def heat_limited_length(storm, surface, active=None, count: int = 1) -> np.ndarray:
+def heat_limited_length(storm, surface, active=None, count: int = 1, exposure=None) -> np.ndarray:
     """``(k,)`` meters: the longest icicle the storm's cold can freeze, whatever its water.
 
     Its ice (`icicle_volume`) grows about as L^3 and the heat its surface loses over the
     storm (`icicle_area` times `ICICLE_HEAT` times a level face's budget, ``storm.freeze``
     of the precipitation) as L^2: past the length where they meet, more water drips off the
     tip instead of lengthening it. ``active`` (k,) thins the icicles its neighbours starved
-    (`thickening_m`). Stubs (the growth ratio above ``surface.growth_ratio``) are never
-    limited."""
+    (`thickening_m`); ``exposure`` (k,) scales each one's share of the cold (`HEAT_SPREAD`).
+    Stubs (the growth ratio above ``surface.growth_ratio``) are never limited."""
     share = np.ones(count) if active is None else np.asarray(active, dtype=np.float64).reshape(-1)
     # Freezing rain's cold comes with its rain; meltwater refreezes at the eave in the nights'
     # frost, for as many nights as the snow lasts: at least a moderate storm's budget.
@@ -115,6 +115,8 @@ def heat_limited_length(storm, surface, active=None, count: int = 1) -> np.ndarr
     if storm.kind == "meltwater":
         depth = max(depth, precipitation_m("moderate"))
     budget = ICICLE_HEAT[storm.kind] * storm.freeze * depth * WATER_TO_ICE
+    if exposure is not None:
+        budget = budget * np.asarray(exposure, dtype=np.float64).reshape(-1)
     thick = thickening_m(storm, share)
     tip, growth, shape = surface.tip_radius, surface.growth_ratio, surface.profile
 
@@ -141,18 +143,19 @@ def thickening_m(storm, active=None):
     return full * (STARVED_BASE + (1.0 - STARVED_BASE) * np.asarray(active, dtype=np.float64))
 
 
-def icicle_lengths(volume, storm, surface, active=None) -> np.ndarray:
+def icicle_lengths(volume, storm, surface, active=None, exposure=None) -> np.ndarray:
     """``(k,)`` meters: icicles from ``volume`` (k,) m^3 of water reaching their drip points.
 
     ``storm.icicle_share`` of it freezes on the icicle (the rest drips off its tip); the
     ice's volume gives the length through the icicle's profile (`length_from_volume` with
     ``surface.tip_radius`` and ``profile``; each icicle thickens `thickening_m`, for the share
     ``active`` (k,) of the storm it was fed), up to what the storm's cold can freeze
-    (`heat_limited_length`), and less the more water it was fed past that (`WARM_WATER`)."""
+    (`heat_limited_length`, each with its ``exposure`` (k,) to the cold), and less the more
+    water it was fed past that (`WARM_WATER`)."""
     ice = np.asarray(volume, dtype=np.float64).reshape(-1) * storm.icicle_share * WATER_TO_ICE
     fed = length_from_volume(ice, surface.tip_radius, surface.growth_ratio, surface.profile,
                              thickening=thickening_m(storm, active))
-    cap = heat_limited_length(storm, surface, active, len(ice))
+    cap = heat_limited_length(storm, surface, active, len(ice), exposure)
     thick = thickening_m(storm, active)
     frozen = icicle_volume(cap, surface.tip_radius, growth_ratios(cap, thick, surface.growth_ratio), surface.profile)
     excess = np.divide(ice, frozen, out=np.ones_like(ice), where=frozen > 0)
@@ -178,9 +181,9 @@ class IcicleSizing:
     surface: Any
     branch_reach: float = 0.0
 
-    def length(self, volume, active=None) -> np.ndarray:
+    def length(self, volume, active=None, exposure=None) -> np.ndarray:
         """``(k,)`` meters: `icicle_lengths` of ``volume`` (k,) m^3 of water."""
-        return icicle_lengths(volume, self.storm, self.surface, active)
+        return icicle_lengths(volume, self.storm, self.surface, active, exposure)
 
     def radius(self, length, active, depth) -> np.ndarray:
         """``(k,)`` meters: the smooth radius of icicles ``length`` (k,) long, fed ``active``
@@ -205,6 +208,8 @@ def constants() -> tuple[Constant, ...]:
         Constant("WARM_WATER", WARM_WATER, "-", ">= 0",
                  "freezing rain past the heat limit: length x (water / what freezes)^-this (more water, "
                  "slower lengthening: Makkonen 1988, Maeno et al. 1994)"),
+        Constant("HEAT_SPREAD", HEAT_SPREAD, "-", ">= 0",
+                 "each icicle's share of the cold: min(1, log-normal of this sigma): a later start, shelter (chosen)"),
         Constant("BRANCH_LIFE", BRANCH_LIFE, "-", "]0, 1]",
                  "a side branch grows for this share of its icicle's generations left (chosen: no claws)"),
         Constant("STARVED_BASE", STARVED_BASE, "-", "[0, 1]", "a starved icicle's least share of the base's thickening"),

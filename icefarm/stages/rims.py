@@ -48,6 +48,11 @@ CAPTURE_REACH = 4.0
 CAPTURE_SCALE = 3.0
 CAPTURE_POWER = 3.0
 NUCLEUS_SPREAD = 0.5
+# Each icicle's share of the storm's cold varies: half of them have it all, the others less
+# (their drip started a night later, they hang sheltered from the wind or the sky): a factor
+# min(1, log-normal of this sigma) on its heat budget, so that the icicles the cold limits are
+# not all one length (a meltwater eave's winners hung as an even comb). Chosen.
+HEAT_SPREAD = 0.4
 ACTIVE_FEED = 0.25
 # Icicles whose surfaces come closer than this (m) at half the shorter one's length fuse in
 # the metaball field (`swallow`); the passes settle the few that grew into a neighbour.
@@ -351,7 +356,8 @@ def compete(volume: np.ndarray, positions: np.ndarray, rng: np.random.Generator,
 
 
 def swallow(volume: np.ndarray, active: np.ndarray, positions: np.ndarray, sizing, gravity,
-            margin: float = FUSE_MARGIN) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+            margin: float = FUSE_MARGIN, exposure: np.ndarray | None = None
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Drip points under the flank of a bigger icicle feed it instead of hanging their own.
 
     From the longest icicle down, each drip point whose icicle would touch a longer one's
@@ -370,6 +376,8 @@ def swallow(volume: np.ndarray, active: np.ndarray, positions: np.ndarray, sizin
         Roots at different heights are compared at the same level.
     margin : float
         Meters the surfaces of two icicles keep apart: the metaball field fuses closer ones.
+    exposure : (k,) float, optional
+        Each icicle's share of the cold (`IcicleSizing.length`).
 
     Returns
     -------
@@ -383,7 +391,7 @@ def swallow(volume: np.ndarray, active: np.ndarray, positions: np.ndarray, sizin
     kept = volume > 0
     if k < 2:
         return volume, active, kept
-    length = sizing.length(volume, active)
+    length = sizing.length(volume, active, exposure)
     up = -unit(np.asarray(gravity, dtype=np.float64).reshape(3))
     tree = cKDTree(positions)
     widest = float(sizing.radius(length[[int(np.argmax(length))]], active[[int(np.argmax(length))]], [0.0])[0])
@@ -412,7 +420,7 @@ def swallow(volume: np.ndarray, active: np.ndarray, positions: np.ndarray, sizin
             volume[i] += volume[fused].sum()
             volume[fused] = 0.0
             kept[fused] = False
-            length[i] = sizing.length(volume[[i]], active[[i]])[0]
+            length[i] = sizing.length(volume[[i]], active[[i]], None if exposure is None else exposure[[i]])[0]
             length[fused] = 0.0
             widest = max(widest, float(sizing.radius(length[[i]], active[[i]], [0.0])[0]))
             changed = True
