@@ -191,13 +191,14 @@ def test_absorption_follows_beer_lambert_toward_blue_green(mi):
     assert tinted[:, :6].mean() == pytest.approx(clear[:, :6].mean(), rel=1e-3)
 
 
-def test_default_absorption_is_a_faint_tint_on_a_2cm_icicle():
+def test_default_absorption_is_a_faint_tint_on_a_2cm_icicle_and_visible_through_10cm():
     from icefarm.scene.config import ABSORPTION_PER_M, load_render_config
 
-    through = np.exp(-np.array(load_render_config("lookdev").ice.absorption) * 0.02)
-    assert np.allclose(load_render_config("lookdev").ice.absorption, ABSORPTION_PER_M, rtol=0.01)
-    assert 0.8 < through[0] < through[1] < through[2] < 0.99  # visible, blue-green, not a filter
-    assert through[2] - through[0] > 0.05
+    absorption = np.array(load_render_config("lookdev").ice.absorption)
+    assert np.allclose(absorption, ABSORPTION_PER_M, rtol=0.01)
+    thin, fat = np.exp(-absorption * 0.02), np.exp(-absorption * 0.1)
+    assert 0.9 < thin[0] < thin[1] < thin[2] < 0.99 and thin[2] - thin[0] > 0.03  # faint, blue-green
+    assert 0.6 < fat[0] < fat[1] < fat[2] and fat[2] - fat[0] > 0.15  # a fat icicle's tint, not a filter
 
 
 @pytest.mark.slow  # renders

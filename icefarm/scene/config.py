@@ -64,17 +64,17 @@ class View:
     frame: str = "all"
 
 
-# Ice absorption, per meter (R, G, B): white light through 10 cm of ice comes out
-# (0.45, 0.78, 0.84), a faint blue-green; through a 2 cm icicle (0.85, 0.95, 0.965).
-# Real ice absorbs about 0.02 /m in the blue and some 0.5 /m in the red: this is an
-# artistic exaggeration of a real effect, some ten times stronger, so that thick ice
-# reads as ice and not as a glass rod, while thin glaze stays clear.
-ABSORPTION_PER_M = (8.0, 2.5, 1.75)
+# Ice absorption, per meter (R, G, B): white light through 25 cm of ice comes out
+# (0.45, 0.78, 0.84), through a 2 cm icicle (0.94, 0.98, 0.986). Real ice absorbs about
+# 0.02 /m in the blue and some 0.5 /m in the red: this exaggerates a real effect (six times
+# in the red) so that a fat icicle reads as ice and not as a glass rod, while a thin one
+# stays clear; at 2.5 times this, a meltwater eave's 5 cm icicles read as teal resin.
+ABSORPTION_PER_M = (3.2, 1.0, 0.7)
 # Scattering (per meter) of ice whose water carried the most impurities (surface.impurity
 # = 1): bubbles and brine inclusions cloud an impure icicle's core. Bubbly ice measures
-# about 1-8 /m on average; the core of a tap-water icicle, where the inclusions gather,
-# is far cloudier. A job's scattering is this times its impurity (0: clear).
-SCATTERING_PER_M = 15.0
+# about 1-8 /m (a tap-water icicle's default impurity 0.7: 5.6 /m); at 15 /m fat icicles
+# read milky. A job's scattering is this times its impurity (0: clear).
+SCATTERING_PER_M = 8.0
 # Impure icicles hold milky inclusions under their ripple crests (Ladan & Morris, Phys. Rev.
 # E 106, 2022): seen through the ice the ripples are a shimmer of bands, not grooves. Under a
 # full crest of ice from the most impure water (surface.impurity = 1) this share of the
