@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import math
 import sys
+import warnings
 from pathlib import Path
 
 import click
@@ -88,8 +89,9 @@ def run(mesh, size_m, assignments, seed, out, until, render, no_render, placemen
     red, water blue), drips.json, trajectories.json, ice.ply, scene.xml/scene.pov,
     render.exr/png and timings.json.
     """
-    from .asset_io import missing_size, size_hint, with_asset_gravity
-    from .pipeline import GENERATOR_PREFIX, JobSpec, Stage, run_job
+    from .api import job_spec
+    from .asset_io import missing_size
+    from .pipeline import GENERATOR_PREFIX, Stage, run_job
     from .progress import ProgressMode
 
     values = set_values(assignments)
@@ -101,28 +103,18 @@ def run(mesh, size_m, assignments, seed, out, until, render, no_render, placemen
         if until:
             raise InputError("--growth-frames needs the whole job: leave out --until")
         values["growth.frames"] = growth_frames
-    if not mesh.startswith(GENERATOR_PREFIX):
-        if not Path(mesh).is_file():
-            raise InputError(f"mesh file not found: {mesh}")
-        mesh = str(Path(mesh).resolve())
+    if not mesh.startswith(GENERATOR_PREFIX) and not Path(mesh).is_file():
+        raise InputError(f"mesh file not found: {mesh}")
     if size_m is None and (why := missing_size(mesh)):
         raise InputError(f"{why}: pass the object's real height in meters with --size-m")
     if size_m is not None and not (math.isfinite(size_m) and size_m > 0):
         raise InputError(f"--size-m {size_m:g}: the object's real height in meters is a number above 0")
-    if size_m is not None and (hint := size_hint(size_m)):
-        click.echo(f"warning: {hint}", err=True)
-    resolved = params.resolve(with_asset_gravity(mesh, values))
-    for line in params.idle_keys(values, resolved.storm.mode):
-        click.echo(f"warning: {line}", err=True)
-    if not no_render:  # a bad config name fails now, in one line, not after the stages
-        from .scene.config import load_render_config
-
-        load_render_config(render)
-        if Path(render).expanduser().is_file():
-            render = str(Path(render).expanduser().resolve())
-    spec = JobSpec(object_id=Path(mesh).stem, mesh=mesh, size_m=size_m, params=resolved, seed=seed,
-                   render=None if no_render else render, exclude=tuple(exclusion_box(b) for b in exclude),
-                   placement=placement)
+    with warnings.catch_warnings(record=True) as said:  # the API warns; the command line says
+        warnings.simplefilter("always", UserWarning)
+        spec = job_spec(mesh, size_m=size_m, params=values, seed=seed, placement=placement,
+                        exclude=[exclusion_box(b) for b in exclude], render=None if no_render else render)
+    for warning in said:
+        click.echo(f"warning: {warning.message}", err=True)
     writable_folder(out)
     if cache:
         readable_cache(cache)

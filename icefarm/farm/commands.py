@@ -273,10 +273,7 @@ def make_sweep_command(after: Callable[[SweepSummary], None] | None = None) -> c
         """
         progress = None if dry_run else default_progress()
         try:
-            loaded = load_manifest(manifest)
-            for line in manifest_warnings(apply_sets(loaded, sets)):
-                click.echo(f"warning: {line}", err=True)
-            summary = run_sweep(loaded, out, workers=workers, backend=backend, scheduler=scheduler,
+            summary = run_sweep(manifest, out, workers=workers, backend=backend, scheduler=scheduler,
                                 sets=sets, resume=resume, overwrite=overwrite, dry_run=dry_run,
                                 render=not no_render, until=until, max_tasks_per_child=tasks_per_worker,
                                 use_cache=not no_cache, progress=progress, max_jobs=max_jobs,

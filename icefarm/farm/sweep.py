@@ -34,7 +34,7 @@ from ..jobdir import (CACHE_DIR, DONE, JOBS_CSV, JOBS_DIR, MANIFEST, JobState, c
                       total_seconds)
 from .manifest import load_manifest
 from .manifest_model import Manifest
-from .plan import JobRecord, leaders, plan_jobs, private_stages
+from .plan import JobRecord, leaders, manifest_warnings, plan_jobs, private_stages
 from .points import MAX_JOBS, apply_sets, check_job_count, swept_keys
 from .sweep_folder import (check_folder, job_dir, jobs_csv_text, prepare_folder, resolved_yaml, stale_folders,
                            sweep_lock)
@@ -137,6 +137,10 @@ def _stderr_note(text: str) -> None:
     print(f"note: {text}", file=sys.stderr, flush=True)
 
 
+def _stderr_warning(text: str) -> None:
+    print(f"warning: {text}", file=sys.stderr, flush=True)
+
+
 # --------------------------------------------------------------------------- running
 
 def run_sweep(manifest: Manifest | str | Path, out: str | Path = "out", *, workers: int = 1,
@@ -145,7 +149,8 @@ def run_sweep(manifest: Manifest | str | Path, out: str | Path = "out", *, worke
               render: bool = True, until: str | None = None, max_tasks_per_child: int = 8,
               use_cache: bool = True, progress: Progress | None = None,
               max_jobs: int | None = MAX_JOBS,
-              connect_timeout: float = 30.0, note: Callable[[str], None] | None = None) -> SweepSummary:
+              connect_timeout: float = 30.0, note: Callable[[str], None] | None = None,
+              warn: Callable[[str], None] | None = None) -> SweepSummary:
     """Run every job of a manifest's sweep and return what became of them.
 
     Parameters
@@ -184,6 +189,10 @@ def run_sweep(manifest: Manifest | str | Path, out: str | Path = "out", *, worke
     note : callable, optional
         ``note(text)`` for messages that are not a job's (folders to redo, stale folders,
         a cluster waiting for workers); default: ``progress.note``, else stderr.
+    warn : callable, optional
+        ``warn(text)`` for what a valid manifest may not mean (`plan.manifest_warnings`: knobs
+        its storm mode ignores, unlikely sizes), once each, after every check has passed;
+        default: ``warning: TEXT`` on stderr.
 
     Returns
     -------
@@ -255,7 +264,12 @@ def run_sweep(manifest: Manifest | str | Path, out: str | Path = "out", *, worke
                             swept=swept, wall_seconds=time.perf_counter() - started, backend=backend,
                             workers=workers, dry_run=dry_run, duplicates=duplicates, stale=tuple(stale))
 
+    def warn_once() -> None:  # once the sweep is sure to run: an error stays alone on its line
+        for line in manifest_warnings(manifest):
+            (warn or _stderr_warning)(line)
+
     if dry_run:
+        warn_once()
         return summary()
     todo = [j for j in jobs if records[j.job_id].status != JobState.DONE]
     check_folder(sweep_dir, resume, overwrite)
@@ -283,6 +297,7 @@ def run_sweep(manifest: Manifest | str | Path, out: str | Path = "out", *, worke
             if made:
                 shutil.rmtree(sweep_dir, ignore_errors=True)  # nothing half-made left behind
             raise cannot_write(exc, f"the sweep folder {sweep_dir}") from None
+        warn_once()
 
         tasks = [Task(spec=j.spec, job_id=j.job_id, object_id=j.object_id,
                       job_dir=str(records[j.job_id].job_dir),
