@@ -339,13 +339,15 @@ PARAMS: tuple[Param, ...] = (
        "build an approximate surface for the water: auto (for problem meshes), always or never",
        choices=("auto", "always", "never")),
     _p("proxy", "face_budget", "-", "-", _I, 60000,
-       "meshes with more faces are decimated to this many for the water flow", low=100),
+       "meshes with more faces are decimated to this many for the water flow (parts far apart "
+       "share it by area)", low=100),
     _p("proxy", "alpha", "-", "bbox", _F, 0.01,
-       "alpha-wrap ball size as a fraction of the bounding-box diagonal", low=0.0, low_open=True),
+       "alpha-wrap ball size as a fraction of each part's bounding-box diagonal (parts farther "
+       "apart than this are built one by one, each at its own scale)", low=0.0, low_open=True),
     _p("proxy", "offset", "-", "bbox", _F, 0.002,
-       "alpha-wrap offset as a fraction of the bounding-box diagonal", low=0.0, low_open=True),
+       "alpha-wrap offset as a fraction of each part's bounding-box diagonal", low=0.0, low_open=True),
     _p("proxy", "edge_length", "-", "bbox", _F, 0.01,
-       "target edge of the remeshed proxy as a fraction of the bounding-box diagonal",
+       "target edge of the remeshed proxy as a fraction of each part's bounding-box diagonal",
        low=0.0, low_open=True),
 )
 

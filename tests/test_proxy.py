@@ -229,6 +229,65 @@ def test_separate_objects_stay_separate():
     assert result.components == 2 and result.mesh.is_watertight
 
 
+def far_apart(mesh: trimesh.Trimesh, distance: float) -> trimesh.Trimesh:
+    """``mesh`` and a copy of it ``distance`` m away along x, as one mesh."""
+    copy = mesh.copy()
+    copy.apply_translation((distance, 0, 0))
+    return trimesh.util.concatenate([mesh, copy])
+
+
+def test_parts_far_apart_are_each_wrapped_as_they_would_be_alone():
+    """The wrap's lengths are fractions of each part's diagonal, not of the space between
+    parts: two box soups 3 m apart were wrapped with an alpha 9 times their own."""
+    alone = build_proxy(box_soup(), WRAPS["boxes"])
+    two = build_proxy(far_apart(box_soup(), 3.0), WRAPS["boxes"])
+    assert two.parts == 2 and two.components == 2 and two.method is ProxyMethod.WRAP
+    assert two.alpha == pytest.approx(alone.alpha, rel=1e-6)
+    assert two.faces <= WRAPS["boxes"].face_budget and two.mesh.is_watertight
+    for part in two.mesh.split(only_watertight=False):
+        assert np.allclose(part.extents, alone.mesh.extents, atol=0.1 * alone.alpha)
+        assert part.volume == pytest.approx(alone.mesh.volume, rel=0.02)
+    assert "2 parts far apart" in two.reason
+
+
+def test_a_part_with_nothing_wrong_is_kept_as_it_is():
+    """A coarse cube far from a box soup is refined as it would be alone (its own 12 faces'
+    scale, not the 3 m scene's), the soup wrapped; the whole counts as a wrap."""
+    cube = trimesh.creation.box((0.3, 0.3, 0.3))
+    cube.apply_translation((3.0, 0, 0))
+    result = build_proxy(trimesh.util.concatenate([box_soup(), cube]), WRAPS["boxes"])
+    assert result.parts == 2 and result.method is ProxyMethod.WRAP
+    pieces = result.mesh.split(only_watertight=False)
+    far = [piece for piece in pieces if piece.centroid[0] > 1.0]
+    assert len(far) == 1 and np.allclose(far[0].bounds, cube.bounds, atol=1e-9)
+    assert "1 alpha wrap + isotropic remesh, 1 isotropic refinement" in result.reason
+
+
+def test_a_one_part_mesh_is_built_whole(problem_mesh, built):
+    """Touching or crossing pieces (the box soup's four) are one part: nothing changes."""
+    result = built("boxes")
+    assert result.parts == 1 and "parts far apart" not in result.reason
+
+
+def test_cubes_far_apart_grow_the_ice_one_grows_alone(tmp_path):
+    """Each part gets the ice it would get alone (two jobs, 2 s). Two 30 cm cubes 300 m apart
+    were wrapped at the scene's scale into 1.5 m blobs that grew 30 icicles and a glaze
+    43 % thicker (p50); a cube alone grows none."""
+    cube = trimesh.creation.box((0.3, 0.3, 0.3))
+    stats = {}
+    for name, mesh in (("one", cube), ("two", far_apart(cube, 300.0))):
+        path = tmp_path / f"{name}.obj"
+        mesh.export(path)
+        spec = JobSpec(object_id=name, mesh=str(path), size_m=0.3, params=params.resolve(), seed=0)
+        outcome = run_job(spec, tmp_path / name)  # no render: JobSpec.render is None
+        assert outcome.status == "done", outcome.error
+        stats[name] = json.loads((tmp_path / name / "timings.json").read_text())
+    one, two = stats["one"], stats["two"]
+    assert two["proxy_components"] == 2
+    assert abs(two["icicles"] - 2 * one["icicles"]) <= 3
+    assert two["glaze_p50_mm"] == pytest.approx(one["glaze_p50_mm"], rel=0.1)
+
+
 def test_sealed_cavities_are_dropped():
     outer = trimesh.creation.icosphere(subdivisions=2, radius=0.2)
     inner = trimesh.creation.icosphere(subdivisions=2, radius=0.1)

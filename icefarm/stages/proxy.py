@@ -24,12 +24,18 @@ meshes stages 1-2 run on a proxy built with pymeshlab:
   refined as they are: water runs on each, and faces buried in another piece drip
   nowhere. Open coarse meshes are wrapped and remeshed to the same edge.
 
+Lengths are fractions of a bounding-box diagonal: of each part's own where parts lie far
+apart (`icefarm.stages.parts`), each built as it would be alone. Over the whole mesh's, two
+30 cm cubes 300 m apart were each wrapped into a 1.5 m blob that grew 30 icicles, where a
+cube alone grows none.
+
 Drip points found on the proxy are moved back onto the real mesh with `snap_to_surface`,
 so the icicles hang from the object itself.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import enum
 import time
 from dataclasses import dataclass
@@ -44,6 +50,7 @@ from ..mesh import MeshProblems, detect_problems
 from ..meshlab import current, meshset
 from ..params import ProxyParams
 from ..tol import tol
+from .parts import group_pieces, piece_boxes
 
 MODES = ("auto", "always", "never")
 
@@ -80,6 +87,13 @@ COARSE_EDGE_FRACTION = 0.1
 # end at half its height, so splitting a slab's side into rows starves its rim of the
 # water that runs over it (a 5 cm top split at 1.6 cm: 0.4 cm icicles; kept whole: 2.8 cm).
 FEATURE_PERCENTILE = 10
+# Parts far apart (`icefarm.stages.parts`) are built one by one, each at its own scale: a
+# part's wrap, refinement or hole filling as it would be alone, with a share of
+# proxy.face_budget by area, at least MIN_PART_FACES (the parameter's own floor). Past
+# MAX_PARTS (a scatter of pebbles; 10 coarse cubes take 0.1 s, the time grows with the
+# parts) they are built together, at the whole mesh's scale.
+MAX_PARTS = 256
+MIN_PART_FACES = 100
 
 
 class ProxyMethod(enum.Enum):
@@ -89,6 +103,7 @@ class ProxyMethod(enum.Enum):
     FILL = "hole filling"
     DECIMATE = "quadric decimation"
     REFINE = "isotropic refinement"
+    AS_IS = "kept as it is"  # a part with nothing wrong, far from parts that needed a proxy
 
 
 @dataclass(frozen=True)
@@ -111,8 +126,10 @@ class ProxyResult:
         Wrap, hole filling, decimation or refinement (all but decimation are followed by
         decimation when over the budget).
     alpha : float
-        Alpha the wrap used, in meters (0 when not wrapped): the proxy bridges gaps about
-        this wide, so it lies up to about alpha from the object.
+        Alpha the wrap used, in meters (0 when not wrapped; the largest of the parts'): the
+        proxy bridges gaps about this wide, so it lies up to about alpha from the object.
+    parts : int
+        Parts far apart built one by one, each at its own scale (1: built whole).
     """
 
     mesh: trimesh.Trimesh
@@ -122,6 +139,7 @@ class ProxyResult:
     seconds: float
     method: ProxyMethod
     alpha: float = 0.0
+    parts: int = 1
 
 
 def _problem_phrases(problems: MeshProblems) -> list[str]:
@@ -327,9 +345,27 @@ def _fill_small_holes(mesh: trimesh.Trimesh, diag: float) -> trimesh.Trimesh | N
     return None if _problem_phrases(detect_problems(filled, self_intersections=True)) else filled
 
 
+def _solid_diagonal(mesh: trimesh.Trimesh) -> float:
+    """Bounding-box diagonal of the faces' vertices, in meters; InputError when the mesh is flat."""
+    used = np.asarray(mesh.vertices, dtype=np.float64)[np.unique(mesh.faces)]
+    diag = float(np.linalg.norm(np.ptp(used, axis=0)))
+    thickness = _thickness(used)
+    if diag <= 0 or thickness <= tol.flat * diag:
+        raise InputError(
+            f"the mesh is flat (thickness {thickness:.3g} m over a {diag:.3g} m diagonal): it has "
+            "no volume to wrap an approximate surface around; set proxy.mode: never to let the "
+            "water run on the mesh as it is")
+    return diag
+
+
 def build_proxy(mesh: trimesh.Trimesh, proxy: ProxyParams[str, Any],
                 problems: MeshProblems | None = None) -> ProxyResult:
     """Build the approximate surface stages 1-2 run on.
+
+    Parts far apart (`icefarm.stages.parts`: two cubes metres apart) are built one by one,
+    each as it would be alone (a clean part kept as it is), at its own scale and with its
+    share of the face budget by area, and put together; a mesh of one part (the teapot, the
+    bunny) is built whole.
 
     Parameters
     ----------
@@ -337,7 +373,7 @@ def build_proxy(mesh: trimesh.Trimesh, proxy: ProxyParams[str, Any],
         The prepared object, in meters.
     proxy : ProxyParams
         The ``proxy`` group of the resolved parameters: ``face_budget`` (faces), ``alpha``, ``offset`` and
-        ``edge_length`` (fractions of the bounding-box diagonal). Whether to build one at
+        ``edge_length`` (fractions of each part's bounding-box diagonal). Whether to build one at
         all is the caller's call (`proxy_reason`); ``mode: always`` wraps even a clean mesh.
     problems : MeshProblems, optional
         ``detect_problems(mesh)`` when the caller has it; measured here otherwise.
@@ -355,22 +391,114 @@ def build_proxy(mesh: trimesh.Trimesh, proxy: ProxyParams[str, Any],
         over `MAX_ALPHA` of the diagonal to stay within the face budget.
     """
     start = time.perf_counter()
-    budget, alpha, offset, edge = proxy.face_budget, proxy.alpha, proxy.offset, proxy.edge_length
+    budget = proxy.face_budget
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
         raise InputError("the mesh has no faces to build an approximate surface from")
-    vertices = np.asarray(mesh.vertices, dtype=np.float64)
-    if not np.isfinite(vertices).all():
+    if not np.isfinite(np.asarray(mesh.vertices, dtype=np.float64)).all():
         raise InputError("the mesh has NaN or infinite vertex coordinates")
-    used = vertices[np.unique(mesh.faces)]
-    diag = float(np.linalg.norm(np.ptp(used, axis=0)))
-    thickness = _thickness(used)
-    if diag <= 0 or thickness <= tol.flat * diag:
-        raise InputError(
-            f"the mesh is flat (thickness {thickness:.3g} m over a {diag:.3g} m diagonal): it has "
-            "no volume to wrap an approximate surface around; set proxy.mode: never to let the "
-            "water run on the mesh as it is")
+    diag = _solid_diagonal(mesh)
     if problems is None:
         problems = detect_problems(mesh, self_intersections=True)
+    parts, count = None, 1
+    if problems.components > 1:
+        pieces = _component_labels(mesh)
+        parts = group_pieces(*piece_boxes(mesh.vertices, mesh.faces, pieces), gap=proxy.alpha)[pieces]
+        count = int(parts.max()) + 1
+    built, together = None, None
+    if count > MAX_PARTS:
+        together = f"{count} parts far apart (over {MAX_PARTS}) built together"
+    elif count > 1:
+        try:
+            built = _build_parts(mesh, parts, proxy)
+        except InputError as exc:  # a flat part (a sheet), which the whole's wrap thickens
+            together = f"{count} parts far apart built together (one alone: {str(exc).split(';')[0]})"
+    if built is None:
+        built = _build(mesh, proxy, problems, budget, diag)
+        if together:
+            built = dataclasses.replace(built, notes=[together, *built.notes])
+    out, method, notes = built.mesh, built.method, list(built.notes)
+    if len(out.faces) > budget:
+        if method is not ProxyMethod.DECIMATE:
+            notes.append(f"{method.value} gave {len(out.faces)} faces, decimated to the budget")
+        out = _decimate(out, budget)
+    out = trimesh.Trimesh(out.vertices, out.faces, process=True)
+    if not out.is_watertight:
+        raise InputError(f"the approximate surface ({method.value}) is not watertight; "
+                         "set proxy.mode: never, or repair the mesh")
+    trimesh.repair.fix_inversion(out, multibody=True)  # wound outward: the water and the drips' normals read it
+    reason = proxy_reason(problems, "always", budget)
+    if notes:
+        reason = f"{reason}; {'; '.join(notes)}"
+    components = int(_component_labels(out).max()) + 1
+    return ProxyResult(mesh=out, reason=reason, faces=len(out.faces), components=components,
+                       seconds=time.perf_counter() - start, method=method, alpha=built.alpha,
+                       parts=built.parts)
+
+
+@dataclass(frozen=True)
+class _Built:
+    """A proxy before its last checks: the surface, how it was made, the wrap's alpha in
+    meters (the largest of the parts'), notes on adjustments, and the parts built apart."""
+
+    mesh: trimesh.Trimesh
+    method: ProxyMethod
+    alpha: float
+    notes: list[str]
+    parts: int = 1
+
+
+def _build_parts(mesh: trimesh.Trimesh, parts: np.ndarray, proxy: ProxyParams[str, Any]) -> _Built:
+    """Each part (``parts``, ``(n_faces,) int``) built as it would be alone, put together.
+
+    A part is kept as it is where `proxy_reason` finds nothing wrong with it (an intact
+    cube beside a broken one), and built with `_build` otherwise. The face budget is shared
+    by area, a part getting at least what its wrap needs to stay under `MAX_ALPHA` of its
+    own diagonal (`MIN_PART_FACES` at least).
+    """
+    vertices, faces = np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.faces)
+    areas = np.bincount(parts, weights=mesh.area_faces)
+    pieces, methods, notes, alpha = [], [], [], 0.0
+    for label, area in enumerate(areas):
+        part = trimesh.Trimesh(vertices, faces[parts == label], process=False)
+        part.remove_unreferenced_vertices()
+        # Built about its own centre, as it would be alone (`icefarm.mesh.prepare` centres
+        # the box): the remeshing follows the coordinates' last bits (a table 15 m off the
+        # origin got another top; centred, its top is the lone table's, its legs 90 faces
+        # where the lone table's have 104-118).
+        centre = part.bounds.mean(axis=0)
+        part.apply_translation(-centre)
+        diag = _solid_diagonal(part)
+        least = WRAP_FACE_FACTOR * area / (MAX_ALPHA * diag) ** 2
+        budget = int(max(MIN_PART_FACES, np.ceil(least), proxy.face_budget * area / areas.sum()))
+        problems = detect_problems(part, self_intersections=True)
+        if proxy_reason(problems, proxy.mode, budget) is None:
+            pieces.append(part.apply_translation(centre))
+            methods.append(ProxyMethod.AS_IS)
+            continue
+        built = _build(part, proxy, problems, budget, diag)
+        out = built.mesh
+        if len(out.faces) > budget:
+            if built.method is not ProxyMethod.DECIMATE:
+                built.notes.append(f"{built.method.value} gave {len(out.faces)} faces, decimated to "
+                                   f"its {budget}")
+            out = _decimate(out, budget)
+        pieces.append(out.apply_translation(centre))
+        methods.append(built.method)
+        notes.extend(f"part {label + 1}: {note}" for note in built.notes)
+        alpha = max(alpha, built.alpha)
+    # The strongest method names the whole: a wrap anywhere lies off the object there.
+    method = min(methods, key=list(ProxyMethod).index)
+    tally = ", ".join(f"{methods.count(m)} {m.value}" for m in ProxyMethod if m in methods)
+    notes.insert(0, f"{len(areas)} parts far apart, each built at its own scale ({tally})")
+    return _Built(mesh=trimesh.util.concatenate(pieces), method=method, alpha=alpha, notes=notes,
+                  parts=len(areas))
+
+
+def _build(mesh: trimesh.Trimesh, proxy: ProxyParams[str, Any], problems: MeshProblems,
+           budget: int, diag: float) -> _Built:
+    """The proxy of one part within ``budget`` faces (before the last decimation to it):
+    its lengths are fractions of its own diagonal ``diag`` (`_solid_diagonal`)."""
+    alpha, offset, edge = proxy.alpha, proxy.offset, proxy.edge_length
     notes, alpha_m, out = [], 0.0, None
     force = proxy.mode == "always"
     if not force and (_only_holes(problems) or not _problem_phrases(problems)) and not _coarse(problems):
@@ -416,21 +544,7 @@ def build_proxy(mesh: trimesh.Trimesh, proxy: ProxyParams[str, Any],
             notes.append("remeshing broke the surface, the raw wrap is used")
             out = wrapped
         method = ProxyMethod.WRAP
-    if len(out.faces) > budget:
-        if method is not ProxyMethod.DECIMATE:
-            notes.append(f"{method.value} gave {len(out.faces)} faces, decimated to the budget")
-        out = _decimate(out, budget)
-    out = trimesh.Trimesh(out.vertices, out.faces, process=True)
-    if not out.is_watertight:
-        raise InputError(f"the approximate surface ({method.value}) is not watertight; "
-                         "set proxy.mode: never, or repair the mesh")
-    trimesh.repair.fix_inversion(out, multibody=True)  # wound outward: the water and the drips' normals read it
-    reason = proxy_reason(problems, "always", budget)
-    if notes:
-        reason = f"{reason}; {'; '.join(notes)}"
-    components = int(_component_labels(out).max()) + 1
-    return ProxyResult(mesh=out, reason=reason, faces=len(out.faces), components=components,
-                       seconds=time.perf_counter() - start, method=method, alpha=alpha_m)
+    return _Built(mesh=out, method=method, alpha=alpha_m, notes=notes)
 
 
 def snap_to_surface(points: np.ndarray, mesh: trimesh.Trimesh,
