@@ -26,7 +26,9 @@ read it back through `read_job`, `check_done`, `read_views` and `scan_sweep`.
   (`RENDER_EXR`, `RENDER_PNG`), ``render_view<i>.*`` for the others (`view_stem`), and
   ``render_povray.png`` / ``render_povray_view<i>.png`` (`POVRAY_STEM`) from POV-Ray.
 - For DCCs: ``scene.usda`` (`SCENE_USDA`) referencing ``object.usdc`` and ``ice.usdc``
-  (`OBJECT_USDC`, `ICE_USDC`).
+  (`OBJECT_USDC`, `ICE_USDC`). For a USD input, rendered or not: ``ice_layer.usda``
+  (`ICE_LAYER`), the ice over the asset's own file (`icefarm.export.ice_layer`), its mesh
+  in ``ice.usdc``.
 - ``growth/`` (`GROWTH_DIR`), with ``growth.frames``: per frame ``ice_0001.ply`` ... and
   ``frame_0001.png`` ... (`growth_ice`, `growth_frame`), ``growth.mp4`` (`GROWTH_MP4`),
   ``growth.usda`` (`GROWTH_USDA`) with its value clips ``ice_0001.usdc`` ... (`growth_clip`)
@@ -90,6 +92,7 @@ POVRAY_STEM = f"{RENDER_STEM}_povray"
 SCENE_USDA = "scene.usda"
 OBJECT_USDC = "object.usdc"
 ICE_USDC = "ice.usdc"
+ICE_LAYER = "ice_layer.usda"  # the ice composed over a USD input's own file
 GROWTH_DIR = "growth"
 FRAMES = "frames.json"
 GROWTH_MP4 = "growth.mp4"
@@ -117,13 +120,13 @@ SHEETS_DIR = "sheets"
 
 #: The files of a job folder (not the sweep folder's).
 JOB_FILES = (PARAMS, PROXY, WATER, DRIPS, TRAJECTORIES, LANDING, ICE, OBJECT, SCENE_SPEC, SCENE_XML, SCENE_POV,
-             OBJECT_INC, ICE_INC, VIEWS, RENDER_EXR, RENDER_PNG, SCENE_USDA, OBJECT_USDC, ICE_USDC, TIMINGS, DONE,
-             ERROR)
+             OBJECT_INC, ICE_INC, VIEWS, RENDER_EXR, RENDER_PNG, SCENE_USDA, OBJECT_USDC, ICE_USDC, ICE_LAYER,
+             TIMINGS, DONE, ERROR)
 
 #: Every file name above, for the test that keeps them out of other modules.
 FILE_NAMES = (PARAMS, PROXY, WATER, DRIPS, TRAJECTORIES, LANDING, ICE, OBJECT, SCENE_SPEC, SCENE_XML, SCENE_POV,
               OBJECT_INC, ICE_INC, VIEWS, RENDER_EXR, RENDER_PNG, f"{POVRAY_STEM}.png", SCENE_USDA, OBJECT_USDC,
-              ICE_USDC, FRAMES, GROWTH_MP4, GROWTH_USDA, GROWTH_MANIFEST, GROWTH_ICE_USDC, TIMINGS, DONE, ERROR,
+              ICE_USDC, ICE_LAYER, FRAMES, GROWTH_MP4, GROWTH_USDA, GROWTH_MANIFEST, GROWTH_ICE_USDC, TIMINGS, DONE, ERROR,
               MANIFEST, JOBS_CSV, REPORT_MD, REPORT_CSV)
 
 

@@ -21,6 +21,7 @@ import numpy as np
 import trimesh
 
 from . import artifacts
+from .asset_io import USD_SUFFIXES
 from .errors import InputError, cannot_write
 from .geometry import ray_caster
 from .jobdir import (DONE, DRIPS, ERROR, GROWTH_DIR, ICE, ICE_BANDS, LANDING, OBJECT_USDC, PARAMS, PROXY,
@@ -295,6 +296,11 @@ def _run_stages(spec: JobSpec, job_dir: Path, run: _Run, cache: StageCache, unti
                          step=step, on_stage=on_stage, note=run.steps.note)
     if results.ice is not None:
         stats.update(_surface_and_render(spec, job_dir, run, until, results, gravity))
+        if Path(spec.mesh).suffix.lower() in USD_SUFFIXES:  # rendered or not: the ice over the asset's file
+            from .export.ice_layer import write_ice_layer
+
+            run.timed("ice_layer", lambda: write_ice_layer(job_dir, spec.mesh, scale=prepared.scale,
+                                                           offset=prepared.offset, impurity=p.surface.impurity))
         if p.growth.frames and until is None:  # growth/: stages 1-3 as they are, stage 4 per frame
             stats.update(run.timed("growth", lambda: _growth(spec, job_dir, run, results, gravity)))
     return stats

@@ -2,7 +2,8 @@
 
 `rendered` (`read_rendered`: the job's cameras, sun, sky, ground and surfaces from its
 ``scene.json``, or from the ``scene.xml`` of a job from before it through `icefarm.scene.legacy`),
-`usd` (``scene.usda`` and USDZ), `gltf` (GLB), `growth_usd` (the growth's time-sampled USD) and
+`usd` (``scene.usda`` and USDZ), `ice_layer` (``ice_layer.usda``: the ice over a USD
+input's own file), `gltf` (GLB), `growth_usd` (the growth's time-sampled USD) and
 `rerender` (`render_again`, ``icefarm render``: a finished job's scene written and rendered anew).
 
 The package's face: the names the rest of icefarm imports from it, listed in `__all__` and
@@ -15,6 +16,7 @@ import lazy_loader as _lazy
 __getattr__, __dir__, __all__ = _lazy.attach(__name__, submod_attrs={
     "gltf": ["write_glb"],
     "growth_usd": ["write_growth_usd"],
+    "ice_layer": ["IceLayer", "write_ice_layer"],
     "rerender": ["RENDER_FILES", "estimate_seconds", "render_again"],
     "usd": ["write_job_usd", "write_usdz"],
 })

@@ -29,8 +29,8 @@ from ..artifacts import read_ice_mesh
 from ..errors import InputError
 from ..jobdir import ICE, ICE_BANDS, ICE_USDC, OBJECT, OBJECT_USDC, SCENE_USDA
 from ..scene.material import Material
-from .rendered import (TINT_DISTANCE_M, Rendered, Surface, ice_surface, object_surface, pbr, read_rendered, require,
-                       water_at)
+from .rendered import (TINT_DISTANCE_M, IceShading, Rendered, Surface, ice_surface, object_surface, pbr,
+                       read_rendered, require, water_at)
 
 SCENE_FILE, OBJECT_FILE, ICE_FILE = SCENE_USDA, OBJECT_USDC, ICE_USDC  # (`icefarm.jobdir`)
 # Film back of the cameras: 36 mm wide (full frame), in USD's tenths of a scene unit. Only
@@ -118,15 +118,25 @@ def write_job_usd(job_dir: str | Path, *, material: Material | None = None,
     _write_mesh_layer(layers[0], "Object", obj, axis, _object_primvars(job_dir, obj), double_sided=True)
     if rendered.ice is not None:
         mesh = read_ice_mesh(job_dir / ICE) if ice_mesh is None else ice_mesh
-        ice = ice_surface(mesh.vertices, mesh.faces, rendered.ice.flip, ice_normals)
-        layers.append(out_dir / ICE_FILE)
-        _write_mesh_layer(layers[1], "Ice", ice, axis, _ice_primvars(mesh))
+        layers.append(write_ice_mesh(out_dir / ICE_FILE, mesh, flip=rendered.ice.flip, axis=axis,
+                                     normals=ice_normals))
     else:  # no ice: no layer of an earlier run's ice beside the scene
         (out_dir / ICE_FILE).unlink(missing_ok=True)
     sky = f"./{rendered.sky.name}" if out_dir.resolve() == job_dir.resolve() else str(rendered.sky.resolve())
-    with _authored(out_dir / SCENE_FILE) as stage:
+    with authored(out_dir / SCENE_FILE) as stage:
         _scene(stage, rendered, axis, sky, has_ice=len(layers) > 1)
     return UsdScene(out_dir / SCENE_FILE, tuple(layers), axis, time.perf_counter() - start)
+
+
+def write_ice_mesh(path: str | Path, mesh: trimesh.Trimesh, *, flip: bool, axis: str,
+                   normals: np.ndarray | None = None) -> Path:
+    """``ice.usdc``: the ice ``mesh`` (meters, the job's frame, as ``ice.ply``) as the default
+    prim ``/Ice`` of a binary layer, wound outwards (``flip``: `IceShading.flip`), with its
+    ``crest`` primvar; ``axis`` the stage's up axis (`up_axis`), ``normals`` as `ice_surface`
+    takes them. `write_job_usd` and `icefarm.export.ice_layer` reference it. Returns ``path``."""
+    path = Path(path)
+    _write_mesh_layer(path, "Ice", ice_surface(mesh.vertices, mesh.faces, flip, normals), axis, _ice_primvars(mesh))
+    return path
 
 
 def write_usdz(job_dir: str | Path, out: str | Path) -> Path:
@@ -157,7 +167,7 @@ def write_usdz(job_dir: str | Path, out: str | Path) -> Path:
 
 
 @contextmanager
-def _authored(path: Path) -> Iterator[Usd.Stage]:
+def authored(path: Path) -> Iterator[Usd.Stage]:
     """A new stage saved to ``path`` whole or not at all.
 
     The stage is made at a hidden unique name in the same folder (so relative references
@@ -189,7 +199,7 @@ def _write_mesh_layer(path: Path, name: str, surface: Surface, axis: str, primva
     ``primvars``: name to ``(values, type name)``, one value per vertex. ``double_sided``:
     shade both sides (an asset with open seams shows its inside through them).
     """
-    with _authored(path) as stage:
+    with authored(path) as stage:
         mesh = UsdGeom.Mesh.Define(stage, f"/{name}")
         _stage_metadata(stage, axis, mesh.GetPrim())
         points = np.ascontiguousarray(surface.vertices, dtype=np.float32)
@@ -240,7 +250,7 @@ def _scene(stage: Usd.Stage, rendered: Rendered, axis: str, sky: str, has_ice: b
     looks = UsdGeom.Scope.Define(stage, "/World/Looks").GetPath()
     meshes = [("Object", OBJECT_FILE, _object_material(stage, looks, rendered))]
     if has_ice:
-        meshes.append(("Ice", ICE_FILE, _ice_material(stage, looks, rendered)))
+        meshes.append(("Ice", ICE_FILE, ice_material(stage, looks, rendered.ice)))
     for name, layer, material in meshes:
         prim = stage.DefinePrim(f"/World/{name}")  # a Mesh, by its reference
         prim.GetReferences().AddReference(f"./{layer}")
@@ -344,12 +354,11 @@ def _object_material(stage: Usd.Stage, looks: Sdf.Path, rendered: Rendered) -> U
     return _preview_surface(stage, looks.AppendChild("ObjectMaterial"), inputs)
 
 
-def _ice_material(stage: Usd.Stage, looks: Sdf.Path, rendered: Rendered) -> UsdShade.Material:
-    """Ice: a MaterialX OpenPBR network (`_ice_openpbr`: glass that transmits, refracts and
-    absorbs, for readers of MaterialX), and beside it the UsdPreviewSurface fallback: ior
-    1.31, low opacity, its roughness, and as diffuse colour the tint of thick ice
-    (`IceShading.color_at`), since UsdPreviewSurface has no transmission."""
-    ice = rendered.ice
+def ice_material(stage: Usd.Stage, looks: Sdf.Path, ice: IceShading) -> UsdShade.Material:
+    """``looks/IceMaterial``: a MaterialX OpenPBR network (`_ice_openpbr`: glass that
+    transmits, refracts and absorbs, for readers of MaterialX), and beside it the
+    UsdPreviewSurface fallback: ior 1.31, low opacity, its roughness, and as diffuse colour
+    the tint of thick ice (`IceShading.color_at`), since UsdPreviewSurface has no transmission."""
     material = _preview_surface(stage, looks.AppendChild("IceMaterial"), {
         "diffuseColor": (Gf.Vec3f(*map(float, ice.color_at())), Sdf.ValueTypeNames.Color3f),
         "roughness": (ice.roughness, Sdf.ValueTypeNames.Float),
