@@ -31,11 +31,13 @@ from __future__ import annotations
 
 import os
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from pxr import Gf, Sdf, Usd, UsdGeom, UsdShade
+import trimesh
+from pxr import Gf, Sdf, Tf, Usd, UsdGeom, UsdShade
 
 from ..artifacts import read_ice_mesh
 from ..asset_io import USD_SUFFIXES
@@ -76,8 +78,8 @@ class IceLayer:
     seconds: float
 
 
-def write_ice_layer(job_dir: str | Path, asset: str | Path, *, scale: float, offset, impurity: float = 0.0,
-                    out: str | Path | None = None) -> IceLayer:
+def write_ice_layer(job_dir: str | Path, asset: str | Path, *, scale: float, offset: np.ndarray | Sequence[float],
+                    impurity: float = 0.0, out: str | Path | None = None) -> IceLayer:
     """Write ``ice_layer.usda``: the job's ice composed over the USD ``asset`` it grew on.
 
     Parameters
@@ -104,7 +106,8 @@ def write_ice_layer(job_dir: str | Path, asset: str | Path, *, scale: float, off
     Raises
     ------
     InputError
-        ``asset`` is not a USD file, or cannot be opened.
+        ``asset`` is not a USD file, or USD cannot open it (a ``.usda`` that starts with a
+        byte-order mark: icefarm reads it, no USD tool does).
     """
     start = time.perf_counter()
     job_dir = Path(job_dir).absolute()
@@ -112,20 +115,21 @@ def write_ice_layer(job_dir: str | Path, asset: str | Path, *, scale: float, off
     asset = Path(asset).absolute()
     if asset.suffix.lower() not in USD_SUFFIXES:
         raise InputError(f"{asset}: an ice layer composes over a USD asset ({', '.join(USD_SUFFIXES)})")
-    source = Usd.Stage.Open(str(asset)) if asset.is_file() else None
+    try:
+        source = Usd.Stage.Open(str(asset)) if asset.is_file() else None
+    except Tf.ErrorException:  # e.g. a .usda starting with a byte-order mark: icefarm reads it, USD does not
+        source = None
     if source is None:
-        raise InputError(f"cannot open the USD asset {asset} to write the ice layer over it")
+        raise InputError(f"USD cannot open the asset {asset}, so no layer can compose over it: "
+                         "save it again from a USD tool (a .usda without a byte-order mark)")
     mesh = read_ice_mesh(job_dir / ICE)
     ice = _shading(job_dir, mesh, impurity) if len(mesh.faces) else None
     axis = "Z" if UsdGeom.GetStageUpAxis(source) == UsdGeom.Tokens.z else "Y"
     usdc = job_dir / ICE_USDC
     if ice is not None and (not usdc.is_file() or usdc.stat().st_mtime_ns < (job_dir / ICE).stat().st_mtime_ns):
         write_ice_mesh(usdc, mesh, flip=ice.flip, axis=axis)  # a job that did not render has none yet
-    default, roots = source.GetDefaultPrim(), source.GetPseudoRoot().GetChildren()
-    arc = "reference" if default and [p.GetPath() for p in roots] == [default.GetPath()] else "sublayer"
-    root = default if default else (roots[0] if len(roots) == 1 else None)
-    if root is not None and root.IsA(UsdGeom.Gprim):
-        root = None  # a gprim has no child prims: the ice stands beside it, in world space
+    default = source.GetDefaultPrim()
+    arc, root = _composition(source)
     # The job read the asset at its earliest time (`icefarm.asset_io.read_asset`)
     world = np.eye(4) if root is None else \
         np.array(UsdGeom.XformCache(Usd.TimeCode.EarliestTime()).GetLocalToWorldTransform(root))
@@ -154,7 +158,18 @@ def write_ice_layer(job_dir: str | Path, asset: str | Path, *, scale: float, off
     return IceLayer(out, named, arc, str(group_path), ice_path, time.perf_counter() - start)
 
 
-def _to_asset(scale: float, offset) -> np.ndarray:
+def _composition(source: Usd.Stage) -> tuple[str, Usd.Prim | None]:
+    """How the layer composes the asset ``source`` (``"reference"`` to its default prim when
+    that is its only root prim, else ``"sublayer"``), and the prim the ice goes under: the
+    default prim, else the only root prim; None (the stage's root) when there is neither, or
+    when that prim is a gprim, which has no child prims."""
+    default, roots = source.GetDefaultPrim(), source.GetPseudoRoot().GetChildren()
+    arc = "reference" if default and [p.GetPath() for p in roots] == [default.GetPath()] else "sublayer"
+    root = default if default else (roots[0] if len(roots) == 1 else None)
+    return arc, None if root is not None and root.IsA(UsdGeom.Gprim) else root
+
+
+def _to_asset(scale: float, offset: np.ndarray | Sequence[float]) -> np.ndarray:
     """``(4, 4)`` USD matrix (row vectors, ``p' = [p, 1] @ m``) taking the job's frame back to
     the asset's world space: ``(v + offset) / scale``, the inverse of `icefarm.mesh.prepare`."""
     m = np.eye(4) / float(scale)
@@ -162,7 +177,7 @@ def _to_asset(scale: float, offset) -> np.ndarray:
     return m
 
 
-def _shading(job_dir: Path, mesh, impurity: float) -> IceShading:
+def _shading(job_dir: Path, mesh: trimesh.Trimesh, impurity: float) -> IceShading:
     """The ice's look: the rendered one (``scene.json``), else the render configs' default
     ice (`icefarm.scene.config.IceLook`) at ``impurity``."""
     if (job_dir / SCENE_SPEC).is_file():
