@@ -79,6 +79,8 @@ def print_storm(timings: dict) -> None:
 def print_job_summary(timings: dict) -> None:
     """The run's closing lines: trajectories, storm, ice, ground ice, curtains, tips and ripples, glaze,
     the ground, and the icicles' shapes, each beside what real ones measure."""
+    if timings.get("ice_layer_skipped"):
+        click.echo(f"  warning: no ice_layer.usda: {timings['ice_layer_skipped']}")
     inside_out = (timings.get("problems") or {}).get("inside_out_faces", 0)
     if inside_out:
         click.echo(f"  mesh: {inside_out} faces came wound inside out (normals pointing in); turned outward")

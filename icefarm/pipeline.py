@@ -299,8 +299,11 @@ def _run_stages(spec: JobSpec, job_dir: Path, run: _Run, cache: StageCache, unti
         if Path(spec.mesh).suffix.lower() in USD_SUFFIXES:  # rendered or not: the ice over the asset's file
             from .export.ice_layer import write_ice_layer
 
-            run.timed("ice_layer", lambda: write_ice_layer(job_dir, spec.mesh, scale=prepared.scale,
-                                                           offset=prepared.offset, impurity=p.surface.impurity))
+            try:
+                run.timed("ice_layer", lambda: write_ice_layer(job_dir, spec.mesh, scale=prepared.scale,
+                                                               offset=prepared.offset, impurity=p.surface.impurity))
+            except InputError as exc:  # an asset icefarm reads but USD cannot open: the job stands
+                stats["ice_layer_skipped"] = str(exc)
         if p.growth.frames and until is None:  # growth/: stages 1-3 as they are, stage 4 per frame
             stats.update(run.timed("growth", lambda: _growth(spec, job_dir, run, results, gravity)))
     return stats

@@ -272,3 +272,14 @@ def test_the_ice_group_takes_a_free_name_and_the_asset_must_open_in_usd(tmp_path
     marked.write_bytes(codecs.BOM_UTF8 + asset.read_bytes())
     with pytest.raises(InputError, match="USD cannot open the asset"):
         write_ice_layer(job_dir, marked, scale=prepared.scale, offset=prepared.offset)
+
+
+@pytest.mark.slow  # a job's stages
+def test_an_asset_usd_cannot_open_still_makes_its_job_and_says_why_there_is_no_layer(tmp_path):
+    asset = write_cube_asset(tmp_path / "cube.usda")
+    marked = tmp_path / "marked.usda"  # icefarm reads it (asset_io), no USD tool does
+    marked.write_bytes(codecs.BOM_UTF8 + asset.read_bytes())
+    result = CliRunner().invoke(main, ["run", str(marked), "-o", str(tmp_path / "job"), "--no-render", *FAST])
+    assert result.exit_code == 0, result.output
+    assert "warning: no ice_layer.usda: " in result.stdout and "USD cannot open the asset" in result.stdout
+    assert (tmp_path / "job" / "done.json").is_file() and not (tmp_path / "job" / "ice_layer.usda").exists()
