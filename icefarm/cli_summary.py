@@ -54,14 +54,18 @@ def print_storm(timings: dict) -> None:
     """What a physical storm did, and one warning line when it left almost nothing visible."""
     kind = timings["storm_kind"].replace("_", " ")
     icicles, per_m = timings.get("icicles", 0), timings.get("icicles_per_m", 0.0)
+    dripped = "icicles" in timings  # --until water: no drip points yet, nothing to say of icicles
     click.echo(f"  storm: {timings['storm_intensity']} {kind}, {timings['precipitation_mm']:.0f} mm of water: "
-               f"glaze {timings['storm_glaze_p50_mm']:.1f} mm (p50 where the rain lands); {icicles} icicles, "
-               f"{per_m:.0f} per m of drip rim ({timings.get('drip_rim_m', 0.0):.2f} m); the water: "
-               f"{100 * timings['water_frozen']:.0f} % glaze, {100 * timings['water_shed']:.0f} % dripped, "
-               f"{100 * timings['water_pooled']:.0f} % pooled")
+               f"glaze {timings['storm_glaze_p50_mm']:.1f} mm (p50 where the rain lands); "
+               + (f"{icicles} icicles, {per_m:.0f} per m of drip rim ({timings.get('drip_rim_m', 0.0):.2f} m); "
+                  if dripped else "")
+               + f"the water: {100 * timings['water_frozen']:.0f} % glaze, {100 * timings['water_shed']:.0f} % "
+               f"dripped, {100 * timings['water_pooled']:.0f} % pooled")
     lengths = timings.get("trunk_lengths_m") or []
     longest = max([v for v in lengths if v is not None], default=0.0)
-    if icicles < FEW_ICICLES or (lengths and longest < SHORT_TRUNK_M):
+    if not dripped:
+        pass
+    elif icicles < FEW_ICICLES or (lengths and longest < SHORT_TRUNK_M):
         size = "under 1 cm" if lengths and longest < SHORT_TRUNK_M else f"up to {100 * longest:.0f} cm"
         what = "no icicles" if icicles == 0 else f"{icicles} icicles {size}"
         click.echo(f"  warning: {what}: a {timings['storm_intensity']} storm on a small object or one with "

@@ -3,6 +3,7 @@ a worker killed mid-job. Stage-only jobs (until trajectories) on a tiny icospher
 
 import csv
 import os
+import shutil
 import signal
 import threading
 import time
@@ -197,3 +198,19 @@ def test_a_job_marker_is_replaced_whole_each_attempt(tmp_path):
     assert marker.read_text().split() == [str(os.getpid())] * 2
     assert marker.stat().st_ino != first  # a new file renamed over it, not an append in place
     assert [p.name for p in marker.parent.iterdir()] == ["job.pid"]  # no temporary file left
+
+
+def test_resume_gives_a_job_folder_that_is_a_link_its_own_folder_and_leaves_the_target(tmp_path, write_manifest):
+    path = write_manifest(grid={"drips.count": [2, 3]})
+    out = tmp_path / "out"
+    first = run_sweep(path, out, workers=1, until="water")
+    linked = first.jobs[0].job_dir
+    target = tmp_path / "elsewhere"
+    target.mkdir()
+    (target / "mine.txt").write_text("keep me")
+    shutil.rmtree(linked)
+    linked.symlink_to(target, target_is_directory=True)
+    again = run_sweep(path, out, workers=1, until="water", resume=True)
+    assert again.ok and again.done == 2 and again.resumed == 1
+    assert linked.is_dir() and not linked.is_symlink() and (linked / "done.json").is_file()
+    assert sorted(p.name for p in target.iterdir()) == ["mine.txt"]  # no error.json, nothing written there

@@ -130,3 +130,9 @@ def test_still_air_is_one_setting_in_a_sweep_as_in_a_run():
     assert parse_set("storm.wind=0,0,0") == ("storm.wind", ([0.0, 0.0, 0.0],))
     assert parse_set("storm.wind=[0,0,0],[0,0,-5]")[1] == ([0.0, 0.0, 0.0], [0.0, 0.0, -5.0])
     assert parse_set("drips.spacing=0.02,0.03")[1] == (0.02, 0.03)
+
+
+def test_a_job_stopped_before_its_drips_says_nothing_of_icicles(tmp_path):
+    result = run("run", "generator:sign", "--until", "water", "-o", tmp_path / "j")
+    assert result.exit_code == 0 and "storm: moderate freezing rain" in result.stdout
+    assert "icicles" not in result.stdout and "warning" not in result.stdout

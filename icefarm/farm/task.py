@@ -116,7 +116,9 @@ def execute(task: Task) -> tuple[Any, int]:
     _add_attempt(marker)
     attempt = attempts_started(task)
     job_dir = Path(task.job_dir)
-    if job_dir.exists():  # leftovers of an attempt that did not finish
+    if job_dir.is_symlink():  # a link someone made: the job gets its own folder, the target stays as it is
+        job_dir.unlink()
+    elif job_dir.exists():  # leftovers of an attempt that did not finish
         shutil.rmtree(job_dir)
     job_dir.mkdir(parents=True)
     try:
