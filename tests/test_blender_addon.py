@@ -5,9 +5,11 @@ What runs for real: installing and enabling the add-on, the export to GLB, the `
 run`` command line it builds, the job in its own process, reading its progress lines, the
 import of ``ice.ply`` as glass parented in place, the operator called from a script
 (``EXEC_DEFAULT``), its error reports, and the modal operator's ``modal`` step and Cancel
-operator. What does not: Blender's event loop (there is none in background mode), so the
-modal operator's ``invoke`` (its window timer and modal handler) and the panel's drawing
-are not run; ``modal`` is driven by hand with TIMER events on a stand-in for the operator.
+operator, and the panel's and the preferences' ``draw`` (on a layout that records what it
+is asked to draw). What does not: Blender's event loop (there is none in background mode,
+where ``INVOKE_DEFAULT`` runs ``execute``), so the modal operator's ``invoke`` (its window
+timer and modal handler) never runs and ``modal`` is driven by hand with TIMER events on a
+stand-in for the operator; nothing is drawn on a screen.
 """
 
 import json
@@ -67,8 +69,9 @@ BLENDER = textwrap.dedent('''
                 "parent_inverse_identity": ice.matrix_parent_inverse == Matrix.Identity(4)}
 
     def contents():
+        temp = sorted(name for name in os.listdir(tempfile.gettempdir()) if name.startswith("icefarm"))
         return {"objects": sorted(o.name for o in bpy.data.objects), "meshes": len(bpy.data.meshes),
-                "materials": len(bpy.data.materials), "temp": sorted(n for n in os.listdir(tempfile.gettempdir()) if n.startswith("icefarm"))}
+                "materials": len(bpy.data.materials), "temp": temp}
 
     def select(*objects):
         bpy.ops.object.select_all(action="DESELECT")
@@ -99,7 +102,8 @@ BLENDER = textwrap.dedent('''
 
     def start_modal(addon, objects):
         """What invoke does, less its modal handler: the Grow, the panel's state."""
-        grow = addon.Grow(bpy.context, objects, addon.find_executable(), bpy.context.scene.icefarm)
+        select(*objects)
+        grow = addon.ICEFARM_OT_grow._start(None, bpy.context)  # icefarm from ICEFARM, the panel's settings
         addon._ACTIVE.append(grow)
         state = bpy.context.window_manager.icefarm
         state.running, state.cancel = True, False
@@ -140,6 +144,9 @@ BLENDER = textwrap.dedent('''
         bpy.context.view_layer.update()
         select(bunny)
         scene.icefarm.settings, scene.icefarm.seed = ARGS["fast"], 5
+        os.environ["ICEFARM"] = ARGS["icefarm"]
+        OUT["render_command"] = addon.job_command("icefarm", "in.glb", "out", size_m=2.5, intensity="severe",
+                                                  kind="meltwater", seed=1, placement="hanging", render="lookdev")
         grow, op = start_modal(addon, [bunny])
         job = grow.jobs[0]
         OUT["command"], OUT["size_m"] = job.command, job.size_m
@@ -187,12 +194,42 @@ BLENDER = textwrap.dedent('''
         OUT["before"], OUT["after"] = before, contents()
         OUT["active"] = len(addon._ACTIVE)
 
+    class Layout:
+        """Records what a panel draws; ``prop`` checks its property exists."""
+        def __init__(self, drawn):
+            self.drawn = drawn
+        def column(self):
+            return self
+        def prop(self, data, name):
+            assert name in data.bl_rna.properties, name
+            self.drawn.append("prop " + name)
+        def label(self, text="", icon="NONE"):
+            self.drawn.append("label " + text)
+        def operator(self, idname, icon="NONE"):
+            getattr(bpy.ops.icefarm, idname.split(".")[1]).get_rna_type()  # registered
+            self.drawn.append("operator " + idname)
+        def progress(self, factor=0.0, type="BAR", text=""):
+            self.drawn.append(f"progress {factor:.2f} {text}")
+
+    def draw(addon, cls, owner=None):
+        drawn = []
+        own = {"executable": owner, "bl_rna": cls.bl_rna} if owner is not None else {}  # the preferences' own
+        cls.draw(SimpleNamespace(layout=Layout(drawn), **own), bpy.context)
+        return drawn
+
     def mode_bad_input():
         addon = load_addon()
         bpy.ops.wm.read_factory_settings(use_empty=True)
         scene = bpy.context.scene
         bpy.ops.mesh.primitive_cube_add(size=1.0)
         cube = bpy.context.active_object
+        OUT["panel"] = draw(addon, addon.ICEFARM_PT_grow)
+        bpy.context.window_manager.icefarm.running, bpy.context.window_manager.icefarm.progress = True, 0.25
+        bpy.context.window_manager.icefarm.status = "Cube (1/1): surface"
+        OUT["panel_running"] = draw(addon, addon.ICEFARM_PT_grow)
+        bpy.context.window_manager.icefarm.running = False
+        os.environ["ICEFARM"] = ARGS["icefarm"]
+        OUT["preferences"] = draw(addon, addon.IcefarmPreferences, owner="")
         bpy.ops.object.camera_add()
         camera = bpy.context.active_object
         points = bpy.data.meshes.new("points")
@@ -263,15 +300,20 @@ def test_the_modal_operator_grows_icicles_on_a_bunny_and_cancel_stops_icefarm(tm
     panel holds (icefarm found through ICEFARM), shows its progress, and brings the icicles
     back onto the bunny; its Cancel button stops a running job, process and children, and
     nothing of it comes back."""
-    out, _ = run_blender(tmp_path, "bunny_modal_and_cancel", timeout=150, bunny=str(BUNNY))
-    env_icefarm = str(ICEFARM)
+    wrapper = tmp_path / "icefarm-from-env"  # named by ICEFARM: the command runs it, not the venv's
+    wrapper.write_text(f'#!/bin/sh\nexec "{ICEFARM}" "$@"\n')
+    wrapper.chmod(0o755)
+    out, _ = run_blender(tmp_path, "bunny_modal_and_cancel", timeout=150, bunny=str(BUNNY), icefarm=str(wrapper))
     command = out["command"]
-    assert command[:2] == [env_icefarm, "run"] and command[command.index("-o") + 1].startswith(str(tmp_path))
+    assert command[:2] == [str(wrapper), "run"] and command[command.index("-o") + 1].startswith(str(tmp_path))
     assert float(command[command.index("--size-m") + 1]) == pytest.approx(0.3, rel=1e-4)
     assert command[command.index("--seed") + 1] == "5" and command[-1] == "--no-render"
     for assignment in ("storm.intensity=moderate", "storm.kind=freezing_rain", *FAST.split()):
         assert command[command.index(assignment) - 1] == "--set"
     assert out["exported"]
+    assert out["render_command"] == ["icefarm", "run", "in.glb", "-o", "out", "--size-m", "2.5", "--seed", "1",
+                                     "--placement", "hanging", "--set", "storm.intensity=severe",
+                                     "--set", "storm.kind=meltwater", "--render", "lookdev"]
     # progress: from 0 up to 1, naming the steps as they come
     fractions = [f for f, _ in out["seen"]]
     assert fractions == sorted(fractions[:-1]) + [0.0], "rising, and reset when the operator ends"
@@ -307,6 +349,11 @@ def test_bad_input_reports_one_error_and_makes_nothing(tmp_path):
                 "a failing icefarm": "icefarm error: the storm blew the mesh away",
                 "no such icefarm": "cannot run icefarm",
                 "an unknown setting": "icefarm error: unknown parameter"}
+    # the panel, drawn on a recording layout (Blender draws none in background mode)
+    assert out["panel"][:4] == ["prop intensity", "prop kind", "prop seed", "prop placement"]
+    assert "label Cube: about 1 m tall" in out["panel"] and out["panel"][-1] == "operator icefarm.grow"
+    assert out["panel_running"] == ["progress 0.25 Cube (1/1): surface", "operator icefarm.cancel"]
+    assert out["preferences"] == ["prop executable", f"label runs: {ICEFARM}"]
     for name, case in out["cases"].items():
         assert len(case["reports"]) == 1 and case["reports"][0].startswith("Error: "), (name, case)
         assert expected[name] in case["reports"][0], (name, case)
