@@ -159,7 +159,10 @@ BLENDER = textwrap.dedent('''
             seen.append([state.progress, state.status])
             if result != {"PASS_THROUGH"}:
                 break
+            if len(seen) == 1:  # the artist moves the bunny while its ice grows
+                bunny.location.x += 1.0
             time.sleep(0.05)
+        bpy.context.view_layer.update()
         OUT["modal_result"], OUT["seen"], OUT["reports"] = sorted(result), seen, op.reports
         OUT["ice"] = ice_record(bpy.data.objects["bunny ice"])
         OUT["bunny_lo"], OUT["bunny_hi"] = world(bunny).min(0).tolist(), world(bunny).max(0).tolist()
@@ -298,7 +301,7 @@ def test_the_addon_installs_and_grows_glass_ice_on_a_cube_in_a_centimetre_scene(
 def test_the_modal_operator_grows_icicles_on_a_bunny_and_cancel_stops_icefarm(tmp_path):
     """The modal operator's step, driven by TIMER events, runs the job with the settings the
     panel holds (icefarm found through ICEFARM), shows its progress, and brings the icicles
-    back onto the bunny; its Cancel button stops a running job, process and children, and
+    back onto the bunny, moved meanwhile; its Cancel button stops a running job, process and children, and
     nothing of it comes back."""
     wrapper = tmp_path / "icefarm-from-env"  # named by ICEFARM: the command runs it, not the venv's
     wrapper.write_text(f'#!/bin/sh\nexec "{ICEFARM}" "$@"\n')
@@ -323,7 +326,8 @@ def test_the_modal_operator_grows_icicles_on_a_bunny_and_cancel_stops_icefarm(tm
     ice = out["ice"]
     assert ice["parent"] == "bunny" and ice["transmission"] == 1.0 and ice["ior"] == pytest.approx(1.31)
     lo, hi = (list(map(float, v)) for v in (out["bunny_lo"], out["bunny_hi"]))
-    for axis in range(3):  # around the bunny, within 3 cm; nothing under the ground it sits on
+    assert lo[0] > 1.3, "the bunny moved 1 m along x while its ice grew"
+    for axis in range(3):  # around the bunny where it is now, within 3 cm; nothing under its ground
         assert lo[axis] - 0.03 < ice["world_lo"][axis] and ice["world_hi"][axis] < hi[axis] + 0.03
     assert ice["world_lo"][2] > lo[2] - 0.002
     # cancel

@@ -29,8 +29,9 @@ How one object's job goes:
 3. The job's ``ice.ply`` is imported. It is in meters, in the GLB's axes, centred on the
    bounding box's centre (icefarm's job frame), so `job_to_world` maps it back: glTF's axes
    to Blender's, meters to Blender units, the centre back. Its vertices are stored in the
-   object's local frame and the ice is parented to the object with an identity parent
-   inverse: it sits where it grew and follows the object from then on.
+   object's frame as it was exported and the ice is parented to the object with an identity
+   parent inverse: it sits where it grew, and an object moved while its ice grew, or later,
+   takes its ice along.
 
 Why ``ice.ply`` and not the job's ``ice.usdc``: a ``--no-render`` job (the fast one an
 artist waits for) writes no USD, only ``ice.ply``; the PLY importer needs neither ``pxr``
@@ -389,9 +390,10 @@ def glass_material():
     return material
 
 
-def import_ice(context, path, target, to_world):
-    """The ice mesh at ``path`` (job frame) as a glass object parented to ``target``, in
-    place (``to_world``: `job_to_world`), smooth shaded, in ``target``'s collections."""
+def import_ice(context, path, target, to_local):
+    """The ice mesh at ``path`` (job frame) as a glass object parented to ``target``, its
+    vertices in ``target``'s frame (``to_local``: `job_to_world` followed by the inverse of
+    ``target``'s world matrix when it was exported), smooth shaded, in ``target``'s collections."""
     view_layer = context.view_layer
     selected = [o for o in view_layer.objects if o.select_get()]
     active = view_layer.objects.active
@@ -407,7 +409,7 @@ def import_ice(context, path, target, to_world):
         raise GrowError(f"the ice of {target.name} did not import as one mesh")
     ice = new[0]
     ice.name = ice.data.name = f"{target.name} ice"
-    ice.data.transform(target.matrix_world.inverted() @ to_world)
+    ice.data.transform(to_local)
     smooth = np.ones(len(ice.data.polygons), dtype=bool)
     ice.data.polygons.foreach_set("use_smooth", smooth)
     ice.data.materials.clear()
@@ -437,7 +439,8 @@ class Job:
         lo, hi = world_bounds(obj, depsgraph)
         meters = meters_per_unit(context.scene)
         self.size_m = real_size(lo, hi, meters)
-        self.to_world = job_to_world((lo + hi) / 2, meters)
+        # the ice in the object's frame as it was exported: moved meanwhile, the ice follows it
+        self.to_local = obj.matrix_world.inverted() @ job_to_world((lo + hi) / 2, meters)
         self.mesh = self.folder / INPUT_FILE
         self.out = Path(bpy.path.abspath(settings.job_folder)) / bpy.path.clean_name(obj.name) \
             if settings.job_folder else self.folder / "job"
@@ -461,7 +464,7 @@ class Job:
         path = self.out / ICE_FILE
         if not path.is_file():
             raise GrowError(f"the job of {self.object_name} finished without its ice ({path})")
-        return import_ice(context, path, target, self.to_world)
+        return import_ice(context, path, target, self.to_local)
 
     @property
     def kept(self):
