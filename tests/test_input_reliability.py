@@ -4,6 +4,7 @@ byte-order mark, compressed glTF, reused and full and read-only folders."""
 from __future__ import annotations
 
 import base64
+import dataclasses
 import codecs
 import errno
 import json
@@ -280,3 +281,41 @@ def test_a_chmod_read_only_cache_is_seen_as_such(tmp_path):
         assert StageCache(cache).read_only and not write_policy(cache, [])
     finally:
         cache.chmod(0o755)
+
+
+BLENDER_PYTHON = Path(__file__).resolve().parents[1] / ".venv-blender" / "bin" / "python"
+BLENDER_GLB = """
+import sys
+import bpy
+src, plain, draco = sys.argv[1:4]
+bpy.ops.wm.read_factory_settings(use_empty=True)
+bpy.ops.wm.obj_import(filepath=src, forward_axis="NEGATIVE_Z", up_axis="Y")
+for path, on in ((plain, False), (draco, True)):
+    bpy.ops.export_scene.gltf(filepath=path, export_format="GLB", export_draco_mesh_compression_enable=on,
+                              export_draco_position_quantization=14, export_apply=True)
+"""
+
+
+@pytest.mark.slow  # Blender exports, then twelve jobs' first stages
+@pytest.mark.skipif(not BLENDER_PYTHON.is_file(), reason="no .venv-blender with bpy (.ci/setup.sh makes it)")
+def test_blenders_draco_glb_grows_the_ice_of_its_plain_glb(tmp_path):
+    import subprocess
+
+    from icefarm.generators import generate
+
+    generate("table").export(tmp_path / "table.obj")
+    plain, draco = tmp_path / "plain.glb", tmp_path / "draco.glb"
+    subprocess.run([str(BLENDER_PYTHON), "-c", BLENDER_GLB, str(tmp_path / "table.obj"), str(plain), str(draco)],
+                   check=True, capture_output=True, timeout=300)
+    assert b"KHR_draco_mesh_compression" in draco.read_bytes() and draco.stat().st_size < plain.stat().st_size / 2
+    figures = {}
+    for path in (plain, draco):
+        spec = JobSpec(object_id=path.stem, mesh=str(path), size_m=None, params=params.resolve({}), seed=0)
+        runs = []
+        for seed in range(1, 7):  # Draco reorders the vertices: each seed is another draw of the fringe
+            job = tmp_path / f"{path.stem}{seed}"
+            assert run_job(dataclasses.replace(spec, seed=seed), job, until=Stage.DRIPS).error is None
+            runs.append(json.loads((job / "timings.json").read_text()))
+        figures[path.stem] = (np.mean([r["icicles"] for r in runs]), runs[0]["storm_glaze_p50_mm"])
+    (count, glaze), (count_draco, glaze_draco) = figures["plain"], figures["draco"]
+    assert abs(count_draco - count) <= 0.05 * count and abs(glaze_draco - glaze) <= 0.05 * glaze
