@@ -109,13 +109,17 @@ BLENDER = textwrap.dedent('''
         state.running, state.cancel = True, False
         return grow, Operator(addon)
 
+    def install(path, module):
+        """The add-on installed from ``path`` (a .py or a zip) and enabled, as Install from Disk does."""
+        bpy.ops.preferences.addon_install(filepath=path, overwrite=True)
+        bpy.ops.preferences.addon_enable(module=module)
+        OUT["installed_in"] = sys.modules[module].__file__
+        return sys.modules[module]
+
     def mode_install_and_grow():
         bpy.ops.wm.read_factory_settings(use_empty=True)
-        bpy.ops.preferences.addon_install(filepath=ARGS["addon"], overwrite=True)
-        bpy.ops.preferences.addon_enable(module="blender_addon")
-        addon = sys.modules["blender_addon"]
-        OUT["installed_in"] = addon.__file__
-        bpy.context.preferences.addons["blender_addon"].preferences.executable = ARGS["icefarm"]
+        install(ARGS["zip"], "icefarm_blender")
+        bpy.context.preferences.addons["icefarm_blender"].preferences.executable = ARGS["icefarm"]
         scene = bpy.context.scene
         scene.unit_settings.scale_length = 0.01  # a scene in centimetres: 1 unit is 1 cm
         bpy.ops.mesh.primitive_cube_add(size=2.0, location=(100.0, 200.0, 300.0), rotation=(0, 0, math.radians(30)))
@@ -221,8 +225,8 @@ BLENDER = textwrap.dedent('''
         return drawn
 
     def mode_bad_input():
-        addon = load_addon()
         bpy.ops.wm.read_factory_settings(use_empty=True)
+        addon = install(ARGS["addon"], "blender_addon")
         scene = bpy.context.scene
         bpy.ops.mesh.primitive_cube_add(size=1.0)
         cube = bpy.context.active_object
@@ -272,12 +276,17 @@ def run_blender(tmp_path, mode, timeout=120, **args):
 
 
 def test_the_addon_installs_and_grows_glass_ice_on_a_cube_in_a_centimetre_scene(tmp_path):
-    """Installed from its file and enabled, ``bpy.ops.icefarm.grow()`` on a 1 m cube (100
-    units at 1 cm each, rotated 30 degrees, away from the origin) brings back glass ice
-    parented to it, around it, thickest on top, none under it (it rests on the ground)."""
-    out, stdout = run_blender(tmp_path, "install_and_grow")
+    """Installed from its zip (`write_blender_addon`) and enabled, ``bpy.ops.icefarm.grow()``
+    on a 1 m cube (100 units at 1 cm each, rotated 30 degrees, away from the origin) brings
+    back glass ice parented to it, around it, thickest on top, none under it (it rests on
+    the ground)."""
+    from icefarm.dcc.addon_zip import write_blender_addon
+
+    addon_zip = write_blender_addon(tmp_path / "dist" / "icefarm_blender.zip")
+    out, stdout = run_blender(tmp_path, "install_and_grow", zip=str(addon_zip))
     assert out["result"] == ["FINISHED"]
-    assert Path(out["installed_in"]).is_relative_to(tmp_path / "blender-user")
+    assert out["installed_in"] == str(tmp_path / "blender-user" / "scripts" / "addons" / "icefarm_blender"
+                                      / "__init__.py")
     ice = out["ice"]
     assert ice["name"] == "Cube ice" and ice["parent"] == "Cube" and ice["parent_inverse_identity"]
     assert ice["transmission"] == 1.0 and ice["ior"] == pytest.approx(1.31) and ice["material"] == "icefarm ice"
@@ -341,12 +350,13 @@ def test_the_modal_operator_grows_icicles_on_a_bunny_and_cancel_stops_icefarm(tm
 def test_bad_input_reports_one_error_and_makes_nothing(tmp_path):
     """Nothing selected, a camera, a mesh with no faces, an icefarm that fails, one that is
     not there, and icefarm refusing a setting: one ERROR line each, nothing added to the
-    file, no temporary folder left."""
+    file, no temporary folder left. The add-on is installed from its .py file here."""
     failing = tmp_path / "failing-icefarm"
     failing.write_text("#!/bin/sh\necho 'prepare ...'\necho 'warning: a warning first' >&2\n"
                        "echo 'error: the storm blew the mesh away' >&2\nexit 1\n")
     failing.chmod(0o755)
     out, _ = run_blender(tmp_path, "bad_input", failing=str(failing), missing=str(tmp_path / "no-icefarm"))
+    assert Path(out["installed_in"]).is_relative_to(tmp_path / "blender-user")
     expected = {"nothing selected": "select one or more mesh objects",
                 "a camera": "Camera is a camera, not a mesh",
                 "no faces": "points has no faces",
