@@ -15,8 +15,24 @@ from .bench.commands import bench
 from .cli_options import exclusion_box, readable_cache, set_values, writable_folder
 from .cli_summary import print_job_summary
 from .errors import InputError, Interrupted, cannot_write, one_line_each
-from .jobdir import (ERROR, EXPORT_DIR, FRAMES, GROWTH_DIR, GROWTH_MP4, GROWTH_USDA, MANIFEST, RENDER_EXR, RENDERS_DIR,
-                     SCENE_USDA, SHEETS_DIR, JobState, growth_frame, growth_ice, read_job, stage_phrase)
+from .jobdir import (
+    ERROR,
+    EXPORT_DIR,
+    FRAMES,
+    GROWTH_DIR,
+    GROWTH_MP4,
+    GROWTH_USDA,
+    MANIFEST,
+    RENDER_EXR,
+    RENDERS_DIR,
+    SCENE_USDA,
+    SHEETS_DIR,
+    JobState,
+    growth_frame,
+    growth_ice,
+    read_job,
+    stage_phrase,
+)
 from .placement import PLACEMENTS
 
 
@@ -204,6 +220,23 @@ def export_command(job_dir, fmt, out):
     else:
         from .export.usd import write_usdz as write
     click.echo(f"done: {write(Path(job_dir), out)}")
+
+
+@main.group(name="dcc")
+def dcc_group():
+    """Tools for the DCCs: the Blender add-on."""
+
+
+@dcc_group.command(name="blender-addon")
+@click.option("-o", "--out", type=click.Path(dir_okay=False), default="icefarm_blender.zip", show_default=True,
+              help="The zip to write.")
+def blender_addon_command(out):
+    """Write the Blender add-on as a zip: in Blender, Edit > Preferences > Add-ons, Install from
+    Disk, pick it and enable "icefarm"; a panel in the 3D view's sidebar (N) grows ice on the
+    selected objects by running this icefarm (name its executable in the add-on's preferences)."""
+    from .dcc.addon_zip import write_blender_addon
+
+    click.echo(f"done: {write_blender_addon(out)}")
 
 
 @main.command(name="params")

@@ -210,7 +210,8 @@ def test_render_again_refuses_what_is_not_a_rendered_job(sphere_file, tmp_path):
     job = tmp_path / "job"
     assert run("run", sphere_file, "--size-m", 0.3, "-o", job, "--no-render", "--set", "drips.count=4",
                "--set", "storm.max_icicles=4",  # the physical storm's count (drips.count is the relative one's)
-               "--set", "water.rays=2000", "--set", "glaze.mode=none", "--set", "surface.voxel_size=0.003").exit_code == 0
+               "--set", "water.rays=2000", "--set", "glaze.mode=none",
+               "--set", "surface.voxel_size=0.003").exit_code == 0
     result = run("render", job)
     assert result.exit_code == 2 and "no object.ply" in result.output
 
@@ -262,3 +263,14 @@ def test_the_summary_hints_at_overflow_when_much_water_stands_in_basins(capsys):
     for quiet in ({"water_pools": "overflow"}, {"water_pooled": 0.02}):
         print_storm({**timings, **quiet})
         assert "water.pools" not in capsys.readouterr().out
+
+
+def test_dcc_blender_addon_writes_the_zip_blender_installs(tmp_path):
+    import zipfile
+
+    result = run("dcc", "blender-addon", "-o", tmp_path / "addons" / "icefarm.zip")
+    assert result.exit_code == 0, result.output
+    with zipfile.ZipFile(tmp_path / "addons" / "icefarm.zip") as archive:
+        assert archive.namelist() == ["icefarm_blender/__init__.py"]
+        source = archive.read("icefarm_blender/__init__.py").decode()
+    assert "bl_info" in source and "def register" in source
