@@ -27,7 +27,7 @@ import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Union
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 import numpy.typing as npt
@@ -37,8 +37,7 @@ from . import artifacts
 from .chain import Stage, run_stages
 from .errors import InputError, cannot_write
 from .generators import GENERATOR_PREFIX
-from .jobdir import (DONE, ERROR, ICE, PARAMS, TIMINGS, TRAJECTORIES, JobState, clear_job, read_job,
-                     stage_phrase)
+from .jobdir import DONE, ERROR, ICE, PARAMS, TIMINGS, TRAJECTORIES, JobState, clear_job, read_job, stage_phrase
 from .mesh import PreparedMesh
 from .params import Params, flatten, idle_keys, resolve
 from .pipeline import Box, JobSpec, load_object, mesh_digest, run_job
@@ -53,7 +52,7 @@ if TYPE_CHECKING:
 
 __all__ = ["Ice", "Icicles", "MeshInput", "grow", "job_spec", "render", "write"]
 
-MeshInput = Union[trimesh.Trimesh, str, os.PathLike]
+MeshInput = trimesh.Trimesh | str | os.PathLike
 """What `grow` takes as the object: a mesh in memory (meters, +Y up), the path of any file
 ``icefarm run`` reads (USD, glTF/GLB, OBJ, PLY, STL, OFF, ...) or ``generator:NAME``."""
 
@@ -246,7 +245,7 @@ def grow(mesh: MeshInput, *, size_m: float | None = None, storm: str | Mapping[s
         A job that failed otherwise (the stage and the traceback in its message's notes).
     """
     source, name, written = _mesh_source(mesh)
-    options = dict(size_m=size_m, storm=storm, kind=kind, params=params, seed=seed, placement=placement,
+    options: dict[str, Any] = dict(size_m=size_m, storm=storm, kind=kind, params=params, seed=seed, placement=placement,
                    exclude=exclude)
     with tempfile.TemporaryDirectory(prefix="icefarm-") as tmp:
         try:
@@ -482,7 +481,7 @@ def _write_input(mesh: trimesh.Trimesh, folder: Path) -> Path:
     (``size_m`` None) as it would a GLB's."""
     path = folder / f"{_IN_MEMORY}.glb"
     plain = trimesh.Trimesh(np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.faces), process=False)
-    path.write_bytes(plain.export(file_type="glb"))
+    path.write_bytes(cast(bytes, plain.export(file_type="glb")))  # a GLB exports as bytes
     return path
 
 

@@ -24,14 +24,14 @@ import trimesh
 from . import artifacts
 from .geometry import ray_caster
 from .mesh import PreparedMesh
+from .params import GlazeParams, Params
 from .placement import Placement, ground_height, ground_level, sole_vertices, stop_at_ground
 from .stage_cache import digest, file_digest
 from .stages.drips import DripResult, find_drips
-from .stages.trajectories import TrajectoryResult, grow_trajectories
 from .stages.icicle_size import BRANCH_LIFE, IcicleSizing, growth_ratios, thickening_m
 from .stages.storm import refine, storm_water
+from .stages.trajectories import TrajectoryResult, grow_trajectories
 from .stages.water import WaterResult, compute_water
-from .params import GlazeParams, Params
 
 
 class Stage(enum.Enum):
@@ -381,4 +381,5 @@ def build_surface(obj: trimesh.Trimesh, flow: trimesh.Trimesh, water: WaterResul
     # on the faces at a flattened vertex (only those can have become slivers).
     vertices, faces, kept = clean_slivers(ice.vertices + below[:, None] * g, ice.faces,
                                           SLIVER * params.surface.voxel_size, near=below < 0)
-    return dataclasses.replace(ice, vertices=vertices, faces=faces, bands=None if ice.bands is None else ice.bands[kept])
+    bands = None if ice.bands is None else ice.bands[kept]
+    return dataclasses.replace(ice, vertices=vertices, faces=faces, bands=bands)

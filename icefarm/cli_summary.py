@@ -6,7 +6,6 @@ import statistics
 
 import click
 
-
 # A job whose icicles are fewer than this, or whose trunks are shorter than this (m), or whose
 # glaze is thinner than this (mm) reads as bare at lookdev: the run summary says so.
 FEW_ICICLES = 5
@@ -21,7 +20,8 @@ POOLED_HINT = 0.1
 VERDICTS = {
     "taper": (3.0, None, "surface.growth_ratio up, or surface.profile=physical", ""),
     "growth_ratio": (0.03, 0.13, "surface.growth_ratio up",
-                     "a lighter storm.intensity (short icicles thicken with the glaze) or a lower surface.growth_ratio"),
+                     "a lighter storm.intensity (short icicles thicken with the glaze)"
+                     " or a lower surface.growth_ratio"),
     "profile_exponent": (0.6, 0.9, "surface.profile=physical", "surface.profile=physical"),
     "tip_radius_mm": (2.0, 3.0, "surface.tip_radius up (2.44 mm)", "surface.tip_radius down (2.44 mm)"),
     "fringe_free_share": (0.85, None, "drips.spacing up (icicles crowd each other)", ""),

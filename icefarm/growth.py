@@ -25,12 +25,21 @@ import numpy as np
 import trimesh
 
 from . import artifacts
+from .export.growth_usd import write_growth_usd
 from .geometry import arc_lengths
-from .jobdir import (FRAMES, GROWTH_MP4, GROWTH_SCRATCH, GROWTH_USDA, ICE, ICE_BANDS, RENDER_PNG, growth_frame,
-                     growth_ice)
+from .jobdir import (
+    FRAMES,
+    GROWTH_MP4,
+    GROWTH_SCRATCH,
+    GROWTH_USDA,
+    ICE,
+    ICE_BANDS,
+    RENDER_PNG,
+    growth_frame,
+    growth_ice,
+)
 from .params import GlazeParams, SurfaceParams
 from .scene.write import JobScene
-from .export.growth_usd import write_growth_usd
 from .stages.drips import DripResult
 from .stages.growth import frame_fractions, noise_draws, stage4_inputs_at, trajectories_at
 from .stages.trajectories import TrajectoryResult
@@ -83,7 +92,8 @@ class GrowthFrame:
 @dataclass(frozen=True)
 class GrowthResult:
     """What `grow_frames` wrote into ``folder``: ``ice_####.ply``, ``frame_####.png`` (with a
-    view), ``growth.mp4`` (with a view), ``growth.usda`` (value clips ``ice_0001.usdc``..., `icefarm.export.growth_usd`), ``frames.json``."""
+    view), ``growth.mp4`` (with a view), ``growth.usda`` (value clips ``ice_0001.usdc``...,
+    `icefarm.export.growth_usd`), ``frames.json``."""
 
     folder: Path
     frames: tuple[GrowthFrame, ...]

@@ -126,8 +126,8 @@ JOB_FILES = (PARAMS, PROXY, WATER, DRIPS, TRAJECTORIES, LANDING, ICE, OBJECT, SC
 #: Every file name above, for the test that keeps them out of other modules.
 FILE_NAMES = (PARAMS, PROXY, WATER, DRIPS, TRAJECTORIES, LANDING, ICE, OBJECT, SCENE_SPEC, SCENE_XML, SCENE_POV,
               OBJECT_INC, ICE_INC, VIEWS, RENDER_EXR, RENDER_PNG, f"{POVRAY_STEM}.png", SCENE_USDA, OBJECT_USDC,
-              ICE_USDC, ICE_LAYER, FRAMES, GROWTH_MP4, GROWTH_USDA, GROWTH_MANIFEST, GROWTH_ICE_USDC, TIMINGS, DONE, ERROR,
-              MANIFEST, JOBS_CSV, REPORT_MD, REPORT_CSV)
+              ICE_USDC, ICE_LAYER, FRAMES, GROWTH_MP4, GROWTH_USDA, GROWTH_MANIFEST, GROWTH_ICE_USDC, TIMINGS, DONE,
+              ERROR, MANIFEST, JOBS_CSV, REPORT_MD, REPORT_CSV)
 
 
 def view_stem(index: int, prefix: str = RENDER_STEM) -> str:
@@ -354,7 +354,7 @@ def read_views(job_dir: Path) -> list[dict]:
         views = json.loads((Path(job_dir) / VIEWS).read_text())
     except (OSError, ValueError):
         return []
-    return [v for v in views if isinstance(v, Mapping)] if isinstance(views, list) else []
+    return [v for v in views if isinstance(v, dict)] if isinstance(views, list) else []
 
 
 # ---------------------------------------------------------------- the sweep folder
@@ -371,7 +371,7 @@ def read_jobs_csv(path: Path) -> tuple[list[dict], tuple[str, ...]]:
         return [], ()
     if "job_id" not in fields:
         return [], ()
-    swept = ()
+    swept: tuple[str, ...] = ()
     if "object" in fields and "status" in fields:
         swept = tuple(fields[fields.index("object") + 1:fields.index("status")])
     return rows, swept
@@ -445,7 +445,7 @@ class SweepFolder:
             loaded = load_yaml((self.path / MANIFEST).read_text())
         except (OSError, yaml.YAMLError):
             return {}
-        return loaded if isinstance(loaded, Mapping) else {}
+        return loaded if isinstance(loaded, dict) else {}
 
 
 def scan_sweep(run_dir: Path) -> SweepFolder:
@@ -465,7 +465,7 @@ def scan_sweep(run_dir: Path) -> SweepFolder:
     else:
         found = sorted({p.parent for name in RECORDS for p in run_dir.rglob(name)})
     rows, swept = read_jobs_csv(run_dir / JOBS_CSV)
-    rank = {(r.get("object") or "", r["job_id"]): i for i, r in enumerate(rows)}
+    rank: dict[tuple[str, str] | None, int] = {(r.get("object") or "", r["job_id"]): i for i, r in enumerate(rows)}
     if rank:
         found.sort(key=lambda p: (rank.get(_object_and_job(run_dir, p), len(rank)), str(p)))
     return SweepFolder(run_dir, tuple(found), tuple(rows), swept)

@@ -173,8 +173,8 @@ PARAMS: tuple[Param, ...] = (
        "of walks that end there)",
        choices=("ignore", "overflow")),
     # Stage 2: drip points (paper 4.2)
-    _p("drips", "count", "ns", "-", _I, 24, "number of drip points, one icicle each (storm.mode relative; physical runs them along "
-       "the rims at drips.spacing, up to storm.max_icicles)", low=0),
+    _p("drips", "count", "ns", "-", _I, 24, "number of drip points, one icicle each (storm.mode relative; "
+       "physical runs them along the rims at drips.spacing, up to storm.max_icicles)", low=0),
     _p("drips", "drip_limit", "dl", "deg", _F, 75.0,
        "water drips where every vertex normal of a face lies within this angle of gravity",
        low=1.0, high=90.0, low_open=True, high_open=True),

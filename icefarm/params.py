@@ -11,7 +11,7 @@ import difflib
 import functools
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any, TypeAlias
 
 import numpy as np
 import yaml
@@ -25,7 +25,8 @@ __all__ = ["GROUPS", "PARAMS", "Kind", "Param", "Params", "defaults", "flatten",
            "idle_keys", "param_index", "parse_assignment", "parse_value", "resolve", "table", "typed"]
 
 
-GROUPS: tuple[str, ...] = ("storm", "water", "drips", "trajectories", "surface", "glaze", "ground_ice", "growth", "proxy")
+GROUPS: tuple[str, ...] = ("storm", "water", "drips", "trajectories", "surface", "glaze", "ground_ice", "growth",
+                          "proxy")
 
 
 def param_index() -> dict[str, Param]:
@@ -137,15 +138,28 @@ def group_type(group: str) -> type:
     return cls
 
 
-StormParams = group_type("storm")
-WaterParams = group_type("water")
-DripsParams = group_type("drips")
-TrajectoriesParams = group_type("trajectories")
-SurfaceParams = group_type("surface")
-GlazeParams = group_type("glaze")
-GroundIceParams = group_type("ground_ice")
-GrowthParams = group_type("growth")
-ProxyParams = group_type("proxy")
+if TYPE_CHECKING:
+    # The groups are generated from the registry at run time, so a type checker cannot see
+    # their fields: to it each group is Any, and attribute access on a group goes unchecked.
+    StormParams: TypeAlias = Any
+    WaterParams: TypeAlias = Any
+    DripsParams: TypeAlias = Any
+    TrajectoriesParams: TypeAlias = Any
+    SurfaceParams: TypeAlias = Any
+    GlazeParams: TypeAlias = Any
+    GroundIceParams: TypeAlias = Any
+    GrowthParams: TypeAlias = Any
+    ProxyParams: TypeAlias = Any
+else:
+    StormParams = group_type("storm")
+    WaterParams = group_type("water")
+    DripsParams = group_type("drips")
+    TrajectoriesParams = group_type("trajectories")
+    SurfaceParams = group_type("surface")
+    GlazeParams = group_type("glaze")
+    GroundIceParams = group_type("ground_ice")
+    GrowthParams = group_type("growth")
+    ProxyParams = group_type("proxy")
 
 
 def _build(group: str, values: Mapping[str, Any]) -> Any:

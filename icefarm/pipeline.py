@@ -2,8 +2,8 @@
 
 Every stage result is cached under a key made from the hashes of its inputs and of the
 parameters it reads, so a sweep over surface parameters reuses stages 1-3 and one over
-trajectory parameters reuses stages 1-2. Artifacts follow the job-folder contract (`icefarm.jobdir`); ``done.json`` comes
-last and atomically, ``error.json`` names the failed stage.
+trajectory parameters reuses stages 1-2. Artifacts follow the job-folder contract (`icefarm.jobdir`);
+``done.json`` comes last and atomically, ``error.json`` names the failed stage.
 """
 
 from __future__ import annotations
@@ -22,22 +22,37 @@ import trimesh
 
 from . import artifacts
 from .asset_io import USD_SUFFIXES
-from .errors import InputError, cannot_write
-from .geometry import ray_caster
-from .jobdir import (DONE, DRIPS, ERROR, GROWTH_DIR, ICE, ICE_BANDS, LANDING, OBJECT_USDC, PARAMS, PROXY,
-                     SCENE_USDA, TIMINGS, TRAJECTORIES, WATER, JobState, clear_job)
 from .chain import Stage, StageResults, build_surface, glaze_surface, run_stages, sole, stage_rng, stops
+from .errors import InputError, cannot_write
+from .generators import GENERATOR_PREFIX
+from .geometry import ray_caster
+from .jobdir import (
+    DONE,
+    DRIPS,
+    ERROR,
+    GROWTH_DIR,
+    ICE,
+    ICE_BANDS,
+    LANDING,
+    OBJECT_USDC,
+    PARAMS,
+    PROXY,
+    SCENE_USDA,
+    TIMINGS,
+    TRAJECTORIES,
+    WATER,
+    JobState,
+    clear_job,
+)
 from .mesh import PreparedMesh, prepare
 from .params import Params, StormParams, SurfaceParams
 from .placement import ground_height
 from .progress import ProgressMode, StepProgress, step_progress
-from .generators import GENERATOR_PREFIX
-from .stage_cache import StageCache, digest as _digest, file_digest as _file_digest
 from .scene.material import Material
+from .stage_cache import StageCache, digest as _digest, file_digest as _file_digest
 from .stages.drips import DripResult
 from .stages.storm import drip_rim_length
 from .stages.trajectory_stats import measure_trajectories
-
 
 
 class Box(NamedTuple):
@@ -256,23 +271,28 @@ def _run_stages(spec: JobSpec, job_dir: Path, run: _Run, cache: StageCache, unti
         return run.timed(name, (lambda: cache.get(name, key, work)) if key else work)
 
     def on_stage(name: str, r: StageResults) -> None:
-        """Each result's file and figures, as soon as it is there."""
+        """Each result's file and figures, as soon as it is there (``r`` holds the results of
+        ``name`` and every stage before it: the asserts say so to the type checker)."""
         if name == "proxy":
             artifacts.write_mesh(job_dir / PROXY, r.proxy.mesh)
             stats.update(proxy_reason=r.proxy_reason, proxy_faces=r.proxy.faces,
                          proxy_components=r.proxy.components, proxy_build_seconds=r.proxy.seconds)
         elif name == "water":
+            assert r.water is not None
             stats["flow_faces"] = len(r.flow.faces)
             artifacts.write_water_ply(job_dir / WATER, r.flow, r.water.supply, r.water.water)
             if r.water.storm is not None:
                 stats.update(_storm_stats(r.water.storm, p.storm, p.water.pools))
         elif name == "drips":
+            assert r.water is not None and r.drips is not None
             artifacts.write_json(job_dir / DRIPS, artifacts.drips_to_json(r.drips))
             stats["icicles"] = len(r.drips.positions)
             if r.water.storm is not None:
                 rim = drip_rim_length(r.flow, r.drips.region_faces, gravity, p.drips.drip_limit)
-                stats.update(drip_rim_m=round(rim, 4), icicles_per_m=round(len(r.drips.positions) / rim, 2) if rim else 0.0)
+                per_m = round(len(r.drips.positions) / rim, 2) if rim else 0.0
+                stats.update(drip_rim_m=round(rim, 4), icicles_per_m=per_m)
         elif name == "trajectories":
+            assert r.trajectories is not None
             artifacts.write_json(job_dir / TRAJECTORIES, artifacts.trajectories_to_json(r.trajectories))
             t = measure_trajectories(r.trajectories, gravity)
             # a drop that falls straight onto the object grows no icicle (trajectories.contact)
@@ -311,11 +331,12 @@ def _run_stages(spec: JobSpec, job_dir: Path, run: _Run, cache: StageCache, unti
 
 def _surface_and_render(spec: JobSpec, job_dir: Path, run: _Run, until: Stage | None, r: StageResults,
                         gravity: np.ndarray) -> dict:
-    from .stages.surface.glaze import measure_glaze
     from .stages.surface import fringe_figures, measure_icicles
+    from .stages.surface.glaze import measure_glaze
 
     p = spec.params
-    obj, ice = r.mesh, r.ice
+    obj, ice, drips = r.mesh, r.ice, r.drips
+    assert r.water is not None and drips is not None and r.trajectories is not None  # the chain reached stage 4
     axes = ice.axes if ice.axes is not None else r.trajectories
     # Plausibility, measured on the mesh: timed apart from the modelling (Table 2 times that);
     # the glaze measured on the surface it grew on (over a wrap, the object's)
@@ -326,7 +347,7 @@ def _surface_and_render(spec: JobSpec, job_dir: Path, run: _Run, until: Stage | 
         # release the GIL: side by side they take the longer one's time and a bit.
         with ThreadPoolExecutor(1) as pool:
             glaze = pool.submit(measure_glaze, ice.vertices, ice.faces, wet.mesh, wet.water, gravity,
-                                exclude=_not_glaze(wet.mesh, r.drips, wet.exclude, p.surface))
+                                exclude=_not_glaze(wet.mesh, drips, wet.exclude, p.surface))
             icicles = measure_icicles(ice.vertices, ice.faces, axes, p.surface)
             return icicles, fringe_figures(ice.vertices, ice.faces, axes, gravity), glaze.result()
 
@@ -392,13 +413,15 @@ def _growth(spec: JobSpec, job_dir: Path, run: _Run, r: StageResults, gravity: n
     rendered with the job's camera: the one framed on the full-grown ice."""
     from .growth import FrameView, grow_frames
 
-    p, obj = spec.params, r.mesh
+    p, obj, water = spec.params, r.mesh, r.water
+    assert water is not None and r.drips is not None and r.trajectories is not None  # the chain reached stage 4
     view = None
     if spec.render is not None:
         from .scene.config import load_render_config
         from .scene.write import job_scene
 
         full = trimesh.load(job_dir / ICE, process=False, force="mesh")
+        assert isinstance(full, trimesh.Trimesh)  # what force="mesh" loads
         view = FrameView(job_scene(obj, full, gravity, material=spec.material, placement=spec.placement,
                                    impurity=p.surface.impurity,
                                    icicle_axes=r.trajectories.points),
@@ -407,7 +430,7 @@ def _growth(spec: JobSpec, job_dir: Path, run: _Run, r: StageResults, gravity: n
     extra_balls = r.ground.balls if r.ground is not None else None
     result = grow_frames(
         job_dir / GROWTH_DIR, r.trajectories, r.drips, p.surface, p.glaze, frames=p.growth.frames,
-        build=lambda t, d, g, rng: build_surface(obj, r.flow, r.water, d, t, p, gravity, rng,
+        build=lambda t, d, g, rng: build_surface(obj, r.flow, water, d, t, p, gravity, rng,
                                                  placement=spec.placement, glaze=g, cast=cast,
                                                  extra_balls=extra_balls, proxy=r.proxy),
         new_rng=lambda: stage_rng(spec.seed, Stage.SURFACE), gravity=gravity, view=view, progress=run.progress,

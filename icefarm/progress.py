@@ -23,13 +23,13 @@ class ProgressMode(enum.Enum):
     LINES = "lines"  # a log or a pipe: plain lines
 
     @classmethod
-    def for_stream(cls, stream: TextIO | None = None) -> "ProgressMode":
+    def for_stream(cls, stream: TextIO | None = None) -> ProgressMode:
         """``BAR`` when ``stream`` (default stderr) is a terminal, else ``LINES``."""
         stream = sys.stderr if stream is None else stream
         return cls.BAR if getattr(stream, "isatty", lambda: False)() else cls.LINES
 
 
-def step_progress(mode: ProgressMode, stream: TextIO | None = None) -> "StepProgress":
+def step_progress(mode: ProgressMode, stream: TextIO | None = None) -> StepProgress:
     """A `StepProgress` writing to ``stream``: by default the live line to stderr, plain
     lines to stdout (with the run's summary; stderr keeps errors alone)."""
     if stream is None:
@@ -54,7 +54,7 @@ class StepProgress:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
 
-    def step(self, name: str) -> "_Step":
+    def step(self, name: str) -> _Step:
         return _Step(self, name)
 
     def note(self, text: str) -> None:

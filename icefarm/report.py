@@ -24,8 +24,20 @@ from pathlib import Path
 from typing import Any
 
 from .errors import InputError
-from .jobdir import (DONE, ERROR, JOBS_DIR, REPORT_CSV, REPORT_MD, SCENE_XML, TIMINGS, JobFolder, JobState, error_line,
-                     read_job, scan_sweep)
+from .jobdir import (
+    DONE,
+    ERROR,
+    JOBS_DIR,
+    REPORT_CSV,
+    REPORT_MD,
+    SCENE_XML,
+    TIMINGS,
+    JobFolder,
+    JobState,
+    error_line,
+    read_job,
+    scan_sweep,
+)
 
 #: The stages of the paper's Table 2, in its order; their sum is its "Total time".
 TABLE2_STAGES: tuple[str, ...] = ("water", "drips", "trajectories", "surface")

@@ -9,8 +9,8 @@ over surface parameters reuses stages 1-3 and a code change never reads stale re
 from __future__ import annotations
 
 import dataclasses
-import functools
 import errno
+import functools
 import hashlib
 import json
 import os
@@ -20,7 +20,6 @@ from typing import Any
 
 from . import artifacts, jobdir
 from .stage_codec import Unencodable, decode, encode
-
 
 READ_ONLY = (errno.EACCES, errno.EPERM, errno.EROFS)  # a write refused: the cache is read, not written
 

@@ -243,7 +243,8 @@ def test_a_single_sheet_runs_end_to_end(tmp_path, kind):
     out = tmp_path / "job"
     result = run("run", path, "--size-m", 1, "--no-render", "-o", out, "--until", "surface",
                  "--set", "water.rays=2000", "--set", "drips.count=6", "--placement", "hanging",
-                 # a light storm, few icicles, a coarse proxy and flow mesh: the tilted quad's rims drew 192 icicles (6 s)
+                 # a light storm, few icicles, a coarse proxy and flow mesh (the tilted quad's rims draw
+                 # 192 icicles otherwise)
                  "--set", "storm.max_icicles=4", "--set", "storm.intensity=light", "--set", "proxy.face_budget=5000",
                  "--set", "storm.flow_edge=0.1",
                  "--set", "surface.voxel_size=0.008", "--set", "glaze.voxel_size=0.03")  # coarse: a quick run

@@ -14,7 +14,8 @@ from icefarm.chain import Stage, run_stages
 from icefarm.mesh import prepare
 from icefarm.pipeline import JobSpec, run_job
 
-SMALL = {"water.rays": 1500, "drips.count": 6, "storm.max_icicles": 6, "glaze.mode": "none", "surface.voxel_size": 0.003}
+SMALL = {"water.rays": 1500, "drips.count": 6, "storm.max_icicles": 6, "glaze.mode": "none",
+         "surface.voxel_size": 0.003}
 
 
 def _bowl(tmp_path):
@@ -45,7 +46,7 @@ def test_steps_come_in_order_and_stop_where_asked(tmp_path):
 
 
 def test_a_proxy_run_hangs_its_icicles_from_the_object(tmp_path):
-    p = params.resolve({**SMALL, "proxy.mode": "always", "proxy.face_budget": 4000})  # a coarse wrap: the default took 2 s
+    p = params.resolve({**SMALL, "proxy.mode": "always", "proxy.face_budget": 4000})  # a coarse wrap, for speed
     prepared = prepare(str(_bowl(tmp_path)), 0.3, p.water.gravity)
     seen = []
     result = run_stages(prepared, p, 0, until=Stage.TRAJECTORIES,

@@ -125,8 +125,8 @@ def _reference(points, per, seed, shared, seg, reach, tol, tol_shared, taper_end
     return phi
 
 
-def _reference_phi(tree, samples, points, normals, thick: Thickness, kind, rim, edge, depth, reach, tol, near=None, seg=None,
-         wall=None, taper_end=0.0, edges: Edges | None = None):
+def _reference_phi(tree, samples, points, normals, thick: Thickness, kind, rim, edge, depth, reach, tol, near=None,
+                   seg=None, wall=None, taper_end=0.0, edges: Edges | None = None):
     """``phi`` (meters, positive inside the coat) at ``points`` (see `sample_band`), from
     their nearest ``samples`` (indices ``near``, -1 for none; queried in ``tree``, their
     `icefarm.geometry.point_index`, when not given).

@@ -113,7 +113,6 @@ def test_a_big_asset_meshes_fewer_faces_with_the_same_icicles_and_stays_watertig
     from icefarm.chain import run_stages
     from icefarm.generators import generate
     from icefarm.mesh import prepare
-
     from icefarm.stages.surface.measure import measure_icicles
 
     prep = prepare(generate("roof"), 1.2)

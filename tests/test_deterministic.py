@@ -20,8 +20,24 @@ import pytest
 import yaml
 
 from icefarm import params
-from icefarm.jobdir import (DRIPS, ICE, ICE_INC, MANIFEST, OBJECT, OBJECT_INC, PARAMS, RENDER_EXR,
-                            RENDER_PNG, SCENE_POV, SCENE_SPEC, SCENE_XML, TRAJECTORIES, VIEWS, WATER, scan_sweep)
+from icefarm.jobdir import (
+    DRIPS,
+    ICE,
+    ICE_INC,
+    MANIFEST,
+    OBJECT,
+    OBJECT_INC,
+    PARAMS,
+    RENDER_EXR,
+    RENDER_PNG,
+    SCENE_POV,
+    SCENE_SPEC,
+    SCENE_XML,
+    TRAJECTORIES,
+    VIEWS,
+    WATER,
+    scan_sweep,
+)
 from icefarm.params import flatten
 
 STAGES = (PARAMS, WATER, DRIPS, TRAJECTORIES, ICE)

@@ -16,8 +16,8 @@ from icefarm.generators.fountain import lathe, resample_polyline
 from icefarm.geometry import sample_faces
 from icefarm.mesh import detect_problems, prepare
 from icefarm.pipeline import JobSpec, Stage, run_job
-from icefarm.stages.proxy import ProxyMethod, build_proxy, proxy_reason
 from icefarm.stages.drips import drip_region, find_drips
+from icefarm.stages.proxy import ProxyMethod, build_proxy, proxy_reason
 from icefarm.stages.rims import drip_flux
 from icefarm.stages.trajectories import grow_trajectories
 from icefarm.stages.water import compute_water

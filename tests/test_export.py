@@ -22,13 +22,13 @@ import yaml
 from click.testing import CliRunner
 
 from icefarm import params
-from icefarm.jobdir import check_done
 from icefarm.cli import main
+from icefarm.export.usd import up_axis, write_job_usd, write_usdz
+from icefarm.jobdir import check_done
 from icefarm.pipeline import JobSpec, run_job
 from icefarm.scene.config import ABSORPTION_PER_M, render_config_from_dict
 from icefarm.scene.material import material_from_dict
 from icefarm.scene.write import write_scenes
-from icefarm.export.usd import up_axis, write_job_usd, write_usdz
 
 PLASTIC = material_from_dict({"type": "plastic", "color": (0.6, 0.1, 0.1), "roughness": 0.09})
 
@@ -440,7 +440,8 @@ def test_blender_imports_the_ice_as_glass_with_the_hook_and_as_a_shell_without(j
 
     def materials(mode):
         done = subprocess.run([str(BLENDER_PYTHON), "-c", BLENDER_IMPORT, str(job / "scene.usda"),
-                               str(Path(dcc.__file__).parent / "blender_usd_hook.py"), mode], capture_output=True, text=True, timeout=300)
+                               str(Path(dcc.__file__).parent / "blender_usd_hook.py"), mode],
+                              capture_output=True, text=True, timeout=300)
         assert done.returncode == 0, done.stderr[-2000:]
         line = next(x for x in done.stdout.splitlines() if x.startswith("RESULT "))
         return json.loads(line[len("RESULT "):])

@@ -10,8 +10,8 @@ import threading
 from pathlib import Path
 
 import pytest
-
 from hooks.sitecustomize import pause_env
+
 from icefarm.farm.manifest import load_manifest
 from icefarm.farm.plan import plan_jobs
 from icefarm.farm.sweep import run_sweep

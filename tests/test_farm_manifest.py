@@ -103,14 +103,20 @@ def test_generators_and_ids(tmp_path, ball):
 
 def test_sweep_shape_errors(tmp_path, ball):
     bad = [
-        ({"method": "grd", "parameters": {"drips.count": {"values": [1]}}}, "sweep.method: expected one of grid, zip, random"),
-        ({"method": "random", "parameters": {"drips.count": {"values": [1, 2]}}}, "sweep.count: a random sweep needs count"),
-        ({"method": "grid", "parameters": {"surface.noise": {"min": 0, "max": 1}}}, "min/max ranges are drawn only by method: random"),
-        ({"method": "zip", "parameters": {"drips.count": {"values": [1, 2]}, "surface.noise": {"values": [0, 0.1, 0.2]}}},
+        ({"method": "grd", "parameters": {"drips.count": {"values": [1]}}},
+         "sweep.method: expected one of grid, zip, random"),
+        ({"method": "random", "parameters": {"drips.count": {"values": [1, 2]}}},
+         "sweep.count: a random sweep needs count"),
+        ({"method": "grid", "parameters": {"surface.noise": {"min": 0, "max": 1}}},
+         "min/max ranges are drawn only by method: random"),
+        ({"method": "zip",
+          "parameters": {"drips.count": {"values": [1, 2]}, "surface.noise": {"values": [0, 0.1, 0.2]}}},
          "a zip sweep needs value lists of one length"),
-        ({"method": "random", "count": 2, "parameters": {"surface.noise": {"min": 0, "max": 1, "distribution": "log_uniform"}}},
+        ({"method": "random", "count": 2,
+          "parameters": {"surface.noise": {"min": 0, "max": 1, "distribution": "log_uniform"}}},
          "log_uniform needs min > 0"),
-        ({"method": "random", "count": 2, "parameters": {"surface.noise": {"min": 0, "max": 1, "distribution": "normal"}}},
+        ({"method": "random", "count": 2,
+          "parameters": {"surface.noise": {"min": 0, "max": 1, "distribution": "normal"}}},
          "distribution: expected uniform or log_uniform"),
     ]
     for sweep, expected in bad:

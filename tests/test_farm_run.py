@@ -15,8 +15,7 @@ from click.testing import CliRunner
 from hooks.sitecustomize import pause_env
 
 from icefarm.errors import InputError
-from icefarm.farm.commands import sweep as sweep_command
-from icefarm.farm.commands import validate as validate_command
+from icefarm.farm.commands import sweep as sweep_command, validate as validate_command
 from icefarm.farm.manifest import load_manifest
 from icefarm.farm.plan import plan_jobs
 from icefarm.farm.sweep import run_sweep

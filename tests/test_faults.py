@@ -85,7 +85,8 @@ def test_a_worker_killed_on_ctrl_c_leaks_no_semaphore(tmp_path):
 @pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc")
 @pytest.mark.parametrize("signum,code", [(signal.SIGTERM, 143), (signal.SIGINT, 130), (signal.SIGKILL, None)],
                          ids=["SIGTERM", "SIGINT", "SIGKILL"])
-def test_a_killed_driver_leaves_no_process_and_resume_finishes_every_job(tmp_path, signum, code, write_manifest, wait_for):
+def test_a_killed_driver_leaves_no_process_and_resume_finishes_every_job(tmp_path, signum, code, write_manifest,
+                                                                         wait_for):
     path = write_manifest(grid={"water.rays": [300, 301, 302]})
     out = tmp_path / "out"
     env = dict(os.environ, **pause_env("ball", 600))  # every job stays in its worker

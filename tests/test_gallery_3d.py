@@ -9,8 +9,7 @@ import subprocess
 import pytest
 import trimesh
 
-from icefarm import params
-from icefarm import sheets as S
+from icefarm import params, sheets as S
 from icefarm.pipeline import JobSpec, run_job
 from icefarm.sheets.models import PREVIEW_FACES, model_viewer_js
 
@@ -33,7 +32,8 @@ def test_each_rendered_job_gets_a_light_model_script_and_an_orbit_button(sweep):
     S.build_sheets(sweep, cell_width=64)
     script = sweep / "sheets" / "models" / "sphere-j0.js"
     text = script.read_text()
-    assert text.startswith('(window.icefarmModels = window.icefarmModels || {})["sphere-j0"] = "data:model/gltf-binary;base64,')
+    assert text.startswith('(window.icefarmModels = window.icefarmModels || {})["sphere-j0"] = '
+                           '"data:model/gltf-binary;base64,')
     page = (sweep / "sheets" / "index.html").read_text()
     assert 'class="orbit" data-id="sphere-j0" data-model="models/sphere-j0.js"' in page
     # light: the preview's faces stay near the budget whatever the job's ice holds

@@ -5,8 +5,8 @@ import pytest
 import trimesh
 
 from icefarm import generators
-from icefarm.generators import branch, fountain, roof, teapot
 from icefarm.errors import InputError
+from icefarm.generators import branch, fountain, roof, teapot
 from icefarm.mesh import clean, count_self_intersections, detect_problems
 
 NAMES = ("teapot", "fountain", "roof", "branch")

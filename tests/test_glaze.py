@@ -15,8 +15,14 @@ from icefarm.generators import generate
 from icefarm.geometry import inside, ray_caster
 from icefarm.mesh import prepare
 from icefarm.metaballs import KAPPA, SPACING, Balls, fuse_fields, sample_field
-from icefarm.stages.surface.glaze import (GlazeStats, glaze_balls, glaze_field, glaze_thickness,
-                                          measure_glaze, wet_vertices)
+from icefarm.stages.surface.glaze import (
+    GlazeStats,
+    glaze_balls,
+    glaze_field,
+    glaze_thickness,
+    measure_glaze,
+    wet_vertices,
+)
 from icefarm.stages.water import WaterResult, compute_water
 
 G = np.array([0.0, -1.0, 0.0])

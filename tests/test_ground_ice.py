@@ -9,8 +9,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from icefarm import metaballs as M
-from icefarm import params
+from icefarm import metaballs as M, params
 from icefarm.errors import InputError
 from icefarm.geometry import ray_caster
 from icefarm.pipeline import JobSpec, Stage, run_job

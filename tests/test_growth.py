@@ -15,9 +15,9 @@ from icefarm.artifacts import trajectories_from_json
 from icefarm.cli import main
 from icefarm.farm.manifest import load_manifest
 from icefarm.growth import read_frames
-from icefarm.stages.growth import frame_fractions, stage4_inputs_at, trajectories_at
 from icefarm.pipeline import JobSpec, run_job
 from icefarm.stages.drips import DripResult
+from icefarm.stages.growth import frame_fractions, stage4_inputs_at, trajectories_at
 from icefarm.stages.surface.icicles import icicle_balls
 from icefarm.stages.trajectories import TrajectoryResult
 

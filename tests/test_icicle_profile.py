@@ -107,7 +107,8 @@ def test_bases_show_at_the_defaults(base_volume):
 
 
 def test_base_balls_and_extent_each_add_ice_monotonically(base_volume):
-    coarse = {"surface__voxel_size": 0.003}  # three times the default: twelve quick meshings, each step still +0.2 cm^3 or more
+    # three times the default voxel: twelve quick meshings, each step still +0.2 cm^3 or more
+    coarse = {"surface__voxel_size": 0.003}
     by_count = [base_volume(surface__base_balls=n, **coarse) for n in (10, 20, 40)]
     by_extent = [base_volume(surface__base_extent=eb, **coarse) for eb in (0.01, 0.02, 0.03)]
     assert np.all(np.diff(by_count) > 0) and np.all(np.diff(by_extent) > 0)

@@ -4,8 +4,8 @@ byte-order mark, compressed glTF, reused and full and read-only folders."""
 from __future__ import annotations
 
 import base64
-import dataclasses
 import codecs
+import dataclasses
 import errno
 import json
 import os
@@ -262,7 +262,8 @@ def test_a_read_only_cache_is_read_and_the_rest_computed(tmp_path, sphere, monke
     sphere.export(mesh)
     p = params.resolve({"storm.mode": "relative", "water.rays": 500, "drips.count": 10})
     cache = tmp_path / "shared"
-    assert run_job(JobSpec("sphere", str(mesh), 0.3, p, seed=3), tmp_path / "a", cache, until=Stage.WATER).status == "done"
+    spec = JobSpec("sphere", str(mesh), 0.3, p, seed=3)
+    assert run_job(spec, tmp_path / "a", cache, until=Stage.WATER).status == "done"
     entries = sorted(cache.rglob("*.npz"))
     read_only(monkeypatch, cache)
     assert not write_policy(cache, ["drips"])

@@ -21,7 +21,7 @@ def source_tree(path: Path) -> ast.Module:
     return _parsed(path.read_text(), str(path))
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _parsed(text: str, name: str) -> ast.Module:
     return ast.parse(text, name)
 

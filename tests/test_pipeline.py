@@ -13,7 +13,8 @@ from icefarm.pipeline import JobSpec, Stage, run_job
 def sphere_job(tmp_path, sphere, **values):
     path = tmp_path / "sphere.ply"
     sphere.export(path)
-    p = params.resolve({"storm.mode": "relative", "water.rays": 2000, "drips.count": 40, "drips.drip_limit": 80, **values})
+    p = params.resolve({"storm.mode": "relative", "water.rays": 2000, "drips.count": 40, "drips.drip_limit": 80,
+                        **values})
     return JobSpec("sphere", str(path), 0.3, p, seed=3)
 
 
@@ -67,9 +68,9 @@ def test_cache_entries_round_trip_every_stage_result_without_pickle(tmp_path):
 
     import numpy as np
 
+    from icefarm.chain import run_stages
     from icefarm.generators import generate
     from icefarm.mesh import prepare
-    from icefarm.chain import run_stages
     from icefarm.stage_codec import decode, encode
 
     prepared = prepare(generate("roof"), 0.4)

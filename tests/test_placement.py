@@ -54,8 +54,8 @@ def _ring_on_legs(tmp_path):
 @pytest.mark.parametrize("placement", ["ground", "hanging"])
 def test_grounded_icicles_stop_at_the_ground_and_hanging_ones_do_not(tmp_path, placement):
     path = _ring_on_legs(tmp_path)
-    p = params.resolve({"storm.mode": "relative", "water.rays": 1500, "drips.count": 12, "trajectories.length_scale": 20.0,
-                        "proxy.mode": "never"})
+    p = params.resolve({"storm.mode": "relative", "water.rays": 1500, "drips.count": 12,
+                        "trajectories.length_scale": 20.0, "proxy.mode": "never"})
     spec = JobSpec("stand", str(path), 0.15, p, seed=1, placement=placement)
     outcome = run_job(spec, tmp_path / placement, until=Stage.TRAJECTORIES)
     assert outcome.status == "done", outcome.error

@@ -12,8 +12,7 @@ from icefarm import params
 from icefarm.errors import InputError
 from icefarm.mesh import detect_problems, prepare
 from icefarm.pipeline import JobSpec, Stage, run_job
-from icefarm.stages.proxy import (ProxyMethod, boundary_loops, build_proxy, drop_voids, proxy_reason,
-                           snap_to_surface)
+from icefarm.stages.proxy import ProxyMethod, boundary_loops, build_proxy, drop_voids, proxy_reason, snap_to_surface
 
 SHARED_MESHES = Path(__file__).resolve().parents[1].parent / "shared" / "meshes"
 SIZE_M = 0.3
@@ -24,7 +23,8 @@ FAST = dataclasses.replace(DEFAULTS, alpha=0.02, face_budget=20000)
 # shrinks (1 s at 0.02, 0.4 s at 0.03); the shared meshes' wraps leave their bounds at 0.03.
 WRAPS = {"boxes": dataclasses.replace(FAST, alpha=0.03, face_budget=5000)}
 _SHARED = pytest.mark.slow  # reads ../shared/meshes
-PROBLEM_MESHES = [pytest.param(name, marks=_SHARED) for name in ("teapot.obj", "chair_model.obj", "soup.stl")] + ["boxes"]
+PROBLEM_MESHES = [pytest.param(name, marks=_SHARED)
+                  for name in ("teapot.obj", "chair_model.obj", "soup.stl")] + ["boxes"]
 
 
 def box_soup() -> trimesh.Trimesh:
@@ -209,7 +209,8 @@ def test_small_holes_are_filled(sphere):
 def test_wide_opening_is_wrapped_not_capped():
     bowl = trimesh.creation.icosphere(subdivisions=3, radius=0.15)
     bowl.update_faces(bowl.triangles_center[:, 1] < 0.05)
-    result = build_proxy(bowl, dataclasses.replace(FAST, alpha=0.06, face_budget=5000))  # still a shell: 3 % of the hull
+    # still a shell: 3 % of the hull
+    result = build_proxy(bowl, dataclasses.replace(FAST, alpha=0.06, face_budget=5000))
     assert result.method is ProxyMethod.WRAP
     assert result.mesh.is_watertight and result.components == 1
     # A shell around both sides of the bowl, not a lid: far less volume than the capped bowl.

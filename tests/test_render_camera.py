@@ -176,7 +176,8 @@ def test_the_ice_view_tells_icicles_from_glaze_thicker_than_its_reach(dense):
     ice = trimesh.util.concatenate([cones_mesh, trimesh.Trimesh(v, f, process=False)])
     axes = np.vstack([np.c_[np.full(20, c.bounds.mean(axis=0)[0]), np.linspace(0.0, c.bounds[0][1], 20),
                             np.full(20, 0.04)] for c in cones])
-    frame, size = world_frame((0, -1, 0)), float(np.linalg.norm(np.ptp(np.vstack([box.vertices, ice.vertices]), axis=0)))
+    frame = world_frame((0, -1, 0))
+    size = float(np.linalg.norm(np.ptp(np.vstack([box.vertices, ice.vertices]), axis=0)))
     blind = ice_focus(ice.vertices, ice.faces, surface_points(box), frame, size)
     assert (blind.icicles[:, 1] > 0.1).any()  # without the axes the glaze counts as icicles
     focus = ice_focus(ice.vertices, ice.faces, surface_points(box), frame, size, axes=axes)

@@ -6,8 +6,14 @@ import numpy as np
 import pytest
 
 from icefarm.errors import InputError
-from icefarm.scene.config import (View, config_names, load_render_config, parse_view, render_config_from_dict,
-                                  render_config_to_dict)
+from icefarm.scene.config import (
+    View,
+    config_names,
+    load_render_config,
+    parse_view,
+    render_config_from_dict,
+    render_config_to_dict,
+)
 from icefarm.scene.material import Material, material_from_dict
 
 

@@ -18,8 +18,8 @@ from icefarm.scene import povray as pov
 from icefarm.scene.config import render_config_to_dict
 from icefarm.scene.images import read_image
 from icefarm.scene.render import render_job
-from icefarm.scene.write import write_scenes
 from icefarm.scene.variants import find_libllvm
+from icefarm.scene.write import write_scenes
 
 ROOT = Path(__file__).resolve().parents[1]
 MITSUBA_CLI = Path(sys.executable).parent / "mitsuba"

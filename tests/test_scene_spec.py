@@ -12,8 +12,7 @@ import numpy as np
 import pytest
 import yaml
 
-from icefarm.scene import mitsuba as mx
-from icefarm.scene import povray as pov
+from icefarm.scene import mitsuba as mx, povray as pov
 from icefarm.scene.spec import SceneSpec, read_spec
 from icefarm.scene.write import build_spec, write_scenes
 

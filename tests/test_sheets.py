@@ -12,8 +12,7 @@ import numpy as np
 import pytest
 import yaml
 
-from icefarm import params as P
-from icefarm import sheets as S
+from icefarm import params as P, sheets as S
 from icefarm.errors import InputError
 
 oiio = pytest.importorskip("OpenImageIO")

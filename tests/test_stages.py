@@ -5,9 +5,9 @@ import pytest
 import trimesh
 
 from icefarm.mesh import prepare
+from icefarm.stages.basins import overflow_heights, spill_levels, spill_over, spill_routes
 from icefarm.stages.drips import find_drips
 from icefarm.stages.trajectories import GOLDEN_ROLL, grow_trajectories
-from icefarm.stages.basins import overflow_heights, spill_levels, spill_over, spill_routes
 from icefarm.stages.water import compute_water, water_coefficients
 
 G = np.array([0.0, -1.0, 0.0])

@@ -13,8 +13,7 @@ from icefarm.geometry import ray_caster
 from icefarm.mesh import prepare
 from icefarm.stages.icicle_size import icicle_volume, length_from_volume
 from icefarm.stages.rain import open_sky
-from icefarm.stages.storm import WATER_TO_ICE, accrete, precipitation_m, refine, storm_water
-from icefarm.stages.water import water_coefficients
+from icefarm.stages.storm import WATER_TO_ICE, precipitation_m, refine, storm_water
 
 G = np.array([0.0, -1.0, 0.0])
 
@@ -149,9 +148,10 @@ def test_short_icicles_thicken_as_the_storm_does_long_ones_as_real_ones():
 
 
 def test_branch_growth_survives_the_job_files(tmp_path):
+    import json
+
     from icefarm.artifacts import trajectories_from_json, trajectories_to_json
     from icefarm.stages.trajectories import TrajectoryResult
-    import json
 
     traj = TrajectoryResult(points=np.array([[0, 0, 0], [0, -0.1, 0], [0, 0, 0.05], [0, -0.05, 0.05]]),
                             branch_offsets=np.array([0, 2, 4]), branch_icicle=np.array([0, 1]),
@@ -164,9 +164,9 @@ def test_branch_growth_survives_the_job_files(tmp_path):
 @pytest.mark.slow  # pure, but about 18 s: every default on a real-size table is 3 M faces to mesh and measure
 def test_a_garden_table_at_its_real_size_carries_readable_ice():
     """Issue 23's figures on a real-size asset at every default (one job, no render)."""
+    from icefarm.bench.storm_figures import storm_figures
     from icefarm.generators import generate, natural_size
     from icefarm.stages.surface.measure import measure_icicles
-    from icefarm.bench.storm_figures import storm_figures
 
     prep = prepare(generate("table"), natural_size("table"))
     p = params.resolve({})

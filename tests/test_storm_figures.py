@@ -1,14 +1,21 @@
 """Issue 23's storm figures on small synthetic inputs: boxes, slabs of ice, hand-made trajectories."""
 
+import dataclasses
 import math
 
 import numpy as np
 import pytest
 import trimesh
 
+from icefarm.bench.storm_figures import (
+    StormFigures,
+    glaze_coverage,
+    ice_along_normals,
+    nearest_root_distance,
+    rain_reached_points,
+    storm_figures,
+)
 from icefarm.stages.trajectories import TrajectoryResult
-from icefarm.bench.storm_figures import (StormFigures, glaze_coverage, ice_along_normals, nearest_root_distance,
-                                   rain_reached_points, storm_figures)
 
 DOWN = (0.0, -1.0, 0.0)
 
@@ -119,8 +126,8 @@ def test_storm_figures_of_a_glazed_box_with_icicles(unit_box):
     assert figures.glaze_coverage == 1.0
     assert figures.glaze_p50_m == pytest.approx(0.005, abs=2e-5)
     assert figures.rain_points == 800
-    with pytest.raises(Exception):
-        figures.icicles = 3  # frozen
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        figures.icicles = 3  # the record is frozen
 
 
 def test_storm_figures_without_ice_or_icicles(unit_box):

@@ -9,10 +9,9 @@ import numpy as np
 import pytest
 import trimesh
 
-from icefarm import metaballs as M
-from icefarm.metaballs import fuse
-from icefarm import params
+from icefarm import metaballs as M, params
 from icefarm.errors import InputError
+from icefarm.metaballs import fuse
 from icefarm.stages import surface as S
 from icefarm.stages.trajectories import TrajectoryResult
 
@@ -312,7 +311,8 @@ def test_a_cut_icicle_thickens_as_if_longer_and_rests_on_its_foot(surface_kit):
     from icefarm.stages.surface.profile import GROUND_THICKENING, grown_lengths
 
     kit = surface_kit
-    assert grown_lengths(np.array([0.1, 0.1]), np.array([0.0, 1.0])) == pytest.approx([0.1, 0.1 * (1 + GROUND_THICKENING)])
+    grown = grown_lengths(np.array([0.1, 0.1]), np.array([0.0, 1.0]))
+    assert grown == pytest.approx([0.1, 0.1 * (1 + GROUND_THICKENING)])
     obj = trimesh.creation.box([0.2, 0.01, 0.2])
     start = [0.0, -0.005, 0.0]
     floor = -0.005 - 0.08 - 0.00244

@@ -12,7 +12,6 @@ from .. import params
 from ..cli_options import set_values
 from ..errors import InputError
 
-
 # The options the benchmarks share.
 MESH = click.argument("mesh", type=click.Path(dir_okay=False))
 SET = click.option("--set", "assignments", multiple=True, metavar="GROUP.PARAM=VALUE", help="Override a parameter.")
@@ -109,8 +108,8 @@ def bench_render(mesh, size_m, drips, render, repeat, assignments):
     """
     from tqdm import tqdm
 
-    from .timings import peak_memory_gb, render_timings
     from ..pipeline import GENERATOR_PREFIX
+    from .timings import peak_memory_gb, render_timings
 
     if not mesh.startswith(GENERATOR_PREFIX) and not Path(mesh).is_file():
         raise InputError(f"mesh file not found: {mesh}")
@@ -157,9 +156,9 @@ def bench_job(mesh, size_m, render, repeat, assignments):
     """
     from tqdm import tqdm
 
-    from .timings import job_timings, peak_memory_gb
     from ..asset_io import missing_size, with_asset_gravity
     from ..pipeline import GENERATOR_PREFIX
+    from .timings import job_timings, peak_memory_gb
 
     if not mesh.startswith(GENERATOR_PREFIX) and not Path(mesh).is_file():
         raise InputError(f"mesh file not found: {mesh}")
@@ -190,8 +189,8 @@ def bench_growth(mesh, size_m, drips, frames, render, assignments):
     Runs one job with FRAMES growth frames (stages 1-3 once; stage 4 and a render per
     frame) and prints the median frame's stage 4 and render next to the job's own.
     """
-    from .timings import growth_timings
     from ..pipeline import GENERATOR_PREFIX
+    from .timings import growth_timings
 
     if not mesh.startswith(GENERATOR_PREFIX) and not Path(mesh).is_file():
         raise InputError(f"mesh file not found: {mesh}")
@@ -212,7 +211,8 @@ def bench_growth(mesh, size_m, drips, frames, render, assignments):
               help="Folder of the test meshes (default: ../shared/meshes when it exists).")
 @click.option("-o", "--out", type=click.Path(file_okay=False, path_type=Path), default=Path("out/table2"),
               show_default=True, help="Folder for table2.md and table2.csv.")
-@click.option("--repeat", type=click.IntRange(min=1), default=3, show_default=True, help="Runs per row; medians are reported.")
+@click.option("--repeat", type=click.IntRange(min=1), default=3, show_default=True,
+              help="Runs per row; medians are reported.")
 @click.option("--rows", help="Only these rows of Table 2, e.g. a,c,e (default: all seven).")
 def bench_table2(meshes, out, repeat, rows):
     """Reproduce the paper's Table 2 (Figure 16 a-g) side by side with its numbers.

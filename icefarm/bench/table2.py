@@ -19,8 +19,8 @@ and so sets the polygon count, is off where the paper's count is low for its ici
 (all rows but c and e). The stages run as a job runs them (`icefarm.chain.run_stages`: no icicle
 hangs from the bottom ``drips.ground_clearance`` of a grounded object, icicles stop at the ground),
 with the paper's relative storm and drip points (`PAPER_STAGES`: area-weighted, no spacing, none removed for want of
-room or water) and no proxy (the rows are clean meshes). The ice polygon count is then steered towards the paper's by the voxel size
-(marching-cubes faces grow as 1 / voxel**2): a coarse calibration run at the tip radius,
+room or water) and no proxy (the rows are clean meshes). The ice polygon count is then steered towards the
+paper's by the voxel size (marching-cubes faces grow as 1 / voxel**2): a coarse calibration run at the tip radius,
 then rescaled runs until the count is within `CALIBRATION_TOLERANCE`. Stage times are
 medians over repeated runs of the stage functions themselves (`icefarm.bench.timings.stage_timings`:
 mesh loading excluded; the ray-tracing BVH build counts, in stage 1).
@@ -38,11 +38,11 @@ import numpy as np
 import trimesh
 
 from .. import params as params_mod
-from .timings import stage_timings
 from ..errors import InputError
 from ..report import TABLE2_STAGES as STAGES
 from .table2_rows import PAPER_TABLE2, ROW_OBJECTS, RowObject, Table2Row
 from .table2_write import machine_info, table2_csv, table2_markdown
+from .timings import stage_timings
 
 CALIBRATION_TOLERANCE = 1.15  # stop calibrating once ice faces are within this factor of the target
 CALIBRATION_RUNS = 5  # voxel sizes tried at most, the first one coarse
@@ -51,7 +51,8 @@ MIN_VOXEL_M = 0.00012  # the finest voxel calibration may choose; the coarsest r
 # The paper's stage 2: drip points uniform over the drip region, however close or short; its
 # Table 2 timed the stages on the models themselves (no approximate surface); nor does it
 # smooth the glaze coat (a lookdev step of icefarm's, `glaze.smoothing`).
-PAPER_STAGES = {"storm.mode": "relative", "trajectories.max_branches": 32, "trajectories.contact": "slide", "drips.distribution": "area", "drips.spacing": 0.0, "drips.min_fall": 0.0,
+PAPER_STAGES = {"storm.mode": "relative", "trajectories.max_branches": 32, "trajectories.contact": "slide",
+                "drips.distribution": "area", "drips.spacing": 0.0, "drips.min_fall": 0.0,
                 "drips.min_length": 0.0, "proxy.mode": "never",
                 "glaze.smoothing": 0, "glaze.runnels": 0.0}
 MIN_SCALED_POLYGONS = 1000  # a reduced run keeps meshes fine enough for the water to find its way

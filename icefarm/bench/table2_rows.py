@@ -12,7 +12,6 @@ from dataclasses import dataclass
 
 from ..report import TABLE2_STAGES as STAGES
 
-
 STAGE_TITLES = {"water": "Water coefficients", "drips": "Drip points", "trajectories": "Trajectories",
                 "surface": "Surface modeling", "total": "Total time"}
 # Issue 24's bar: every row at least 50 times faster than the paper in all (it was 20 before).

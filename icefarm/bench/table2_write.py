@@ -15,7 +15,13 @@ from pathlib import Path
 import numpy as np
 
 from .table2_rows import (
-    PAPER_TABLE2, ROW_OBJECTS, STAGE_TITLES, STAGES, TARGET_ICE_FACTOR, TARGET_SPEEDUP, Table2Row,
+    PAPER_TABLE2,
+    ROW_OBJECTS,
+    STAGE_TITLES,
+    STAGES,
+    TARGET_ICE_FACTOR,
+    TARGET_SPEEDUP,
+    Table2Row,
 )
 
 
@@ -133,8 +139,9 @@ def table2_csv(rows: Sequence[Table2Row], skipped: Sequence[tuple[str, str]], re
         if r is None:
             line.update(status="skipped", reason=reasons[paper.key])
         else:
-            line.update(status="done", polygons=r.input_faces, icicles=r.icicles, target_ice_polygons=r.target_ice_faces,
-                        ice_polygons=r.ice_faces, ice_ratio=f"{r.ice_ratio:.3f}", voxel_size_m=f"{r.voxel_size:.6g}",
+            line.update(status="done", polygons=r.input_faces, icicles=r.icicles,
+                        target_ice_polygons=r.target_ice_faces, ice_polygons=r.ice_faces,
+                        ice_ratio=f"{r.ice_ratio:.3f}", voxel_size_m=f"{r.voxel_size:.6g}",
                         repeat=repeat, meets_target=r.meets_target,
                         **{f"{s}_s": f"{r.median(s):.6g}" for s in (*STAGES, "total")},
                         **{f"{s}_min_s": f"{min(r.seconds[s]):.6g}" for s in (*STAGES, "total")},

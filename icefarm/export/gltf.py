@@ -28,9 +28,8 @@ from trimesh.visual.material import PBRMaterial
 
 from ..artifacts import atomic_write
 from ..jobdir import ICE, OBJECT, PARAMS, SCENE_XML
-from .rendered import (TINT_DISTANCE_M, IceShading, Surface, object_surface, pbr, read_ice, read_rendered,
-                       require)
 from ..scene.camera import world_frame
+from .rendered import TINT_DISTANCE_M, IceShading, Surface, object_surface, pbr, read_ice, read_rendered, require
 
 # Thickness hint of KHR_materials_volume (meters): a typical icicle's diameter. Viewers that
 # refract by rasterising offset the background by it; path tracers use the real mesh.

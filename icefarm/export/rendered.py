@@ -109,7 +109,7 @@ class Rendered:
     ice: IceShading | None
     gravity: np.ndarray
     material: Material
-    ground: "Ground | None" = None
+    ground: Ground | None = None
 
 
 def require(job_dir: Path, *names: str) -> None:

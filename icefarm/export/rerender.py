@@ -15,7 +15,6 @@ from ..errors import InputError
 from ..jobdir import DONE, ICE, OBJECT, PARAMS, SCENE_XML, TRAJECTORIES, JobState, read_job
 from ..placement import Placement
 
-
 # Written first into a render's folder and removed last: a folder holding it is not a finished
 # render (stopped, or still running), whatever images it has.
 INCOMPLETE = "INCOMPLETE.txt"
@@ -78,10 +77,10 @@ def render_again(job_dir: Path, render: str, out_dir: Path, progress: bool = Fal
         Not a finished job, a job that never rendered, a bad render config, or an ``out_dir``
         holding files that are not a render's.
     """
-    from .rendered import read_rendered
     from ..scene.config import load_render_config
     from ..scene.render import render_job
     from ..scene.write import job_scene
+    from .rendered import read_rendered
 
     job_dir, out_dir = Path(job_dir), Path(out_dir)
     job = read_job(job_dir)

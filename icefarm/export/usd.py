@@ -29,8 +29,18 @@ from ..artifacts import read_ice_mesh
 from ..errors import InputError
 from ..jobdir import ICE, ICE_BANDS, ICE_USDC, OBJECT, OBJECT_USDC, SCENE_USDA
 from ..scene.material import Material
-from .rendered import (TINT_DISTANCE_M, IceShading, Rendered, Surface, ice_surface, object_surface, pbr,
-                       read_rendered, require, water_at)
+from .rendered import (
+    TINT_DISTANCE_M,
+    IceShading,
+    Rendered,
+    Surface,
+    ice_surface,
+    object_surface,
+    pbr,
+    read_rendered,
+    require,
+    water_at,
+)
 
 SCENE_FILE, OBJECT_FILE, ICE_FILE = SCENE_USDA, OBJECT_USDC, ICE_USDC  # (`icefarm.jobdir`)
 # Film back of the cameras: 36 mm wide (full frame), in USD's tenths of a scene unit. Only

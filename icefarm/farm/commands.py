@@ -19,8 +19,8 @@ from ..errors import InputError, Interrupted, one_line_each
 from ..jobdir import DONE, JOBS_CSV, JOBS_DIR, JobState, error_line, stage_phrase
 from .manifest import load_manifest
 from .manifest_model import Manifest
-from .points import MAX_JOBS, apply_sets, check_job_count, count_points
 from .plan import JobRecord, manifest_warnings
+from .points import MAX_JOBS, apply_sets, check_job_count, count_points
 from .sweep import SweepSummary, run_sweep
 
 

@@ -17,8 +17,17 @@ from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import replace
 from typing import Any
 
-from .task import (Gate, OnOutcome, Task, attempts_started, execute, failed_outcome, marker_path,
-                   threads_per_worker, write_error)
+from .task import (
+    Gate,
+    OnOutcome,
+    Task,
+    attempts_started,
+    execute,
+    failed_outcome,
+    marker_path,
+    threads_per_worker,
+    write_error,
+)
 
 
 def check_scheduler_address(address: str) -> None:

@@ -23,8 +23,17 @@ from concurrent.futures.process import BrokenProcessPool
 from dataclasses import replace
 from typing import Any
 
-from .task import (Gate, OnOutcome, Task, attempts_started, execute, failed_outcome, marker_path,
-                   threads_per_worker, write_error)
+from .task import (
+    Gate,
+    OnOutcome,
+    Task,
+    attempts_started,
+    execute,
+    failed_outcome,
+    marker_path,
+    threads_per_worker,
+    write_error,
+)
 
 _BLAS_ENV = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 WATCHDOG_S = 0.5  # how often a local worker checks that its driver is still there

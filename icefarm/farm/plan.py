@@ -13,9 +13,9 @@ from pathlib import Path
 from typing import Any
 
 from .. import params as P
-from ..stage_cache import digest
 from ..errors import InputError, short_repr
 from ..jobdir import JobState
+from ..stage_cache import digest
 from .manifest_model import Manifest
 from .points import expand, swept_keys
 

@@ -30,14 +30,23 @@ from typing import Protocol
 
 from ..artifacts import atomic_write
 from ..errors import InputError, Interrupted, cannot_write
-from ..jobdir import (CACHE_DIR, DONE, JOBS_CSV, JOBS_DIR, MANIFEST, JobState, check_done, read_job, read_jobs_csv,
-                      total_seconds)
+from ..jobdir import (
+    CACHE_DIR,
+    DONE,
+    JOBS_CSV,
+    JOBS_DIR,
+    MANIFEST,
+    JobState,
+    check_done,
+    read_job,
+    read_jobs_csv,
+    total_seconds,
+)
 from .manifest import load_manifest
 from .manifest_model import Manifest
 from .plan import JobRecord, leaders, manifest_warnings, plan_jobs, private_stages
 from .points import MAX_JOBS, apply_sets, check_job_count, swept_keys
-from .sweep_folder import (check_folder, job_dir, jobs_csv_text, prepare_folder, resolved_yaml, stale_folders,
-                           sweep_lock)
+from .sweep_folder import check_folder, job_dir, jobs_csv_text, prepare_folder, resolved_yaml, stale_folders, sweep_lock
 
 CSV_INTERVAL_S = 2.0  # jobs.csv is rewritten at most this often while a sweep runs, and at its end
 

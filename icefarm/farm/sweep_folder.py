@@ -22,6 +22,7 @@ from .manifest import manifest_to_dict
 from .manifest_model import Manifest
 from .plan import JobRecord, PlannedJob
 
+
 def job_dir(sweep_dir: Path, job: PlannedJob) -> Path:
     return sweep_dir / JOBS_DIR / job.object_id / job.job_id
 

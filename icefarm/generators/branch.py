@@ -10,7 +10,7 @@ import numpy as np
 import trimesh
 
 from ..geometry import unit
-from ._common import DEFAULT_DETAIL, rest_on_ground, grid_faces
+from ._common import DEFAULT_DETAIL, grid_faces, rest_on_ground
 
 
 def branch(detail: int = DEFAULT_DETAIL) -> trimesh.Trimesh:

@@ -8,7 +8,7 @@ import numpy as np
 import trimesh
 
 from ..tol import tol
-from ._common import DEFAULT_DETAIL, rest_on_ground, grid_faces
+from ._common import DEFAULT_DETAIL, grid_faces, rest_on_ground
 
 
 def teapot(detail: int = DEFAULT_DETAIL) -> trimesh.Trimesh:

@@ -13,5 +13,5 @@ from .march import MARCH_POWER, face_estimate, march_blocks, polygonize
 
 __all__ = ["BLOCK", "CUTOFF", "KAPPA", "LEVEL", "MARCH_POWER", "NO_BALLS", "SPACING", "TIP_WEIGHT", "Balls",
            "Field", "block_keys", "clean_slivers", "collapse_slivers", "concat_balls", "face_estimate",
-           "flip_needles", "fuse_fields", "march_blocks", "polygonize", "sample_field", "sheet_balls", "sliver_candidates",
-           "union_meshes", "values_at"]
+           "flip_needles", "fuse_fields", "march_blocks", "polygonize", "sample_field", "sheet_balls",
+           "sliver_candidates", "union_meshes", "values_at"]

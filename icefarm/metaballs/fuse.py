@@ -45,7 +45,8 @@ def fuse_fields(a: Field | None, b: Field | None, detail: Field | None = None, a
     parts = []
     for f in (a, b):
         if f is not None:
-            lattice, faces = a_marched if f is a and a_marched is not None else march_blocks(f.values, f.blocks, f.level)
+            reuse = f is a and a_marched is not None
+            lattice, faces = a_marched if reuse else march_blocks(f.values, f.blocks, f.level)
             if len(faces):
                 parts.append((f, f.origin + lattice * f.voxel, lattice, faces))
     keeps_a = bool(parts) and parts[0][0] is a

@@ -13,17 +13,26 @@ from __future__ import annotations
 import difflib
 import importlib.resources
 import math
-from collections.abc import Mapping, Sequence
+import os
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import yaml
 
 from ..errors import InputError
 from ..yaml_io import load_yaml
-from .config_checks import (MAX_ABSORPTION, check_absorption, choice_check, number_check, refusal, check_resolution, check_sky,
-                            triple_check)
+from .config_checks import (
+    MAX_ABSORPTION,
+    check_absorption,
+    check_resolution,
+    check_sky,
+    choice_check,
+    number_check,
+    refusal,
+    triple_check,
+)
 
 RENDERERS = ("mitsuba", "povray", "both")
 VARIANTS = ("auto", "scalar_rgb", "llvm_ad_rgb", "cuda_ad_rgb")
@@ -379,7 +388,7 @@ def config_names() -> list[str]:
     return sorted(p.stem for p in CONFIG_DIR.glob("*.yaml")) if CONFIG_DIR.is_dir() else []
 
 
-def load_render_config(name_or_path: str | Path,
+def load_render_config(name_or_path: str | os.PathLike[str],
                        overrides: Mapping[str, Any] | None = None) -> RenderConfig:
     """Read a render config by name (``"preview"``) or YAML path, with optional overrides.
 

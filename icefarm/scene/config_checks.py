@@ -9,9 +9,9 @@ from __future__ import annotations
 
 import difflib
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 from ..errors import InputError
 
@@ -50,7 +50,8 @@ def choice_check(choices: Sequence[str]) -> Callable[[str, Any], str]:
     return check
 
 
-def triple_check(low: float, high: float, expected: str | None = None) -> Callable[[str, Any], tuple[float, float, float]]:
+def triple_check(low: float, high: float,
+                 expected: str | None = None) -> Callable[[str, Any], tuple[float, float, float]]:
     expected = expected or f"3 numbers in [{low:g}, {high:g}]"
 
     def check(key, value):

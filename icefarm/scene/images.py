@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
+
 def write_exr(path: str | Path, rgb: np.ndarray, half: bool = True,
               attributes: dict[str, str] | None = None) -> None:
     """Write linear RGB ``(h, w, 3)`` to an EXR (half floats unless ``half`` is False),

@@ -15,7 +15,7 @@ import numpy as np
 
 from .config import IceMedium
 from .material import Material
-from .spec import BAND_ATTRIBUTE, BAND_ALPHA, IceShading, SceneSpec
+from .spec import BAND_ALPHA, BAND_ATTRIBUTE, IceShading, SceneSpec
 
 WATER_ICE_IOR = 1.31  # Mitsuba's "water ice"
 

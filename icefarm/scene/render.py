@@ -20,12 +20,12 @@ import numpy as np
 from tqdm import tqdm
 
 from ..errors import InputError
+from ..jobdir import POVRAY_STEM, SCENE_XML, view_stem
 from . import povray as pov
 from .config import RenderConfig
 from .denoise import denoise, denoiser_version
 from .images import png_to_exr, write_exr, write_png
 from .variants import pick_variant
-from ..jobdir import POVRAY_STEM, SCENE_XML, view_stem
 from .write import JobScene, SceneFiles, write_scenes
 
 # write_scenes and SceneFiles live in icefarm.scene.write; callers that write and render meet them here too

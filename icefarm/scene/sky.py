@@ -60,8 +60,10 @@ def procedural_sky(width: int = 512, height: int = 256, sun_azimuth: float = 120
     ground = np.array([0.06, 0.055, 0.05]) * (1.0 - 0.6 * depth)
     rgb = ground + (sky - ground) * above
 
-    cos_to = lambda a0, e0: (np.cos(el) * np.cos(np.radians(e0)) * np.cos(az - np.radians(a0))
-                             + np.sin(el) * np.sin(np.radians(e0)))
+    def cos_to(a0, e0):
+        return (np.cos(el) * np.cos(np.radians(e0)) * np.cos(az - np.radians(a0))
+                + np.sin(el) * np.sin(np.radians(e0)))
+
     sun = np.arccos(np.clip(cos_to(sun_azimuth, sun_elevation), -1, 1))
     rgb += np.array([2.0, 1.8, 1.5]) * np.exp(-(sun / np.radians(6.0)) ** 2)[..., None]
     rgb += np.array([0.15, 0.13, 0.1]) * np.exp(-(sun / np.radians(30.0)) ** 2)[..., None]

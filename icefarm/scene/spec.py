@@ -234,8 +234,8 @@ class SceneSpec:
             "sky": {"file": self.sky.file, "scale": self.sky.scale, "frame": np.asarray(self.frame).tolist(),
                     "strength": self.sky.strength},
             "sun": None if sun is None else {  # the direction written as a unit vector
-                "direction": _list(sun.direction / np.linalg.norm(sun.direction)), "irradiance": _list(sun.irradiance), "strength": sun.strength,
-                "elevation": sun.elevation},
+                "direction": _list(sun.direction / np.linalg.norm(sun.direction)), "irradiance": _list(sun.irradiance),
+                "strength": sun.strength, "elevation": sun.elevation},
             "ground": None if ground is None else {
                 "corners": np.asarray(ground.corners).tolist(), "color": _list(ground.color),
                 "centre": None if ground.centre is None else _list(ground.centre), "half_size": ground.half_size,

@@ -20,17 +20,24 @@ import trimesh
 from .. import jobdir as jd
 from ..artifacts import write_mesh
 from ..geometry import ray_caster
-from . import camera as cam
-from . import geometry as geo
-from . import mitsuba as mx
-from . import povray as pov
+from . import camera as cam, geometry as geo, mitsuba as mx, povray as pov
 from .config import GROUND_CHECKER, GROUND_PLAIN, RenderConfig, ice_medium
 from .focus import ice_focus, pixel_size, surface_points, zoom_on_ice
 from .images import write_exr
 from .material import Material, material_from_dict
 from .sky import procedural_sky
-from .spec import (IceShading, Sampling, SceneSpec, Sky, SpecView, Sun, sky_scale, square_ground,
-                   sun_irradiance, write_spec)
+from .spec import (
+    IceShading,
+    Sampling,
+    SceneSpec,
+    Sky,
+    SpecView,
+    Sun,
+    sky_scale,
+    square_ground,
+    sun_irradiance,
+    write_spec,
+)
 
 CREASE_ANGLE = 30.0  # degrees: sharper edges of the object stay sharp in shading
 
@@ -142,7 +149,7 @@ def _procedural_sky_exr(azimuth: float, elevation: float) -> bytes:
 
 
 def write_scenes(job_dir: str | Path, object_mesh: trimesh.Trimesh, ice_mesh: trimesh.Trimesh | None,
-                 config: RenderConfig, gravity: Sequence[float] = (0.0, -1.0, 0.0),
+                 config: RenderConfig, gravity: Sequence[float] | np.ndarray = (0.0, -1.0, 0.0),
                  object_material: Material | Mapping | None = None,
                  frame_points: np.ndarray | None = None,
                  defer_povray: bool = False, impurity: float = 0.0,

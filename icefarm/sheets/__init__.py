@@ -39,16 +39,43 @@ Layout of a sheet (pixels; ``CW``, ``CH`` the cell image size)::
 ``ROW_HEAD_W`` and ``COL_HEAD_H`` are zero unless the sheet is a two-parameter grid.
 """
 
-from .model import (MARGIN, GAP, HEADER_H, LABEL_H, ROW_HEAD_W, COL_HEAD_H, MIN_WIDTH, DEFAULT_ASPECT,
-                    WRAP_AFTER, ICE_VIEW_BELOW_PX, VIEWS_FILE, FIT_FILTER, FONT, FONT_BOLD, TITLE_SIZE,
-                    TEXT_SIZE, LABEL_SIZE, BACKGROUND_SRGB, TEXT_SRGB, DIM_TEXT_SRGB, FAILED_SRGB,
-                    UNFINISHED_SRGB, EMPTY_SRGB, SHEETS_DIR, JobState, Arrangement, SheetResult,
-                    JobInfo, RunInfo, Grid)
-from .read import scan_run
-from .labels import (varying_keys, fixed_changes, short_name, format_value)
-from .layout import (plan_grid, sheet_size, cell_origin)
-from .draw import (srgb_to_linear, cell_render, build_sheet, build_sheets)
+from .draw import build_sheet, build_sheets, cell_render, srgb_to_linear
 from .gallery import write_gallery
+from .labels import fixed_changes, format_value, short_name, varying_keys
+from .layout import cell_origin, plan_grid, sheet_size
+from .model import (
+                    BACKGROUND_SRGB,
+                    COL_HEAD_H,
+                    DEFAULT_ASPECT,
+                    DIM_TEXT_SRGB,
+                    EMPTY_SRGB,
+                    FAILED_SRGB,
+                    FIT_FILTER,
+                    FONT,
+                    FONT_BOLD,
+                    GAP,
+                    HEADER_H,
+                    ICE_VIEW_BELOW_PX,
+                    LABEL_H,
+                    LABEL_SIZE,
+                    MARGIN,
+                    MIN_WIDTH,
+                    ROW_HEAD_W,
+                    SHEETS_DIR,
+                    TEXT_SIZE,
+                    TEXT_SRGB,
+                    TITLE_SIZE,
+                    UNFINISHED_SRGB,
+                    VIEWS_FILE,
+                    WRAP_AFTER,
+                    Arrangement,
+                    Grid,
+                    JobInfo,
+                    JobState,
+                    RunInfo,
+                    SheetResult,
+)
+from .read import scan_run
 
 __all__ = [
     "MARGIN", "GAP", "HEADER_H", "LABEL_H", "ROW_HEAD_W", "COL_HEAD_H", "MIN_WIDTH",

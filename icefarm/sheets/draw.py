@@ -13,14 +13,37 @@ import numpy as np
 from ..errors import InputError
 from ..jobdir import DONE, ERROR, RENDER_EXR, error_line
 from ..scene.images import image_size
-from .model import (Arrangement, BACKGROUND_SRGB, COL_HEAD_H, DEFAULT_ASPECT, DIM_TEXT_SRGB, EMPTY_SRGB,
-                    FAILED_SRGB, FIT_FILTER, FONT, FONT_BOLD, GAP, Grid, ICE_VIEW_BELOW_PX, JobInfo,
-                    JobState, LABEL_SIZE, MARGIN, ROW_HEAD_W, RunInfo, SHEETS_DIR, SheetResult, TEXT_SIZE,
-                    TEXT_SRGB, TITLE_SIZE, UNFINISHED_SRGB)
 from .gallery import write_run_gallery
-from .read import scan_run
-from .labels import fixed_changes, format_value, short_name, varying_keys, assignment, axis_title, compact_assignment
+from .labels import assignment, axis_title, compact_assignment, fixed_changes, format_value, short_name, varying_keys
 from .layout import cell_origin, plan_grid, sheet_size
+from .model import (
+    BACKGROUND_SRGB,
+    COL_HEAD_H,
+    DEFAULT_ASPECT,
+    DIM_TEXT_SRGB,
+    EMPTY_SRGB,
+    FAILED_SRGB,
+    FIT_FILTER,
+    FONT,
+    FONT_BOLD,
+    GAP,
+    ICE_VIEW_BELOW_PX,
+    LABEL_SIZE,
+    MARGIN,
+    ROW_HEAD_W,
+    SHEETS_DIR,
+    TEXT_SIZE,
+    TEXT_SRGB,
+    TITLE_SIZE,
+    UNFINISHED_SRGB,
+    Arrangement,
+    Grid,
+    JobInfo,
+    JobState,
+    RunInfo,
+    SheetResult,
+)
+from .read import scan_run
 
 # drawing
 
@@ -73,7 +96,7 @@ def _wrap(parts: Sequence[str], width: int, size: int, max_lines: int, sep: str 
     """Greedy wrap of ``parts`` into at most ``max_lines`` lines of ``width`` pixels."""
     lines: list[str] = []
     current = ""
-    for i, part in enumerate(parts):
+    for i, part in enumerate(parts):  # noqa: B007 (i, read after the loop's break, counts the parts left out)
         candidate = f"{current}{sep}{part}" if current else part
         if _width(candidate, size, font) <= width or not current:
             current = candidate

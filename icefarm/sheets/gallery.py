@@ -10,13 +10,12 @@ from pathlib import Path
 from typing import Any
 from urllib.parse import quote
 
-from .. import params as P
-from .. import jobdir as jd
+from .. import jobdir as jd, params as P
 from ..artifacts import atomic_write
-from .model import JobInfo, JobState, RunInfo, SHEETS_DIR, SheetResult
-from .read import scan_run
-from .labels import fixed_changes, format_value, short_name, varying_keys, assignment, axis_title, canonical
+from .labels import assignment, axis_title, canonical, fixed_changes, format_value, short_name, varying_keys
+from .model import SHEETS_DIR, JobInfo, JobState, RunInfo, SheetResult
 from .models import model_id, write_models
+from .read import scan_run
 
 # gallery
 
@@ -52,7 +51,9 @@ function icefarmLoad(src, done, fail) {
 function icefarmOrbit(button) {
   var id = button.dataset.id, host = button.closest('article');
   var note = function (text) { button.textContent = text; document.body.dataset.orbit = text; };
-  if (!button.dataset.viewer) { note('3D needs @google/model-viewer: npm install, then build the sheets again'); return; }
+  if (!button.dataset.viewer) {
+    note('3D needs @google/model-viewer: npm install, then build the sheets again'); return;
+  }
   note('loading 3D...');
   var show = function () {
     var viewer = document.createElement('model-viewer');

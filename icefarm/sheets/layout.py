@@ -5,9 +5,20 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
-from .model import (Arrangement, COL_HEAD_H, GAP, Grid, HEADER_H, JobInfo, LABEL_H, MARGIN, MIN_WIDTH,
-                    ROW_HEAD_W, WRAP_AFTER)
 from .labels import canonical, sort_key
+from .model import (
+    COL_HEAD_H,
+    GAP,
+    HEADER_H,
+    LABEL_H,
+    MARGIN,
+    MIN_WIDTH,
+    ROW_HEAD_W,
+    WRAP_AFTER,
+    Arrangement,
+    Grid,
+    JobInfo,
+)
 
 # grid
 

@@ -8,8 +8,8 @@ from pathlib import Path
 from .. import params as P
 from ..errors import InputError
 from ..jobdir import JOBS_DIR, read_job, scan_sweep
+from .labels import sort_key, varying_keys
 from .model import JobInfo, JobState, RunInfo
-from .labels import varying_keys, sort_key
 
 # reading
 

@@ -20,8 +20,20 @@ import trimesh
 
 from ..geometry import inside, perpendicular_basis, ray_caster, sample_faces, unit
 from ..tol import tol
-from .rims import (FUSE_MARGIN, HEAT_SPREAD, RIM_REACH, SAMPLES_PER_SPACING, catchment_volume, catchment_water,
-                   compete, drip_flux, rim_half_edges, rim_points, swallow)
+from .rims import (
+    FUSE_MARGIN,
+    HEAT_SPREAD,
+    RIM_REACH,
+    SAMPLES_PER_SPACING,
+    catchment_volume,
+    catchment_water,
+    compete,
+    drip_flux,
+    rim_half_edges,
+    rim_points,
+    swallow,
+)
+
 
 @dataclass(frozen=True)
 class DripResult:
@@ -357,7 +369,8 @@ def find_drips(mesh: trimesh.Trimesh, water: np.ndarray, gravity, count: int, dr
 
     def drained(positions: np.ndarray) -> np.ndarray:
         if shed is not None:
-            volume = catchment_volume(mesh, flux, region, gravity, positions, step, reach=RIM_REACH * max(spacing, step))
+            reach = RIM_REACH * max(spacing, step)
+            volume = catchment_volume(mesh, flux, region, gravity, positions, step, reach=reach)
             return volume if sizing is None else sizing.length(volume) / length_scale
         return catchment_water(mesh, water, flux, region, gravity, positions, step)
 

@@ -91,8 +91,8 @@ def run_film(catch, capacity, passing, tilt, routes, order, outlet):
     A vertex freezes its own catch up to its budget, then the share
     ``passing`` of the water running through, within what is left of it; sheds as its tilt
     passes the tilt the water has seen (averaged over the water arriving: a maximum let a
-    trickle that passed a steep spot stop the shedding of all the water it joined); passes the rest on along its ``routes``
-    (`film_routes`' start, target, share). Returns frozen, shed and pooled water per vertex, m^3."""
+    trickle that passed a steep spot stop the shedding of all the water it joined); passes the rest on along its
+    ``routes`` (`film_routes`' start, target, share). Returns frozen, shed and pooled water per vertex, m^3."""
     n = len(catch)
     start, target, share = (x.tolist() for x in routes)
     own = catch.astype(np.float64).tolist()

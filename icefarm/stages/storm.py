@@ -45,8 +45,8 @@ from scipy.spatial import cKDTree
 
 from ..geometry import unit
 from .basins import spill_over, spill_routes
-from .runoff import film_routes, run_film
 from .rain import FALL_SPEED, facing_rain, open_sky, rain_vector
+from .runoff import film_routes, run_film
 
 # Density of water and of glaze (clear, dense ice: 917 kg/m^3), kg/m^3; one meter of
 # frozen water is 1.09 m of glaze (clear glaze is solid ice: Makkonen 2000, Phil. Trans. R. Soc. A 358).
@@ -109,7 +109,8 @@ def constants() -> tuple[Constant, ...]:
         Constant("RUNOUT_M", RUNOUT_M, "m", "> 0", "film run before 1 - 1/e of it freezes, at lifetime 0.5"),
         Constant("LIFETIME_CONTRAST", LIFETIME_CONTRAST, "-", "[0, 1]", "Equation 3's lt as a lean of the budget"),
         Constant("GROWTH_MAX", GROWTH_MAX, "m/m", "> 0", "stubbiest icicle: a cone half as wide as long"),
-        Constant("FALL_SPEED", FALL_SPEED, "m/s", "> 0", "freezing rain's drops (Jones 1998's terms; Gunn & Kinzer 1949)"),
+        Constant("FALL_SPEED", FALL_SPEED, "m/s", "> 0",
+                 "freezing rain's drops (Jones 1998's terms; Gunn & Kinzer 1949)"),
     )
 
 class StormKind(enum.Enum):

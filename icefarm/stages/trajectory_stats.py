@@ -97,7 +97,8 @@ def measure_trajectories(traj: TrajectoryResult, gravity) -> TrajectoryStats:
         within = ragged_arange(c)
         s = seg_start[parent[children[todo[part]]]][pair] + within
         a, ab, tip = seg_a[s], seg[s], tips[todo[part]][pair]
-        f = np.clip(np.divide(row_dot(tip - a, ab), row_dot(ab, ab), out=np.zeros(len(s)), where=length[s] > 0), 0.0, 1.0)
+        f = np.divide(row_dot(tip - a, ab), row_dot(ab, ab), out=np.zeros(len(s)), where=length[s] > 0)
+        f = np.clip(f, 0.0, 1.0)
         d = np.linalg.norm(a + f[:, None] * ab - tip, axis=1)
         best = np.full(len(part), np.inf)
         np.minimum.at(best, pair, d)

@@ -31,10 +31,10 @@ class _Turtles:
     rest: np.ndarray       # (t,) int, generations a new branch waits: its spread used them
     last: np.ndarray       # (t,) int, generations it grows in all (a branch: its share of the water)
 
-    def append(self, other: "_Turtles") -> "_Turtles":
+    def append(self, other: _Turtles) -> _Turtles:
         return _Turtles(*(np.concatenate([a, b]) for a, b in zip(vars(self).values(), vars(other).values())))
 
-    def take(self, rows: np.ndarray) -> "_Turtles":
+    def take(self, rows: np.ndarray) -> _Turtles:
         return _Turtles(*(a[rows].copy() for a in vars(self).values()))
 
 

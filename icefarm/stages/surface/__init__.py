@@ -11,8 +11,8 @@ signed-distance field over the wet surface) or the paper's balls, on the coarser
 ``glaze.voxel_size`` lattice; the two are joined where they meet by
 `icefarm.metaballs.fuse_fields`. Ripples are then carved into the mesh (`ripples`: a chain
 of balls blurs them away), slivers are cleaned (`icefarm.metaballs.clean`) and the icicles
-measured (`measure`; the fringe as a whole in `fringe`). The mesher itself (field, marching cubes, fusion, calibration) is
-`icefarm.metaballs`.
+measured (`measure`; the fringe as a whole in `fringe`). The mesher itself (field, marching cubes, fusion,
+calibration) is `icefarm.metaballs`.
 
 ``surface.mode == "tubes"`` (the paper's future work, 6.1) sweeps each branch as a
 closed tube with the same profile instead: instant, no fusion, no base, no glaze.
@@ -21,14 +21,14 @@ closed tube with the same profile instead: instant, no fusion, no base, no glaze
 from __future__ import annotations
 
 from .build import SLIVER, IceResult, build_ice
+from .fringe import FringeFigures, fringe_figures
 from .glaze import CoatSurface, carry_water, measure_glaze
 from .ground_ice import ground_ice_balls
 from .icicles import icicle_balls
-from .fringe import FringeFigures, fringe_figures
 from .measure import measure_icicles
 from .profile import TIP_CALM, profile_args, profile_radius, smooth_radius
 from .ripples import ripple_bands
 
-__all__ = ["SLIVER", "CoatSurface", "FringeFigures", "IceResult", "fringe_figures", "TIP_CALM", "build_ice", "carry_water", "ground_ice_balls", "icicle_balls",
-           "measure_glaze", "measure_icicles", "profile_args", "profile_radius", "ripple_bands",
-           "smooth_radius"]
+__all__ = ["SLIVER", "CoatSurface", "FringeFigures", "IceResult", "fringe_figures", "TIP_CALM", "build_ice",
+           "carry_water", "ground_ice_balls", "icicle_balls", "measure_glaze", "measure_icicles", "profile_args",
+           "profile_radius", "ripple_bands", "smooth_radius"]

@@ -8,9 +8,9 @@ import numpy as np
 import trimesh
 from scipy.spatial import cKDTree
 
-from ...params import SurfaceParams
 from ...geometry import ragged_arange, random_barycentric, ray_caster
 from ...metaballs.balls import LEVEL, NO_BALLS, Balls
+from ...params import SurfaceParams
 from ...tol import tol
 from ..drips import DripResult
 

@@ -6,16 +6,15 @@ import functools
 import math
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
-
 from dataclasses import dataclass
 
 import numpy as np
 import trimesh
 
 from ...geometry import arc_lengths, ray_caster
-from ...params import GlazeParams, SurfaceParams
 from ...metaballs import Balls, concat_balls, face_estimate, fuse_fields, march_blocks, sample_field
 from ...metaballs.clean import clean_slivers, sliver_candidates
+from ...params import GlazeParams, SurfaceParams
 from ..drips import DripResult
 from ..trajectories import TrajectoryResult
 from ..water import WaterResult
@@ -172,8 +171,8 @@ def build_ice(object_mesh: trimesh.Trimesh, flow_mesh: trimesh.Trimesh, water: W
         note = note or (lambda text: None)
         own_cast = cast if flow_mesh is object_mesh and cast is not None else ray_caster(object_mesh)
         if k:  # roots on a rim move in under the object: stage 4 builds and measures on these axes
-            trajectories = hang_roots(trajectories, surface, root_shifts(drips.normals, g, BASE_THICKNESS * object_thickness(
-                object_mesh, drips.positions, drips.normals, own_cast)))
+            thickness = object_thickness(object_mesh, drips.positions, drips.normals, own_cast)
+            trajectories = hang_roots(trajectories, surface, root_shifts(drips.normals, g, BASE_THICKNESS * thickness))
         chains = icicle_balls(trajectories, surface, rng)
         ice = concat_balls(chains,
                            base_balls(object_mesh, drips, surface, rng, _root_radius(trajectories, k, surface),

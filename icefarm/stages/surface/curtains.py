@@ -12,15 +12,14 @@ edge drapes up between the trunks (`DRAPE`). Its balls join the icicles' field.
 
 from __future__ import annotations
 
-
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ...params import SurfaceParams
 from ...geometry import arc_lengths, ragged_arange, unit
 from ...metaballs.balls import NO_BALLS, Balls, concat_balls, sheet_balls
+from ...params import SurfaceParams
 from ...tol import tol
 from ..trajectories import TrajectoryResult
 from .profile import grown_lengths, profile_args, smooth_radius

@@ -25,10 +25,10 @@ from dataclasses import dataclass
 import numpy as np
 import trimesh
 
-from ...params import GlazeParams
 from ...geometry import near_caster, nearest, point_index, random_barycentric, ray_caster, sample_faces, unit
 from ...metaballs import Field, sample_field
 from ...metaballs.balls import NO_BALLS, Balls, sheet_balls
+from ...params import GlazeParams
 from ...tol import tol
 from ..water import WaterResult
 from .coat import coat_field

@@ -5,9 +5,9 @@ the surface it lies on, as wide as ``ground_ice.spread`` times its water and a q
 high. With ``ground_ice.mode: stalagmites`` a stalagmite rises from the mound towards the
 tip above it: a metaball chain with the icicles' own calibration (`icicle_balls`), but
 blunter (a top `STALAGMITE_TOP` times the icicle's tip radius, a base that widens by
-``ground_ice.width`` per meter of height) and lumpy (its axis wanders, `STALAGMITE_LUMPS`), ``ground_ice.height_scale`` times its water
-high, never past the tip. One that would reach the tip does: it ends in the icicle's drop,
-and the two fuse into a column. All of it is balls of the icicles' field, so it fuses
+``ground_ice.width`` per meter of height) and lumpy (its axis wanders, `STALAGMITE_LUMPS`),
+``ground_ice.height_scale`` times its water high, never past the tip. One that would reach the tip does: it ends
+in the icicle's drop, and the two fuse into a column. All of it is balls of the icicles' field, so it fuses
 with them into the one watertight mesh.
 """
 
@@ -19,9 +19,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ...params import GroundIceParams, SurfaceParams
 from ...geometry import perpendicular_basis, ragged_arange, unit
 from ...metaballs.balls import NO_BALLS, Balls, concat_balls, sheet_balls
+from ...params import GroundIceParams, SurfaceParams
 from ..landing import LandingResult
 from ..trajectories import TrajectoryResult
 from .icicles import icicle_balls
@@ -69,7 +69,8 @@ class GroundIce:
 
 
 def ground_ice_balls(landing: LandingResult, ground_ice: GroundIceParams,
-                     surface: SurfaceParams, gravity, rng: np.random.Generator, *, cast=None, floor: float | None = None) -> GroundIce:
+                     surface: SurfaceParams, gravity, rng: np.random.Generator, *, cast=None,
+                     floor: float | None = None) -> GroundIce:
     """Mounds (and stalagmites) of ice at each landing point.
 
     Parameters

@@ -8,12 +8,11 @@ import math
 import numpy as np
 
 from ...geometry import arc_lengths, ragged_arange
-from ...params import SurfaceParams
 from ...metaballs.balls import KAPPA, LEVEL, NO_BALLS, SPACING, TIP_WEIGHT, Balls
+from ...params import SurfaceParams
 from ...tol import tol
 from ..trajectories import TrajectoryResult
-from .profile import TIP_CALM, points_along, grown_lengths, profile_args, smooth_radius
-
+from .profile import TIP_CALM, grown_lengths, points_along, profile_args, smooth_radius
 
 # The blended end of a wide chain bulges a little past its last ball's radius (0.15 mm on
 # a 0.3 m sphere's icicles): the foot's chain stops this many tip radii shorter still.

@@ -11,7 +11,7 @@ from scipy.spatial import cKDTree
 from ...geometry import arc_lengths, face_all, nearest, point_index, ragged_arange
 from ...params import SurfaceParams
 from ..trajectories import TrajectoryResult
-from .profile import points_along, grown_lengths
+from .profile import grown_lengths, points_along
 
 # Radius samples along a trunk: from TAPER_AT of its length below its base to FIT_END; the
 # profile is fitted between FIT_START and FIT_END of the distance from the tip, clear of the
@@ -67,7 +67,7 @@ class RippleTexture:
     trunks: int
 
     @classmethod
-    def none(cls) -> "RippleTexture":
+    def none(cls) -> RippleTexture:
         nan = float("nan")
         return cls(nan, nan, nan, 0)
 

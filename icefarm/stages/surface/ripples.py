@@ -20,7 +20,7 @@ import numpy as np
 
 from ...geometry import arc_lengths, nearest, point_index, ragged_arange
 from ..trajectories import TrajectoryResult
-from .profile import TIP_CALM, points_along, grown_lengths, smooth_radius
+from .profile import TIP_CALM, grown_lengths, points_along, smooth_radius
 
 # Vertices farther from a branch's axis than this times its radius there (plus the ripple)
 # belong to something else: a neighbour, the base ice, the glaze.
@@ -121,7 +121,7 @@ def ripple_bands(vertices: np.ndarray, traj: TrajectoryResult, prof: dict) -> np
     return None if waves is None else _bands(len(vertices), waves, prof["amplitude"])
 
 
-def _bands(n: int, waves: "_Waves", amplitude: float) -> np.ndarray:
+def _bands(n: int, waves: _Waves, amplitude: float) -> np.ndarray:
     """`ripple_bands` of ``n`` vertices from their `_Waves`."""
     bands = np.zeros(n, dtype=np.float32)
     bands[waves.near] = np.clip(waves.depth / amplitude * (BAND_FLOOR + (1 - BAND_FLOOR) * 0.5 * (1 + waves.crest)),
@@ -308,7 +308,8 @@ def _forks(branches: np.ndarray, lengths: np.ndarray, wavelength: float) -> _For
     stride = float(lengths.max(initial=0.0)) + 2 * spacing
     centre = 2 * np.pi * d[:, 1]
     return _Forks(offsets=np.concatenate([[0], np.cumsum(count)]), x=x, key=owner * stride + x, stride=stride,
-                  cos=np.cos(centre), sin=np.sin(centre), edge=np.cos(FORK_ARC[0] + (FORK_ARC[1] - FORK_ARC[0]) * d[:, 2]),
+                  cos=np.cos(centre), sin=np.sin(centre),
+                  edge=np.cos(FORK_ARC[0] + (FORK_ARC[1] - FORK_ARC[0]) * d[:, 2]),
                   reach=FORK_REACH * wavelength, core=FORK_CORE * wavelength, width=FORK_WIDTH * wavelength)
 
 
@@ -363,7 +364,7 @@ PATCH_TWIST = 0.8
 PATCH_SEED = RIPPLE_SEED + 2
 
 
-def _patches(texture: "_Texture", b: np.ndarray, x: np.ndarray, cos_t: np.ndarray, sin_t: np.ndarray) -> np.ndarray:
+def _patches(texture: _Texture, b: np.ndarray, x: np.ndarray, cos_t: np.ndarray, sin_t: np.ndarray) -> np.ndarray:
     """Depth factor (`PATCH_FLOOR` to 1) of the ripples at points of branches ``b`` at arc
     length ``x`` (m) and angle ``(cos_t, sin_t)`` around the trunk."""
     q = 2 * np.pi / np.asarray(PATCH_WAVES)

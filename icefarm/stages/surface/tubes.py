@@ -10,7 +10,8 @@ from ...geometry import arc_lengths, ragged_arange
 from ...params import SurfaceParams
 from ..trajectories import TrajectoryResult
 from .icicles import perpendicular_frame
-from .profile import points_along, grown_lengths, profile_args, profile_radius
+from .profile import grown_lengths, points_along, profile_args, profile_radius
+
 
 def tube_mesh(traj: TrajectoryResult, surface: SurfaceParams, gravity=(0.0, -1.0, 0.0), ring: int = 12,
               cap_rings: int = 4):
