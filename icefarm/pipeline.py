@@ -232,7 +232,7 @@ def _return_freed_memory() -> None:
 
     The surface stage frees hundreds of MB of temporaries that glibc keeps mapped; Mitsuba's
     scene and BVH then came on top of them: the 3 m house's preview peaked at 1.62-1.96 GB
-    resident in the render (5 runs), against 1.53-1.54 GB with this (3 runs), its peak now the
+    resident in the render (5 runs), against 1.53-1.54 GB with this (3 runs), its peak then the
     surface stage's. glibc only (``malloc_trim``); elsewhere nothing happens."""
     import ctypes
 

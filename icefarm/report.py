@@ -6,7 +6,7 @@ its folders found by `icefarm.jobdir.scan_sweep`:
 ``error.json``) and writes ``report.md`` and ``report.csv`` beside them.
 
 Stage times are honest about the stage cache: a stage reused from the cache (the ``reused``
-list of ``timings.json``) took only the time to load a pickle, so it shows as ``cached``, never
+list of ``timings.json``) took only the time to read its entry back, so it shows as ``cached``, never
 as a measured time; a job's Table 2 total then reads ``0.412 + cached``, and the per-object
 medians are taken over the jobs that computed the stage.
 """

@@ -227,7 +227,7 @@ def test_run_says_what_the_storm_did_and_warns_when_little_shows(tmp_path):
     timings = json.loads((tmp_path / "sign" / "timings.json").read_text())
     assert timings["storm_kind"] == "freezing_rain" and timings["water_frozen"] + timings["water_shed"] \
         + timings["water_pooled"] == pytest.approx(1.0, abs=1e-3)
-    # its real size; a coarse proxy (the default's wrap took 1 s) and flow mesh (5 cm edges, 25 mm
+    # its real size; a coarse proxy (quicker than the default's wrap) and flow mesh (5 cm edges, 25 mm
     # by default) leave the storm's figures as they are: 102 icicles, 28 per m of rim either way
     table = run("run", "generator:table", "--until", "trajectories", "--set", "proxy.face_budget=2500",
                 "--set", "storm.flow_edge=0.05", "-o", tmp_path / "table")

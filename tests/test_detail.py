@@ -104,8 +104,8 @@ def test_inner_faces_ask_only_for_the_tiles_a_cell_touches():
 
 
 # Pure, but about 30 s: a 1.2 m roof meshed twice. The tips' check needs the defaults'
-# hundreds of icicles: with 6 to 20 (3 to 6 s) the budget's median tip radius came out
-# 2 to 13 mm against 2.4 mm without it, by the seed. Its ragged fringe fits the default
+# hundreds of icicles: with 6 to 20 the budget's median tip radius comes out 2 to 13 mm
+# against 2.4 mm without it, by the seed. Its ragged fringe fits the default
 # budget on one lattice: a budget of 0.8 M faces stands for a bigger asset's.
 @pytest.mark.slow
 def test_a_big_asset_meshes_fewer_faces_with_the_same_icicles_and_stays_watertight():

@@ -1,4 +1,4 @@
-"""No behaviour change goes unseen (issue 27): a job, or a tiny sweep, run twice from scratch
+"""No behaviour change goes unseen: a job, or a tiny sweep, run twice from scratch
 writes the same bytes wherever its output is deterministic today.
 
 Left out, and why: ``timings.json``, ``done.json`` (it repeats the timings), ``jobs.csv``,

@@ -116,11 +116,11 @@ def test_base_balls_and_extent_each_add_ice_monotonically(base_volume):
 
 @pytest.mark.slow
 def test_the_bunny_at_the_defaults_grows_carrots_not_straws(shared_mesh, tmp_path):
-    """Issue 13's figure on a real job: the 0.3 m bunny, every default, grounded. Half its
-    drip rims sit a few cm over the ground; without room to hang (drips.min_fall) and the
-    thickening of cut icicles its median taper was 2.5. The relative storm (the paper's knobs):
+    """The taper on a real job: the 0.3 m bunny, every default, grounded. Half its drip rims
+    sit a few cm over the ground; without room to hang (drips.min_fall) and the thickening of
+    cut icicles its median taper is 2.5. The relative storm (the paper's knobs):
     under the physical storm's defaults the 0.3 m bunny's catchments grow 3-4 cm icicles,
-    whose taper stays near 2 with one growth ratio for all (issue 23, left open)."""
+    whose taper stays near 2 with one growth ratio for all."""
     import json
 
     from icefarm import params
@@ -135,7 +135,7 @@ def test_the_bunny_at_the_defaults_grows_carrots_not_straws(shared_mesh, tmp_pat
     assert len(taper) >= 10 and np.median(taper) >= 3.0
     assert 0.6 <= np.median([v for v in t["profile_exponent"] if v is not None]) <= 0.9
     assert t["ripple_amplitude_mm"] >= 0.4 and t["upward_share"] == 0.0
-    # Issue 25's ripple texture on its trunks of 10 cm and more (none grow under the
+    # The ripple texture on its trunks of 10 cm and more (none grow under the
     # physical storm's defaults): deep, decorrelated 3 cm along, unevenly spaced crests
     assert t["ripple_trunks"] >= 1 and t["ripple_depth_mm"] >= 0.4
     assert t["ripple_correlation_3cm"] <= 0.6 and 0.1 <= t["ripple_crest_cv"] <= 0.35
@@ -143,7 +143,7 @@ def test_the_bunny_at_the_defaults_grows_carrots_not_straws(shared_mesh, tmp_pat
 
 @pytest.mark.slow
 def test_the_fountains_long_icicles_ripple_like_real_ones(tmp_path):
-    """Issue 25's measures on the 0.4 m fountain overflowing, at the defaults (the physical
+    """The ripple measures on the 0.4 m fountain overflowing, at the defaults (the physical
     storm): its upper bowl spills over its lip and grows icicles of 10 cm and more below it."""
     import json
 
@@ -162,7 +162,7 @@ def test_the_fountains_long_icicles_ripple_like_real_ones(tmp_path):
 
 
 def test_ripples_wander_and_break_like_real_ones_not_stacked_rings(monkeypatch, one_icicle):
-    """Issue 25's measures on one 20 cm icicle at the defaults: deep enough, decorrelated 3 cm
+    """The ripple measures on one 20 cm icicle at the defaults: deep enough, decorrelated 3 cm
     along, crest spacing varying by 10-35 %; the same carve with the texture off (one
     wavelength, crests level and whole) reads as identical rings and fails them."""
     natural = one_icicle(length=0.2).ripple_texture
@@ -241,7 +241,7 @@ def test_pure_water_icicles_have_no_ripple_texture_and_tips_are_quiet(one_icicle
 
 
 def test_ripples_rise_from_a_smooth_root_and_differ_from_icicle_to_icicle(surface_kit):
-    """Issue 25: the amplitude fades into the base, and neighbours on one eave are not all
+    """The amplitude fades into the base, and neighbours on one eave are not all
     ribbed alike (identical rings on every icicle read as a stack of glass coins)."""
     from icefarm.geometry import arc_lengths
     from icefarm.stages.surface.profile import grown_lengths, smooth_radius

@@ -405,7 +405,7 @@ def test_a_dense_scan_with_holes_grows_its_icicles(tmp_path):
 
 def test_a_scan_far_over_the_budget_is_thinned_out_before_the_careful_passes(sphere):
     """A manifold piece with more than PRE_DECIMATE times the budget's faces is cut down to
-    that roughly first (a 1.1 M-face scan's proxy: 24 s -> 6 s); its hole is still filled, the
+    that roughly first (a 1.1 M-face scan's proxy four times faster); its hole is still filled, the
     proxy closed, at the budget and on the surface."""
     from icefarm.stages.proxy import PRE_DECIMATE
 

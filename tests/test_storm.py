@@ -163,7 +163,7 @@ def test_branch_growth_survives_the_job_files(tmp_path):
 
 @pytest.mark.slow  # pure, but about 18 s: every default on a real-size table is 3 M faces to mesh and measure
 def test_a_garden_table_at_its_real_size_carries_readable_ice():
-    """Issue 23's figures on a real-size asset at every default (one job, no render)."""
+    """The storm figures on a real-size asset at every default (one job, no render)."""
     from icefarm.bench.storm_figures import storm_figures
     from icefarm.generators import generate, natural_size
     from icefarm.stages.surface.measure import measure_icicles
@@ -192,8 +192,8 @@ def test_the_bunny_at_3_m_gets_the_same_glaze_and_more_icicles_at_the_same_spaci
         figures.append((np.median(storm.ice[storm.catch > 0]), len(r.drips.positions), np.median(d[:, 1])))
     (glaze_small, n_small, gap_small), (glaze_large, n_large, gap_large) = figures
     assert 1 / 1.5 <= glaze_large / glaze_small <= 1.5
-    # (the small one's rims feed a ragged fringe: 6-9 icicles, 11-15 before they competed and
-    # before icicles that would touch its body below the rims were left out)
+    # (the small one's rims feed a ragged fringe: 6-9 icicles, as they compete for the rim's
+    # film and those that would touch its body below the rims are left out)
     assert n_large >= 5 * n_small and n_small >= 5
     # a ragged fringe: short icicles 2.5-5 cm from the long ones whose flanks took in the
     # drip points between them (`icefarm.stages.rims.swallow`), as far apart at either size

@@ -1,4 +1,4 @@
-"""Issue 23's storm figures on small synthetic inputs: boxes, slabs of ice, hand-made trajectories."""
+"""The storm figures on small synthetic inputs: boxes, slabs of ice, hand-made trajectories."""
 
 import dataclasses
 import math

@@ -138,9 +138,9 @@ def test_branch_holds_30_degrees_until_branch_spread_aside(plate, branch_spread)
 
 
 def test_a_late_branch_hangs_beside_its_parent_instead_of_splaying_to_its_end(plate):
-    # Issue 25: three or four branches born near the end, each at 30 degrees to its own end,
-    # made two- and three-fingered claws of the tips; now each spends at most about a third
-    # of what it grows spreading, then hangs
+    # Three or four branches born near the end, each at 30 degrees to its own end, would make
+    # two- and three-fingered claws of the tips: each spends at most about a third of what it
+    # grows spreading, then hangs
     traj = grow(*plate, curve_angle=0.0, division_probability=0.3, max_branches=4)
     children = np.flatnonzero(traj.branch_parent >= 0)
     assert len(children) > 20

@@ -1,4 +1,4 @@
-"""The figures issue 23 judges a storm by, measured on a finished job: how many icicles, how
+"""The figures a storm is judged by, measured on a finished job: how many icicles, how
 long, how close together, and how much of what the rain reaches is glazed, how thickly.
 
 * Rain-reached points (`rain_reached_points`): points sampled by area on the faces whose
@@ -26,13 +26,13 @@ from ..stages.trajectories import TrajectoryResult
 from ..stages.trajectory_stats import measure_trajectories
 from ..tol import tol
 
-# Issue 23: a point is glazed when more than this much ice (m) lies along its normal.
+# A point is glazed when more than this much ice (m) lies along its normal.
 GLAZED = 2e-4
 
 
 @dataclass(frozen=True)
 class StormFigures:
-    """Issue 23's figures of one job (`storm_figures`).
+    """The storm figures of one job (`storm_figures`).
 
     Attributes
     ----------
@@ -170,7 +170,7 @@ def glaze_coverage(thickness: np.ndarray, threshold: float = GLAZED) -> tuple[fl
     thickness : (k,) float
         Ice along the normal of each rain-reached point (`ice_along_normals`), meters.
     threshold : float
-        Meters of ice over which a point counts as glazed (issue 23: 0.2 mm).
+        Meters of ice over which a point counts as glazed (`GLAZED`: 0.2 mm).
 
     Returns
     -------
@@ -211,7 +211,7 @@ def nearest_root_distance(roots: np.ndarray) -> float:
 
 def storm_figures(obj_mesh: trimesh.Trimesh, ice_mesh: trimesh.Trimesh | None, trajectories: TrajectoryResult,
                   gravity, rng: np.random.Generator, count: int = 4000) -> StormFigures:
-    """Issue 23's figures of a job: icicles, trunk length, nearest root, glaze where rain reaches.
+    """The storm figures of a job: icicles, trunk length, nearest root, glaze where rain reaches.
 
     Parameters
     ----------

@@ -14,7 +14,7 @@ from ..report import TABLE2_STAGES as STAGES
 
 STAGE_TITLES = {"water": "Water coefficients", "drips": "Drip points", "trajectories": "Trajectories",
                 "surface": "Surface modeling", "total": "Total time"}
-# Issue 24's bar: every row at least 50 times faster than the paper in all (it was 20 before).
+# The bar Table 2 is held to: every row at least 50 times faster than the paper in all.
 TARGET_SPEEDUP = 50.0
 TARGET_ICE_FACTOR = 1.5
 

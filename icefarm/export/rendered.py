@@ -4,8 +4,8 @@
 ``scene.xml`` and ``scene.pov`` were written: the cameras Mitsuba looked through, the sun,
 the sky and how it is turned, the ground, the ice's look (ior, roughness, tint, the medium
 inside) and the object's material. Reading it, rather than framing the cameras again from
-the render config, gives exactly what was rendered. Jobs from before ``scene.json`` are read
-from their ``scene.xml`` by `icefarm.scene.legacy` (the material from ``done.json``'s
+the render config, gives exactly what was rendered. A job folder without ``scene.json`` is read
+from its ``scene.xml`` by `icefarm.scene.legacy` (the material from ``done.json``'s
 ``object_material``, gravity from ``params.yaml``). The object's mesh comes from
 ``object.ply`` (split along creases, with the normals it was rendered with), the ice from
 ``ice.ply``.
@@ -199,7 +199,7 @@ def ice_surface(vertices: np.ndarray, faces: np.ndarray, flip: bool, normals: np
         without a "flip normals" switch see the outside as the outside.
     normals : (n, 3) float, optional
         Those normals of ``faces`` as given, if at hand (`RenderResult.ice_normals`: the
-        render computed them): 1.7 s saved on a 2.3 M-face bench. Default: computed here.
+        render computed them), sparing a pass over millions of faces. Default: computed here.
     """
     faces = np.asarray(faces, dtype=np.int32)
     if normals is not None and np.shape(normals) == np.shape(vertices):

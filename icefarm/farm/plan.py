@@ -198,7 +198,7 @@ def private_stages(jobs: Sequence[PlannedJob]) -> list[str]:
     """Stages whose result no two of ``jobs`` can share (`STAGE_GROUPS`).
 
     The sweep's cache does not store them (``cache/policy.json``): a sweep over surface
-    parameters would otherwise pickle every job's ice surface, which no other job reads.
+    parameters would otherwise store every job's ice surface, which no other job reads.
     Jobs are compared on fewer inputs than the cache keys hold, so a stage that two jobs
     might share is always stored.
     """

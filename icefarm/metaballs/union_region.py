@@ -114,7 +114,7 @@ def surface_region(field: Field, other: Field, other_lattice: np.ndarray) -> Reg
     Table 2's dragon (row c, coat cells four times the icicles'), this region put 59 k of the
     icicles' faces in the union instead of 153 k, and 6.5 k of the coat's instead of 26 k;
     manifold3d was handed 131 k faces instead of 196 k (more of them caps), and
-    `icefarm.metaballs.fuse_fields` took 0.60 s instead of 0.66 s (medians of three alternated
+    `icefarm.metaballs.fuse_fields` ran about a tenth faster (medians of three alternated
     rounds of four), giving the same mesh to 3e-9 m.
 
     Parameters
@@ -298,7 +298,7 @@ def _coarse_cells(field: Field, other: Field, lo: np.ndarray, hi: np.ndarray) ->
         c_hi -= g_lo[None, :, None]
         # Each block's window of the other's cells; only blocks with a marked cell in it
         # (on the real-size bench, a quarter of the icicles' blocks), by a summed-area table
-        # of the grid pooled 4 x 4 x 4 (the whole grid's took 0.1 s on Table 2's dragon) ...
+        # of the grid pooled 4 x 4 x 4 (the whole grid's costs more than the windows it saves) ...
         w0, w1 = c_lo[:, :, 0], c_hi[:, :, -1] + 1
         q = 4  # (the uint32 view below needs 4)
         pooled_shape = -(-shape // q)

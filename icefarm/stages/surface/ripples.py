@@ -230,12 +230,12 @@ def _waves(vertices: np.ndarray, traj: TrajectoryResult, prof: dict, max_radius:
 # close-up view at 480 x 360, icicles 13 px wide): 1.1 mm crests with 1 rad of tilt refracted
 # the seat above into a zebra of dark stripes on every icicle alike. Nearly level, whole
 # crests keep more of their depth in the radius measured around the trunk (a crest tilted by
-# T keeps J0(T) of it), so the measure needs no steeper flanks than before; roots without
+# T keeps J0(T) of it), so the measure needs no steeper flanks for them; roots without
 # ripples and a depth that differs from icicle to icicle break the curtain's regularity.
 # Shallower still (0.5 mm crests) read better by eye, but the 0.3 m bunny's short icicles
-# must keep 0.4 mm in the ripples' band (issue 25): `surface.ripple_amplitude` 1.05 mm gives
+# must keep 0.4 mm in the ripples' band: `surface.ripple_amplitude` 1.05 mm gives
 # crests of 0.74 mm at the default impurity (0.44-0.85 by icicle), 0.41 mm on the bunny
-# (relative storm) and 0.53 on one 12 cm icicle. WANDER was 0.25 before crests forked
+# (relative storm) and 0.53 on one 12 cm icicle. WANDER stays this small because crests also fork
 # (`FORK_SPACING`): both vary the crest spacing the measure reads, whose CV must stay under
 # 0.35, and forks break the rings where wandering only spaces them unevenly.
 WANDER = 0.15
@@ -349,8 +349,8 @@ def _fork_shift(forks: _Forks, b: np.ndarray, x: np.ndarray, u: np.ndarray, v: n
 # (the bench's and the car's ice views). Along each branch the depth swells and ebbs between
 # PATCH_FLOOR and 1 (times PATCH_GAIN) over PATCH_WAVES (m), the swell's phase leaning
 # PATCH_TWIST radians around the trunk, so a patch covers one side of a few crests, not
-# whole rings. The gain keeps the ripple's mean square about as it was, so the measured
-# depth stays at least 0.4 mm (issue 25; relative storm, spectral amplitude / texture
+# whole rings. The gain keeps the ripple's mean square about what it is without patches, so the
+# measured depth stays at least 0.4 mm (relative storm, spectral amplitude / texture
 # depth / crest CV: bunny 0.407 / 0.637 / 0.14 mm without patches, 0.445 / 0.651 / 0.13 with
 # them; fountain 0.421 / 0.535 / 0.28, 0.460 / 0.524 / 0.24; at the defaults, car 0.428 /
 # 0.543 / 0.33, 0.444 / 0.554 / 0.34). A calmer floor, 0.3 with a gain of 1.5, put the car's
