@@ -12,6 +12,6 @@ python3 -m venv "$work/venv"
 "$work/venv/bin/python" -m pip install -q --upgrade pip
 "$work/venv/bin/python" -m pip install -q "$work"/dist/icefarm-*.whl
 cd "$work"
-"$work/venv/bin/icefarm" run generator:roof --size-m 0.5 --set drips.count=4 -o "$work/job" >/dev/null
+"$work/venv/bin/icefarm" run generator:roof --size-m 0.5 --set storm.max_icicles=4 -o "$work/job" >/dev/null
 test -s "$work/job/render.png" || { echo "wheel check: no render.png from the installed wheel" >&2; exit 1; }
 echo "wheel check: the installed wheel rendered $work/job/render.png"
