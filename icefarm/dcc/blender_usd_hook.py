@@ -43,7 +43,7 @@ def _bundled_pxr_path():
     """``bpy/<version>/python/lib/python3.x/site-packages`` beside the ``bpy`` package (Blender's
     own resources), when its ``pxr`` is there (None otherwise)."""
     local = bpy.utils.resource_path("LOCAL")
-    python = "python%d.%d" % sys.version_info[:2]
+    python = f"python{sys.version_info[0]}.{sys.version_info[1]}"
     path = os.path.join(local, "python", "lib", python, "site-packages")
     return path if os.path.isdir(os.path.join(path, "pxr")) else None
 
