@@ -91,8 +91,9 @@ def print_job_summary(timings: dict) -> None:
     if "upward_share" in timings:
         share, spread, cv = (timings.get(k) for k in ("upward_share", "branch_spread_mm", "length_cv"))
         click.echo(f"  trajectories: {'-' if share is None else f'{100 * share:.0f}'} % of segments upward "
-                   f"(real: 0); branches spread {'-' if spread is None else f'{spread:.0f}'} mm from their "
-                   f"parent; trunk lengths vary {'-' if cv is None else f'{100 * cv:.0f}'} % (std / mean)")
+                   f"(real: 0); branches of 3 cm and more spread {'-' if spread is None else f'{spread:.0f}'} "
+                   f"mm from their parent; trunk lengths vary {'-' if cv is None else f'{100 * cv:.0f}'} % "
+                   "(std / mean)")
     if "storm_kind" in timings:
         print_storm(timings)
     if "ice_faces" not in timings:
@@ -141,7 +142,8 @@ def print_job_summary(timings: dict) -> None:
     if gap is not None:
         click.echo(f"  ground: the object's lowest point {gap:.1f} mm above the ground plane"
                    + (" (stands on it)" if timings.get("placement") == "ground" else " (hanging)"))
-    for key, what, real, fmt in (("taper", "taper (radius near the base / tip)", "a carrot: 3 and more", ".1f"),
+    for key, what, real, fmt in (("taper", "taper (radius near the base / tip, icicles of 3 cm and more)",
+                                  "a carrot: 3 and more", ".1f"),
                                  ("growth_ratio", "growth ratio (base - tip diameter) / length",
                                   "1/32-1/8, 0.03-0.13", ".3f"),
                                  ("profile_exponent", "profile exponent n of r - tip ~ d^n", "3/4", ".2f")):

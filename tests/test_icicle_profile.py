@@ -59,6 +59,13 @@ def test_defaults_taper_like_a_carrot_with_a_real_growth_ratio(one_icicle):
     assert m.tip_radius_mm == pytest.approx(2.44, rel=0.1)
 
 
+def test_a_bud_has_no_taper_to_measure(one_icicle):
+    # 2 cm: long enough for radius samples (its growth ratio is measured), too short for a
+    # carrot at the real growth ratio
+    m = one_icicle(length=0.02)
+    assert np.isnan(m.taper[0]) and np.isfinite(m.growth_ratio[0])
+
+
 def test_ripples_show_at_the_defaults_and_track_the_amplitude(one_icicle):
     default = one_icicle()
     assert default.ripple_amplitude_mm >= 0.4

@@ -242,9 +242,23 @@ def test_measure_trajectories_without_branches():
     assert stats.upward_share == 0.0 and np.isnan(stats.branch_spread_mm) and np.isnan(stats.length_cv)
     np.testing.assert_allclose(stats.trunk_lengths, [1e-3])
     # a parent of a single point (it ended at once): the tip's distance to that point
-    stub = TrajectoryResult(np.array([[0, 0, 0], [0, 0, 0], [0.004, -0.003, 0]], float), np.array([0, 1, 3]),
+    stub = TrajectoryResult(np.array([[0, 0, 0], [0, 0, 0], [0.024, -0.032, 0]], float), np.array([0, 1, 3]),
                             np.array([0, 0]), np.array([-1, 0]))
-    assert measure_trajectories(stub, G).branch_spread_mm == pytest.approx(5.0)
+    assert measure_trajectories(stub, G).branch_spread_mm == pytest.approx(40.0)
+
+
+def test_buds_have_no_spread_to_measure():
+    # a branch of the last generation is a bud: its tip lies within its own length of the
+    # parent whatever the growth rule, so only branches of SHAPE_MIN_LENGTH and more count
+    trunk = [[0, 0, 0], [0, -0.2, 0]]
+    long_branch = [[0, -0.05, 0], [0.02, -0.1, 0]]   # 5.4 cm, tip 20 mm aside
+    bud = [[0, -0.19, 0], [0.002, -0.195, 0]]        # 5 mm, tip 2 mm aside
+    traj = TrajectoryResult(np.array(trunk + long_branch + bud, float), np.array([0, 2, 4, 6]),
+                            np.array([0, 0, 0]), np.array([-1, 0, 0]))
+    assert measure_trajectories(traj, G).branch_spread_mm == pytest.approx(20.0)
+    only_bud = TrajectoryResult(np.array(trunk + bud, float), np.array([0, 2, 4]), np.array([0, 0]),
+                                np.array([-1, 0]))
+    assert np.isnan(measure_trajectories(only_bud, G).branch_spread_mm)
 
 
 def test_a_drop_onto_the_object_grows_no_icicle_and_one_that_meets_it_stops_on_it():

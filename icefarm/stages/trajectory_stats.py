@@ -24,8 +24,8 @@ class TrajectoryStats:
         Fraction of all segments (free growth and slides) that rise against gravity by
         more than `UPWARD_TOLERANCE` of their length; nan without segments.
     branch_spread_mm : float
-        Median, over non-trunk branches, of the distance from the branch tip to its parent
-        polyline, in millimeters; nan without branches.
+        Median, over non-trunk branches of `SHAPE_MIN_LENGTH` and more, of the distance
+        from the branch tip to its parent polyline, in millimeters; nan without such branches.
     trunk_lengths : (i,) float
         Arc length of each trunk polyline (``branch_parent == -1``), meters.
     length_cv : float
@@ -39,6 +39,10 @@ class TrajectoryStats:
 
 
 UPWARD_TOLERANCE = 1e-6  # of a segment's length: rounding, not a rise
+# Icicles and branches this long and more (meters) have a shape to measure: their spread,
+# taper and whether they hang free. A branch of the last generation or two is a bud a few
+# mm long: its tip lies within its own length of the parent, whatever the growth rule.
+SHAPE_MIN_LENGTH = 0.03
 
 
 def measure_trajectories(traj: TrajectoryResult, gravity) -> TrajectoryStats:
@@ -74,7 +78,7 @@ def measure_trajectories(traj: TrajectoryResult, gravity) -> TrajectoryStats:
 
     npts = np.diff(offsets)
     # Branches cut away whole (an icicle stopped by the ground) have no points: skip them.
-    children = np.flatnonzero((parent >= 0) & (npts > 0))
+    children = np.flatnonzero((parent >= 0) & (npts > 0) & (per_branch >= SHAPE_MIN_LENGTH))
     children = children[npts[parent[children]] > 0]
     if len(children) == 0:
         return TrajectoryStats(upward_share, float("nan"), trunk_lengths, length_cv)

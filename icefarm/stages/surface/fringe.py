@@ -22,9 +22,10 @@ from scipy.spatial import cKDTree
 
 from ...geometry import arc_lengths, perpendicular_basis, unit
 from ..trajectories import TrajectoryResult
+from ..trajectory_stats import SHAPE_MIN_LENGTH
 
 # Trunks this long and more are checked for hanging free (meters).
-FREE_MIN_LENGTH = 0.03
+FREE_MIN_LENGTH = SHAPE_MIN_LENGTH
 # Half-width of the window around a trunk's axis whose faces are cut (meters), at least
 # WINDOW, and WINDOW_PER_LENGTH of the trunk's length: a metre-long eave icicle is 10 cm
 # across at half its length, and a loop the window cuts reads as fused.

@@ -11,6 +11,7 @@ from scipy.spatial import cKDTree
 from ...geometry import arc_lengths, face_all, nearest, point_index, ragged_arange
 from ...params import SurfaceParams
 from ..trajectories import TrajectoryResult
+from ..trajectory_stats import SHAPE_MIN_LENGTH
 from .profile import grown_lengths, points_along
 
 # Radius samples along a trunk: from TAPER_AT of its length below its base to FIT_END; the
@@ -86,7 +87,8 @@ class IcicleStats:
         ground cut (`TrajectoryResult.branch_cut`) end in a foot, not a drop, and are left out.
     taper : (i,) float
         Radius at 10 % of the trunk's length below its base over the tip radius (a carrot:
-        3 and more; a straw: 1).
+        3 and more; a straw: 1); NaN under `SHAPE_MIN_LENGTH`: at the real growth ratios
+        (at most 1/8) a 3 cm icicle's base is under twice its tip, bud rather than carrot.
     growth_ratio : (i,) float
         (base diameter - tip diameter) / length, from the fitted profile taken at the base
         (real icicles: 1/32 to 1/8; length grows 8-32 times faster than width).
@@ -240,7 +242,8 @@ def measure_icicles(vertices: np.ndarray, faces: np.ndarray, traj: TrajectoryRes
         xj, rj = x[sel], r[sel]
         if L[j] >= TEXTURE_MIN_LENGTH:
             textured.append(rj[(xj >= lo * L[j]) & (xj <= hi * L[j])])
-        taper[j] = rj[0] / tip
+        if L[j] >= SHAPE_MIN_LENGTH:
+            taper[j] = rj[0] / tip
         grown = grown_all[j]  # the profile of a cut icicle runs on below the ground
         d = grown - xj
         # Clear of the base ice too, which swells the first centimetres below the drip point.
