@@ -167,11 +167,14 @@ def render_command(job_dir, render, out):
     progress lines when its output is not a terminal, and leaves INCOMPLETE.txt in the
     folder until the render is done.
     """
-    from .export import RENDER_FILES, estimate_seconds, render_again
+    from .export import RENDER_FILES, estimate_seconds, meshed_coarser, render_again
     from .scene.config import load_render_config
 
     out = Path(out) if out else Path(job_dir) / RENDERS_DIR / Path(render).stem
     config = load_render_config(render)
+    coarser = meshed_coarser(Path(job_dir), config)
+    if coarser:
+        click.echo(f"note: {coarser}")
     estimate = estimate_seconds(Path(job_dir), config)
     if estimate is not None:
         seconds, basis = estimate

@@ -13,7 +13,7 @@ import time
 import traceback
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -259,13 +259,34 @@ def _storm_stats(storm, group: StormParams, pools: str) -> dict:
             "water_pooled": round(storm.budget.pooled / caught, 4), "water_pools": pools}
 
 
-def _run_stages(spec: JobSpec, job_dir: Path, run: _Run, cache: StageCache, until: Stage | None) -> dict:
+def meshing_params(spec: JobSpec) -> tuple[Params, dict]:
+    """The parameters stage 4 meshes with, for how the job will be seen, and the figures
+    that record it: a render config smaller than lookdev's scales ``surface.face_budget``
+    and ``surface.error_px`` to its view (`icefarm.stages.surface.detail.view_surface`); a
+    job without a render meshes for lookdev. ``params.yaml`` keeps the values as set."""
+    from .stages.surface.detail import VIEW_PX, meshing_view, view_surface
+
     p = spec.params
-    gravity = p.gravity
-    artifacts.write_yaml(job_dir / PARAMS, p.as_dict())
+    resolution, close_up = None, False
+    if spec.render is not None:
+        from .scene.config import load_render_config
+
+        config = load_render_config(spec.render)
+        resolution, close_up = config.resolution, any(v.frame == "ice" for v in config.views)
+    surface = view_surface(p.surface, resolution, close_up)
+    view = meshing_view(resolution, close_up)
+    stats = {"mesh_view_px": list(view), "mesh_face_budget": surface.face_budget,
+             "mesh_error_px": round(surface.error_px * view[0] / VIEW_PX, 6)}
+    return replace(p, surface=surface), stats
+
+
+def _run_stages(spec: JobSpec, job_dir: Path, run: _Run, cache: StageCache, until: Stage | None) -> dict:
+    gravity = spec.params.gravity
+    artifacts.write_yaml(job_dir / PARAMS, spec.params.as_dict())
+    p, meshed = meshing_params(spec)
     prepared = run.timed("prepare", lambda: load_object(spec))
     stats: dict[str, Any] = {"input_faces": prepared.problems.faces, "problems": vars(prepared.problems),
-                             "placement": spec.placement}
+                             "placement": spec.placement, **meshed}
 
     def step(name: str, key: str | None, work: Callable[[], Any]) -> Any:
         return run.timed(name, (lambda: cache.get(name, key, work)) if key else work)
@@ -413,7 +434,7 @@ def _growth(spec: JobSpec, job_dir: Path, run: _Run, r: StageResults, gravity: n
     rendered with the job's camera: the one framed on the full-grown ice."""
     from .growth import FrameView, grow_frames
 
-    p, obj, water = spec.params, r.mesh, r.water
+    p, obj, water = meshing_params(spec)[0], r.mesh, r.water
     assert water is not None and r.drips is not None and r.trajectories is not None  # the chain reached stage 4
     view = None
     if spec.render is not None:

@@ -17,7 +17,7 @@ __getattr__, __dir__, __all__ = _lazy.attach(__name__, submod_attrs={
     "gltf": ["write_glb"],
     "growth_usd": ["write_growth_usd"],
     "ice_layer": ["IceLayer", "write_ice_layer"],
-    "rerender": ["RENDER_FILES", "estimate_seconds", "render_again"],
+    "rerender": ["RENDER_FILES", "estimate_seconds", "meshed_coarser", "render_again"],
     "usd": ["write_job_usd", "write_usdz"],
 })
 

@@ -42,6 +42,25 @@ def estimate_seconds(job_dir: Path, config) -> tuple[float, str] | None:
                                       f"view{'s' * (views != 1)}: {seconds:.1f} s")
 
 
+def meshed_coarser(job_dir: Path, config) -> str | None:
+    """What to say when ``config`` shows ``job_dir``'s ice in more pixels than the job meshed
+    it for (``mesh_view_px`` in its ``timings.json``: a preview's coarser mesh shows its
+    facets in a lookdev frame or an ice view), and how to mesh it again; None when the job's
+    mesh holds up (or it recorded no view)."""
+    from ..stages.surface.detail import meshing_view
+
+    meshed = read_job(job_dir).stats.get("mesh_view_px")
+    if not meshed:
+        return None
+    needed = meshing_view(config.resolution, any(v.frame == "ice" for v in config.views))
+    if needed[0] * needed[1] <= meshed[0] * meshed[1]:
+        return None
+    return (f"this job's ice was meshed for a {meshed[0]}x{meshed[1]} view (its render config); "
+            f"{config.name} shows it as in a {needed[0]}x{needed[1]} one: facets and beaded tips may show. "
+            f"For the full detail, run the job again with --render {config.name} (icefarm run; in a sweep, "
+            f"render: {config.name} in the manifest; with its --cache, stages 1-3 are reused)")
+
+
 def render_again(job_dir: Path, render: str, out_dir: Path, progress: bool = False,
                  report: Callable[[str], None] | None = None):
     """Render a finished job's object and ice again with another render config, into ``out_dir``.

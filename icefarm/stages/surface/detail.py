@@ -10,7 +10,10 @@ h therefore stays within ``h / 8`` of its exact surface. So the icicles' balls a
 where they overlap.
 
 The budget is a distance on screen: ``surface.error_px``, in pixels of a view `VIEW_PX`
-pixels wide framing the object's bounding box. The coarse lattice is used only where
+pixels wide framing the object's bounding box. A job rendered smaller than lookdev's
+`VIEW_PX` x `VIEW_PX_HIGH` (a preview) counts it in pixels of its own view and its
+``surface.face_budget`` by its share of lookdev's pixels (`view_surface`): faces on screen
+per pixel stay what lookdev meshes. The coarse lattice is used only where
 that allows it (``8 error >= COARSE * fine voxel``) and where ripples are below the
 error or still resolved (`RIPPLE_SAMPLES` samples per wavelength): a 0.3 m bunny keeps one
 lattice; the 3 m house (pixel 11 mm) meshes its icicles' thick parts at 3 times the tip's
@@ -19,6 +22,7 @@ voxel.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -30,8 +34,9 @@ from ...tol import tol
 
 # Coarse voxel / fine voxel, when the budget allows a coarse lattice at all.
 COARSE = 3.0
-# Width in pixels of the view the error is counted in (lookdev's).
+# The view the error and face budgets are set for (lookdev's), pixels.
 VIEW_PX = 480
+VIEW_PX_HIGH = 360
 # Least lattice samples per ripple wavelength on the coarse lattice, when the ripples are
 # deeper than the error budget.
 RIPPLE_SAMPLES = 4
@@ -63,6 +68,32 @@ def coarse_voxel(fine_voxel: float, extent: float, error_px: float, ripple_ampli
     if ripple_amplitude > error and ripple_wavelength > 0:
         voxel = min(voxel, ripple_wavelength / RIPPLE_SAMPLES)
     return voxel if voxel >= COARSE * fine_voxel * (1 - tol.slack) else None
+
+
+def meshing_view(resolution: tuple[int, int] | None, close_up: bool = False) -> tuple[int, int]:
+    """The view (width, height pixels) a job's budgets are counted for: its render's
+    ``resolution`` where that is smaller than lookdev's, else lookdev's (larger views, a
+    view framing the ice (``close_up``: a zoom on the icicles shows their mesh a few times
+    larger) and no render (None) keep the budgets as set)."""
+    if resolution is None or close_up:
+        return VIEW_PX, VIEW_PX_HIGH
+    width, height = (int(v) for v in resolution)
+    if width * height >= VIEW_PX * VIEW_PX_HIGH:
+        return VIEW_PX, VIEW_PX_HIGH
+    return width, height
+
+
+def view_surface(surface, resolution: tuple[int, int] | None, close_up: bool = False):
+    """``surface`` (the resolved ``surface`` group) with its budgets for the `meshing_view`
+    of ``resolution`` and ``close_up``: ``face_budget`` times its share of lookdev's pixels,
+    ``error_px`` counted in its pixels. ``error_px`` 0 and ``face_budget`` 0 (off) stay 0.
+    """
+    width, height = meshing_view(resolution, close_up)
+    if (width, height) == (VIEW_PX, VIEW_PX_HIGH):
+        return surface
+    share = width * height / (VIEW_PX * VIEW_PX_HIGH)
+    return dataclasses.replace(surface, face_budget=int(round(surface.face_budget * share)),
+                               error_px=surface.error_px * VIEW_PX / width)
 
 
 def split_balls(balls: Balls, voxel: float, surface_points: np.ndarray, clearance: float,
