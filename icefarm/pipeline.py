@@ -21,11 +21,13 @@ import numpy as np
 import trimesh
 
 from . import artifacts
+from .artifacts import read_ice_mesh, trajectories_from_json
 from .asset_io import USD_SUFFIXES
 from .chain import Stage, StageResults, build_surface, glaze_surface, run_stages, sole, stage_rng, stops
 from .errors import InputError, cannot_write
 from .generators import GENERATOR_PREFIX
 from .geometry import ray_caster
+from .job_render import render_step
 from .jobdir import (
     DONE,
     DRIPS,
@@ -43,10 +45,10 @@ from .jobdir import (
     WATER,
     JobState,
     clear_job,
+    read_json,
 )
 from .mesh import PreparedMesh, prepare
 from .params import Params, StormParams, SurfaceParams
-from .placement import ground_height
 from .progress import ProgressMode, StepProgress, step_progress
 from .scene.material import Material
 from .stage_cache import StageCache, digest as _digest, file_digest as _file_digest
@@ -174,7 +176,8 @@ class _Run:
 
 
 def run_job(spec: JobSpec, job_dir: Path, cache_dir: Path | None = None,
-            until: Stage | None = None, progress: bool | ProgressMode = False) -> JobOutcome:
+            until: Stage | None = None, progress: bool | ProgressMode = False,
+            defer_render: bool = False) -> JobOutcome:
     """Run one job into ``job_dir``; never raises for a failure of the job itself.
 
     What an earlier job wrote in ``job_dir`` is removed first (`icefarm.jobdir.clear_job`;
@@ -183,6 +186,9 @@ def run_job(spec: JobSpec, job_dir: Path, cache_dir: Path | None = None,
     ``progress`` shows what the job is doing on stderr (`icefarm.progress`): ``BAR`` (or
     True) a live line per step and bars over a render's samples and growth frames,
     ``LINES`` a plain line as each step starts and ends, ``OFF`` (or False) nothing.
+    ``defer_render`` stops a whole job with a render (and no growth frames) before its render:
+    its files and ``timings.json`` are written, no ``done.json``, and the status is
+    ``pending`` until `finish_render` renders it (on another machine of a farm).
 
     Raises
     ------
@@ -200,23 +206,76 @@ def run_job(spec: JobSpec, job_dir: Path, cache_dir: Path | None = None,
     mode = progress if isinstance(progress, ProgressMode) else (ProgressMode.BAR if progress else ProgressMode.OFF)
     run = _Run(progress=mode is ProgressMode.BAR, steps=step_progress(mode))
     cache = StageCache(Path(cache_dir) if cache_dir else None)
+    defer = defer_render and renders_apart(spec, until)
     try:
-        summary = _run_stages(spec, job_dir, run, cache, until)
+        summary = _run_stages(spec, job_dir, run, cache, until, defer)
     except Exception as exc:
-        message = str(exc) if isinstance(exc, InputError) else f"{type(exc).__name__}: {exc}"
-        _record(job_dir / ERROR, {
-            "stage": run.stage, "message": message, "traceback": traceback.format_exc(),
-            "seconds": run.seconds,
-        })
-        return JobOutcome(JobState.FAILED, dict(run.seconds), tuple(cache.reused), run.stage, message)
-    _record(job_dir / TIMINGS, {"seconds": run.seconds, **summary, "reused": cache.reused})
+        return _failed(job_dir, run, exc, tuple(cache.reused))
+    if defer:
+        _record(job_dir / TIMINGS, {"seconds": run.seconds, **summary, "reused": cache.reused,
+                                    RENDER_PENDING: True, **({"cache_warnings": cache.warnings} if cache.warnings
+                                                             else {})})
+        return JobOutcome(JobState.PENDING, dict(run.seconds), tuple(cache.reused))
+    return _finished(spec, job_dir, run.seconds, summary, cache.reused, cache.warnings)
+
+
+# timings.json of a job whose render is still to come (`run_job` with ``defer_render``)
+RENDER_PENDING = "render_pending"
+
+
+def renders_apart(spec: JobSpec, until: Stage | None = None) -> bool:
+    """Whether ``spec``'s render can run apart from its stages (`finish_render`): a whole job
+    with a render config and no growth frames (those render inside the surface stage's loop)."""
+    return spec.render is not None and until is None and not spec.params.growth.frames
+
+
+def finish_render(spec: JobSpec, job_dir: Path, progress: bool = False) -> JobOutcome:
+    """Render a job whose stages `run_job` ran with ``defer_render`` (its ``ice.ply``,
+    ``trajectories.json`` and ``timings.json`` in ``job_dir``) and finish it: its render
+    figures join ``timings.json`` and ``done.json`` is written last. Never raises for a
+    failure of the job itself (``error.json``, status ``failed``, stage ``render``)."""
+    job_dir = Path(job_dir)
+    geometry = read_json(job_dir / TIMINGS)
+    run = _Run(progress=progress)
+    run.seconds = dict(geometry.get("seconds") or {})
+    reused = tuple(geometry.get("reused") or ())
+    try:
+        if not geometry.get(RENDER_PENDING):
+            raise InputError(f"{job_dir} holds no job waiting for its render (run_job with defer_render)")
+        run.stage = "render"
+        prepared = load_object(spec)
+        ice = read_ice_mesh(job_dir / ICE)
+        axes = trajectories_from_json(job_dir / TRAJECTORIES).points
+        stats = render_step(spec, job_dir, prepared.mesh, ice if isinstance(ice, trimesh.Trimesh) else None,
+                            spec.params.gravity, axes, run.timed, run.progress)
+    except Exception as exc:
+        return _failed(job_dir, run, exc, reused)
+    summary = {k: v for k, v in geometry.items() if k not in ("seconds", "reused", "cache_warnings", RENDER_PENDING)}
+    return _finished(spec, job_dir, run.seconds, {**summary, **stats}, list(reused),
+                     geometry.get("cache_warnings") or [])
+
+
+def _failed(job_dir: Path, run: _Run, exc: Exception, reused: tuple) -> JobOutcome:
+    """error.json for a job that failed in ``run.stage``, and its outcome."""
+    message = str(exc) if isinstance(exc, InputError) else f"{type(exc).__name__}: {exc}"
+    _record(job_dir / ERROR, {
+        "stage": run.stage, "message": message, "traceback": traceback.format_exc(),
+        "seconds": run.seconds,
+    })
+    return JobOutcome(JobState.FAILED, dict(run.seconds), reused, run.stage, message)
+
+
+def _finished(spec: JobSpec, job_dir: Path, seconds: dict, summary: dict, reused: list,
+              warnings: list) -> JobOutcome:
+    """timings.json, then done.json: a finished job's records."""
+    _record(job_dir / TIMINGS, {"seconds": seconds, **summary, "reused": reused})
     # Last, and listing every artifact with its size and digest: `--resume` checks them.
     _record(job_dir / DONE, {
-        "job": spec.object_id, "seconds": run.seconds, "reused": cache.reused, **summary,
-        **({"cache_warnings": cache.warnings} if cache.warnings else {}),
+        "job": spec.object_id, "seconds": seconds, "reused": reused, **summary,
+        **({"cache_warnings": warnings} if warnings else {}),
         "artifacts": artifacts.list_artifacts(job_dir),
     })
-    return JobOutcome(JobState.DONE, dict(run.seconds), tuple(cache.reused))
+    return JobOutcome(JobState.DONE, dict(seconds), tuple(reused))
 
 
 def _record(path: Path, value: dict) -> None:
@@ -225,23 +284,6 @@ def _record(path: Path, value: dict) -> None:
         artifacts.write_json(path, value)
     except OSError as exc:
         raise cannot_write(exc, f"the job folder {path.parent}") from None
-
-
-def _return_freed_memory() -> None:
-    """Hand the heap's freed pages back to the system before the render loads its scene.
-
-    The surface stage frees hundreds of MB of temporaries that glibc keeps mapped; Mitsuba's
-    scene and BVH then came on top of them: the 3 m house's preview peaked at 1.62-1.96 GB
-    resident in the render (5 runs), against 1.53-1.54 GB with this (3 runs), its peak then the
-    surface stage's. glibc only (``malloc_trim``); elsewhere nothing happens."""
-    import ctypes
-
-    try:
-        trim = getattr(ctypes.CDLL(None), "malloc_trim", None)
-    except (OSError, TypeError):  # no handle on the process's own symbols (Windows)
-        return
-    if trim is not None:
-        trim(0)
 
 
 def _storm_stats(storm, group: StormParams, pools: str) -> dict:
@@ -264,7 +306,7 @@ def meshing_params(spec: JobSpec) -> tuple[Params, dict]:
     that record it: a render config smaller than lookdev's scales ``surface.face_budget``
     and ``surface.error_px`` to its view (`icefarm.stages.surface.detail.view_surface`); a
     job without a render meshes for lookdev. ``params.yaml`` keeps the values as set."""
-    from .stages.surface.detail import VIEW_PX, meshing_view, view_surface
+    from .stages.surface import VIEW_PX, meshing_view, view_surface
 
     p = spec.params
     resolution, close_up = None, False
@@ -280,7 +322,8 @@ def meshing_params(spec: JobSpec) -> tuple[Params, dict]:
     return replace(p, surface=surface), stats
 
 
-def _run_stages(spec: JobSpec, job_dir: Path, run: _Run, cache: StageCache, until: Stage | None) -> dict:
+def _run_stages(spec: JobSpec, job_dir: Path, run: _Run, cache: StageCache, until: Stage | None,
+                defer_render: bool = False) -> dict:
     gravity = spec.params.gravity
     artifacts.write_yaml(job_dir / PARAMS, spec.params.as_dict())
     p, meshed = meshing_params(spec)
@@ -336,7 +379,7 @@ def _run_stages(spec: JobSpec, job_dir: Path, run: _Run, cache: StageCache, unti
                          mesh_key=_digest(mesh_digest(spec.mesh), spec.size_m, p.water.gravity),
                          step=step, on_stage=on_stage, note=run.steps.note)
     if results.ice is not None:
-        stats.update(_surface_and_render(spec, job_dir, run, until, results, gravity))
+        stats.update(_surface_and_render(spec, job_dir, run, until, results, gravity, defer_render))
         if Path(spec.mesh).suffix.lower() in USD_SUFFIXES:  # rendered or not: the ice over the asset's file
             from .export.ice_layer import write_ice_layer
 
@@ -351,7 +394,7 @@ def _run_stages(spec: JobSpec, job_dir: Path, run: _Run, cache: StageCache, unti
 
 
 def _surface_and_render(spec: JobSpec, job_dir: Path, run: _Run, until: Stage | None, r: StageResults,
-                        gravity: np.ndarray) -> dict:
+                        gravity: np.ndarray, defer_render: bool = False) -> dict:
     from .stages.surface import fringe_figures, measure_icicles
     from .stages.surface.glaze import measure_glaze
 
@@ -395,37 +438,10 @@ def _surface_and_render(spec: JobSpec, job_dir: Path, run: _Run, until: Stage | 
         stats["coarse_voxel_mm"] = round(1000 * ice.coarse_voxel, 3)
     if p.surface.curtain > 0:
         stats["curtain_area_m2"] = round(ice.curtain_area, 6)
-    if spec.render is None or stops(until, Stage.SURFACE):
+    if spec.render is None or stops(until, Stage.SURFACE) or defer_render:
         return stats
-    from .scene.config import load_render_config
-    from .scene.render import render_job
-    from .scene.write import job_scene
-
-    config = load_render_config(spec.render)
-    scene = job_scene(obj, ice_mesh, gravity, material=spec.material, placement=spec.placement,
-                      impurity=p.surface.impurity,  # impure water: a cloudy core
-                      # framed on trajectories.json's axes, as `icefarm render` frames it again
-                      # (stage 4's, with roots hung under the rims, moved the ice view)
-                      icicle_axes=r.trajectories.points)
-    material = scene.material
-    # POV-Ray files written meanwhile
-    _return_freed_memory()
-    result = run.timed("render", lambda: render_job(job_dir, config, scene, progress=run.progress))
-    if result.scene.ground_height is not None:  # 0 for a grounded object; a hanging one floats
-        stats["ground_gap_mm"] = _finite((ground_height(obj.vertices, gravity) - result.scene.ground_height) * 1000)
-    stats.update(object_material=material.to_dict(), render_variant=result.variant, render_integrator=result.integrator,
-                 renderer=result.renderer,
-                 render_seconds=result.seconds, scene_seconds=result.scene_seconds,
-                 render_view_seconds=[round(v, 3) for v in result.view_seconds],
-                 denoise_seconds=round(result.denoise_seconds, 3),
-                 scene_write_seconds=result.write_seconds, scene_load_seconds=result.load_seconds,
-                 scene_wait_seconds=result.wait_seconds,
-                 povray_write_cpu_seconds=result.povray_write_cpu_seconds)
-    from .export.usd import write_job_usd
-
-    # scene.usda (object.usdc, ice.usdc) for DCCs: the render's cameras, sun, sky, materials.
-    run.timed("usd", lambda: write_job_usd(job_dir, material=material, ice_mesh=ice_mesh,
-                                           ice_normals=result.ice_normals))
+    stats.update(render_step(spec, job_dir, obj, ice_mesh, gravity, r.trajectories.points, run.timed,
+                             run.progress))
     return stats
 
 

@@ -1,6 +1,7 @@
 """Sweeps on a real Dask cluster: a `dask scheduler` and two `dask worker` processes on
 127.0.0.1 (random ports), started from the venv's `dask` command and torn down afterwards."""
 
+import contextlib
 import json
 import os
 import signal
@@ -124,24 +125,44 @@ def test_dask_without_a_scheduler_starts_a_local_cluster(tmp_path, write_manifes
     assert summary.jobs[1].reused == ("water",)
 
 
-def test_a_sweep_says_when_its_cluster_has_no_workers(tmp_path, write_manifest, wait_for):
-    """A scheduler without workers: the sweep says it waits (and for what) instead of sitting
-    silent, and says when a worker joined."""
+@contextlib.contextmanager
+def dask_processes(folder: Path, wait_for):
+    """``(address, start)``: a `dask scheduler` on 127.0.0.1 started in ``folder``, and
+    ``start(*args, log=...)`` to start more `dask` processes (workers); all of them (whole
+    process groups) stopped afterwards."""
     if not DASK.exists():
         pytest.skip(f"no dask command at {DASK}")
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")])))
     procs = []
 
     def start(*args, log):
-        procs.append(subprocess.Popen([str(DASK), *args], env=env, cwd=tmp_path, start_new_session=True,
-                                      stdout=(tmp_path / log).open("w"), stderr=subprocess.STDOUT))
+        procs.append(subprocess.Popen([str(DASK), *args], env=env, cwd=folder, start_new_session=True,
+                                      stdout=(folder / log).open("w"), stderr=subprocess.STDOUT))
 
     try:
-        info = tmp_path / "scheduler.json"
+        info = folder / "scheduler.json"
         start("scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard",
               "--dashboard-address", "127.0.0.1:0", "--scheduler-file", str(info), log="scheduler.log")
-        address = wait_for(lambda: info.is_file() and json.loads(info.read_text() or "{}").get("address"),
-                           "the scheduler", 60)
+        yield wait_for(lambda: info.is_file() and json.loads(info.read_text() or "{}").get("address"),
+                       "the scheduler", 60), start
+    finally:
+        for proc in reversed(procs):
+            try:
+                os.killpg(proc.pid, signal.SIGTERM)
+            except ProcessLookupError:
+                pass
+        for proc in procs:
+            try:
+                proc.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                os.killpg(proc.pid, signal.SIGKILL)
+                proc.wait(timeout=10)
+
+
+def test_a_sweep_says_when_its_cluster_has_no_workers(tmp_path, write_manifest, wait_for):
+    """A scheduler without workers: the sweep says it waits (and for what) instead of sitting
+    silent, and says when a worker joined."""
+    with dask_processes(tmp_path, wait_for) as (address, start):
         path = write_manifest(grid={"drips.count": [2, 3]}, name="d", seed=2)
         notes: list[str] = []
         result: list = []
@@ -155,15 +176,31 @@ def test_a_sweep_says_when_its_cluster_has_no_workers(tmp_path, write_manifest, 
         sweep.join(timeout=300)
         assert result and result[0].ok and result[0].done == 2
         assert any("1 worker joined" in n for n in notes), notes
-    finally:
-        for proc in reversed(procs):
-            try:
-                os.killpg(proc.pid, signal.SIGTERM)
-            except ProcessLookupError:
-                pass
-        for proc in procs:
-            try:
-                proc.wait(timeout=20)
-            except subprocess.TimeoutExpired:
-                os.killpg(proc.pid, signal.SIGKILL)
-                proc.wait(timeout=10)
+
+
+def test_renders_run_on_the_gpu_worker_and_stages_on_the_other(tmp_path, write_manifest, sweep_kit, wait_for):
+    """One worker declares the GPU resource, one does not: every job's render runs on the
+    first as soon as its stages are done, every job's stages on the second."""
+    from distributed import Client, get_task_stream
+
+    with dask_processes(tmp_path, wait_for) as (address, start):
+        for name, extra in (("gpu", ["--resources", "GPU=1"]), ("cpu", [])):
+            start("worker", address, "--nthreads", "1", "--host", "127.0.0.1", "--no-dashboard", "--name", name,
+                  *extra, log=f"{name}.log")
+        with Client(address, timeout=30) as client:
+            client.wait_for_workers(2, timeout=60)
+            path = write_manifest(grid={"drips.count": [2, 3]}, name="g", seed=2,
+                                  render=str(sweep_kit.tiny_render(tmp_path)))
+            with get_task_stream(client) as stream:  # the scheduler records which worker ran what
+                summary = run_sweep(path, tmp_path / "out", backend="dask", scheduler=address)
+            names = {a: w["name"] for a, w in client.scheduler_info()["workers"].items()}
+            ran = {s["key"]: names[s["worker"]] for s in stream.data if str(s["key"]).startswith("icefarm-")}
+    assert summary.ok and summary.done == 2, [r.error for r in summary.jobs]
+    stages = {k: w for k, w in ran.items() if k.startswith("icefarm-stages-")}
+    renders = {k: w for k, w in ran.items() if k not in stages}
+    assert len(stages) == 2 and set(stages.values()) == {"cpu"}, ran
+    assert len(renders) == 2 and set(renders.values()) == {"gpu"}, ran
+    for r in summary.jobs:
+        timings = json.loads((r.job_dir / "timings.json").read_text())
+        assert (r.job_dir / "render.png").is_file() and (r.job_dir / "done.json").is_file()
+        assert {"surface", "render", "usd"} <= set(timings["seconds"]) and "render_pending" not in timings

@@ -47,7 +47,7 @@ def meshed_coarser(job_dir: Path, config) -> str | None:
     it for (``mesh_view_px`` in its ``timings.json``: a preview's coarser mesh shows its
     facets in a lookdev frame or an ice view), and how to mesh it again; None when the job's
     mesh holds up (or it recorded no view)."""
-    from ..stages.surface.detail import meshing_view
+    from ..stages.surface import meshing_view
 
     meshed = read_job(job_dir).stats.get("mesh_view_px")
     if not meshed:

@@ -23,11 +23,29 @@ from .task import (
     Task,
     attempts_started,
     execute,
+    execute_geometry,
+    execute_render,
     failed_outcome,
     marker_path,
     threads_per_worker,
     write_error,
 )
+
+# The Dask worker resource that marks a render machine (`dask worker --resources GPU=1`): where
+# a cluster has such workers, each job's render runs on one of them as soon as its stages are
+# done, and the stages run on the others.
+RENDER_RESOURCE = "GPU"
+
+
+def worker_roles(client) -> tuple[list[str], list[str]]:
+    """``(render, stages)``: the addresses of the cluster's workers that declare
+    `RENDER_RESOURCE` and of the others."""
+    try:
+        workers = client.scheduler_info().get("workers", {})
+    except Exception:
+        return [], []
+    render = [a for a, w in workers.items() if (w.get("resources") or {}).get(RENDER_RESOURCE, 0) > 0]
+    return render, [a for a in workers if a not in render]
 
 
 def check_scheduler_address(address: str) -> None:
@@ -158,6 +176,10 @@ def run_dask(tasks: Sequence[Task], *, workers: int, on_outcome: OnOutcome,
     """Run ``tasks`` on a Dask cluster: ``client``'s, or the scheduler at ``scheduler``, or
     a LocalCluster of ``workers`` single-threaded worker processes started (and stopped) here.
 
+    Where the cluster has workers that declare `RENDER_RESOURCE`, each job with a render runs
+    in two tasks: its stages on the other workers, its render (`icefarm.pipeline.finish_render`)
+    on a render worker, which starts it as soon as the stages are done.
+
     The workers must import icefarm and see the sweep folder at the same path (one machine, or
     a shared file system). ``note(text)`` hears when the cluster has no workers (and when
     they join). Other parameters as `run_local`.
@@ -169,6 +191,8 @@ def run_dask(tasks: Sequence[Task], *, workers: int, on_outcome: OnOutcome,
     from distributed import as_completed
     from distributed.scheduler import KilledWorker
 
+    from ..pipeline import Stage, renders_apart
+
     threads = threads_per_worker(workers) if scheduler is None else None
     run = uuid.uuid4().hex[:8]
     gate = Gate([replace(t, threads=threads) for t in tasks], waits or {})
@@ -178,7 +202,19 @@ def run_dask(tasks: Sequence[Task], *, workers: int, on_outcome: OnOutcome,
 
     def submit_ready() -> None:
         while (task := gate.next()) is not None:
-            fut = client.submit(execute, task, key=f"icefarm-{task.job_id}-{run}", pure=False)
+            render_workers, stage_workers = worker_roles(client)
+            # stages stay off the render machines where there are others to run them
+            placed = {"workers": stage_workers, "allow_other_workers": False} if render_workers and stage_workers \
+                else {}
+            until = Stage(task.until) if task.until else None
+            if render_workers and renders_apart(task.spec, until):
+                stages = client.submit(execute_geometry, task, key=f"icefarm-stages-{task.job_id}-{run}", pure=False,
+                                       **placed)
+                live[stages.key] = stages
+                fut = client.submit(execute_render, task, stages, key=f"icefarm-{task.job_id}-{run}", pure=False,
+                                    resources={RENDER_RESOURCE: 1})
+            else:
+                fut = client.submit(execute, task, key=f"icefarm-{task.job_id}-{run}", pure=False, **placed)
             futures[fut.key] = task
             live[fut.key] = fut
             stream.add(fut)
@@ -205,6 +241,9 @@ def run_dask(tasks: Sequence[Task], *, workers: int, on_outcome: OnOutcome,
                     write_error(task.job_dir, message, None, traceback.format_exc())
                     outcome = failed_outcome(message)
                 fut.release()
+                stages = live.pop(f"icefarm-stages-{task.job_id}-{run}", None)
+                if stages is not None:
+                    stages.release()
                 marker_path(task).unlink(missing_ok=True)
                 gate.finish(task)
                 on_outcome(task, outcome, attempt)

@@ -103,8 +103,10 @@ def write_error(job_dir: str | Path, message: str, stage: str | None = None, tra
     write_json(Path(job_dir) / ERROR, {"stage": stage, "message": message, "traceback": trace})
 
 
-def execute(task: Task) -> tuple[Any, int]:
-    """Run one job in this worker process.
+def execute(task: Task, defer_render: bool = False) -> tuple[Any, int]:
+    """Run one job in this worker process; with ``defer_render``, its stages only when its
+    render can run apart (`icefarm.pipeline.renders_apart`: status ``pending`` until
+    `execute_render`).
 
     Returns
     -------
@@ -124,19 +126,47 @@ def execute(task: Task) -> tuple[Any, int]:
     try:
         from .. import pipeline
 
-        if task.spec.render is not None and task.threads:
-            from ..scene.variants import set_thread_count
-
-            set_thread_count(task.threads)
+        if task.spec.render is not None and task.threads and not defer_render:
+            _render_threads(task.threads)
         until = pipeline.Stage(task.until) if task.until else None
         cache = Path(task.cache_dir) if task.cache_dir else None
-        outcome = pipeline.run_job(task.spec, job_dir, cache_dir=cache, until=until)
+        outcome = pipeline.run_job(task.spec, job_dir, cache_dir=cache, until=until, defer_render=defer_render)
     except Exception as exc:  # run_job reports job failures itself; this is a farm-level bug
         trace = traceback.format_exc()
         write_error(job_dir, f"{type(exc).__name__}: {exc}", None, trace)
         outcome = failed_outcome(f"{type(exc).__name__}: {exc}", None, trace)
     marker.unlink(missing_ok=True)
     return outcome, attempt
+
+
+def execute_geometry(task: Task) -> tuple[Any, int]:
+    """A job's stages, its render left for `execute_render` (a farm's render workers)."""
+    return execute(task, defer_render=True)
+
+
+def execute_render(task: Task, geometry: tuple[Any, int]) -> tuple[Any, int]:
+    """Render a job whose stages `execute_geometry` ran (``geometry``: its outcome and
+    attempt) and finish it; a job whose stages failed stays failed, untouched."""
+    outcome, attempt = geometry
+    if outcome.status is not JobState.PENDING:
+        return outcome, attempt
+    try:
+        from .. import pipeline
+
+        if task.threads:
+            _render_threads(task.threads)
+        outcome = pipeline.finish_render(task.spec, Path(task.job_dir))
+    except Exception as exc:  # finish_render reports job failures itself; this is a farm-level bug
+        trace = traceback.format_exc()
+        write_error(task.job_dir, f"{type(exc).__name__}: {exc}", "render", trace)
+        outcome = failed_outcome(f"{type(exc).__name__}: {exc}", "render", trace)
+    return outcome, attempt
+
+
+def _render_threads(threads: int) -> None:
+    from ..scene.variants import set_thread_count
+
+    set_thread_count(threads)
 
 
 # --------------------------------------------------------------------------- scheduling

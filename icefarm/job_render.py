@@ -1,0 +1,89 @@
+"""A job's render step: its object and ice as a scene, rendered with its render config, and
+the USD scene for DCCs.
+
+`icefarm.pipeline.run_job` runs it after the surface stage; on a farm whose renders go to
+GPU workers, `icefarm.pipeline.finish_render` runs it on its own from the job's files.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import trimesh
+
+from .placement import ground_height
+
+Timed = Callable[[str, Callable[[], Any]], Any]  # timed(step, work): runs and times one step
+
+
+def return_freed_memory() -> None:
+    """Hand the heap's freed pages back to the system before the render loads its scene.
+
+    The surface stage frees hundreds of MB of temporaries that glibc keeps mapped; Mitsuba's
+    scene and BVH then came on top of them: the 3 m house's preview peaked at 1.62-1.96 GB
+    resident in the render (5 runs), against 1.53-1.54 GB with this (3 runs), its peak then the
+    surface stage's. glibc only (``malloc_trim``); elsewhere nothing happens."""
+    import ctypes
+
+    try:
+        trim = getattr(ctypes.CDLL(None), "malloc_trim", None)
+    except (OSError, TypeError):  # no handle on the process's own symbols (Windows)
+        return
+    if trim is not None:
+        trim(0)
+
+
+def render_step(spec, job_dir: Path, obj: trimesh.Trimesh, ice_mesh: trimesh.Trimesh | None,
+                gravity: np.ndarray, icicle_axes: np.ndarray | None, timed: Timed, progress: bool) -> dict:
+    """Render ``spec``'s job (an `icefarm.pipeline.JobSpec` with a render config) into
+    ``job_dir`` and write its USD scene; the figures of the render for ``timings.json``.
+
+    Parameters
+    ----------
+    obj : trimesh.Trimesh
+        The prepared object, in meters, placed.
+    ice_mesh : trimesh.Trimesh or None
+        The ice (``ice.ply``, with its ripple bands where it has them); None: no ice.
+    gravity : (3,) float
+    icicle_axes : (p, 3) float or None
+        The trajectories' points, which frame the ice view.
+    timed : callable
+        ``timed(step, work)``: the job's timer (the steps ``render`` and ``usd``).
+    progress : bool
+        Bars over the render's samples.
+    """
+    from .scene.config import load_render_config
+    from .scene.render import render_job
+    from .scene.write import job_scene
+
+    config = load_render_config(spec.render)
+    scene = job_scene(obj, ice_mesh, gravity, material=spec.material, placement=spec.placement,
+                      impurity=spec.params.surface.impurity,  # impure water: a cloudy core
+                      # framed on trajectories.json's axes, as `icefarm render` frames it again
+                      # (stage 4's, with roots hung under the rims, moved the ice view)
+                      icicle_axes=icicle_axes)
+    material = scene.material
+    # POV-Ray files written meanwhile
+    return_freed_memory()
+    result = timed("render", lambda: render_job(job_dir, config, scene, progress=progress))
+    stats: dict[str, Any] = {}
+    if result.scene.ground_height is not None:  # 0 for a grounded object; a hanging one floats
+        gap = (ground_height(obj.vertices, gravity) - result.scene.ground_height) * 1000
+        stats["ground_gap_mm"] = float(gap) if np.isfinite(gap) else None
+    stats.update(object_material=material.to_dict(), render_variant=result.variant, render_integrator=result.integrator,
+                 renderer=result.renderer,
+                 render_seconds=result.seconds, scene_seconds=result.scene_seconds,
+                 render_view_seconds=[round(v, 3) for v in result.view_seconds],
+                 denoise_seconds=round(result.denoise_seconds, 3),
+                 scene_write_seconds=result.write_seconds, scene_load_seconds=result.load_seconds,
+                 scene_wait_seconds=result.wait_seconds,
+                 povray_write_cpu_seconds=result.povray_write_cpu_seconds)
+    from .export.usd import write_job_usd
+
+    # scene.usda (object.usdc, ice.usdc) for DCCs: the render's cameras, sun, sky, materials.
+    timed("usd", lambda: write_job_usd(job_dir, material=material, ice_mesh=ice_mesh,
+                                       ice_normals=result.ice_normals))
+    return stats
