@@ -326,6 +326,7 @@ def _run_stages(spec: JobSpec, job_dir: Path, run: _Run, cache: StageCache, unti
                 defer_render: bool = False) -> dict:
     gravity = spec.params.gravity
     artifacts.write_yaml(job_dir / PARAMS, spec.params.as_dict())
+    run.stage = "render config"  # read first: a bad one fails the job before its stages compute anything
     p, meshed = meshing_params(spec)
     prepared = run.timed("prepare", lambda: load_object(spec))
     stats: dict[str, Any] = {"input_faces": prepared.problems.faces, "problems": vars(prepared.problems),

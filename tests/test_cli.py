@@ -128,6 +128,15 @@ def test_bench_job_times_every_step_of_whole_jobs(sphere_file):
     assert result.exit_code != 0 and "--size-m" in result.output
 
 
+def test_bench_sweep_runs_a_manifest_from_nothing_each_time(write_manifest):
+    path = write_manifest(grid={"drips.count": [2, 3]}, name="b", seed=2)
+    result = run("bench", "sweep", path, "--repeat", 2, "--workers", 1)
+    assert result.exit_code == 0, result.output
+    # every run is reported, then the median
+    assert "run 1: 2 jobs" in result.output and "run 2: 2 jobs" in result.output
+    assert "2 jobs on 1 local workers, median" in result.output and "ice faces per job" in result.output
+
+
 @pytest.mark.slow
 def test_render_again_makes_new_frames_and_leaves_the_job_as_it_was(sphere_file, tmp_path):
     small = tmp_path / "small.yaml"

@@ -14,8 +14,9 @@ def test_a_jobs_total_seconds_sums_its_steps_and_nothing_else():
 
 
 def test_a_failure_between_steps_is_not_blamed_on_the_step_before(tmp_path, monkeypatch):
-    """A bad render config found after stage 4 (a manifest edited since) used to read
-    "failed in stage measure"; the pipeline now records the gap between steps."""
+    """The pipeline records the gap between steps (``after <step>``), and names what failed
+    outside them: a bad render config (a manifest edited since) fails the job before its
+    stages compute anything, as ``render config``, not as the stage before or after it."""
     from icefarm import params
     from icefarm.jobdir import stage_phrase
     from icefarm.pipeline import JobSpec, run_job
@@ -26,8 +27,9 @@ def test_a_failure_between_steps_is_not_blamed_on_the_step_before(tmp_path, monk
     quick = {"storm.max_icicles": 2, "storm.flow_edge": 0.05, "glaze.mode": "none", "surface.voxel_size": 0.003}
     spec = JobSpec("roof", "generator:roof", 0.3, params.resolve(quick), seed=0, render="no-such-config")
     outcome = run_job(spec, tmp_path / "job")
-    assert outcome.status == "failed" and outcome.failed_stage == "after measure"
-    assert "no-such-config" in outcome.error
+    assert outcome.status == "failed" and outcome.failed_stage == "render config"
+    assert "no-such-config" in outcome.error and outcome.seconds == {}
+    assert stage_phrase(outcome.failed_stage) == "in stage render config"
 
 
 def test_the_views_read_back_as_written(tmp_path):

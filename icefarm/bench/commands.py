@@ -175,6 +175,40 @@ def bench_job(mesh, size_m, render, repeat, assignments):
     click.echo(f"  peak memory of this process: {peak_memory_gb():.2f} GB")
 
 
+@bench.command(name="sweep")
+@click.argument("manifest", type=click.Path(dir_okay=False, exists=True))
+@click.option("--workers", type=click.IntRange(min=1), default=2, show_default=True, help="Local worker processes.")
+@click.option("--backend", type=click.Choice(["local", "dask"]), default="local", show_default=True,
+              help="local: a process pool; dask: a LocalCluster of single-threaded workers.")
+@repeat_option(3, "Sweeps run, each from nothing (a fresh folder and stage cache); the median is printed.")
+@SET
+def bench_sweep(manifest, workers, backend, repeat, assignments):
+    """Median wall time of a whole sweep of MANIFEST (the README's demo: scenes/demo.yaml), as
+    `icefarm sweep` runs it: its renders included, its stage cache starting empty every time.
+
+    Prints each run's wall time (set-up excluded, as the sweep reports it), the median and the
+    faces the jobs meshed. To compare two versions, alternate their runs on the same machine.
+    """
+    import tempfile
+
+    from ..farm.sweep import run_sweep
+    from ..jobdir import read_job
+
+    walls, faces = [], []
+    for i in range(repeat):
+        with tempfile.TemporaryDirectory(prefix="icefarm-bench-sweep-") as out:
+            summary = run_sweep(manifest, out, workers=workers, backend=backend, sets=assignments)
+            if not summary.ok:
+                failed = [r for r in summary.jobs if r.error]
+                raise InputError(f"the benchmark sweep failed: {failed[0].error if failed else 'a job failed'}")
+            walls.append(summary.wall_seconds)
+            faces = [read_job(r.job_dir).stats.get("ice_faces", 0) for r in summary.jobs]
+        click.echo(f"  run {i + 1}: {summary.done} jobs in {summary.wall_seconds:.1f} s")
+    click.echo(f"{manifest}: {len(faces)} jobs on {workers} {backend} workers, median {statistics.median(walls):.1f} s "
+               f"(min {min(walls):.1f} s); ice faces per job: median {statistics.median(faces):,.0f}, "
+               f"max {max(faces):,}")
+
+
 @bench.command(name="growth")
 @MESH
 @size_m_option(0.4)
