@@ -191,7 +191,7 @@ def bench_sweep(manifest, workers, backend, repeat, assignments):
     """
     import tempfile
 
-    from ..farm.sweep import run_sweep
+    from ..farm import run_sweep
     from ..jobdir import read_job
 
     walls, faces = [], []
