@@ -35,27 +35,11 @@ def paused(tmp_path_factory):
 @pytest.fixture(scope="module")
 def cluster(tmp_path_factory, paused, wait_for):
     """Address of a scheduler with two single-threaded workers; everything stopped afterwards."""
-    if not DASK.exists():
-        pytest.skip(f"no dask command at {DASK}")
     folder = tmp_path_factory.mktemp("dask")
     # The workers pause the jobs of "victim" (tests/hooks/sitecustomize.py), touching paused/<pid> first.
     env = dict(os.environ, DASK_DISTRIBUTED__SCHEDULER__ALLOWED_FAILURES="1", **pause_env("victim", 2, paused))
     env["PYTHONPATH"] = os.pathsep.join([str(ROOT), env["PYTHONPATH"]])
-    procs = []
-
-    def start(*args, log):
-        proc = subprocess.Popen([str(DASK), *args], env=env, cwd=folder, start_new_session=True,
-                                stdout=(folder / log).open("w"), stderr=subprocess.STDOUT)
-        procs.append(proc)
-        return proc
-
-    try:
-        info = folder / "scheduler.json"
-        # Its HTTP server (health checks) gets a random port too, not 8787.
-        start("scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard",
-              "--dashboard-address", "127.0.0.1:0", "--scheduler-file", str(info), log="scheduler.log")
-        address = wait_for(lambda: info.is_file() and json.loads(info.read_text() or "{}").get("address"),
-                           "the scheduler", 60)
+    with dask_processes(folder, wait_for, env) as (address, start):
         for i in range(2):
             start("worker", address, "--nthreads", "1", "--host", "127.0.0.1", "--no-dashboard",
                   "--name", f"w{i}", "--death-timeout", "60", log=f"worker{i}.log")
@@ -64,18 +48,6 @@ def cluster(tmp_path_factory, paused, wait_for):
         with Client(address, timeout=30) as client:
             client.wait_for_workers(2, timeout=60)
         yield address
-    finally:
-        for proc in reversed(procs):  # whole process groups: the nannies' workers too
-            try:
-                os.killpg(proc.pid, signal.SIGTERM)
-            except ProcessLookupError:
-                pass
-        for proc in procs:
-            try:
-                proc.wait(timeout=20)
-            except subprocess.TimeoutExpired:
-                os.killpg(proc.pid, signal.SIGKILL)
-                proc.wait(timeout=10)
 
 
 def test_sweep_on_a_dask_cluster(tmp_path, cluster, write_manifest):
@@ -126,13 +98,15 @@ def test_dask_without_a_scheduler_starts_a_local_cluster(tmp_path, write_manifes
 
 
 @contextlib.contextmanager
-def dask_processes(folder: Path, wait_for):
+def dask_processes(folder: Path, wait_for, env: dict | None = None):
     """``(address, start)``: a `dask scheduler` on 127.0.0.1 started in ``folder``, and
-    ``start(*args, log=...)`` to start more `dask` processes (workers); all of them (whole
-    process groups) stopped afterwards."""
+    ``start(*args, log=...)`` to start more `dask` processes (workers), all with ``env``
+    (default: this one, icefarm's checkout first on the path); all of them (whole process
+    groups) stopped afterwards."""
     if not DASK.exists():
         pytest.skip(f"no dask command at {DASK}")
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")])))
+    if env is None:
+        env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")])))
     procs = []
 
     def start(*args, log):
