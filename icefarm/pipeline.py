@@ -45,6 +45,7 @@ from .jobdir import (
     WATER,
     JobState,
     clear_job,
+    job_state,
     read_json,
 )
 from .mesh import PreparedMesh, prepare
@@ -233,15 +234,22 @@ def finish_render(spec: JobSpec, job_dir: Path, progress: bool = False) -> JobOu
     """Render a job whose stages `run_job` ran with ``defer_render`` (its ``ice.ply``,
     ``trajectories.json`` and ``timings.json`` in ``job_dir``) and finish it: its render
     figures join ``timings.json`` and ``done.json`` is written last. Never raises for a
-    failure of the job itself (``error.json``, status ``failed``, stage ``render``)."""
+    failure of the job itself (``error.json``, status ``failed``, stage ``render``).
+
+    Raises
+    ------
+    InputError
+        ``job_dir`` holds no job waiting for its render (never run, finished, or failed):
+        nothing there is touched.
+    """
     job_dir = Path(job_dir)
     geometry = read_json(job_dir / TIMINGS)
+    if not geometry.get(RENDER_PENDING) or job_state(job_dir) is not JobState.PENDING:
+        raise InputError(f"{job_dir} holds no job waiting for its render: run it with run_job(defer_render=True)")
     run = _Run(progress=progress)
     run.seconds = dict(geometry.get("seconds") or {})
     reused = tuple(geometry.get("reused") or ())
     try:
-        if not geometry.get(RENDER_PENDING):
-            raise InputError(f"{job_dir} holds no job waiting for its render (run_job with defer_render)")
         run.stage = "render"
         prepared = load_object(spec)
         ice = read_ice_mesh(job_dir / ICE)

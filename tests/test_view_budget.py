@@ -43,3 +43,33 @@ def test_a_preview_job_meshes_fewer_faces_records_its_view_and_lookdev_says_so(t
     assert note is not None and "320x240" in note and "--render lookdev" in note
     assert meshed_coarser(tmp_path / "preview", load_render_config("preview")) is None
     assert meshed_coarser(tmp_path / "none", load_render_config("final")) is None
+
+
+def test_a_deferred_render_finishes_the_job_elsewhere_and_only_once(tmp_path, ball, sweep_kit):
+    from icefarm.errors import InputError
+    from icefarm.jobdir import JobState, job_state
+    from icefarm.pipeline import finish_render
+
+    p = params.resolve({**sweep_kit.fast, "storm": {"max_icicles": 4}, "surface": {"voxel_size": 0.004}})
+    spec = JobSpec("ball", str(ball), 0.3, p, seed=3, render=str(sweep_kit.tiny_render(tmp_path)))
+    job = tmp_path / "job"
+    outcome = run_job(spec, job, defer_render=True)
+    # the stages' files, no render and nothing that looks done
+    assert outcome.status is JobState.PENDING and job_state(job) is JobState.PENDING
+    assert (job / "ice.ply").is_file() and not (job / "render.png").exists()
+    assert json.loads((job / "timings.json").read_text())["render_pending"] is True
+    done = finish_render(spec, job)
+    assert done.status is JobState.DONE and (job / "render.png").is_file() and (job / "done.json").is_file()
+    timings = json.loads((job / "timings.json").read_text())
+    assert {"surface", "measure", "render"} <= set(timings["seconds"]) and "render_pending" not in timings
+    # a finished job (or a folder with no job) is refused, and left as it was
+    before = (job / "done.json").read_bytes()
+    for folder in (job, tmp_path / "nothing"):
+        with pytest.raises(InputError, match="no job waiting for its render"):
+            finish_render(spec, folder)
+    assert (job / "done.json").read_bytes() == before and not (job / "error.json").exists()
+    # growth frames render inside stage 4: such a job runs whole
+    growing = JobSpec("ball", str(ball), 0.3, p.updated({"growth.frames": 2}), seed=3, render=spec.render)
+    from icefarm.pipeline import renders_apart
+
+    assert renders_apart(spec) and not renders_apart(growing) and not renders_apart(spec, Stage.SURFACE)
