@@ -141,9 +141,6 @@ PARAMS: tuple[Param, ...] = (
     _p("storm", "wall_freeze", "-", "-", _F, 0.5,
        "freezing budget of a vertical or downward face over a level one's (they lose less heat "
        "and shed their film faster)", low=0.0, high=1.0),
-    _p("storm", "icicle_share", "-", "-", _F, 0.7,
-       "share of the water reaching a drip point that freezes on its icicle; the rest drips off "
-       "the tip to the ground (Makkonen 1988)", low=0.0, high=1.0, low_open=True),
     _p("storm", "wind", "-", "m/s", Kind.VECTOR, [0.0, 0.0, -DEFAULT_WIND_MPS],
        "the wind during freezing rain, a velocity (its part across gravity counts): the rain "
        "slants (drops fall at about 5 m/s), walls and signs facing the wind glaze and drip, the "

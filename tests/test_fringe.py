@@ -63,7 +63,9 @@ def test_the_storm_s_cold_limits_how_long_an_icicle_grows():
     assert 0.1 < light < moderate < severe < 1.5
     melt = [heat_limited_length(params.resolve({"storm.kind": "meltwater", "storm.intensity": i}).storm,
                                 p.surface)[0] for i in ("light", "moderate", "severe")]
-    assert melt[0] == pytest.approx(melt[1]) and moderate < melt[1] < melt[2]  # nights of frost
+    # nights of frost: a light snow's icicles get a moderate storm's cold (a thinner base, a
+    # little longer)
+    assert melt[0] == pytest.approx(melt[1], rel=0.05) and moderate < melt[1] < melt[2]
     water = np.geomspace(1e-6, 1e-1, 60)  # m^3 reaching one drip point
     length = icicle_lengths(water, p.storm, p.surface)
     assert length.max() <= moderate + 1e-9

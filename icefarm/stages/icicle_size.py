@@ -13,23 +13,29 @@ from .rims import CAPTURE_POWER, CAPTURE_REACH, CAPTURE_ROUNDS, CAPTURE_SCALE, F
 from .storm import GROWTH_MAX, WATER_TO_ICE, Constant, precipitation_m
 from .surface.profile import smooth_radius
 
-# An icicle freezes what the heat its surface loses allows (Makkonen 1988: its growth is
-# limited by heat transfer; more water lowers lengthening, not thickening; the rest drips
-# off the tip). Its surface freezes this many times the ice a level face's budget would
-# (storm.freeze of the precipitation per area): a thin cylinder loses heat faster than a
-# broad face, but its water film is warmed by all the water running over it. Chosen so a
-# moderate freezing rain's longest icicles are about 0.4 m (light 0.2 m, severe 0.8 m);
-# meltwater feeds icicles over nights of thaw and frost: 1.5 times the budget, at least a
-# moderate storm's (light and moderate 0.6 m, severe 1.3 m).
-ICICLE_HEAT = {"freezing_rain": 0.5, "meltwater": 0.75}
+# An icicle's surface freezes this many times the ice a level face's budget would per area
+# (storm.freeze of the precipitation): a thin cylinder loses heat faster than a broad face (a
+# 1 cm rod in a 3 m/s wind about 50 W/m^2K by Hilpert's correlation, a 0.5 m plate about 10
+# by the laminar flat plate's: Incropera, Fundamentals of Heat and Mass Transfer), less the
+# warmth of the film running over it. Chosen in that range so a moderate freezing rain's
+# longest icicles are about 0.4 m (light 0.2 m, severe 0.8 m); meltwater feeds icicles over
+# nights of thaw and frost: 1.5 times the budget, at least a moderate storm's (0.6 m, severe
+# 1.3 m).
+ICICLE_HEAT = {"freezing_rain": 1.6, "meltwater": 2.4}
+# An icicle starts as the drop hanging from its drip point: this many tip radii long.
+NUCLEUS_TIPS = 2.0
+# Lengths the growth is tabulated on, meters: log-spaced from the nucleus to this, in this
+# many steps (3 % apart, well within a mesh's detail).
+LONGEST_M = 16.0
+GROWTH_STEPS = 256
 # An icicle its neighbours starved keeps at least this share of a fed one's thickening: the
 # film's share it still gets, the rain on it and its freezing drop keep its base growing
 # (real short icicles between long ones are carrots too, taper 3 and more).
 STARVED_BASE = 0.7
-# Past that limit the water's warmth slows the lengthening (Makkonen 1988; Maeno et al. 1994:
-# more water, slower lengthening): an icicle fed x times what it can freeze reaches
-# x^-WARM_WATER of the longest.
-WARM_WATER = 0.25
+# Fed faster than it can freeze, the water's warmth slows the lengthening (Makkonen 1988;
+# Maeno et al. 1994: more water, slower lengthening): an icicle fed x times what its surface
+# freezes at the storm's end is x^-WARM_WATER as long (freezing rain; chosen).
+WARM_WATER = 0.35
 # A side branch of a storm's icicle takes part of its water and grows for this share of the
 # generations left when it splits off: it ends above the trunk's tip (1, the paper's, ends
 # every branch beside it: three or four equal fingers read as a claw). Chosen, by eye.
@@ -67,67 +73,6 @@ def icicle_area(length, tip: float, growth, shape: str = "physical"):
     return 2.0 * math.pi * (tip * L + (4.0 / 7.0 if shape == "physical" else 0.5) * t * L * L)
 
 
-def _bisect(below, lo: np.ndarray) -> np.ndarray:
-    """``(k,)``: the least L >= ``lo`` where ``below(L)`` (a (k,) bool test, True up to one
-    crossing) turns False, to 2^-50 of its bracket."""
-    lo = np.array(lo, dtype=np.float64)
-    hi = np.maximum(2.0 * lo, 1.0)
-    while True:  # widen until every crossing is bracketed
-        short = below(hi)
-        if not short.any():
-            break
-        hi[short] *= 2.0
-    for _ in range(50):
-        mid = 0.5 * (lo + hi)
-        small = below(mid)
-        lo = np.where(small, mid, lo)
-        hi = np.where(small, hi, mid)
-    return 0.5 * (lo + hi)
-
-
-def length_from_volume(volume, tip: float, growth: float, shape: str = "physical",
-                       thickening: float | None = None) -> np.ndarray:
-    """``(k,)`` length in meters of icicles holding ``volume`` m^3 of ice (`icicle_volume`
-    inverted by bisection: it rises monotonically with the length). With ``thickening``
-    (meters) each icicle's growth ratio is `growth_ratios` of its length (at least
-    ``growth``)."""
-    volume = np.maximum(np.asarray(volume, dtype=np.float64).reshape(-1), 0.0)
-
-    def held(L):
-        return icicle_volume(L, tip, growth if thickening is None else growth_ratios(L, thickening, growth), shape)
-
-    return _bisect(lambda L: held(L) < volume, np.zeros_like(volume))
-
-
-def heat_limited_length(storm, surface, active=None, count: int = 1, exposure=None) -> np.ndarray:
-    """``(k,)`` meters: the longest icicle the storm's cold can freeze, whatever its water.
-
-    Its ice (`icicle_volume`) grows about as L^3 and the heat its surface loses over the
-    storm (`icicle_area` times `ICICLE_HEAT` times a level face's budget, ``storm.freeze``
-    of the precipitation) as L^2: past the length where they meet, more water drips off the
-    tip instead of lengthening it. ``active`` (k,) thins the icicles its neighbours starved
-    (`thickening_m`); ``exposure`` (k,) scales each one's share of the cold (`HEAT_SPREAD`).
-    Stubs (the growth ratio above ``surface.growth_ratio``) are never limited."""
-    share = np.ones(count) if active is None else np.asarray(active, dtype=np.float64).reshape(-1)
-    # Freezing rain's cold comes with its rain; meltwater refreezes at the eave in the nights'
-    # frost, for as many nights as the snow lasts: at least a moderate storm's budget.
-    depth = precipitation_m(storm.intensity, storm.precipitation)
-    if storm.kind == "meltwater":
-        depth = max(depth, precipitation_m("moderate"))
-    budget = ICICLE_HEAT[storm.kind] * storm.freeze * depth * WATER_TO_ICE
-    if exposure is not None:
-        budget = budget * np.asarray(exposure, dtype=np.float64).reshape(-1)
-    thick = thickening_m(storm, share)
-    tip, growth, shape = surface.tip_radius, surface.growth_ratio, surface.profile
-
-    def within(L):
-        t = growth_ratios(L, thick, growth)
-        return icicle_volume(L, tip, t, shape) <= budget * icicle_area(L, tip, t, shape)
-
-    stub = np.maximum(thick / max(growth, 1e-12), 1e-6)
-    return np.where(within(stub), _bisect(within, stub), stub)
-
-
 def thickening_m(storm, active=None):
     """Meters an icicle's base thickens at least over the storm: the radial ice of a bar that
     freezes ``storm.freeze`` of its rain, ``freeze P rho_w / (pi rho_i)`` (Jones 1998).
@@ -143,25 +88,96 @@ def thickening_m(storm, active=None):
     return full * (STARVED_BASE + (1.0 - STARVED_BASE) * np.asarray(active, dtype=np.float64))
 
 
-def icicle_lengths(volume, storm, surface, active=None, exposure=None) -> np.ndarray:
-    """``(k,)`` meters: icicles from ``volume`` (k,) m^3 of water reaching their drip points.
+def _interp_rows(y, table_y, table_x) -> np.ndarray:
+    """``(k,)``: in each row of ``table_y`` (k, m), increasing along the row, where it reaches
+    ``y`` (k,), read off ``table_x`` (k, m) linearly (clamped to the row's ends)."""
+    rows = np.arange(len(y))
+    j = np.clip((table_y < y[:, None]).sum(axis=1), 1, table_y.shape[1] - 1)
+    y0, y1 = table_y[rows, j - 1], table_y[rows, j]
+    f = np.clip((y - y0) / np.where(y1 > y0, y1 - y0, 1.0), 0.0, 1.0)
+    return table_x[rows, j - 1] + f * (table_x[rows, j] - table_x[rows, j - 1])
 
-    ``storm.icicle_share`` of it freezes on the icicle (the rest drips off its tip); the
-    ice's volume gives the length through the icicle's profile (`length_from_volume` with
-    ``surface.tip_radius`` and ``profile``; each icicle thickens `thickening_m`, for the share
-    ``active`` (k,) of the storm it was fed), up to what the storm's cold can freeze
-    (`heat_limited_length`, each with its ``exposure`` (k,) to the cold), and less the more
-    water it was fed past that (`WARM_WATER`)."""
-    ice = np.asarray(volume, dtype=np.float64).reshape(-1) * storm.icicle_share * WATER_TO_ICE
-    fed = length_from_volume(ice, surface.tip_radius, surface.growth_ratio, surface.profile,
-                             thickening=thickening_m(storm, active))
-    cap = heat_limited_length(storm, surface, active, len(ice), exposure)
-    thick = thickening_m(storm, active)
-    frozen = icicle_volume(cap, surface.tip_radius, growth_ratios(cap, thick, surface.growth_ratio), surface.profile)
-    excess = np.divide(ice, frozen, out=np.ones_like(ice), where=frozen > 0)
-    # (meltwater's extra water is more nights of thaw, not a faster film: no warming)
-    warm = WARM_WATER if storm.kind == "freezing_rain" else 0.0
-    return np.where(fed > cap, cap * np.maximum(excess, 1.0) ** -warm, fed)
+
+@dataclass(frozen=True)
+class IcicleGrowth:
+    """Icicles grown over a storm by `grow_icicles`.
+
+    Attributes
+    ----------
+    length : (k,) float
+        Meters.
+    share : (k,) float
+        The share of its water each one froze; the rest dripped off its tip.
+    """
+
+    length: np.ndarray
+    share: np.ndarray
+
+
+def grow_icicles(volume, storm, surface, active=None, exposure=None, slowed: bool = True) -> IcicleGrowth:
+    """Grow icicles fed ``volume`` (k,) m^3 of water, evenly over the storm.
+
+    Each freezes what reaches it or what the heat its surface loses freezes, whichever is
+    less (the heat and mass balance of Makkonen 1988, integrated over the growth as Szilder &
+    Lozowski 1994 do); the rest drips off its tip. Its surface loses ``ICICLE_HEAT`` times a
+    level face's budget (``storm.freeze`` of the precipitation) per area over the storm, so a
+    young icicle, a drop `NUCLEUS_TIPS` tip radii long, drips most of a steady film, and a
+    grown one freezes all of it: the share frozen follows from the water and the cold, and
+    with plenty of water the length is the cold's (its ice grows as L^3, its surface as L^2:
+    about linearly in time). Its ice fills the icicle profile (`icicle_volume` with
+    ``surface.tip_radius``, ``growth_ratio`` and ``profile``), its base thickening
+    `thickening_m` for the share ``active`` (k,) of the storm it was fed; ``exposure`` (k,)
+    scales its share of the cold. In freezing rain an icicle fed x times what it freezes at
+    the end is x^-`WARM_WATER` as long (``slowed``).
+    """
+    ice = np.asarray(volume, dtype=np.float64).reshape(-1) * WATER_TO_ICE
+    k = len(ice)
+    fed = np.ones(k) if active is None else np.asarray(active, dtype=np.float64).reshape(-1)
+    # Freezing rain's cold comes with its rain; meltwater refreezes at the eave in the nights'
+    # frost, for as many nights as the snow lasts: at least a moderate storm's budget.
+    depth = precipitation_m(storm.intensity, storm.precipitation)
+    if storm.kind == "meltwater":
+        depth = max(depth, precipitation_m("moderate"))
+    cold = np.full(k, ICICLE_HEAT[storm.kind] * storm.freeze * depth * WATER_TO_ICE)
+    if exposure is not None:
+        cold = cold * np.asarray(exposure, dtype=np.float64).reshape(-1)
+    cold = np.maximum(cold, 1e-30)
+    tip, shape = surface.tip_radius, surface.profile
+    lengths = np.concatenate([[0.0], np.geomspace(NUCLEUS_TIPS * tip, LONGEST_M, GROWTH_STEPS)])
+    L = np.broadcast_to(lengths, (k, len(lengths)))
+    t = growth_ratios(L, np.broadcast_to(thickening_m(storm, fed), (k,))[:, None], surface.growth_ratio)
+    held = icicle_volume(L, tip, t, shape)
+    freezes = cold[:, None] * icicle_area(L, tip, t, shape)  # m^3 of ice per storm, at each length
+    # time (in storms) to grow each length while the cold limits it: dt = dV / (cold A)
+    step = np.diff(held, axis=1) / (0.5 * (freezes[:, 1:] + freezes[:, :-1]))
+    step[:, 0] = 0.0  # the first drop hangs from the start
+    when = np.concatenate([np.zeros((k, 1)), np.cumsum(step, axis=1)], axis=1)
+    # the cold limits it until its surface freezes the water as fast as it comes
+    turn = _interp_rows(ice, freezes, L)
+    turned = _interp_rows(turn, L, when)
+    frozen = np.where(turned >= 1.0, _interp_rows(np.ones(k), when, held),
+                      _interp_rows(turn, L, held) + ice * (1.0 - turned))
+    frozen = np.minimum(frozen, ice)
+    length = _interp_rows(frozen, held, L)
+    if slowed and storm.kind == "freezing_rain":  # meltwater's extra water is more nights of thaw, not a faster film
+        excess = ice / np.maximum(_interp_rows(length, L, freezes), 1e-30)
+        length = length * np.maximum(excess, 1.0) ** -WARM_WATER
+    share = np.divide(frozen, ice, out=np.ones(k), where=ice > 0)
+    return IcicleGrowth(length=np.where(ice > 0, length, 0.0), share=share)
+
+
+def icicle_lengths(volume, storm, surface, active=None, exposure=None) -> np.ndarray:
+    """``(k,)`` meters: the length of `grow_icicles` fed ``volume`` (k,) m^3 of water."""
+    return grow_icicles(volume, storm, surface, active, exposure).length
+
+
+def heat_limited_length(storm, surface, active=None, count: int = 1, exposure=None) -> np.ndarray:
+    """``(k,)`` meters: the longest icicle the storm's cold grows, with all the water it can
+    take (`grow_icicles` without `WARM_WATER`'s slowing). ``active`` (k,) thins the icicles
+    its neighbours starved (`thickening_m`); ``exposure`` (k,) scales each one's share of
+    the cold."""
+    plenty = np.full(count if active is None else len(np.atleast_1d(active)), 1e6)
+    return grow_icicles(plenty, storm, surface, active, exposure, slowed=False).length
 
 
 @dataclass(frozen=True)
@@ -200,14 +216,18 @@ def constants() -> tuple[Constant, ...]:
     """The constants that size a storm's icicles and their fringe, for ``icefarm params``."""
     return (
         Constant("ICICLE_HEAT[freezing_rain]", ICICLE_HEAT["freezing_rain"], "-", "> 0",
-                 "icicle surface's freezing over a level face's (heat-limited growth, Makkonen 1988; chosen: "
-                 "longest 0.18 / 0.41 / 0.87 m light / moderate / severe)"),
+                 "an icicle surface's freezing per area over a level face's: a thin rod loses heat faster "
+                 "(Hilpert's cylinder vs the flat plate's, Incropera: 1-5); its growth integrated over the storm, "
+                 "freezing what reaches it or what its cold allows, the rest dripping (Makkonen 1988; Szilder & "
+                 "Lozowski 1994). Chosen: longest 0.19 / 0.40 / 0.84 m light / moderate / severe"),
         Constant("ICICLE_HEAT[meltwater]", ICICLE_HEAT["meltwater"], "-", "> 0",
                  "the same for meltwater, fed over nights of thaw and frost, at least a moderate storm's "
-                 "budget (chosen: longest 0.62 m, severe 1.3 m)"),
+                 "budget (chosen: longest 0.64 m, severe 1.3 m)"),
+        Constant("NUCLEUS_TIPS", NUCLEUS_TIPS, "tip radii", "> 0",
+                 "an icicle starts as a drop this long: young icicles drip most of a steady film"),
         Constant("WARM_WATER", WARM_WATER, "-", ">= 0",
-                 "freezing rain past the heat limit: length x (water / what freezes)^-this (more water, "
-                 "slower lengthening: Makkonen 1988, Maeno et al. 1994)"),
+                 "freezing rain fed x times what an icicle freezes at the end: length x x^-this (more water, "
+                 "slower lengthening: Makkonen 1988, Maeno et al. 1994; chosen)"),
         Constant("HEAT_SPREAD", HEAT_SPREAD, "-", ">= 0",
                  "each icicle's share of the cold: min(1, log-normal of this sigma): a later start, shelter (chosen)"),
         Constant("BRANCH_LIFE", BRANCH_LIFE, "-", "]0, 1]",

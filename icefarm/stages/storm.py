@@ -27,8 +27,9 @@ Here the weather sets the ice, whatever the asset's size:
 
 Every drop is counted once: caught = frozen + shed + pooled (`StormBudget`). The water shed
 along the drip rims feeds the icicles (`icefarm.stages.drips.find_drips` with ``flux``); a
-share of it (``storm.icicle_share``) freezes on them, the rest drips to the ground, and the
-ice volume gives the length through the icicle profile (`icefarm.stages.icicle_size`).
+share of it freezes on them, as much as the heat their surface loses over the storm allows,
+the rest drips to the ground, and the ice volume gives the length through the icicle profile
+(`icefarm.stages.icicle_size`).
 """
 
 from __future__ import annotations
