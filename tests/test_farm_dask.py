@@ -64,6 +64,12 @@ def test_sweep_on_a_dask_cluster(tmp_path, cluster, write_manifest):
     resumed = run_sweep(path, tmp_path / "out", backend="dask", scheduler=cluster, until="trajectories",
                         resume=True)
     assert resumed.resumed == 8 and resumed.ok
+    # the sweep set up the cluster's workers for its jobs: no stack sampler holding the GIL
+    from distributed import Client
+
+    with Client(cluster, timeout=30) as client:
+        sampling = client.run(lambda dask_worker: "profile" in dask_worker.periodic_callbacks)
+        assert len(sampling) == 2 and not any(sampling.values())
 
 
 def test_dask_reschedules_the_job_of_a_killed_worker(tmp_path, cluster, paused, write_manifest, wait_for):

@@ -185,6 +185,19 @@ def test_every_command_explains_itself():
         assert result.exit_code == 0 and words in result.output
 
 
+def test_bench_farm_reports_medians_and_the_second_backend_s_overhead():
+    from icefarm.farm.commands import BenchRun, bench_farm_report
+
+    runs = [BenchRun(b, n, 8, wall, 0.0, 0.0) for b, n, wall in
+            (("local", 1, 20.0), ("dask", 1, 23.0), ("local", 2, 10.0), ("dask", 2, 11.0),
+             ("local", 1, 30.0), ("dask", 1, 21.0), ("local", 2, 12.0), ("dask", 2, 99.0),
+             ("local", 1, 22.0), ("dask", 1, 22.0), ("local", 2, 11.0), ("dask", 2, 12.1))]
+    lines = bench_farm_report(runs)
+    assert any(line.startswith("local: speed-up 2 vs 1 worker: 2.00x") for line in lines)
+    assert any(line.startswith("dask vs local, 2 workers: +10 %") for line in lines)  # 12.1 s over 11 s
+    assert any(line.startswith("dask vs local, 1 worker: +0 %") for line in lines)
+
+
 def test_a_job_marker_is_replaced_whole_each_attempt(tmp_path):
     # The driver and the fault tests read the running markers while workers write them: a
     # marker must never exist empty or half written, so each attempt replaces it whole.

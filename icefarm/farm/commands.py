@@ -316,22 +316,24 @@ BENCH_MESH = "generator:fountain"
 def bench_manifest(jobs: int = 16) -> dict:
     """A stages-only sweep of ``jobs`` independent jobs on a generated fountain.
 
-    The swept parameter is the rain (water stage), so no two jobs share a stage: the
-    benchmark measures how the farm spreads work, not what the cache saves (it runs without
-    one). A coarse voxel keeps each job to a few seconds, most of it in the metaball surface.
+    The swept parameter is the storm's precipitation (water stage), so no two jobs share a
+    stage: the benchmark measures how the farm spreads work, not what the cache saves (it
+    runs without one). A coarse voxel keeps each job to a few seconds.
     """
     return {"name": "bench_farm", "seed": 1, "render": None,
-            "defaults": {"drips.count": 8, "surface.voxel_size": 0.002},
+            "defaults": {"surface.voxel_size": 0.002},
             "objects": [{"id": "fountain", "mesh": BENCH_MESH, "size_m": 0.4}],
             "sweep": {"method": "grid",
-                      "parameters": {"water.rays": {"values": [2000 + 50 * i for i in range(jobs)]}}}}
+                      "parameters": {"storm.precipitation": {"values": [30.0 + i for i in range(jobs)]}}}}
 
 
 @dataclass(frozen=True)
 class BenchRun:
-    """One timed sweep of `bench_farm_run`: wall and CPU seconds (this process and its
-    workers), and the machine's 1-minute load average when it started (others' work too)."""
+    """One timed sweep of `bench_farm_run`: its backend and workers, wall and CPU seconds
+    (this process and its local workers; a Dask cluster's workers are not counted), and the
+    machine's 1-minute load average when it started (others' work too)."""
 
+    backend: str
     workers: int
     jobs: int
     wall: float
@@ -340,10 +342,12 @@ class BenchRun:
 
 
 def bench_farm_run(jobs: int = 16, workers: Sequence[int] = (1, 2), until: str | None = None,
-                   out: Path | None = None, repeat: int = 1,
+                   out: Path | None = None, repeat: int = 1, backends: Sequence[str] = ("local",),
                    echo: Callable[[str], None] = lambda s: None) -> list[BenchRun]:
-    """Time the same ``jobs``-job sweep (`bench_manifest`) with each worker count in ``workers``,
-    the counts taking turns ``repeat`` times (so that a busy spell of the machine hits all).
+    """Time the same ``jobs``-job sweep (`bench_manifest`) with each backend in ``backends``
+    and worker count in ``workers``, taking turns ``repeat`` times (so that a busy spell of
+    the machine hits all). ``dask`` starts a LocalCluster of single-threaded worker processes
+    for each sweep, as ``icefarm sweep --backend dask`` does; its start-up counts.
 
     Raises
     ------
@@ -365,18 +369,48 @@ def bench_farm_run(jobs: int = 16, workers: Sequence[int] = (1, 2), until: str |
         root.mkdir(parents=True, exist_ok=True)
         path = root / "bench_farm.yaml"
         path.write_text(yaml.safe_dump(bench_manifest(jobs), sort_keys=False))
-        for n in [n for _ in range(repeat) for n in workers]:
+        for backend, n in [(b, n) for _ in range(repeat) for n in workers for b in backends]:
             load, start, cpu0 = os.getloadavg()[0], time.perf_counter(), cpu()
             # Workers are never recycled here: every run pays the same start-up once per worker.
-            summary = run_sweep(path, root / f"workers{n}", workers=n, overwrite=True, render=False,
-                                until=until, max_tasks_per_child=max(jobs, 1), use_cache=False)
-            run = BenchRun(n, jobs, time.perf_counter() - start, cpu() - cpu0, load)
+            summary = run_sweep(path, root / f"{backend}{n}", workers=n, backend=backend, overwrite=True,
+                                render=False, until=until, max_tasks_per_child=max(jobs, 1), use_cache=False)
+            run = BenchRun(backend, n, jobs, time.perf_counter() - start, cpu() - cpu0, load)
             if not summary.ok:
                 raise RuntimeError(format_summary(summary))
             runs.append(run)
-            echo(f"{n} worker{'s' * (n != 1)}: {jobs} jobs in {run.wall:.1f} s wall, {run.cpu:.1f} s CPU "
-                 f"({run.cpu / run.wall:.2f} cores busy; load average {run.load:.1f} at start)")
+            echo(f"{backend}, {n} worker{'s' * (n != 1)}: {jobs} jobs in {run.wall:.1f} s wall, {run.cpu:.1f} s CPU "
+                 f"here (load average {run.load:.1f} at start)")
     return runs
+
+
+def bench_farm_report(runs: Sequence[BenchRun]) -> list[str]:
+    """What `bench_farm_run`'s runs say, from medians of the wall times: each worker count's
+    speed-up over the first (per backend), and each backend's time over the first backend's at
+    the same worker count."""
+    import statistics
+
+    def key(r: BenchRun) -> tuple[str, int]:
+        return r.backend, r.workers
+
+    walls: dict[tuple[str, int], list[float]] = {}
+    for r in runs:
+        walls.setdefault(key(r), []).append(r.wall)
+    median = {k: statistics.median(v) for k, v in walls.items()}
+    backends = list(dict.fromkeys(r.backend for r in runs))
+    counts = list(dict.fromkeys(r.workers for r in runs))
+    jobs = runs[0].jobs if runs else 0
+    lines = []
+    for b in backends:
+        for n in counts[1:]:
+            lines.append(f"{b}: speed-up {n} vs {counts[0]} worker{'s' * (counts[0] != 1)}: "
+                         f"{median[b, counts[0]] / median[b, n]:.2f}x on {jobs} jobs ({_cores()} cores; medians "
+                         f"{median[b, counts[0]]:.1f} s, {median[b, n]:.1f} s)")
+    for b in backends[1:]:
+        for n in counts:
+            over = median[b, n] / median[backends[0], n] - 1.0
+            lines.append(f"{b} vs {backends[0]}, {n} worker{'s' * (n != 1)}: {100 * over:+.0f} % wall time (medians "
+                         f"{median[b, n]:.1f} s and {median[backends[0], n]:.1f} s of {len(walls[b, n])} runs)")
+    return lines
 
 
 @click.command("farm")
@@ -384,30 +418,30 @@ def bench_farm_run(jobs: int = 16, workers: Sequence[int] = (1, 2), until: str |
               help="Jobs in the benchmark sweep.")
 @click.option("--workers", "worker_counts", type=click.IntRange(min=1), multiple=True,
               help="Worker counts to compare (repeatable; default 1 and 2).")
+@click.option("--backend", "backends", type=click.Choice(["local", "dask"]), multiple=True,
+              help="Backends to compare at each worker count (repeatable; default local). `--backend local "
+                   "--backend dask` gives the Dask cluster's overhead over the local pool.")
 @click.option("--until", type=click.Choice(["water", "drips", "trajectories", "surface"]),
               help="Last stage of each job (default: all stages, no render).")
 @click.option("--repeat", type=click.IntRange(min=1), default=1, show_default=True,
-              help="Run each worker count this many times, in turns; the fastest run of each counts.")
+              help="Run each backend and worker count this many times, in turns; medians are reported.")
 @click.option("-o", "--out", type=click.Path(file_okay=False, path_type=Path),
               help="Keep the benchmark sweeps here (default: a temporary folder).")
-def bench_farm(jobs: int, worker_counts: tuple[int, ...], until: str | None, repeat: int,
-               out: Path | None) -> None:
-    """Farm throughput: the same stages-only sweep on 1 worker, then on 2 (or --workers ...).
+def bench_farm(jobs: int, worker_counts: tuple[int, ...], backends: tuple[str, ...], until: str | None,
+               repeat: int, out: Path | None) -> None:
+    """Farm throughput: the same stages-only sweep on 1 worker, then on 2 (or --workers ...),
+    on the local pool (or --backend ...).
 
     The jobs sweep the rain over a generated fountain, so none reuses another's stages and
     the speed-up is the farm's own (process start-up, scheduling, the spread of the work).
-    Prints wall and CPU time for each worker count and the speed-up over the first; CPU
-    seconds over wall seconds shows how many cores the farm really had.
+    Prints wall and CPU time of each run, the speed-up over the first worker count, and,
+    with two backends, the second's wall time over the first's.
     """
-    counts = worker_counts or (1, 2)
-    runs = bench_farm_run(jobs, counts, until, out, repeat, echo=click.echo)
-    best = {n: min((r for r in runs if r.workers == n), key=lambda r: r.wall) for n in counts}
-    base = best[counts[0]]
-    for n in counts[1:]:
-        click.echo(f"speed-up {n} vs {base.workers} worker{'s' * (base.workers != 1)}: "
-                   f"{base.wall / best[n].wall:.2f}x on {jobs} jobs ({_cores()} cores; fastest runs: "
-                   f"{base.wall:.1f} s, {best[n].wall:.1f} s)")
-    if max(r.load for r in best.values()) > 1.0:
+    runs = bench_farm_run(jobs, worker_counts or (1, 2), until, out, repeat, backends or ("local",),
+                          echo=click.echo)
+    for line in bench_farm_report(runs):
+        click.echo(line)
+    if max(r.load for r in runs) > 1.0:
         click.echo("note: the machine was busy with other work (load average above 1): the workers "
                    "shared the cores with it, and the speed-up is lower than on an idle machine")
 
