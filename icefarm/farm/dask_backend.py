@@ -65,10 +65,10 @@ def _worker_plugin():
     """A Dask `WorkerPlugin` that sets a worker up for icefarm's jobs, on every worker of the
     cluster, those that join later too.
 
-    Dask's defaults cost a job on 2 cores half again its time (8 fountain jobs: 30.2 s of
-    stages against 20.2 s in the local pool, `icefarm bench farm --backend local --backend
-    dask`): its profiler samples each running task's stack 100 times a second, holding the
-    GIL, and its heap settings (`_reuse_heap`) fault large arrays in again and again.
+    Under Dask's defaults a job runs markedly slower than in the local pool (`icefarm bench
+    farm --backend local --backend dask`; docs/sweeps.md): its profiler samples each running
+    task's stack 100 times a second, holding the GIL, and its heap settings (`_reuse_heap`)
+    fault large arrays in again and again.
     """
     from distributed.diagnostics.plugin import WorkerPlugin
 
