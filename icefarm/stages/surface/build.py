@@ -116,7 +116,9 @@ def build_ice(object_mesh: trimesh.Trimesh, flow_mesh: trimesh.Trimesh, water: W
     gravity : (3,) float
         Direction of gravity (orients the first frame of each tube).
     rng : numpy.random.Generator
-        Noise, base and glaze ball positions.
+        Noise and base balls of the icicles; the glaze draws from a stream spawned off it
+        (`numpy.random.Generator.spawn`), so its balls, drops and runnels stay the same
+        whatever the icicles draw (a sweep over them keeps one glaze).
     exclude : (n,) bool, optional
         Flow-mesh vertices where no glaze may be (the sole the object stands on).
     cast : callable, optional
@@ -173,6 +175,7 @@ def build_ice(object_mesh: trimesh.Trimesh, flow_mesh: trimesh.Trimesh, water: W
         if k:  # roots on a rim move in under the object: stage 4 builds and measures on these axes
             thickness = object_thickness(object_mesh, drips.positions, drips.normals, own_cast)
             trajectories = hang_roots(trajectories, surface, root_shifts(drips.normals, g, BASE_THICKNESS * thickness))
+        glaze_rng = rng.spawn(1)[0]
         chains = icicle_balls(trajectories, surface, rng)
         ice = concat_balls(chains,
                            base_balls(object_mesh, drips, surface, rng, _root_radius(trajectories, k, surface),
@@ -203,7 +206,7 @@ def build_ice(object_mesh: trimesh.Trimesh, flow_mesh: trimesh.Trimesh, water: W
             # the 3 m house's preview peaks at 1.67 GB either way.
             early = pool.submit(_marched, ice, voxel) if one and len(ice) else None
             note(f"glaze coat over {len(coat_surface.mesh.faces):,} faces")
-            coat = glaze_field(coat_surface.mesh, coat_surface.water, glaze, rng, exclude=coat_surface.exclude,
+            coat = glaze_field(coat_surface.mesh, coat_surface.water, glaze, glaze_rng, exclude=coat_surface.exclude,
                                cast=coat_cast, face_budget=(1.0 - ICICLE_SHARE) * budget)
 
             def lattices(fine_voxel: float):
@@ -238,7 +241,8 @@ def build_ice(object_mesh: trimesh.Trimesh, flow_mesh: trimesh.Trimesh, water: W
             on_coat = coat_vertices(verts, faces, coat.voxel, [f for f in fields if f is not None and f is not coat],
                                     coat_surface.mesh)
             verts = smooth_glaze(verts, faces, coat.voxel, on_coat, glaze.smoothing)
-            verts = carve_runnels(verts, on_coat, coat_surface.mesh, gravity, glaze.runnels, coat.voxel, rng)
+            verts = carve_runnels(verts, on_coat, coat_surface.mesh, gravity, glaze.runnels, coat.voxel,
+                                  glaze_rng)
         n_balls, curtain_area = len(ice), curtains.area
     return IceResult(verts, faces, measure_icicles(verts, faces, trajectories, surface) if measure else None,
                      n_balls, curtain_area, trajectories, coarse, bands)
