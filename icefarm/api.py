@@ -34,9 +34,9 @@ import numpy.typing as npt
 import trimesh
 
 from . import artifacts
-from .chain import Stage, run_stages
 from .errors import InputError, cannot_write
 from .generators import GENERATOR_PREFIX
+from .job import Stage, Step, run_stages
 from .jobdir import DONE, ERROR, ICE, PARAMS, TIMINGS, TRAJECTORIES, JobState, clear_job, read_job, stage_phrase
 from .mesh import PreparedMesh
 from .params import Params, flatten, idle_keys, resolve
@@ -491,14 +491,14 @@ def _glaze_thickness(spec: JobSpec, prepared: PreparedMesh, cache: StageCache) -
     class Missing(Exception):
         pass
 
-    def cached(name: str, key: str | None, work: Any) -> Any:
+    def cached(step: Step, key: str | None, work: Any) -> Any:
         def missing() -> Any:
-            raise Missing(name)
+            raise Missing(step.name)
 
-        return cache.get(name, key, missing) if key else missing()
+        return cache.get(step.name, key, missing) if key else missing()
 
     p = spec.params
-    try:  # the pipeline's mesh key (icefarm.pipeline._run_stages), so the same entries are read
+    try:  # the pipeline's mesh key (icefarm.pipeline.run_job), so the same entries are read
         r = run_stages(prepared, p, spec.seed, placement=spec.placement, exclude=spec.exclude, until=Stage.WATER,
                        mesh_key=digest(mesh_digest(spec.mesh), spec.size_m, p.water.gravity), step=cached)
     except Missing:

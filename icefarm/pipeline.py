@@ -12,50 +12,39 @@ import contextlib
 import time
 import traceback
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, NamedTuple
 
-import numpy as np
 import trimesh
 
 from . import artifacts
 from .artifacts import read_ice_mesh, trajectories_from_json
 from .asset_io import USD_SUFFIXES
-from .chain import Stage, StageResults, build_surface, glaze_surface, run_stages, sole, stage_rng, stops
 from .errors import InputError, cannot_write
 from .generators import GENERATOR_PREFIX
-from .geometry import ray_caster
+from .job import JobInputs, Stage, StageResults, Step, build_surface, ice_mesh, run_graph, stage_rng, stops
 from .job_render import render_step
 from .jobdir import (
     DONE,
-    DRIPS,
     ERROR,
     GROWTH_DIR,
     ICE,
-    ICE_BANDS,
-    LANDING,
     OBJECT_USDC,
     PARAMS,
-    PROXY,
     SCENE_USDA,
     TIMINGS,
     TRAJECTORIES,
-    WATER,
     JobState,
     clear_job,
     job_state,
     read_json,
 )
 from .mesh import PreparedMesh, prepare
-from .params import Params, StormParams, SurfaceParams
+from .params import Params
 from .progress import ProgressMode, StepProgress, step_progress
 from .scene.material import Material
 from .stage_cache import StageCache, digest as _digest, file_digest as _file_digest
-from .stages.drips import DripResult
-from .stages.storm import drip_rim_length
-from .stages.trajectory_stats import measure_trajectories
 
 
 class Box(NamedTuple):
@@ -294,21 +283,6 @@ def _record(path: Path, value: dict) -> None:
         raise cannot_write(exc, f"the job folder {path.parent}") from None
 
 
-def _storm_stats(storm, group: StormParams, pools: str) -> dict:
-    """What a physical storm did, for timings.json and the run summary: its kind, class and
-    precipitation, the glaze's median thickness where the rain lands, where the water went, and
-    whether full basins spilled (``water.pools``)."""
-    from .stages.storm import precipitation_m
-
-    ice = storm.ice[storm.catch > 0]  # where the rain lands (films thinned by running are not the storm's glaze)
-    caught = storm.budget.caught or 1.0
-    return {"storm_kind": group.kind, "storm_intensity": group.intensity,
-            "precipitation_mm": round(1000 * precipitation_m(group.intensity, group.precipitation), 2),
-            "storm_glaze_p50_mm": round(1000 * float(np.median(ice)), 2) if len(ice) else 0.0,
-            "water_frozen": round(storm.budget.frozen / caught, 4), "water_shed": round(storm.budget.shed / caught, 4),
-            "water_pooled": round(storm.budget.pooled / caught, 4), "water_pools": pools}
-
-
 def meshing_params(spec: JobSpec) -> tuple[Params, dict]:
     """The parameters stage 4 meshes with, for how the job will be seen, and the figures
     that record it: a render config smaller than lookdev's scales ``surface.face_budget``
@@ -332,135 +306,53 @@ def meshing_params(spec: JobSpec) -> tuple[Params, dict]:
 
 def _run_stages(spec: JobSpec, job_dir: Path, run: _Run, cache: StageCache, until: Stage | None,
                 defer_render: bool = False) -> dict:
-    gravity = spec.params.gravity
     artifacts.write_yaml(job_dir / PARAMS, spec.params.as_dict())
     run.stage = "render config"  # read first: a bad one fails the job before its stages compute anything
     p, meshed = meshing_params(spec)
     prepared = run.timed("prepare", lambda: load_object(spec))
     stats: dict[str, Any] = {"input_faces": prepared.problems.faces, "problems": vars(prepared.problems),
                              "placement": spec.placement, **meshed}
+    inputs = JobInputs(prepared, p, spec.seed, placement=spec.placement, exclude=spec.exclude,
+                       overrides=dict(spec.overrides), source=lambda: _load_source(spec, prepared),
+                       mesh_key=_digest(mesh_digest(spec.mesh), spec.size_m, p.water.gravity), note=run.steps.note)
 
-    def step(name: str, key: str | None, work: Callable[[], Any]) -> Any:
-        return run.timed(name, (lambda: cache.get(name, key, work)) if key else work)
+    def step(s: Step, key: str | None, work: Callable[[], Any]) -> Any:
+        return run.timed(s.name, (lambda: cache.get(s.name, key, work)) if key else work)
 
-    def on_stage(name: str, r: StageResults) -> None:
-        """Each result's file and figures, as soon as it is there (``r`` holds the results of
-        ``name`` and every stage before it: the asserts say so to the type checker)."""
-        if name == "proxy":
-            artifacts.write_mesh(job_dir / PROXY, r.proxy.mesh)
-            stats.update(proxy_reason=r.proxy_reason, proxy_faces=r.proxy.faces,
-                         proxy_components=r.proxy.components, proxy_build_seconds=r.proxy.seconds)
-        elif name == "water":
-            assert r.water is not None
-            stats["flow_faces"] = len(r.flow.faces)
-            artifacts.write_water_ply(job_dir / WATER, r.flow, r.water.supply, r.water.water)
-            if r.water.storm is not None:
-                stats.update(_storm_stats(r.water.storm, p.storm, p.water.pools))
-        elif name == "drips":
-            assert r.water is not None and r.drips is not None
-            artifacts.write_json(job_dir / DRIPS, artifacts.drips_to_json(r.drips))
-            stats["icicles"] = len(r.drips.positions)
-            if r.water.storm is not None:
-                rim = drip_rim_length(r.flow, r.drips.region_faces, gravity, p.drips.drip_limit)
-                per_m = round(len(r.drips.positions) / rim, 2) if rim else 0.0
-                stats.update(drip_rim_m=round(rim, 4), icicles_per_m=per_m)
-        elif name == "trajectories":
-            assert r.trajectories is not None
-            artifacts.write_json(job_dir / TRAJECTORIES, artifacts.trajectories_to_json(r.trajectories))
-            t = measure_trajectories(r.trajectories, gravity)
-            # a drop that falls straight onto the object grows no icicle (trajectories.contact)
-            stats["icicles"] = int(np.count_nonzero((np.asarray(r.trajectories.branch_parent) < 0)
-                                                    & (np.diff(r.trajectories.branch_offsets) > 1)))
-            stats.update(branches=r.trajectories.n_branches, upward_share=_finite(t.upward_share),
-                         branch_spread_mm=_finite(t.branch_spread_mm), length_cv=_finite(t.length_cv),
-                         trunk_lengths_m=_finite_list(t.trunk_lengths, 4))
-        elif name == "ground_ice":
-            ground = r.ground
-            artifacts.write_json(job_dir / LANDING,
-                                 artifacts.landing_to_json(r.landing, ground.heights, ground.columns))
-            grown = ground.heights[ground.heights > 0] * 1000
-            stats.update(landing_points=len(r.landing), stalagmites=len(grown), columns=int(ground.columns.sum()),
-                         stalagmite_median_mm=_finite(np.median(grown)) if len(grown) else None,
-                         stalagmite_max_mm=_finite(grown.max()) if len(grown) else None)
+    def on_step(s: Step, results: StageResults) -> None:
+        """Each step's file and figures, as soon as it is there."""
+        if s.write is not None:
+            s.write(job_dir, results)
+        if s.figures is not None:
+            stats.update(s.figures(inputs, results))
 
-    results = run_stages(prepared, p, spec.seed, placement=spec.placement, exclude=spec.exclude,
-                         overrides=dict(spec.overrides), source=lambda: _load_source(spec, prepared), until=until,
-                         mesh_key=_digest(mesh_digest(spec.mesh), spec.size_m, p.water.gravity),
-                         step=step, on_stage=on_stage, note=run.steps.note)
-    if results.ice is not None:
-        stats.update(_surface_and_render(spec, job_dir, run, until, results, gravity, defer_render))
-        if Path(spec.mesh).suffix.lower() in USD_SUFFIXES:  # rendered or not: the ice over the asset's file
-            from .export.ice_layer import write_ice_layer
-
-            try:
-                run.timed("ice_layer", lambda: write_ice_layer(job_dir, spec.mesh, scale=prepared.scale,
-                                                               offset=prepared.offset, impurity=p.surface.impurity))
-            except InputError as exc:  # an asset icefarm reads but USD cannot open: the job stands
-                stats["ice_layer_skipped"] = str(exc)
-        if p.growth.frames and until is None:  # growth/: stages 1-3 as they are, stage 4 per frame
-            stats.update(run.timed("growth", lambda: _growth(spec, job_dir, run, results, gravity)))
-    return stats
-
-
-def _surface_and_render(spec: JobSpec, job_dir: Path, run: _Run, until: Stage | None, r: StageResults,
-                        gravity: np.ndarray, defer_render: bool = False) -> dict:
-    from .stages.surface import fringe_figures, measure_icicles
-    from .stages.surface.glaze import measure_glaze
-
-    p = spec.params
-    obj, ice, drips = r.mesh, r.ice, r.drips
-    assert r.water is not None and drips is not None and r.trajectories is not None  # the chain reached stage 4
-    axes = ice.axes if ice.axes is not None else r.trajectories
-    # Plausibility, measured on the mesh: timed apart from the modelling (Table 2 times that);
-    # the glaze measured on the surface it grew on (over a wrap, the object's)
-    wet = glaze_surface(obj, r.flow, r.water, sole(r.flow, p, gravity, spec.placement), p.glaze, r.proxy)
-
-    def measure():
-        # The two measures share nothing, and their k-d queries, ray casts and array work
-        # release the GIL: side by side they take the longer one's time and a bit.
-        with ThreadPoolExecutor(1) as pool:
-            glaze = pool.submit(measure_glaze, ice.vertices, ice.faces, wet.mesh, wet.water, gravity,
-                                exclude=_not_glaze(wet.mesh, drips, wet.exclude, p.surface))
-            icicles = measure_icicles(ice.vertices, ice.faces, axes, p.surface)
-            return icicles, fringe_figures(ice.vertices, ice.faces, axes, gravity), glaze.result()
-
-    m, fringe, glaze = run.timed("measure", measure)
-    ice_mesh = trimesh.Trimesh(ice.vertices, ice.faces, process=False)
-    if ice.bands is not None:  # the ripples' milky bands, for the render's shimmer
-        ice_mesh.vertex_attributes[ICE_BANDS] = ice.bands
-    artifacts.write_mesh(job_dir / ICE, ice_mesh)
-    stats = {
-        "glaze_coverage": _finite(glaze.coverage), "glaze_p10_mm": _finite(glaze.p10_mm),
-        "glaze_p50_mm": _finite(glaze.p50_mm), "glaze_p90_mm": _finite(glaze.p90_mm),
-        "glaze_top_bottom": _finite(glaze.top_bottom), "glaze_relief": _finite(glaze.relief),
-        "ice_faces": len(ice.faces), "metaballs": ice.balls, "tip_radius_mm": _finite(m.tip_radius_mm),
-        "taper": _finite_list(m.taper), "growth_ratio": _finite_list(m.growth_ratio, 4),
-        "profile_exponent": _finite_list(m.profile_exponent),
-        "ripple_amplitude_mm": _finite(m.ripple_amplitude_mm), "ripple_wavelength_cm": _finite(m.ripple_wavelength_cm),
-        "ripple_depth_mm": _finite(m.ripple_texture.depth_mm),
-        "ripple_correlation_3cm": _finite(m.ripple_texture.correlation_3cm),
-        "ripple_crest_cv": _finite(m.ripple_texture.crest_cv), "ripple_trunks": m.ripple_texture.trunks,
-        "fringe_free_share": _finite(fringe.free_share), "fringe_free_checked": fringe.checked,
-        "fringe_length_contrast": _finite(fringe.length_contrast),
-    }
-    if ice.coarse_voxel is not None:
-        stats["coarse_voxel_mm"] = round(1000 * ice.coarse_voxel, 3)
-    if p.surface.curtain > 0:
-        stats["curtain_area_m2"] = round(ice.curtain_area, 6)
-    if spec.render is None or stops(until, Stage.SURFACE) or defer_render:
+    r = run_graph(inputs, until=until, step=step, on_step=on_step, measuring=True)
+    if r.ice is None:
         return stats
-    stats.update(render_step(spec, job_dir, obj, ice_mesh, gravity, r.trajectories.points, run.timed,
-                             run.progress))
+    if spec.render is not None and not stops(until, Stage.SURFACE) and not defer_render:
+        assert r.trajectories is not None
+        stats.update(render_step(spec, job_dir, r.mesh, ice_mesh(r), inputs.gravity, r.trajectories.points,
+                                 run.timed, run.progress))
+    if Path(spec.mesh).suffix.lower() in USD_SUFFIXES:  # rendered or not: the ice over the asset's file
+        from .export.ice_layer import write_ice_layer
+
+        try:
+            run.timed("ice_layer", lambda: write_ice_layer(job_dir, spec.mesh, scale=prepared.scale,
+                                                           offset=prepared.offset, impurity=p.surface.impurity))
+        except InputError as exc:  # an asset icefarm reads but USD cannot open: the job stands
+            stats["ice_layer_skipped"] = str(exc)
+    if p.growth.frames and until is None:  # growth/: stages 1-3 as they are, stage 4 per frame
+        stats.update(run.timed("growth", lambda: _growth(spec, job_dir, run, inputs, r)))
     return stats
 
 
-def _growth(spec: JobSpec, job_dir: Path, run: _Run, r: StageResults, gravity: np.ndarray) -> dict:
+def _growth(spec: JobSpec, job_dir: Path, run: _Run, inputs: JobInputs, r: StageResults) -> dict:
     """``growth/``: the ice at ``growth.frames`` moments of its growth (`icefarm.growth`),
     rendered with the job's camera: the one framed on the full-grown ice."""
     from .growth import FrameView, grow_frames
 
-    p, obj, water = meshing_params(spec)[0], r.mesh, r.water
-    assert water is not None and r.drips is not None and r.trajectories is not None  # the chain reached stage 4
+    p, gravity = inputs.params, inputs.gravity
+    assert r.drips is not None and r.trajectories is not None  # the graph reached stage 4
     view = None
     if spec.render is not None:
         from .scene.config import load_render_config
@@ -468,38 +360,15 @@ def _growth(spec: JobSpec, job_dir: Path, run: _Run, r: StageResults, gravity: n
 
         full = trimesh.load(job_dir / ICE, process=False, force="mesh")
         assert isinstance(full, trimesh.Trimesh)  # what force="mesh" loads
-        view = FrameView(job_scene(obj, full, gravity, material=spec.material, placement=spec.placement,
+        view = FrameView(job_scene(r.mesh, full, gravity, material=spec.material, placement=spec.placement,
                                    impurity=p.surface.impurity,
                                    icicle_axes=r.trajectories.points),
                          load_render_config(spec.render))
-    cast = ray_caster(r.flow)
-    extra_balls = r.ground.balls if r.ground is not None else None
     result = grow_frames(
         job_dir / GROWTH_DIR, r.trajectories, r.drips, p.surface, p.glaze, frames=p.growth.frames,
-        build=lambda t, d, g, rng: build_surface(obj, r.flow, water, d, t, p, gravity, rng,
-                                                 placement=spec.placement, glaze=g, cast=cast,
-                                                 extra_balls=extra_balls, proxy=r.proxy),
+        build=lambda t, d, g, rng: build_surface(inputs, replace(r, trajectories=t, drips=d), rng, glaze=g),
         new_rng=lambda: stage_rng(spec.seed, Stage.SURFACE), gravity=gravity, view=view, progress=run.progress,
         object_usd=job_dir / OBJECT_USDC, scene_usd=job_dir / SCENE_USDA)
     return {"growth_frames": len(result.frames), "growth_seconds_per_frame": round(result.seconds_per_frame, 3)}
 
 
-def _not_glaze(mesh: trimesh.Trimesh, drips: DripResult, sole: np.ndarray | None, surface: SurfaceParams) -> np.ndarray:
-    """Vertices of the glaze's surface whose ice is not glaze: the sole, and around each drip
-    point the base and the icicle's root (within twice the base extent), which stand thicker."""
-    out = np.zeros(len(mesh.vertices), dtype=bool) if sole is None else sole.copy()
-    if len(drips.positions):
-        from scipy.spatial import cKDTree
-
-        out |= cKDTree(drips.positions).query(mesh.vertices)[0] < 2 * max(surface.base_extent, surface.tip_radius)
-    return out
-
-
-def _finite(value: float) -> float | None:
-    """JSON has no NaN: an unmeasured value is null."""
-    return float(value) if np.isfinite(value) else None
-
-
-def _finite_list(values: np.ndarray, digits: int = 3) -> list[float | None]:
-    """Per-icicle figures for JSON, aligned with the trunks: an unmeasured one is null."""
-    return [round(float(x), digits) if np.isfinite(x) else None for x in values]

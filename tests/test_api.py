@@ -149,7 +149,7 @@ def test_a_job_that_fails_inside_raises_its_error(raised, caught, message, monke
     def fail(*args, **kwargs):
         raise raised
 
-    monkeypatch.setattr(pipeline, "run_stages", fail)
+    monkeypatch.setattr(pipeline, "run_graph", fail)
     with pytest.raises(caught, match=message) as info:
         icefarm.grow("generator:sign")
     assert "\n" not in str(info.value)

@@ -258,7 +258,7 @@ def test_a_mesh_wound_inside_out_is_turned_outward_and_catches_the_rain(tmp_path
     """A DCC export wound inside out (normals pointing in), with holes like a scan's: prepare
     turns it outward and says so, and the storm glazes its top (wound inside out, a 0.3 m bunny
     caught no rain at all: no glaze, no icicles). A sheet has no inside and is left alone."""
-    from icefarm.chain import Stage, run_stages
+    from icefarm.job import Stage, run_stages
 
     ball = trimesh.creation.icosphere(subdivisions=3)
     ball.update_faces(np.flatnonzero(ball.triangles_center[:, 1] > -0.9))  # a hole at the bottom

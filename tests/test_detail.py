@@ -110,8 +110,8 @@ def test_inner_faces_ask_only_for_the_tiles_a_cell_touches():
 @pytest.mark.slow
 def test_a_big_asset_meshes_fewer_faces_with_the_same_icicles_and_stays_watertight():
     from icefarm import params
-    from icefarm.chain import run_stages
     from icefarm.generators import generate
+    from icefarm.job import run_stages
     from icefarm.mesh import prepare
     from icefarm.stages.surface.measure import measure_icicles
 
@@ -193,8 +193,8 @@ def test_the_coarse_lattice_only_when_one_lattice_cannot_hold_the_face_budget():
     0.2 mm (texture); one lattice holds it in 1.1 M faces, rippled. Squeezed to a 200 k face
     budget, it still splits."""
     from icefarm import params
-    from icefarm.chain import run_stages
     from icefarm.generators import generate
+    from icefarm.job import run_stages
     from icefarm.mesh import prepare
     from icefarm.stages.surface.measure import measure_icicles
 

@@ -127,8 +127,8 @@ def test_the_default_storm_blows_from_the_asset_s_front_and_still_air_is_one_set
 
 
 def test_a_street_sign_in_the_default_breeze_glazes_its_windward_face_and_drips_under_its_plate():
-    from icefarm.chain import Stage, run_stages
     from icefarm.generators import generate, natural_size
+    from icefarm.job import Stage, run_stages
     from icefarm.mesh import prepare
 
     prep = prepare(generate("sign"), natural_size("sign"))
@@ -164,8 +164,8 @@ def test_no_icicle_hangs_glued_to_a_leg_under_its_rim():
 def test_an_icicle_stops_short_of_what_lies_below_it():
     """A severe storm's winners under a 0.74 m garden table would reach the ground and be cut
     into pillars; they stop short of it, the rest of their water dripping down."""
-    from icefarm.chain import Stage, run_stages
     from icefarm.generators import generate, natural_size
+    from icefarm.job import Stage, run_stages
     from icefarm.mesh import prepare
 
     prep = prepare(generate("table"), natural_size("table"))

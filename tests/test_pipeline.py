@@ -68,8 +68,8 @@ def test_cache_entries_round_trip_every_stage_result_without_pickle(tmp_path):
 
     import numpy as np
 
-    from icefarm.chain import run_stages
     from icefarm.generators import generate
+    from icefarm.job import run_stages
     from icefarm.mesh import prepare
     from icefarm.stage_codec import decode, encode
 

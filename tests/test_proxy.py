@@ -388,7 +388,7 @@ def test_a_dense_scan_with_holes_grows_its_icicles(tmp_path):
     points keep outward normals and their icicles grow (a 1.1 M-face scan of the bunny grew 3
     icicles of its 28 drip points; 28 now, as the 69 k bunny's 25)."""
     from icefarm import params
-    from icefarm.chain import Stage, run_stages
+    from icefarm.job import Stage, run_stages
     from icefarm.mesh import prepare
 
     ball = trimesh.creation.icosphere(subdivisions=5)

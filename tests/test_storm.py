@@ -8,8 +8,8 @@ import pytest
 import trimesh
 
 from icefarm import params
-from icefarm.chain import Stage, run_stages
 from icefarm.geometry import ray_caster
+from icefarm.job import Stage, run_stages
 from icefarm.mesh import prepare
 from icefarm.stages.icicle_size import grow_icicles, growth_ratios, icicle_volume, thickening_m
 from icefarm.stages.rain import open_sky

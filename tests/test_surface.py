@@ -292,7 +292,7 @@ def test_inconsistent_inputs_are_refused(surface_kit):
 @pytest.mark.parametrize("name", ["cow.obj", "teapot.obj"])
 def test_real_meshes_through_stages_1_to_4_are_watertight(name, shared_mesh):
     path = shared_mesh(name)
-    from icefarm.chain import run_stages
+    from icefarm.job import run_stages
     from icefarm.mesh import prepare
 
     p = params.resolve({"storm.mode": "relative", "drips.count": 8, "water.rays": 800, "surface.voxel_size": 0.0015})

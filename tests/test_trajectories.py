@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from icefarm.chain import Stage, run_stages
+from icefarm.job import Stage, run_stages
 from icefarm.mesh import prepare
 from icefarm.params import defaults, resolve
 from icefarm.stages.drips import find_drips

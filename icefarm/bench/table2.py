@@ -16,7 +16,7 @@ g    generator:roof      the project's house with overhanging eaves: room for 40
 
 Sizes are chosen per row (`RowObject.size_m`); glaze ice, which covers every wet surface
 and so sets the polygon count, is off where the paper's count is low for its icicles
-(all rows but c and e). The stages run as a job runs them (`icefarm.chain.run_stages`: no icicle
+(all rows but c and e). The stages run as a job runs them (`icefarm.job.run_stages`: no icicle
 hangs from the bottom ``drips.ground_clearance`` of a grounded object, icicles stop at the ground),
 with the paper's relative storm and drip points (`PAPER_STAGES`: area-weighted, no spacing, none removed for want of
 room or water) and no proxy (the rows are clean meshes). The ice polygon count is then steered towards the

@@ -13,7 +13,7 @@ from typing import Any
 
 import trimesh
 
-from ..chain import Stage, run_stages
+from ..job import Stage, Step, run_stages
 from ..jobdir import JobState, read_job
 from ..mesh import prepare
 from ..params import Params
@@ -31,7 +31,7 @@ class StageRuns:
 def stage_timings(mesh_path: str | Path | trimesh.Trimesh, size_m: float, p: Params, repeat: int,
                   surface: bool = False, on_run: Callable[[], None] | None = None,
                   exclude: tuple = (), placement: str = "ground") -> StageRuns:
-    """Time the stages as a job runs them (`icefarm.chain.run_stages`), ``repeat`` times.
+    """Time the stages as a job runs them (`icefarm.job.run_stages`), ``repeat`` times.
 
     Each run starts from a fresh copy of the prepared mesh (no cached normals, edges or
     BVH: the stages pay for them) and uses seed ``run``. Mesh loading is excluded;
@@ -46,10 +46,10 @@ def stage_timings(mesh_path: str | Path | trimesh.Trimesh, size_m: float, p: Par
     icicles = ice_faces = 0
     ice_faces_runs: list[int] = []
     for run in range(repeat):
-        def timed(name: str, key: str | None, work: Callable[[], Any]) -> Any:
+        def timed(step: Step, key: str | None, work: Callable[[], Any]) -> Any:
             start = time.perf_counter()
             value = work()
-            seconds.setdefault(name, []).append(time.perf_counter() - start)
+            seconds.setdefault(step.name, []).append(time.perf_counter() - start)
             return value
 
         fresh = dataclasses.replace(prepared, mesh=prepared.mesh.copy())

@@ -1,6 +1,7 @@
 """The jobs of a sweep: one per (object, sweep point), planned from a manifest, and what
-became of each (`JobRecord`). Jobs of one object that agree on a stage's parameter groups
-share that stage through the cache; `leaders` and `private_stages` say which.
+became of each (`JobRecord`). Jobs of one object that agree on what a step reads (its
+declaration, `icefarm.job.graph`) share that step through the cache; `leaders` and
+`private_stages` say which.
 """
 
 from __future__ import annotations
@@ -14,19 +15,10 @@ from typing import Any
 
 from .. import params as P
 from ..errors import InputError, short_repr
+from ..job import cached_steps, share_digest
 from ..jobdir import JobState
-from ..stage_cache import digest
 from .manifest_model import Manifest
 from .points import expand, swept_keys
-
-# The parameter groups each early stage reads: jobs that agree on them share that stage.
-WATER_GROUPS = ("water", "proxy")
-# What each stage's result depends on besides the object (its mesh, size, seed, overrides):
-# jobs of one object that agree on these groups may share the stage (its cache key holds
-# them, and more). A stage that no two jobs of a sweep can share is not stored in its cache.
-STAGE_GROUPS = (("proxy", ()), ("water", ("water",)), ("drips", ("water", "drips")),
-                ("trajectories", ("water", "drips", "trajectories")),
-                ("surface", ("water", "drips", "trajectories", "surface", "glaze", "ground_ice")))
 
 
 @dataclass(frozen=True)
@@ -185,8 +177,7 @@ def leaders(jobs: Sequence[PlannedJob]) -> dict[str, str]:
     out: dict[str, str] = {}
     for job in jobs:
         spec = job.spec
-        water = {g: getattr(spec.params, g) for g in WATER_GROUPS}
-        key = digest(job.object_id, water, [list(o) for o in spec.overrides])
+        key = share_digest("water", spec.params, [job.object_id, [list(o) for o in spec.overrides]])
         if key in first:
             out[job.job_id] = first[key]
         else:
@@ -195,7 +186,7 @@ def leaders(jobs: Sequence[PlannedJob]) -> dict[str, str]:
 
 
 def private_stages(jobs: Sequence[PlannedJob]) -> list[str]:
-    """Stages whose result no two of ``jobs`` can share (`STAGE_GROUPS`).
+    """Cached steps whose result no two of ``jobs`` can share (`icefarm.job.share_digest`).
 
     The sweep's cache does not store them (``cache/policy.json``): a sweep over surface
     parameters would otherwise store every job's ice surface, which no other job reads.
@@ -203,10 +194,10 @@ def private_stages(jobs: Sequence[PlannedJob]) -> list[str]:
     might share is always stored.
     """
     out = []
-    for stage, groups in STAGE_GROUPS:
-        signatures = Counter(digest(j.object_id, [getattr(j.spec.params, g) for g in groups]) for j in jobs)
+    for name in cached_steps():
+        signatures = Counter(share_digest(name, j.spec.params, [j.object_id]) for j in jobs)
         if signatures and max(signatures.values()) == 1:
-            out.append(stage)
+            out.append(name)
     return out
 
 

@@ -1,4 +1,4 @@
-"""One chain of stages: what a job runs is what bench, Table 2 and the tests run."""
+"""One declared graph, one runner: what a job runs is what bench, Table 2 and the tests run."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import trimesh
 
 from icefarm import params
 from icefarm.bench.timings import stage_timings
-from icefarm.chain import Stage, run_stages
+from icefarm.job import STEPS, JobInputs, Stage, run_graph, run_stages, step_keys
 from icefarm.mesh import prepare
 from icefarm.pipeline import JobSpec, run_job
 
@@ -39,9 +39,10 @@ def test_steps_come_in_order_and_stop_where_asked(tmp_path):
     p = params.resolve(SMALL)
     prepared = prepare(str(_bowl(tmp_path)), 0.3, p.water.gravity)
     seen, files = [], []
-    result = run_stages(prepared, p, 0, until=Stage.DRIPS, step=lambda name, key, work: seen.append(name) or work(),
-                        on_stage=lambda name, r: files.append((name, r.drips is not None)))
-    assert seen == ["water", "drips"] and files == [("water", False), ("drips", True)]
+    result = run_graph(JobInputs(prepared, p), until=Stage.DRIPS,
+                       step=lambda s, key, work: seen.append(s.name) or work(),
+                       on_step=lambda s, r: files.append((s.name, r.drips is not None)))
+    assert seen == ["water", "drips"] and files == [("flow", False), ("water", False), ("drips", True)]
     assert result.trajectories is None and result.flow is result.mesh
 
 
@@ -50,7 +51,7 @@ def test_a_proxy_run_hangs_its_icicles_from_the_object(tmp_path):
     prepared = prepare(str(_bowl(tmp_path)), 0.3, p.water.gravity)
     seen = []
     result = run_stages(prepared, p, 0, until=Stage.TRAJECTORIES,
-                        step=lambda name, key, work: seen.append(name) or work())
+                        step=lambda s, key, work: seen.append(s.name) or work())
     assert seen[:2] == ["proxy", "water"] and result.flow is not result.mesh and result.proxy_reason
     distance = np.abs(trimesh.proximity.signed_distance(result.mesh, result.drips.positions))
     assert distance.max() < 1e-6
@@ -129,3 +130,76 @@ def test_a_rain_source_wets_only_what_lies_under_it(tmp_path):
     supply = np.asarray(water.metadata["_ply_raw"]["vertex"]["data"]["supply"]).astype(bool)
     x = np.asarray(water.vertices)[:, 0]
     assert supply.any() and x[supply].min() > -0.02
+
+
+def _keys(p, **job):
+    prepared = prepare(trimesh.creation.icosphere(subdivisions=2), 0.3, p.water.gravity)
+    return step_keys(JobInputs(prepared, p, **job))
+
+
+def _downstream(names):
+    """The steps that read one of ``names``, directly or not, and ``names`` themselves."""
+    out = set(names)
+    for s in STEPS:
+        if out & set(s.after):
+            out.add(s.name)
+    return out
+
+
+@pytest.mark.parametrize("group", ["storm", "water", "drips", "trajectories", "surface", "glaze", "proxy"])
+def test_a_parameter_added_to_a_group_changes_the_keys_of_the_steps_that_declare_it(group):
+    """Cache keys come from the declarations: a new field in a group changes the key of
+    each step that declares the whole group and of the steps downstream, and no other."""
+    import dataclasses
+
+    p = params.resolve({"ground_ice.mode": "mounds", "proxy.mode": "always"})
+    value = getattr(p, group)
+    wider = dataclasses.make_dataclass("Wider", [(f.name, f.type) for f in dataclasses.fields(value)]
+                                       + [("added", float)], frozen=True)
+    q = dataclasses.replace(p, **{group: wider(**dataclasses.asdict(value), added=1.0)})
+    declaring = {s.name for s in STEPS if group in s.reads or group in s.physical_reads}
+    before, after = _keys(p), _keys(q)
+    changed = {name for name in before if before[name] != after[name]}
+    assert declaring and changed == _downstream(declaring)
+
+
+def test_a_single_parameter_changes_only_the_steps_that_read_it():
+    p = params.resolve({})
+    before = _keys(p)
+    after = _keys(p.updated({"glaze.lifetime": p.glaze.lifetime * 2}))
+    changed = {name for name in before if before[name] != after[name]}
+    running = {name for name, key in before.items() if key is not None}
+    assert changed == _downstream({"water", "surface"}) & running  # water reads glaze.lifetime, surface all glaze
+    assert _keys(p, seed=1)["flow"] == before["flow"] and _keys(p, seed=1)["water"] != before["water"]
+
+
+def test_no_function_switches_on_a_step_name():
+    """The runner and the pipeline act on declarations: no ``name == "water"`` or
+    ``name in ("water", ...)`` anywhere in the package."""
+    import ast
+    from pathlib import Path
+
+    import icefarm
+    from icefarm.job import STEP_NAMES
+
+    def is_name(node):
+        return isinstance(node, ast.Constant) and node.value in STEP_NAMES
+
+    def names_a_step(node):  # a variable that holds a step's or stage's name (not a parameter's choice)
+        text = ast.unparse(node)
+        return isinstance(node, (ast.Name, ast.Attribute)) and any(w in text for w in ("stage", "step", "name"))
+
+    found = []
+    for path in Path(icefarm.__file__).parent.rglob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if not isinstance(node, ast.Compare):
+                continue
+            sides = [node.left, *node.comparators]
+            if not any(map(names_a_step, sides)):
+                continue
+            equal = any(isinstance(op, (ast.Eq, ast.NotEq)) for op in node.ops) and any(map(is_name, sides))
+            member = any(isinstance(op, (ast.In, ast.NotIn)) for op in node.ops) and any(
+                isinstance(side, (ast.Tuple, ast.List, ast.Set)) and any(map(is_name, side.elts)) for side in sides)
+            if equal or member:
+                found.append(f"{path.name}:{node.lineno}: {ast.unparse(node)}")
+    assert not found, "\n".join(found)
