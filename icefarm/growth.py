@@ -106,43 +106,61 @@ class GrowthResult:
         return float(np.median([f.surface_seconds + f.render_seconds for f in self.frames]))
 
 
-def grow_frames(folder: str | Path, traj: TrajectoryResult, drips: DripResult, surface: SurfaceParams,
-                glaze: GlazeParams, *,
-                frames: int, build: Callable, new_rng: Callable[[], np.random.Generator], gravity,
-                view: FrameView | None = None, progress: bool = False,
-                object_usd: str | Path | None = None, scene_usd: str | Path | None = None) -> GrowthResult:
-    """Stage 4 (and a render) at each of ``frames`` fractions of the growth, into ``folder``.
+@dataclass(frozen=True)
+class Growing:
+    """What a job's growth frames grow from.
 
-    Parameters
+    Attributes
     ----------
-    folder : path
-        Emptied first: ``ice_0001.ply`` ... (meters), ``frame_0001.png`` ... and
-        ``growth.mp4`` with a ``view``, ``growth.usda``, ``frames.json``.
     traj, drips : TrajectoryResult, DripResult
         The job's stages 2-3 at full growth.
     surface, glaze : SurfaceParams, GlazeParams
         The resolved ``surface`` and ``glaze`` groups.
+    gravity : (3,) float
     frames : int
         In [1, `MAX_FRAMES`].
-    build : callable
-        ``build(traj, drips, glaze, rng) -> IceResult``: stage 4 exactly as the job runs it.
-    new_rng : callable
-        A fresh generator of the job's stage 4 stream (PCG64, `numpy.random.default_rng`).
-    gravity : (3,) float
-    view : FrameView, optional
-        Render each frame (and the movie); None: meshes and figures only.
-    progress : bool
-        A progress bar over the frames.
     object_usd : path, optional
         The job's ``object.usdc``, referenced by ``growth.usda`` when it exists.
     scene_usd : path, optional
         The job's ``scene.usda``: ``growth.usda`` takes its materials, ground, cameras and
         lights when it exists.
     """
+
+    traj: TrajectoryResult
+    drips: DripResult
+    surface: SurfaceParams
+    glaze: GlazeParams
+    gravity: np.ndarray
+    frames: int
+    object_usd: str | Path | None = None
+    scene_usd: str | Path | None = None
+
+
+def grow_frames(folder: str | Path, growing: Growing, *, build: Callable,
+                new_rng: Callable[[], np.random.Generator], view: FrameView | None = None,
+                progress: bool = False) -> GrowthResult:
+    """Stage 4 (and a render) at each of ``growing.frames`` fractions of the growth, into ``folder``.
+
+    Parameters
+    ----------
+    folder : path
+        Emptied first: ``ice_0001.ply`` ... (meters), ``frame_0001.png`` ... and
+        ``growth.mp4`` with a ``view``, ``growth.usda``, ``frames.json``.
+    growing : Growing
+    build : callable
+        ``build(traj, drips, glaze, rng) -> IceResult``: stage 4 exactly as the job runs it.
+    new_rng : callable
+        A fresh generator of the job's stage 4 stream (PCG64, `numpy.random.default_rng`).
+    view : FrameView, optional
+        Render each frame (and the movie); None: meshes and figures only.
+    progress : bool
+        A progress bar over the frames.
+    """
     from tqdm import tqdm
 
     from .stages.surface import measure_icicles
 
+    traj, drips, surface, glaze, frames = growing.traj, growing.drips, growing.surface, growing.glaze, growing.frames
     folder = Path(folder)
     shutil.rmtree(folder, ignore_errors=True)
     folder.mkdir(parents=True)
@@ -186,7 +204,7 @@ def grow_frames(folder: str | Path, traj: TrajectoryResult, drips: DripResult, s
     shutil.rmtree(folder / GROWTH_SCRATCH, ignore_errors=True)
     fps = float(np.clip(frames / MOVIE_SECONDS, 1.0, 24.0))
     movie = write_movie(pngs, folder / GROWTH_MP4, fps) if pngs else None
-    usd = write_growth_usd(folder / GROWTH_USDA, plies, gravity, fps, object_usd, scene_usd)
+    usd = write_growth_usd(folder / GROWTH_USDA, plies, growing.gravity, fps, growing.object_usd, growing.scene_usd)
     artifacts.write_json(folder / FRAMES, {"fps": fps, "frames": [dataclasses.asdict(r) for r in rows]})
     return GrowthResult(folder, tuple(rows), movie, usd)
 

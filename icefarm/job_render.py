@@ -37,7 +37,7 @@ def return_freed_memory() -> None:
 
 
 def render_step(spec, job_dir: Path, obj: trimesh.Trimesh, ice_mesh: trimesh.Trimesh | None,
-                gravity: np.ndarray, icicle_axes: np.ndarray | None, timed: Timed, progress: bool) -> dict:
+                icicle_axes: np.ndarray | None, timed: Timed, progress: bool) -> dict:
     """Render ``spec``'s job (an `icefarm.pipeline.JobSpec` with a render config) into
     ``job_dir`` and write its USD scene; the figures of the render for ``timings.json``.
 
@@ -47,7 +47,6 @@ def render_step(spec, job_dir: Path, obj: trimesh.Trimesh, ice_mesh: trimesh.Tri
         The prepared object, in meters, placed.
     ice_mesh : trimesh.Trimesh or None
         The ice (``ice.ply``, with its ripple bands where it has them); None: no ice.
-    gravity : (3,) float
     icicle_axes : (p, 3) float or None
         The trajectories' points, which frame the ice view.
     timed : callable
@@ -58,6 +57,8 @@ def render_step(spec, job_dir: Path, obj: trimesh.Trimesh, ice_mesh: trimesh.Tri
     from .scene.config import load_render_config
     from .scene.render import render_job
     from .scene.write import job_scene
+
+    gravity = spec.params.gravity
 
     config = load_render_config(spec.render)
     scene = job_scene(obj, ice_mesh, gravity, material=spec.material, placement=spec.placement,

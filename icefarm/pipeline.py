@@ -244,7 +244,7 @@ def finish_render(spec: JobSpec, job_dir: Path, progress: bool = False) -> JobOu
         ice = read_ice_mesh(job_dir / ICE)
         axes = trajectories_from_json(job_dir / TRAJECTORIES).points
         stats = render_step(spec, job_dir, prepared.mesh, ice if isinstance(ice, trimesh.Trimesh) else None,
-                            spec.params.gravity, axes, run.timed, run.progress)
+                            axes, run.timed, run.progress)
     except Exception as exc:
         return _failed(job_dir, run, exc, reused)
     summary = {k: v for k, v in geometry.items() if k not in ("seconds", "reused", "cache_warnings", RENDER_PENDING)}
@@ -331,8 +331,8 @@ def _run_stages(spec: JobSpec, job_dir: Path, run: _Run, cache: StageCache, unti
         return stats
     if spec.render is not None and not stops(until, Stage.SURFACE) and not defer_render:
         assert r.trajectories is not None
-        stats.update(render_step(spec, job_dir, r.mesh, ice_mesh(r), inputs.gravity, r.trajectories.points,
-                                 run.timed, run.progress))
+        stats.update(render_step(spec, job_dir, r.mesh, ice_mesh(r), r.trajectories.points, run.timed,
+                                 run.progress))
     if Path(spec.mesh).suffix.lower() in USD_SUFFIXES:  # rendered or not: the ice over the asset's file
         from .export.ice_layer import write_ice_layer
 
@@ -349,7 +349,7 @@ def _run_stages(spec: JobSpec, job_dir: Path, run: _Run, cache: StageCache, unti
 def _growth(spec: JobSpec, job_dir: Path, run: _Run, inputs: JobInputs, r: StageResults) -> dict:
     """``growth/``: the ice at ``growth.frames`` moments of its growth (`icefarm.growth`),
     rendered with the job's camera: the one framed on the full-grown ice."""
-    from .growth import FrameView, grow_frames
+    from .growth import FrameView, Growing, grow_frames
 
     p, gravity = inputs.params, inputs.gravity
     assert r.drips is not None and r.trajectories is not None  # the graph reached stage 4
@@ -364,11 +364,12 @@ def _growth(spec: JobSpec, job_dir: Path, run: _Run, inputs: JobInputs, r: Stage
                                    impurity=p.surface.impurity,
                                    icicle_axes=r.trajectories.points),
                          load_render_config(spec.render))
+    growing = Growing(r.trajectories, r.drips, p.surface, p.glaze, gravity, p.growth.frames,
+                      object_usd=job_dir / OBJECT_USDC, scene_usd=job_dir / SCENE_USDA)
     result = grow_frames(
-        job_dir / GROWTH_DIR, r.trajectories, r.drips, p.surface, p.glaze, frames=p.growth.frames,
+        job_dir / GROWTH_DIR, growing, view=view, progress=run.progress,
         build=lambda t, d, g, rng: build_surface(inputs, replace(r, trajectories=t, drips=d), rng, glaze=g),
-        new_rng=lambda: stage_rng(spec.seed, Stage.SURFACE), gravity=gravity, view=view, progress=run.progress,
-        object_usd=job_dir / OBJECT_USDC, scene_usd=job_dir / SCENE_USDA)
+        new_rng=lambda: stage_rng(spec.seed, Stage.SURFACE))
     return {"growth_frames": len(result.frames), "growth_seconds_per_frame": round(result.seconds_per_frame, 3)}
 
 

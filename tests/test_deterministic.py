@@ -95,7 +95,7 @@ def twice(tmp_path_factory, sweep_kit):
     """A two-job sweep with a tiny render, run from scratch into two folders on two worker
     processes (the second job takes water and drips from the stage cache): ``runs``, per run
     its job folders in job order, and ``mesh``."""
-    from icefarm.farm.sweep import run_sweep
+    from icefarm.farm.sweep import SweepOptions, run_sweep
 
     root = tmp_path_factory.mktemp("twice")
     ball, render = sweep_kit.ball(root), sweep_kit.tiny_render(root)
@@ -105,7 +105,7 @@ def twice(tmp_path_factory, sweep_kit):
     (root / "m.yaml").write_text(yaml.safe_dump(manifest))
     runs = []
     for run in ("a", "b"):
-        summary = run_sweep(root / "m.yaml", root / run, workers=2)
+        summary = run_sweep(root / "m.yaml", root / run, SweepOptions(workers=2))
         assert summary.ok and summary.done == 2
         runs.append(scan_sweep(summary.sweep_dir).job_dirs)
     return SimpleNamespace(runs=runs, mesh=ball)

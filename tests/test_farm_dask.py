@@ -15,7 +15,7 @@ from hooks.sitecustomize import pause_env
 
 from icefarm.farm.manifest import load_manifest
 from icefarm.farm.plan import plan_jobs
-from icefarm.farm.sweep import run_sweep
+from icefarm.farm.sweep import SweepOptions, run_sweep
 from icefarm.jobdir import JobState
 
 pytestmark = pytest.mark.slow  # real processes, clusters and renders: `pytest -m "not slow"` skips them
@@ -54,15 +54,15 @@ def test_sweep_on_a_dask_cluster(tmp_path, cluster, write_manifest):
     path = write_manifest(grid={"trajectories.curve_angle": [1, 4], "surface.noise": [0.0, 0.001]}, name="d", seed=2,
                           objects=[{"id": "ball", "mesh": "ball.ply", "size_m": 0.3},
                                    {"id": "big", "mesh": "ball.ply", "size_m": 0.6}])
-    summary = run_sweep(path, tmp_path / "out", backend="dask", scheduler=cluster, until="trajectories")
+    summary = run_sweep(path, tmp_path / "out", SweepOptions(backend="dask", scheduler=cluster, until="trajectories"))
     assert summary.ok and summary.done == 8 and summary.backend == "dask"
     for r in summary.jobs:
         assert (r.job_dir / "done.json").is_file() and r.attempts == 1
     # Each object's later jobs waited for its first one: water and drips always come from the cache.
     leaders = {r.object_id: r for r in reversed(summary.jobs)}
     assert all({"water", "drips"} <= set(r.reused) for r in summary.jobs if leaders[r.object_id] is not r)
-    resumed = run_sweep(path, tmp_path / "out", backend="dask", scheduler=cluster, until="trajectories",
-                        resume=True)
+    resumed = run_sweep(path, tmp_path / "out",
+                        SweepOptions(backend="dask", scheduler=cluster, until="trajectories", resume=True))
     assert resumed.resumed == 8 and resumed.ok
     # the sweep set up the cluster's workers for its jobs: no stack sampler holding the GIL
     from distributed import Client
@@ -88,7 +88,7 @@ def test_dask_reschedules_the_job_of_a_killed_worker(tmp_path, cluster, paused, 
 
     killer = threading.Thread(target=kill_once)
     killer.start()
-    summary = run_sweep(path, tmp_path / "out", backend="dask", scheduler=cluster, until="drips")
+    summary = run_sweep(path, tmp_path / "out", SweepOptions(backend="dask", scheduler=cluster, until="drips"))
     killer.join()
     assert killed
     records = {r.job_id: r for r in summary.jobs}
@@ -98,7 +98,7 @@ def test_dask_reschedules_the_job_of_a_killed_worker(tmp_path, cluster, paused, 
 
 def test_dask_without_a_scheduler_starts_a_local_cluster(tmp_path, write_manifest):
     path = write_manifest(grid={"drips.count": [2, 3]}, name="d", seed=2)
-    summary = run_sweep(path, tmp_path / "out", backend="dask", workers=2, until="drips")
+    summary = run_sweep(path, tmp_path / "out", SweepOptions(backend="dask", workers=2, until="drips"))
     assert summary.ok and summary.done == 2 and summary.workers == 2
     assert summary.jobs[1].reused == ("water",)
 
@@ -146,8 +146,9 @@ def test_a_sweep_says_when_its_cluster_has_no_workers(tmp_path, write_manifest, 
         path = write_manifest(grid={"drips.count": [2, 3]}, name="d", seed=2)
         notes: list[str] = []
         result: list = []
-        sweep = threading.Thread(target=lambda: result.append(run_sweep(
-            path, tmp_path / "out", backend="dask", scheduler=address, until="water", note=notes.append)))
+        options = SweepOptions(backend="dask", scheduler=address, until="water")
+        sweep = threading.Thread(target=lambda: result.append(run_sweep(path, tmp_path / "out", options,
+                                                                        note=notes.append)))
         sweep.start()
         wait_for(lambda: any("no workers" in n for n in notes), "the sweep to say it waits", 60)
         assert f"dask worker {address}" in notes[0]
@@ -172,7 +173,7 @@ def test_renders_run_on_the_gpu_worker_and_stages_on_the_other(tmp_path, write_m
             path = write_manifest(grid={"drips.count": [2, 3]}, name="g", seed=2,
                                   render=str(sweep_kit.tiny_render(tmp_path)))
             with get_task_stream(client) as stream:  # the scheduler records which worker ran what
-                summary = run_sweep(path, tmp_path / "out", backend="dask", scheduler=address)
+                summary = run_sweep(path, tmp_path / "out", SweepOptions(backend="dask", scheduler=address))
             names = {a: w["name"] for a, w in client.scheduler_info()["workers"].items()}
             ran = {s["key"]: names[s["worker"]] for s in stream.data if str(s["key"]).startswith("icefarm-")}
     assert summary.ok and summary.done == 2, [r.error for r in summary.jobs]

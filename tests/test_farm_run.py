@@ -18,7 +18,7 @@ from icefarm.errors import InputError
 from icefarm.farm.commands import sweep as sweep_command, validate as validate_command
 from icefarm.farm.manifest import load_manifest
 from icefarm.farm.plan import plan_jobs
-from icefarm.farm.sweep import run_sweep
+from icefarm.farm.sweep import SweepOptions, run_sweep
 from icefarm.jobdir import JobState
 
 pytestmark = pytest.mark.slow  # real processes, clusters and renders: `pytest -m "not slow"` skips them
@@ -26,7 +26,7 @@ pytestmark = pytest.mark.slow  # real processes, clusters and renders: `pytest -
 def test_sweep_layout_and_stage_reuse(tmp_path, write_manifest):
     path = write_manifest(grid={"trajectories.curve_angle": [1, 5], "surface.ripple_amplitude": [0.0, 0.001]})
     out = tmp_path / "out"
-    summary = run_sweep(path, out, workers=2, until="trajectories")
+    summary = run_sweep(path, out, SweepOptions(workers=2, until="trajectories"))
     assert summary.ok and summary.done == 4 and summary.failed == 0
     root = out / "t"
     resolved = yaml.safe_load((root / "manifest.resolved.yaml").read_text())
@@ -49,22 +49,22 @@ def test_sweep_layout_and_stage_reuse(tmp_path, write_manifest):
 def test_existing_folder_is_refused_and_resume_redoes_exactly_the_unfinished_job(tmp_path, write_manifest):
     path = write_manifest(grid={"drips.count": [2, 3, 4]})
     out = tmp_path / "out"
-    first = run_sweep(path, out, workers=1, until="drips")
+    first = run_sweep(path, out, SweepOptions(workers=1, until="drips"))
     assert first.done == 3
     with pytest.raises(InputError, match="already exists: add --resume"):
-        run_sweep(path, out, until="drips")
+        run_sweep(path, out, SweepOptions(until="drips"))
     redo = first.jobs[1].job_dir
     (redo / "done.json").unlink()
     (redo / "leftover.tmp").write_text("half-written")
     stamps = {r.job_id: (r.job_dir / "done.json").stat().st_mtime_ns for r in first.jobs if r.job_dir != redo}
-    again = run_sweep(path, out, workers=1, until="drips", resume=True)
+    again = run_sweep(path, out, SweepOptions(workers=1, until="drips", resume=True))
     assert again.ok and again.resumed == 2
     assert [r.job_id for r in again.jobs if not r.resumed] == [first.jobs[1].job_id]
     assert (redo / "done.json").is_file() and not (redo / "leftover.tmp").exists()
     assert {j: (out / "t" / "jobs" / "ball" / j / "done.json").stat().st_mtime_ns for j in stamps} == stamps
-    nothing = run_sweep(path, out, until="drips", resume=True)
+    nothing = run_sweep(path, out, SweepOptions(until="drips", resume=True))
     assert nothing.resumed == 3 and nothing.ok
-    plan = run_sweep(path, out, until="drips", overwrite=True, dry_run=True)
+    plan = run_sweep(path, out, SweepOptions(until="drips", overwrite=True, dry_run=True))
     assert plan.dry_run and plan.resumed == 3  # a dry run deletes nothing
 
 
@@ -73,7 +73,7 @@ def test_overwrite_refuses_a_folder_that_is_not_a_sweep(tmp_path, write_manifest
     (tmp_path / "out" / "t").mkdir(parents=True)
     (tmp_path / "out" / "t" / "precious.txt").write_text("keep me")
     with pytest.raises(InputError, match="does not look like an icefarm sweep folder"):
-        run_sweep(path, tmp_path / "out", overwrite=True, until="water")
+        run_sweep(path, tmp_path / "out", SweepOptions(overwrite=True, until="water"))
     assert (tmp_path / "out" / "t" / "precious.txt").exists()
 
 
@@ -101,7 +101,7 @@ def test_a_second_sweep_on_a_running_folder_is_refused_and_deletes_nothing(tmp_p
     for key, value in pause_env("ball", 3).items():  # the first sweep's jobs are still running
         monkeypatch.setenv(key, value)
     first: list = []
-    runner = threading.Thread(target=lambda: first.append(run_sweep(path, out, workers=2, until="drips")))
+    runner = threading.Thread(target=lambda: first.append(run_sweep(path, out, SweepOptions(workers=2, until="drips"))))
     runner.start()
     running = out / "t" / ".farm" / "running"
     deadline = time.monotonic() + 60
@@ -111,11 +111,11 @@ def test_a_second_sweep_on_a_running_folder_is_refused_and_deletes_nothing(tmp_p
     assert started, "the first sweep never started a job"
     for flags in ({"resume": True}, {"overwrite": True}):
         with pytest.raises(InputError, match=rf"another icefarm sweep \(pid {os.getpid()}\) is writing"):
-            run_sweep(path, out, until="drips", **flags)
+            run_sweep(path, out, SweepOptions(until="drips", **flags))
     assert {p.stem for p in running.glob("*.pid")} >= started  # its markers and jobs were left alone
     runner.join()
     assert first[0].ok and first[0].done == 2
-    assert run_sweep(path, out, until="drips", resume=True).resumed == 2  # the lock went with the sweep
+    assert run_sweep(path, out, SweepOptions(until="drips", resume=True)).resumed == 2  # the lock went with the sweep
     assert (out / ".t.lock").read_text() == ""
 
 
@@ -163,7 +163,7 @@ def test_a_killed_worker_is_noticed_its_job_retried_once(tmp_path, ball, monkeyp
     killer = threading.Thread(target=_kill_when_started,
                               args=(tmp_path / "out" / "t" / ".farm" / "running", {victim}, kills, killed, paused))
     killer.start()
-    summary = run_sweep(path, tmp_path / "out", workers=2, until="drips")
+    summary = run_sweep(path, tmp_path / "out", SweepOptions(workers=2, until="drips"))
     killer.join()
     assert killed == [victim] * kills
     records = {r.job_id: r for r in summary.jobs}
@@ -215,14 +215,14 @@ def test_a_job_marker_is_replaced_whole_each_attempt(tmp_path):
 def test_resume_gives_a_job_folder_that_is_a_link_its_own_folder_and_leaves_the_target(tmp_path, write_manifest):
     path = write_manifest(grid={"drips.count": [2, 3]})
     out = tmp_path / "out"
-    first = run_sweep(path, out, workers=1, until="water")
+    first = run_sweep(path, out, SweepOptions(workers=1, until="water"))
     linked = first.jobs[0].job_dir
     target = tmp_path / "elsewhere"
     target.mkdir()
     (target / "mine.txt").write_text("keep me")
     shutil.rmtree(linked)
     linked.symlink_to(target, target_is_directory=True)
-    again = run_sweep(path, out, workers=1, until="water", resume=True)
+    again = run_sweep(path, out, SweepOptions(workers=1, until="water", resume=True))
     assert again.ok and again.done == 2 and again.resumed == 1
     assert linked.is_dir() and not linked.is_symlink() and (linked / "done.json").is_file()
     assert sorted(p.name for p in target.iterdir()) == ["mine.txt"]  # no error.json, nothing written there

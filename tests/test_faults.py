@@ -16,7 +16,7 @@ from hooks.sitecustomize import pause_env
 from icefarm import params
 from icefarm.artifacts import atomic_write
 from icefarm.errors import CacheWarning
-from icefarm.farm.sweep import run_sweep
+from icefarm.farm.sweep import SweepOptions, run_sweep
 from icefarm.pipeline import JobSpec, Stage, run_job
 from icefarm.stage_cache import StageCache
 
@@ -118,7 +118,7 @@ def test_a_killed_driver_leaves_no_process_and_resume_finishes_every_job(tmp_pat
             os.kill(pid, signal.SIGKILL)
         driver.wait(timeout=30)
     assert not any((out / "t" / "jobs" / "ball").glob("*/done.json"))
-    again = run_sweep(path, out, workers=1, until="drips", resume=True)
+    again = run_sweep(path, out, SweepOptions(workers=1, until="drips", resume=True))
     assert again.ok and again.done == 3 and again.resumed == 0
 
 
@@ -194,10 +194,11 @@ def test_cache_entries_of_other_code_are_not_read(tmp_path, ball, monkeypatch):
 
 def test_a_sweep_caches_only_what_another_job_can_reuse(tmp_path, write_manifest):
     path = write_manifest(grid={"trajectories.curve_angle": [1, 5, 9]})
-    summary = run_sweep(path, tmp_path / "out", workers=1, until="trajectories")
+    summary = run_sweep(path, tmp_path / "out", SweepOptions(workers=1, until="trajectories"))
     assert summary.ok and summary.done == 3
     cache = tmp_path / "out" / "t" / "cache"
-    assert set(json.loads((cache / "policy.json").read_text())["private"]) == {"trajectories", "surface"}
+    # the trajectories and every cached step downstream of them are each job's own
+    assert set(json.loads((cache / "policy.json").read_text())["private"]) == {"trajectories", "landing", "surface"}
     assert list((cache / "water").glob("*.npz")) and list((cache / "drips").glob("*.npz"))
     assert not list(cache.glob("trajectories/*.npz")), "no other job reads a job's own trajectories"
     assert all(set(r.reused) == {"water", "drips"} for r in summary.jobs[1:])
@@ -208,7 +209,7 @@ def test_a_sweep_caches_only_what_another_job_can_reuse(tmp_path, write_manifest
 def test_resume_redoes_jobs_whose_artifacts_or_done_json_were_damaged(tmp_path, write_manifest):
     path = write_manifest(grid={"drips.count": [2, 3, 4, 5]})
     out = tmp_path / "out"
-    first = run_sweep(path, out, workers=1, until="drips")
+    first = run_sweep(path, out, SweepOptions(workers=1, until="drips"))
     assert first.done == 4
     deleted, truncated, flipped, intact = (r.job_dir for r in first.jobs)
     done = json.loads((intact / "done.json").read_text())
@@ -221,9 +222,9 @@ def test_resume_redoes_jobs_whose_artifacts_or_done_json_were_damaged(tmp_path, 
     data[-5] ^= 0x01  # same size, other bytes
     (flipped / "water.ply").write_bytes(bytes(data))
     notes: list[str] = []
-    plan = run_sweep(path, out, until="drips", resume=True, dry_run=True, note=notes.append)
+    plan = run_sweep(path, out, SweepOptions(until="drips", resume=True, dry_run=True), note=notes.append)
     assert plan.resumed == 1
-    again = run_sweep(path, out, workers=1, until="drips", resume=True, note=notes.append)
+    again = run_sweep(path, out, SweepOptions(workers=1, until="drips", resume=True), note=notes.append)
     assert again.ok and again.resumed == 1
     assert {r.job_dir for r in again.jobs if not r.resumed} == {deleted, truncated, flipped}
     text = "\n".join(notes)
@@ -233,11 +234,11 @@ def test_resume_redoes_jobs_whose_artifacts_or_done_json_were_damaged(tmp_path, 
 
 def test_resume_on_an_edited_manifest_names_the_stale_job_folders(tmp_path, write_manifest):
     out = tmp_path / "out"
-    first = run_sweep(write_manifest(grid={"drips.count": [2, 3]}), out, workers=1, until="drips")
+    first = run_sweep(write_manifest(grid={"drips.count": [2, 3]}), out, SweepOptions(workers=1, until="drips"))
     assert first.done == 2
     edited = write_manifest(grid={"drips.count": [3, 5]})  # 2 is gone, 5 is new
     notes: list[str] = []
-    again = run_sweep(edited, out, workers=1, until="drips", resume=True, note=notes.append)
+    again = run_sweep(edited, out, SweepOptions(workers=1, until="drips", resume=True), note=notes.append)
     assert again.ok and again.resumed == 1
     stale = first.jobs[0].job_dir
     assert again.stale == (stale,)
@@ -262,7 +263,8 @@ def test_atomically_written_files_follow_the_umask(tmp_path, umask, mode):
 def test_a_sweep_folder_is_readable_by_the_group_under_umask_002(tmp_path, write_manifest):
     old = os.umask(0o002)
     try:
-        summary = run_sweep(write_manifest(grid={"drips.count": [2]}), tmp_path / "out", workers=1, until="water")
+        summary = run_sweep(write_manifest(grid={"drips.count": [2]}), tmp_path / "out",
+                            SweepOptions(workers=1, until="water"))
     finally:
         os.umask(old)
     root = tmp_path / "out" / "t"

@@ -191,13 +191,13 @@ def bench_sweep(manifest, workers, backend, repeat, assignments):
     """
     import tempfile
 
-    from ..farm import run_sweep
+    from ..farm import SweepOptions, run_sweep
     from ..jobdir import read_job
 
     walls, faces = [], []
     for i in range(repeat):
         with tempfile.TemporaryDirectory(prefix="icefarm-bench-sweep-") as out:
-            summary = run_sweep(manifest, out, workers=workers, backend=backend, sets=assignments)
+            summary = run_sweep(manifest, out, SweepOptions(workers=workers, backend=backend, sets=assignments))
             if not summary.ok:
                 failed = [r for r in summary.jobs if r.error]
                 raise InputError(f"the benchmark sweep failed: {failed[0].error if failed else 'a job failed'}")

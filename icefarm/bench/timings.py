@@ -29,8 +29,7 @@ class StageRuns:
 
 
 def stage_timings(mesh_path: str | Path | trimesh.Trimesh, size_m: float, p: Params, repeat: int,
-                  surface: bool = False, on_run: Callable[[], None] | None = None,
-                  exclude: tuple = (), placement: str = "ground") -> StageRuns:
+                  surface: bool = False, on_run: Callable[[], None] | None = None, **job: Any) -> StageRuns:
     """Time the stages as a job runs them (`icefarm.job.run_stages`), ``repeat`` times.
 
     Each run starts from a fresh copy of the prepared mesh (no cached normals, edges or
@@ -39,7 +38,8 @@ def stage_timings(mesh_path: str | Path | trimesh.Trimesh, size_m: float, p: Par
     stages 2-3, as in a job), and so do the proxy of a problem mesh and the ground ice
     when the parameters ask for them. ``mesh_path`` is a mesh file or a mesh already in
     memory (see `icefarm.mesh.prepare`); ``on_run`` is called after each run (a progress
-    bar's tick); ``exclude`` and ``placement`` are a job's.
+    bar's tick); ``job`` holds a job's other inputs (`icefarm.job.JobInputs`: ``exclude``,
+    ``placement``).
     """
     prepared = prepare(mesh_path, size_m, p.water.gravity)
     seconds: dict[str, list[float]] = {}
@@ -53,8 +53,7 @@ def stage_timings(mesh_path: str | Path | trimesh.Trimesh, size_m: float, p: Par
             return value
 
         fresh = dataclasses.replace(prepared, mesh=prepared.mesh.copy())
-        result = run_stages(fresh, p, run, placement=placement, exclude=exclude,
-                            until=None if surface else Stage.TRAJECTORIES, step=timed)
+        result = run_stages(fresh, p, run, until=None if surface else Stage.TRAJECTORIES, step=timed, **job)
         icicles = len(result.drips.positions)
         if surface:
             ice_faces = len(result.ice.faces)

@@ -11,5 +11,5 @@ import lazy_loader as _lazy
 
 __getattr__, __dir__, __all__ = _lazy.attach(__name__, submod_attrs={
     "commands": ["bench_farm", "make_sweep_command", "validate"],
-    "sweep": ["run_sweep"],
+    "sweep": ["SweepOptions", "run_sweep"],
 })

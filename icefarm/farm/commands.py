@@ -21,7 +21,7 @@ from .manifest import load_manifest
 from .manifest_model import Manifest
 from .plan import JobRecord, manifest_warnings
 from .points import MAX_JOBS, apply_sets, check_job_count, count_points
-from .sweep import SweepSummary, run_sweep
+from .sweep import SweepOptions, SweepSummary, run_sweep
 
 
 class BadInput(click.ClickException):
@@ -273,12 +273,11 @@ def make_sweep_command(after: Callable[[SweepSummary], None] | None = None) -> c
         """
         progress = None if dry_run else default_progress()
         try:
-            summary = run_sweep(manifest, out, workers=workers, backend=backend, scheduler=scheduler,
-                                sets=sets, resume=resume, overwrite=overwrite, dry_run=dry_run,
-                                render=not no_render, until=until, max_tasks_per_child=tasks_per_worker,
-                                use_cache=not no_cache, progress=progress, max_jobs=max_jobs,
-                                connect_timeout=scheduler_timeout,
-                                note=progress.note if progress is not None
+            options = SweepOptions(workers=workers, backend=backend, scheduler=scheduler, sets=sets, resume=resume,
+                                   overwrite=overwrite, dry_run=dry_run, render=not no_render, until=until,
+                                   max_tasks_per_child=tasks_per_worker, use_cache=not no_cache, max_jobs=max_jobs,
+                                   connect_timeout=scheduler_timeout)
+            summary = run_sweep(manifest, out, options, progress=progress, note=progress.note if progress is not None
                                 else lambda text: click.echo(f"note: {text}", err=True))
         except InputError as exc:
             raise BadInput(str(exc)) from None
@@ -372,8 +371,9 @@ def bench_farm_run(jobs: int = 16, workers: Sequence[int] = (1, 2), until: str |
         for backend, n in [(b, n) for _ in range(repeat) for n in workers for b in backends]:
             load, start, cpu0 = os.getloadavg()[0], time.perf_counter(), cpu()
             # Workers are never recycled here: every run pays the same start-up once per worker.
-            summary = run_sweep(path, root / f"{backend}{n}", workers=n, backend=backend, overwrite=True,
-                                render=False, until=until, max_tasks_per_child=max(jobs, 1), use_cache=False)
+            options = SweepOptions(workers=n, backend=backend, overwrite=True, render=False, until=until,
+                                   max_tasks_per_child=max(jobs, 1), use_cache=False)
+            summary = run_sweep(path, root / f"{backend}{n}", options)
             run = BenchRun(backend, n, jobs, time.perf_counter() - start, cpu() - cpu0, load)
             if not summary.ok:
                 raise RuntimeError(format_summary(summary))

@@ -218,8 +218,7 @@ def _watch_workers(client, address: str, note: Callable[[str], None], every: flo
 
 
 def run_dask(tasks: Sequence[Task], *, workers: int, on_outcome: OnOutcome,
-             scheduler: str | None = None, waits: Mapping[str, str] | None = None,
-             connect_timeout: float = 30.0, client=None,
+             scheduler: str | None = None, waits: Mapping[str, str] | None = None, client=None,
              note: Callable[[str], None] | None = None) -> None:
     """Run ``tasks`` on a Dask cluster: ``client``'s, or the scheduler at ``scheduler``, or
     a LocalCluster of ``workers`` single-threaded worker processes started (and stopped) here.
@@ -233,7 +232,7 @@ def run_dask(tasks: Sequence[Task], *, workers: int, on_outcome: OnOutcome,
     they join). Other parameters as `run_local`.
     """
     if client is None:
-        with dask_client(workers, scheduler, connect_timeout) as own:
+        with dask_client(workers, scheduler) as own:
             return run_dask(tasks, workers=workers, on_outcome=on_outcome, scheduler=scheduler, waits=waits,
                             client=own, note=note)
     from distributed import as_completed

@@ -44,7 +44,7 @@ from ..jobdir import (
 )
 from .manifest import load_manifest
 from .manifest_model import Manifest
-from .plan import JobRecord, leaders, manifest_warnings, plan_jobs, private_stages
+from .plan import JobRecord, PlannedJob, leaders, manifest_warnings, plan_jobs, private_stages
 from .points import MAX_JOBS, apply_sets, check_job_count, swept_keys
 from .sweep_folder import check_folder, job_dir, jobs_csv_text, prepare_folder, resolved_yaml, stale_folders, sweep_lock
 
@@ -152,22 +152,12 @@ def _stderr_warning(text: str) -> None:
 
 # --------------------------------------------------------------------------- running
 
-def run_sweep(manifest: Manifest | str | Path, out: str | Path = "out", *, workers: int = 1,
-              backend: str = "local", scheduler: str | None = None, sets: Sequence[str] = (),
-              resume: bool = False, overwrite: bool = False, dry_run: bool = False,
-              render: bool = True, until: str | None = None, max_tasks_per_child: int = 8,
-              use_cache: bool = True, progress: Progress | None = None,
-              max_jobs: int | None = MAX_JOBS,
-              connect_timeout: float = 30.0, note: Callable[[str], None] | None = None,
-              warn: Callable[[str], None] | None = None) -> SweepSummary:
-    """Run every job of a manifest's sweep and return what became of them.
+@dataclass(frozen=True)
+class SweepOptions:
+    """How `run_sweep` runs a manifest's jobs.
 
-    Parameters
+    Attributes
     ----------
-    manifest : Manifest or path
-        A validated manifest, or the path of one (validated here).
-    out : path
-        The sweep folder is ``out/<manifest name>``.
     workers : int
         Worker processes (local) or LocalCluster workers (dask without ``scheduler``).
     backend : {"local", "dask"}
@@ -189,12 +179,64 @@ def run_sweep(manifest: Manifest | str | Path, out: str | Path = "out", *, worke
         Local workers are replaced after this many jobs (Mitsuba's memory grows per process).
     use_cache : bool
         Share stage results between the jobs through ``<sweep>/cache``.
-    progress : Progress, optional
-        Told when the sweep starts and after every job.
     max_jobs : int or None
         Refuse a sweep of more jobs (counted before anything is expanded); None: no limit.
     connect_timeout : float
         Seconds to reach a Dask ``scheduler``.
+    """
+
+    workers: int = 1
+    backend: str = "local"
+    scheduler: str | None = None
+    sets: Sequence[str] = ()
+    resume: bool = False
+    overwrite: bool = False
+    dry_run: bool = False
+    render: bool = True
+    until: str | None = None
+    max_tasks_per_child: int = 8
+    use_cache: bool = True
+    max_jobs: int | None = MAX_JOBS
+    connect_timeout: float = 30.0
+
+    def check(self) -> None:
+        """Refuse options that cannot run, in one line each (`InputError`)."""
+        from .dask_backend import check_scheduler_address
+
+        if self.backend not in ("local", "dask"):
+            raise InputError(f"unknown backend {self.backend!r}: expected local or dask")
+        if self.scheduler and self.backend != "dask":
+            raise InputError("--scheduler needs --backend dask")
+        if self.scheduler:
+            check_scheduler_address(self.scheduler)
+        if self.workers < 1:
+            raise InputError(f"--workers must be at least 1, got {self.workers}")
+        if self.until is not None:
+            from ..job import Stage
+
+            try:
+                Stage(self.until)
+            except ValueError:
+                raise InputError(f"unknown stage {self.until!r}: expected one of "
+                                 f"{', '.join(s.value for s in Stage)}") from None
+
+
+def run_sweep(manifest: Manifest | str | Path, out: str | Path = "out", options: SweepOptions | None = None, *,
+              progress: Progress | None = None, note: Callable[[str], None] | None = None,
+              warn: Callable[[str], None] | None = None) -> SweepSummary:
+    """Run every job of a manifest's sweep and return what became of them.
+
+    Parameters
+    ----------
+    manifest : Manifest or path
+        A validated manifest, or the path of one (validated here).
+    out : path
+        The sweep folder is ``out/<manifest name>``.
+    options : SweepOptions, optional
+        Workers, backend, what to do with an existing folder, how far to run; the defaults
+        without.
+    progress : Progress, optional
+        Told when the sweep starts and after every job.
     note : callable, optional
         ``note(text)`` for messages that are not a job's (folders to redo, stale folders,
         a cluster waiting for workers); default: ``progress.note``, else stderr.
@@ -216,138 +258,160 @@ def run_sweep(manifest: Manifest | str | Path, out: str | Path = "out", *, worke
         SIGINT, SIGTERM or SIGHUP (main thread only): the workers were ended, jobs.csv
         written; its ``summary`` says what was done.
     """
-    from .dask_backend import check_scheduler_address, dask_client, run_dask
-    from .local import run_local
-    from .task import Task
-
+    o = options or SweepOptions()
     started = time.perf_counter()
     if note is None:
         note = getattr(progress, "note", None) or _stderr_note
     if not isinstance(manifest, Manifest):
         manifest = load_manifest(manifest)
-    manifest = apply_sets(manifest, sets)
-    if backend not in ("local", "dask"):
-        raise InputError(f"unknown backend {backend!r}: expected local or dask")
-    if scheduler and backend != "dask":
-        raise InputError("--scheduler needs --backend dask")
-    if scheduler:
-        check_scheduler_address(scheduler)
-    if workers < 1:
-        raise InputError(f"--workers must be at least 1, got {workers}")
-    if until is not None:
-        from ..pipeline import Stage
-        try:
-            Stage(until)
-        except ValueError:
-            raise InputError(f"unknown stage {until!r}: expected one of "
-                             f"{', '.join(s.value for s in Stage)}") from None
-    check_job_count(manifest, max_jobs)
-    jobs, duplicates = plan_jobs(manifest, render=render)
+    manifest = apply_sets(manifest, o.sets)
+    o.check()
+    check_job_count(manifest, o.max_jobs)
+    jobs, duplicates = plan_jobs(manifest, render=o.render)
     swept = swept_keys(manifest.sweep)
     sweep_dir = Path(out).expanduser().resolve() / manifest.name
     records = {j.job_id: JobRecord(job_id=j.job_id, object_id=j.object_id, values=j.values,
                                    job_dir=job_dir(sweep_dir, j)) for j in jobs}
-    stale: list[Path] = []
-    if resume or dry_run:
-        earlier = {row["job_id"]: row for row in read_jobs_csv(sweep_dir / JOBS_CSV)[0]}
-        for j in jobs:
-            path = records[j.job_id].job_dir
-            why = check_done(path)
-            if why is None:  # the attempts it took, as the earlier run's jobs.csv has them
-                attempts = earlier.get(j.job_id, {}).get("attempts", "")
-                records[j.job_id] = replace(records[j.job_id], status=JobState.DONE, resumed=True,
-                                            seconds=read_job(path).total_seconds or 0.0,
-                                            attempts=max(1, int(attempts) if attempts.isdigit() else 1))
-            elif path.is_dir() and why != f"no {DONE}":
-                note(f"{path.relative_to(sweep_dir)}: {why}: {'would be' if dry_run else 'it is'} redone")
-        stale = stale_folders(sweep_dir, jobs)
-        if stale:
-            shown = ", ".join(str(p.relative_to(sweep_dir)) for p in stale[:10])
-            more = f" and {len(stale) - 10} more" if len(stale) > 10 else ""
-            note(f"{len(stale)} job folder(s) in {sweep_dir / JOBS_DIR} are not jobs of this manifest (it was "
-                 f"edited since they were made, or --set differs); they are stale and left as they are: "
-                 f"{shown}{more}")
+    stale = _earlier_run(records, jobs, sweep_dir, o.dry_run, note) if o.resume or o.dry_run else []
 
     def summary() -> SweepSummary:
         return SweepSummary(name=manifest.name, sweep_dir=sweep_dir, jobs=tuple(records.values()),
-                            swept=swept, wall_seconds=time.perf_counter() - started, backend=backend,
-                            workers=workers, dry_run=dry_run, duplicates=duplicates, stale=tuple(stale))
+                            swept=swept, wall_seconds=time.perf_counter() - started, backend=o.backend,
+                            workers=o.workers, dry_run=o.dry_run, duplicates=duplicates, stale=tuple(stale))
 
     def warn_once() -> None:  # once the sweep is sure to run: an error stays alone on its line
         for line in manifest_warnings(manifest):
             (warn or _stderr_warning)(line)
 
-    if dry_run:
+    if o.dry_run:
         warn_once()
         return summary()
     todo = [j for j in jobs if records[j.job_id].status != JobState.DONE]
-    check_folder(sweep_dir, resume, overwrite)
+    check_folder(sweep_dir, o.resume, o.overwrite)
+    from .dask_backend import dask_client
+
     # A cluster is reached before anything is written: an unreachable one leaves nothing behind.
-    cluster = (dask_client(workers, scheduler, connect_timeout=connect_timeout)
-               if backend == "dask" and todo else contextlib.nullcontext())
+    cluster = (dask_client(o.workers, o.scheduler, connect_timeout=o.connect_timeout)
+               if o.backend == "dask" and todo else contextlib.nullcontext())
     with stop_on_signals(), cluster as client, sweep_lock(sweep_dir):
-        prepare_folder(sweep_dir, resume, overwrite)
-        made = not sweep_dir.exists()  # by this run: removed again when it cannot be written
-        running = sweep_dir / ".farm" / "running"
-        cache_dir = sweep_dir / CACHE_DIR if use_cache else None
-        csv_path = sweep_dir / JOBS_CSV
-        try:
-            shutil.rmtree(running, ignore_errors=True)  # markers of an earlier run that was stopped
-            running.mkdir(parents=True, exist_ok=True)
-            if cache_dir is not None:
-                from ..stage_cache import write_policy
-
-                if not write_policy(cache_dir, private_stages(jobs)):
-                    note(f"the stage cache {cache_dir} is read-only: its results are reused, "
-                         "the others computed and not stored")
-            atomic_write(sweep_dir / MANIFEST, resolved_yaml(manifest, jobs, sweep_dir, until))
-            atomic_write(csv_path, jobs_csv_text(list(records.values()), swept))
-        except OSError as exc:
-            if made:
-                shutil.rmtree(sweep_dir, ignore_errors=True)  # nothing half-made left behind
-            raise cannot_write(exc, f"the sweep folder {sweep_dir}") from None
+        cache_dir = _open_folder(sweep_dir, manifest, jobs, records, swept, o, note)
         warn_once()
-
-        tasks = [Task(spec=j.spec, job_id=j.job_id, object_id=j.object_id,
-                      job_dir=str(records[j.job_id].job_dir),
-                      cache_dir=str(cache_dir) if cache_dir else None, until=until,
-                      running_dir=str(running)) for j in todo]
-        # A job whose leader is already done (resume) need not wait for anything.
-        # Without a cache there is nothing to wait for.
-        waits = {k: v for k, v in leaders(jobs).items() if records[v].status != JobState.DONE} if use_cache else {}
-
-        last_write = [time.monotonic()]
-
-        def on_outcome(task, outcome, attempts: int) -> None:
-            records[task.job_id] = replace(
-                records[task.job_id], status=outcome.status,
-                seconds=total_seconds(outcome.seconds) or 0.0, reused=tuple(outcome.reused),
-                attempts=attempts, failed_stage=outcome.failed_stage, error=outcome.error)
-            if time.monotonic() - last_write[0] > CSV_INTERVAL_S:  # rewriting it per job is quadratic
-                atomic_write(csv_path, jobs_csv_text(list(records.values()), swept))
-                last_write[0] = time.monotonic()
-            if progress is not None:
-                progress.update(records[task.job_id])
-
-        if progress is not None:
-            # a scheduler's workers are its own: how many run at once is not known here
-            progress.start(len(jobs), len(jobs) - len(todo), None if scheduler else workers)
-        stopped: Interrupted | None = None
-        try:
-            if tasks and backend == "local":
-                run_local(tasks, workers=workers, on_outcome=on_outcome, waits=waits,
-                          max_tasks_per_child=max_tasks_per_child)
-            elif tasks:
-                run_dask(tasks, workers=workers, scheduler=scheduler, on_outcome=on_outcome,
-                         waits=waits, client=client, note=note)
-        except KeyboardInterrupt as exc:  # the workers are gone (the backends saw to it)
-            stopped = exc if isinstance(exc, Interrupted) else Interrupted(signal.SIGINT)
-        finally:
-            if progress is not None:
-                progress.close()
-            atomic_write(csv_path, jobs_csv_text(list(records.values()), swept))
-        if stopped is not None:
-            stopped.summary = summary()
-            raise stopped
+        _run_jobs(todo, jobs, records, _Run(sweep_dir, cache_dir, swept, o, progress, client, note), summary)
         shutil.rmtree(sweep_dir / ".farm", ignore_errors=True)
     return summary()
+
+
+def _earlier_run(records: dict[str, JobRecord], jobs: Sequence[PlannedJob], sweep_dir: Path, dry_run: bool,
+                 note: Callable[[str], None]) -> list[Path]:
+    """Mark the jobs an earlier run finished as done (in ``records``); say which folders are
+    redone and which are stale (returned)."""
+    earlier = {row["job_id"]: row for row in read_jobs_csv(sweep_dir / JOBS_CSV)[0]}
+    for j in jobs:
+        path = records[j.job_id].job_dir
+        why = check_done(path)
+        if why is None:  # the attempts it took, as the earlier run's jobs.csv has them
+            attempts = earlier.get(j.job_id, {}).get("attempts", "")
+            records[j.job_id] = replace(records[j.job_id], status=JobState.DONE, resumed=True,
+                                        seconds=read_job(path).total_seconds or 0.0,
+                                        attempts=max(1, int(attempts) if attempts.isdigit() else 1))
+        elif path.is_dir() and why != f"no {DONE}":
+            note(f"{path.relative_to(sweep_dir)}: {why}: {'would be' if dry_run else 'it is'} redone")
+    stale = stale_folders(sweep_dir, jobs)
+    if stale:
+        shown = ", ".join(str(p.relative_to(sweep_dir)) for p in stale[:10])
+        more = f" and {len(stale) - 10} more" if len(stale) > 10 else ""
+        note(f"{len(stale)} job folder(s) in {sweep_dir / JOBS_DIR} are not jobs of this manifest (it was "
+             f"edited since they were made, or --set differs); they are stale and left as they are: "
+             f"{shown}{more}")
+    return stale
+
+
+def _open_folder(sweep_dir: Path, manifest: Manifest, jobs: Sequence[PlannedJob], records: dict[str, JobRecord],
+                 swept: tuple[str, ...], o: SweepOptions, note: Callable[[str], None]) -> Path | None:
+    """The sweep folder made ready to run (its resolved manifest, jobs.csv, the cache's
+    policy); its cache folder, None without. A folder that cannot be written is one line,
+    and a folder this run made is removed again."""
+    prepare_folder(sweep_dir, o.resume, o.overwrite)
+    made = not sweep_dir.exists()  # by this run: removed again when it cannot be written
+    cache_dir = sweep_dir / CACHE_DIR if o.use_cache else None
+    running = sweep_dir / ".farm" / "running"
+    try:
+        shutil.rmtree(running, ignore_errors=True)  # markers of an earlier run that was stopped
+        running.mkdir(parents=True, exist_ok=True)
+        if cache_dir is not None:
+            from ..stage_cache import write_policy
+
+            if not write_policy(cache_dir, private_stages(jobs)):
+                note(f"the stage cache {cache_dir} is read-only: its results are reused, "
+                     "the others computed and not stored")
+        atomic_write(sweep_dir / MANIFEST, resolved_yaml(manifest, jobs, sweep_dir, o.until))
+        atomic_write(sweep_dir / JOBS_CSV, jobs_csv_text(list(records.values()), swept))
+    except OSError as exc:
+        if made:
+            shutil.rmtree(sweep_dir, ignore_errors=True)  # nothing half-made left behind
+        raise cannot_write(exc, f"the sweep folder {sweep_dir}") from None
+    return cache_dir
+
+
+@dataclass(frozen=True)
+class _Run:
+    """Where and how a sweep's jobs run (`_run_jobs`)."""
+
+    sweep_dir: Path
+    cache_dir: Path | None
+    swept: tuple[str, ...]
+    options: SweepOptions
+    progress: Progress | None
+    client: object
+    note: Callable[[str], None]
+
+
+def _run_jobs(todo: Sequence[PlannedJob], jobs: Sequence[PlannedJob], records: dict[str, JobRecord], run: _Run,
+              summary: Callable[[], SweepSummary]) -> None:
+    """Run ``todo`` on the backend, recording each outcome in ``records`` and jobs.csv;
+    a signal ends the workers and raises `Interrupted` carrying the ``summary``."""
+    from .dask_backend import run_dask
+    from .local import run_local
+    from .task import Task
+
+    o, progress, csv_path = run.options, run.progress, run.sweep_dir / JOBS_CSV
+    running = run.sweep_dir / ".farm" / "running"
+    tasks = [Task(spec=j.spec, job_id=j.job_id, object_id=j.object_id, job_dir=str(records[j.job_id].job_dir),
+                  cache_dir=str(run.cache_dir) if run.cache_dir else None, until=o.until,
+                  running_dir=str(running)) for j in todo]
+    # A job whose leader is already done (resume) need not wait for anything.
+    # Without a cache there is nothing to wait for.
+    waits = {k: v for k, v in leaders(jobs).items() if records[v].status != JobState.DONE} if o.use_cache else {}
+    last_write = [time.monotonic()]
+
+    def on_outcome(task, outcome, attempts: int) -> None:
+        records[task.job_id] = replace(
+            records[task.job_id], status=outcome.status,
+            seconds=total_seconds(outcome.seconds) or 0.0, reused=tuple(outcome.reused),
+            attempts=attempts, failed_stage=outcome.failed_stage, error=outcome.error)
+        if time.monotonic() - last_write[0] > CSV_INTERVAL_S:  # rewriting it per job is quadratic
+            atomic_write(csv_path, jobs_csv_text(list(records.values()), run.swept))
+            last_write[0] = time.monotonic()
+        if progress is not None:
+            progress.update(records[task.job_id])
+
+    if progress is not None:
+        # a scheduler's workers are its own: how many run at once is not known here
+        progress.start(len(jobs), len(jobs) - len(todo), None if o.scheduler else o.workers)
+    stopped: Interrupted | None = None
+    try:
+        if tasks and o.backend == "local":
+            run_local(tasks, workers=o.workers, on_outcome=on_outcome, waits=waits,
+                      max_tasks_per_child=o.max_tasks_per_child)
+        elif tasks:
+            run_dask(tasks, workers=o.workers, scheduler=o.scheduler, on_outcome=on_outcome,
+                     waits=waits, client=run.client, note=run.note)
+    except KeyboardInterrupt as exc:  # the workers are gone (the backends saw to it)
+        stopped = exc if isinstance(exc, Interrupted) else Interrupted(signal.SIGINT)
+    finally:
+        if progress is not None:
+            progress.close()
+        atomic_write(csv_path, jobs_csv_text(list(records.values()), run.swept))
+    if stopped is not None:
+        stopped.summary = summary()
+        raise stopped
