@@ -39,7 +39,6 @@ import dataclasses
 import enum
 import time
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 import trimesh
@@ -358,7 +357,7 @@ def _solid_diagonal(mesh: trimesh.Trimesh) -> float:
     return diag
 
 
-def build_proxy(mesh: trimesh.Trimesh, proxy: ProxyParams[str, Any],
+def build_proxy(mesh: trimesh.Trimesh, proxy: ProxyParams,
                 problems: MeshProblems | None = None) -> ProxyResult:
     """Build the approximate surface stages 1-2 run on.
 
@@ -447,7 +446,7 @@ class _Built:
     parts: int = 1
 
 
-def _build_parts(mesh: trimesh.Trimesh, parts: np.ndarray, proxy: ProxyParams[str, Any]) -> _Built:
+def _build_parts(mesh: trimesh.Trimesh, parts: np.ndarray, proxy: ProxyParams) -> _Built:
     """Each part (``parts``, ``(n_faces,) int``) built as it would be alone, put together.
 
     A part is kept as it is where `proxy_reason` finds nothing wrong with it (an intact
@@ -494,7 +493,7 @@ def _build_parts(mesh: trimesh.Trimesh, parts: np.ndarray, proxy: ProxyParams[st
                   parts=len(areas))
 
 
-def _build(mesh: trimesh.Trimesh, proxy: ProxyParams[str, Any], problems: MeshProblems,
+def _build(mesh: trimesh.Trimesh, proxy: ProxyParams, problems: MeshProblems,
            budget: int, diag: float) -> _Built:
     """The proxy of one part within ``budget`` faces (before the last decimation to it):
     its lengths are fractions of its own diagonal ``diag`` (`_solid_diagonal`)."""
