@@ -53,3 +53,17 @@ def test_the_written_out_groups_hold_the_registry_fields_in_order_with_their_typ
         assert [(f.name, f.type) for f in dataclasses.fields(cls)] == expected, group
     with pytest.raises(ValueError, match="no parameter group"):
         params.group_type("glazes")
+
+
+# Values the stages no longer check themselves: the registry refuses them, once, in `resolve`.
+@pytest.mark.parametrize("key, value", [
+    ("water.rays", 0), ("water.influence_radius", 0.0), ("water.pools", "flood"),
+    ("drips.drip_limit", 90.0), ("drips.spacing", -0.01), ("drips.distribution", "uniform"),
+    ("drips.min_fall", -0.01), ("trajectories.division_probability", 1.5), ("trajectories.step_length", 0.0),
+    ("trajectories.length_scale", 0.0), ("trajectories.max_branches", 0), ("trajectories.max_tilt", 91.0),
+    ("trajectories.branch_spread", -0.01), ("ground_ice.runoff", 1.5), ("ground_ice.merge", -0.01),
+    ("storm.intensity", "extreme"), ("proxy.mode", "sometimes"), ("surface.profile", "cone"),
+])
+def test_the_registry_refuses_what_the_stages_do_not_check(key, value):
+    with pytest.raises(InputError, match=f"{key} = .* out of its domain"):
+        params.resolve({key: value})
