@@ -219,10 +219,10 @@ class JobFolder:
 
     path: Path
     state: JobState
-    seconds: dict = field(default_factory=dict)
-    reused: tuple = ()
-    stats: dict = field(default_factory=dict)
-    params: dict | None = None
+    seconds: dict[str, Any] = field(default_factory=dict)
+    reused: tuple[str, ...] = ()
+    stats: dict[str, Any] = field(default_factory=dict)
+    params: dict[str, Any] | None = None
     failed_stage: str | None = None
     message: str | None = None
     traceback: str | None = None
@@ -268,7 +268,7 @@ def read_job(job_dir: Path) -> JobFolder:
     return JobFolder(job_dir, state, params=params)
 
 
-def read_json(path: Path) -> dict:
+def read_json(path: Path) -> dict[str, Any]:
     """A JSON object from ``path``; empty when missing, unreadable or not an object."""
     try:
         value = json.loads(Path(path).read_text())
@@ -277,7 +277,7 @@ def read_json(path: Path) -> dict:
     return value if isinstance(value, dict) else {}
 
 
-def _read_params(path: Path) -> dict | None:
+def _read_params(path: Path) -> dict[str, Any] | None:
     try:
         data = load_yaml(path.read_text())
     except (OSError, yaml.YAMLError):
@@ -285,7 +285,7 @@ def _read_params(path: Path) -> dict | None:
     return flatten(data) if isinstance(data, Mapping) else None
 
 
-def _mapping(value: Any) -> dict:
+def _mapping(value: Any) -> dict[str, Any]:
     return dict(value) if isinstance(value, Mapping) else {}
 
 
@@ -348,7 +348,7 @@ def write_views(job_dir: Path, views: Sequence[tuple[str, str, float | None]]) -
         for i, (name, frame, px) in enumerate(views)], indent=1) + "\n")
 
 
-def read_views(job_dir: Path) -> list[dict]:
+def read_views(job_dir: Path) -> list[dict[str, Any]]:
     """The entries of the job's ``views.json`` (one per rendered view), or [] without a usable one."""
     try:
         views = json.loads((Path(job_dir) / VIEWS).read_text())
@@ -358,7 +358,7 @@ def read_views(job_dir: Path) -> list[dict]:
 
 
 # ---------------------------------------------------------------- the sweep folder
-def read_jobs_csv(path: Path) -> tuple[list[dict], tuple[str, ...]]:
+def read_jobs_csv(path: Path) -> tuple[list[dict[str, Any]], tuple[str, ...]]:
     """Rows of jobs.csv (`icefarm.farm.sweep_folder.jobs_csv_text`) in job order, and its swept
     columns (those between ``object`` and ``status``); none when it is missing or has no
     ``job_id`` column."""
@@ -431,7 +431,7 @@ class SweepFolder:
 
     path: Path
     job_dirs: tuple[Path, ...]
-    rows: tuple[dict, ...] = ()
+    rows: tuple[dict[str, Any], ...] = ()
     swept: tuple[str, ...] = ()
 
     @property
@@ -439,7 +439,7 @@ class SweepFolder:
         """A sweep folder proper (it has ``jobs/``), not a job folder or a folder above some."""
         return (self.path / JOBS_DIR).is_dir()
 
-    def manifest(self) -> dict:
+    def manifest(self) -> dict[str, Any]:
         """``manifest.resolved.yaml``; empty when missing, unreadable or not a mapping."""
         try:
             loaded = load_yaml((self.path / MANIFEST).read_text())

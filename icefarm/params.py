@@ -1,28 +1,41 @@
 """Parameters resolved and typed: ``group.name`` keys (``trajectories.curve_angle``) looked
 up in the registry (`icefarm.param_table`), validated once by `resolve` into a frozen
-`Params` of one frozen dataclass per group (``params.surface.tip_radius``). `Params.as_dict`
-is the plain nested form that round-trips through YAML and hashes stably.
+`Params` of one frozen dataclass per group (`icefarm.param_groups`;
+``params.surface.tip_radius``). `Params.as_dict` is the plain nested form that round-trips
+through YAML and hashes stably.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import difflib
-import functools
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, TypeAlias
+from typing import Any
 
 import numpy as np
 import yaml
 
 from .errors import InputError
 from .geometry import world_frame
+from .param_groups import (
+    DripsParams,
+    GlazeParams,
+    GroundIceParams,
+    GrowthParams,
+    ProxyParams,
+    StormParams,
+    SurfaceParams,
+    TrajectoriesParams,
+    WaterParams,
+)
 from .param_table import DEFAULT_WIND_MPS, PARAMS, Kind, Param
 from .yaml_io import load_yaml
 
-__all__ = ["GROUPS", "PARAMS", "Kind", "Param", "Params", "defaults", "flatten", "group_type", "lookup",
-           "idle_keys", "param_index", "parse_assignment", "parse_value", "resolve", "table", "typed"]
+__all__ = ["GROUPS", "PARAMS", "DripsParams", "GlazeParams", "GroundIceParams", "GrowthParams", "Kind", "Param",
+           "Params", "ProxyParams", "StormParams", "SurfaceParams", "TrajectoriesParams", "WaterParams", "defaults",
+           "flatten", "group_type", "lookup", "idle_keys", "param_index", "parse_assignment", "parse_value", "resolve",
+           "table", "typed"]
 
 
 GROUPS: tuple[str, ...] = ("storm", "water", "drips", "trajectories", "surface", "glaze", "ground_ice", "growth",
@@ -117,49 +130,26 @@ def resolve(*layers: Mapping[str, Any] | Params | None) -> Params:
     return Params(**{group: _build(group, values) for group, values in out.items()})
 
 
-_PYTHON_TYPES = {Kind.INT: int, Kind.FLOAT: float, Kind.CHOICE: str, Kind.VECTOR: tuple, Kind.TEXT: str}
+_PYTHON_TYPES: dict[Kind, Any] = {Kind.INT: int, Kind.FLOAT: float, Kind.CHOICE: str,
+                                  Kind.VECTOR: tuple[float, float, float], Kind.TEXT: str}
 _RETIRED = {"glaze.balls"}  # stands for glaze.mode in `resolve`, absent from its result
+_GROUP_TYPES: dict[str, type[Any]] = {
+    "storm": StormParams, "water": WaterParams, "drips": DripsParams, "trajectories": TrajectoriesParams,
+    "surface": SurfaceParams, "glaze": GlazeParams, "ground_ice": GroundIceParams, "growth": GrowthParams,
+    "proxy": ProxyParams,
+}
 
 
-@functools.cache
-def group_type(group: str) -> type:
-    """The frozen dataclass of ``group``'s parameters, generated from the registry.
+def group_type(group: str) -> type[Any]:
+    """The frozen dataclass of ``group``'s parameters (`icefarm.param_groups`).
 
-    ``group_type("surface")`` is ``SurfaceParams`` with one typed field per parameter
-    (vectors are tuples): what stage 4 reads as ``surface.tip_radius``. Build instances
-    with `typed`, which validates.
+    ``group_type("surface")`` is `SurfaceParams`, one typed field per parameter of the
+    registry (vectors are tuples): what stage 4 reads as ``surface.tip_radius``. Build
+    instances with `typed`, which validates.
     """
-    if group not in GROUPS:
+    if group not in _GROUP_TYPES:
         raise ValueError(f"no parameter group {group!r}; one of {', '.join(GROUPS)}")
-    fields = [(p.name, _PYTHON_TYPES[p.kind]) for p in PARAMS if p.group == group and p.key not in _RETIRED]
-    name = "".join(part.title() for part in group.split("_")) + "Params"
-    cls = dataclasses.make_dataclass(name, fields, frozen=True)
-    cls.__module__ = __name__
-    return cls
-
-
-if TYPE_CHECKING:
-    # The groups are generated from the registry at run time, so a type checker cannot see
-    # their fields: to it each group is Any, and attribute access on a group goes unchecked.
-    StormParams: TypeAlias = Any
-    WaterParams: TypeAlias = Any
-    DripsParams: TypeAlias = Any
-    TrajectoriesParams: TypeAlias = Any
-    SurfaceParams: TypeAlias = Any
-    GlazeParams: TypeAlias = Any
-    GroundIceParams: TypeAlias = Any
-    GrowthParams: TypeAlias = Any
-    ProxyParams: TypeAlias = Any
-else:
-    StormParams = group_type("storm")
-    WaterParams = group_type("water")
-    DripsParams = group_type("drips")
-    TrajectoriesParams = group_type("trajectories")
-    SurfaceParams = group_type("surface")
-    GlazeParams = group_type("glaze")
-    GroundIceParams = group_type("ground_ice")
-    GrowthParams = group_type("growth")
-    ProxyParams = group_type("proxy")
+    return _GROUP_TYPES[group]
 
 
 def _build(group: str, values: Mapping[str, Any]) -> Any:

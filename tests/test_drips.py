@@ -160,14 +160,6 @@ def test_fountain_icicles_hang_from_the_upper_bowls_lip():
     assert results["area"][0] < 0.5 and results["area"][1] < 0.3  # the paper's spread: all over, alike
 
 
-def test_bad_spacing_or_distribution_is_refused(sphere):
-    water = np.ones(len(sphere.vertices))
-    with pytest.raises(ValueError, match="spacing"):
-        find_drips(sphere, water, G, 5, 75.0, np.random.default_rng(0), spacing=-0.01)
-    with pytest.raises(ValueError, match="distribution"):
-        find_drips(sphere, water, G, 5, 75.0, np.random.default_rng(0), distribution="uniform")
-
-
 # ------------------------------------------------------------------------------ coarse meshes
 
 def table_boxes() -> list[trimesh.Trimesh]:

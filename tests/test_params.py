@@ -38,3 +38,32 @@ def test_updated_lays_values_over_and_validates_them_again():
         p.updated({"growth.frames": -1})
     with pytest.raises(InputError, match="did you mean surface.noise"):
         params.resolve({"surface.nosie": 0.1})
+
+
+def test_the_written_out_groups_hold_the_registry_fields_in_order_with_their_types():
+    """Adding a parameter to the registry without its field in `icefarm.param_groups`, or a
+    field without its parameter, fails here."""
+    assert tuple(params.GROUPS) == tuple(params._GROUP_TYPES)
+    for group in params.GROUPS:
+        cls = params.group_type(group)
+        assert dataclasses.is_dataclass(cls) and cls.__dataclass_params__.frozen, group
+        assert getattr(params, cls.__name__) is cls, group
+        expected = [(p.name, params._PYTHON_TYPES[p.kind]) for p in params.PARAMS
+                    if p.group == group and p.key not in params._RETIRED]
+        assert [(f.name, f.type) for f in dataclasses.fields(cls)] == expected, group
+    with pytest.raises(ValueError, match="no parameter group"):
+        params.group_type("glazes")
+
+
+# Values the stages no longer check themselves: the registry refuses them, once, in `resolve`.
+@pytest.mark.parametrize("key, value", [
+    ("water.rays", 0), ("water.influence_radius", 0.0), ("water.pools", "flood"),
+    ("drips.drip_limit", 90.0), ("drips.spacing", -0.01), ("drips.distribution", "uniform"),
+    ("drips.min_fall", -0.01), ("trajectories.division_probability", 1.5), ("trajectories.step_length", 0.0),
+    ("trajectories.length_scale", 0.0), ("trajectories.max_branches", 0), ("trajectories.max_tilt", 91.0),
+    ("trajectories.branch_spread", -0.01), ("ground_ice.runoff", 1.5), ("ground_ice.merge", -0.01),
+    ("storm.intensity", "extreme"), ("proxy.mode", "sometimes"), ("surface.profile", "cone"),
+])
+def test_the_registry_refuses_what_the_stages_do_not_check(key, value):
+    with pytest.raises(InputError, match=f"{key} = .* out of its domain"):
+        params.resolve({key: value})

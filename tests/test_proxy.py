@@ -115,7 +115,7 @@ def test_detect_problems_of_intersecting_parts():
 
 def test_bad_mode_is_refused():
     with pytest.raises(InputError, match="proxy.mode"):
-        proxy_reason(detect_problems(box_soup()), "sometimes", 100)
+        params.resolve({"proxy.mode": "sometimes"})
 
 
 # --- the four problem meshes ---------------------------------------------------------------

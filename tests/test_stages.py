@@ -83,8 +83,6 @@ def test_a_full_cup_spills_its_depth_over_its_rim():
     np.testing.assert_array_equal(spilled.supply, plain.supply)
     outer_wall = (np.hypot(mesh.vertices[:, 0], mesh.vertices[:, 2]) > 0.0999) & (y > 0.01) & (y < 0.17)
     np.testing.assert_allclose(spilled.water[outer_wall] - plain.water[outer_wall], 0.08, atol=1e-9)
-    with pytest.raises(ValueError, match="pools"):
-        compute_water(mesh, G, 10, 0.01, np.random.default_rng(0), pools="flood")
 
 
 def test_a_tilted_cup_spills_at_its_lowest_rim_point_and_a_ball_holds_nothing(sphere):

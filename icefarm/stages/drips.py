@@ -134,7 +134,6 @@ def _transition_points(mesh: trimesh.Trimesh, water: np.ndarray, ok: np.ndarray,
     return np.repeat(chosen[:, None], 3, axis=1), np.tile([1.0, 0.0, 0.0], (len(chosen), 1))
 
 
-DISTRIBUTIONS = ("water", "area")
 # Candidates drawn per wanted point before the spacing rejection (at least MIN_POOL).
 POOL_PER_POINT = 50
 MIN_POOL = 1000
@@ -305,16 +304,8 @@ def find_drips(mesh: trimesh.Trimesh, water: np.ndarray, gravity, count: int, dr
     water = np.asarray(water, dtype=np.float64)
     if water.shape != (len(mesh.vertices),):
         raise ValueError(f"water must have one value per vertex ({len(mesh.vertices)}), got {water.shape}")
-    if not 0 < drip_limit < 90:
-        raise ValueError(f"drip_limit must lie in ]0, 90[ degrees, got {drip_limit}")
-    if not (np.isfinite(spacing) and spacing >= 0):
-        raise ValueError(f"spacing must be a non-negative number of meters, got {spacing}")
-    if distribution not in DISTRIBUTIONS:
-        raise ValueError(f"distribution must be one of {', '.join(DISTRIBUTIONS)}, got {distribution!r}")
-    if not (np.isfinite(min_water) and min_water >= 0):
+    if not (np.isfinite(min_water) and min_water >= 0):  # derived (drips.min_length / kL), not a parameter
         raise ValueError(f"min_water must be a non-negative water coefficient, got {min_water}")
-    if not (np.isfinite(min_fall) and min_fall >= 0):
-        raise ValueError(f"min_fall must be a non-negative number of meters, got {min_fall}")
     if min_fall > 0:
         caster = caster or ray_caster(mesh)
     excluded = excluded_vertices(mesh.vertices, exclude_boxes)

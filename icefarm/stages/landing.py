@@ -101,15 +101,11 @@ def find_landings(traj: TrajectoryResult, drip_water: np.ndarray, gravity, *, ru
     Raises
     ------
     ValueError
-        Inconsistent inputs or a runoff or merge distance out of range.
+        Inconsistent inputs.
     """
     g = unit(np.asarray(gravity, dtype=np.float64).reshape(-1))
     if g.shape != (3,) or not g.any():
         raise ValueError(f"gravity must be 3 numbers, not all zero; got {gravity!r}")
-    if not 0.0 <= runoff <= 1.0:
-        raise ValueError(f"runoff must lie in [0, 1], got {runoff}")
-    if not (np.isfinite(merge) and merge >= 0):
-        raise ValueError(f"merge must be a non-negative distance in meters, got {merge}")
     if cast is not None and face_normals is None:
         raise ValueError("face_normals are needed with cast")
     drip_water = np.asarray(drip_water, dtype=np.float64)

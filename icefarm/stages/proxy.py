@@ -39,7 +39,6 @@ import dataclasses
 import enum
 import time
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 import trimesh
@@ -51,8 +50,6 @@ from ..meshlab import current, meshset
 from ..params import ProxyParams
 from ..tol import tol
 from .parts import group_pieces, piece_boxes
-
-MODES = ("auto", "always", "never")
 
 # Folds of otherwise clean meshes cross a few faces (cow.obj: 1.4 %, dragon: 0.02 %)
 # without hurting a flow along edges; parts passing through each other cross many more.
@@ -182,8 +179,6 @@ def proxy_reason(problems: MeshProblems, mode: str, face_budget: int) -> str | N
     str or None
         For example ``"6 loose components, 51 non-manifold edges"``.
     """
-    if mode not in MODES:
-        raise InputError(f"proxy.mode must be one of {', '.join(MODES)}, got {mode!r}")
     if mode == "never":
         return None
     phrases = _problem_phrases(problems)
@@ -358,7 +353,7 @@ def _solid_diagonal(mesh: trimesh.Trimesh) -> float:
     return diag
 
 
-def build_proxy(mesh: trimesh.Trimesh, proxy: ProxyParams[str, Any],
+def build_proxy(mesh: trimesh.Trimesh, proxy: ProxyParams,
                 problems: MeshProblems | None = None) -> ProxyResult:
     """Build the approximate surface stages 1-2 run on.
 
@@ -447,7 +442,7 @@ class _Built:
     parts: int = 1
 
 
-def _build_parts(mesh: trimesh.Trimesh, parts: np.ndarray, proxy: ProxyParams[str, Any]) -> _Built:
+def _build_parts(mesh: trimesh.Trimesh, parts: np.ndarray, proxy: ProxyParams) -> _Built:
     """Each part (``parts``, ``(n_faces,) int``) built as it would be alone, put together.
 
     A part is kept as it is where `proxy_reason` finds nothing wrong with it (an intact
@@ -494,7 +489,7 @@ def _build_parts(mesh: trimesh.Trimesh, parts: np.ndarray, proxy: ProxyParams[st
                   parts=len(areas))
 
 
-def _build(mesh: trimesh.Trimesh, proxy: ProxyParams[str, Any], problems: MeshProblems,
+def _build(mesh: trimesh.Trimesh, proxy: ProxyParams, problems: MeshProblems,
            budget: int, diag: float) -> _Built:
     """The proxy of one part within ``budget`` faces (before the last decimation to it):
     its lengths are fractions of its own diagonal ``diag`` (`_solid_diagonal`)."""

@@ -131,8 +131,6 @@ def precipitation_m(intensity: str, precipitation_mm: float = 0.0) -> float:
     """
     if precipitation_mm > 0:
         return precipitation_mm / 1000.0
-    if intensity not in RADIAL_ICE_M:
-        raise ValueError(f"storm intensity must be one of {', '.join(RADIAL_ICE_M)}, got {intensity!r}")
     return math.pi * RADIAL_ICE_M[intensity] / WATER_TO_ICE
 
 

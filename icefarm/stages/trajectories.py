@@ -154,15 +154,7 @@ def grow_trajectories(mesh: trimesh.Trimesh, positions: np.ndarray, normals: np.
     water = np.asarray(water, dtype=np.float64).reshape(-1)
     if not len(positions) == len(normals) == len(water):
         raise ValueError("positions, normals and water need one row per drip point")
-    if not 0 <= division_probability <= 1:
-        raise ValueError(f"division_probability must lie in [0, 1], got {division_probability}")
-    if step_length <= 0 or length_scale <= 0 or max_branches < 1:
-        raise ValueError("step_length and length_scale must be positive, max_branches >= 1")
-    if not 0 <= max_tilt <= 90:
-        raise ValueError(f"max_tilt must lie in [0, 90] degrees, got {max_tilt}")
-    if branch_spread < 0:
-        raise ValueError(f"branch_spread must be >= 0, got {branch_spread}")
-    if not 0 < branch_life <= 1:
+    if not 0 < branch_life <= 1:  # not a parameter, so the registry does not check it
         raise ValueError(f"branch_life must lie in ]0, 1], got {branch_life}")
     n = len(positions)
     g = unit(np.asarray(gravity, dtype=np.float64).reshape(3))

@@ -182,10 +182,6 @@ def compute_water(mesh: trimesh.Trimesh, gravity, rays: int, influence_radius: f
         ``overflow`` adds what full basins spill (`overflow_heights`) to the water of
         every vertex whose upward walk ends on a rim; ``ignore`` is Algorithm 1 as published.
     """
-    if rays < 1 or not influence_radius > 0:
-        raise ValueError(f"need rays >= 1 and influence_radius > 0, got {rays}, {influence_radius}")
-    if pools not in ("ignore", "overflow"):
-        raise ValueError(f"pools must be 'ignore' or 'overflow', got {pools!r}")
     g = unit(gravity)
     if not np.any(g):
         raise ValueError("gravity must not be the zero vector")

@@ -84,8 +84,6 @@ def ripple(x, length, tip, amplitude, frequency, phase=0.0):
 def _widening(d, length, growth, shape):
     if shape == "paper":
         return d * growth
-    if shape != "physical":
-        raise ValueError(f"profile shape must be 'paper' or 'physical', got {shape!r}")
     return growth * np.maximum(length, 0.0) ** (1 - PHYSICAL_EXPONENT) * d**PHYSICAL_EXPONENT
 
 
