@@ -57,7 +57,7 @@ class DripResult:
         A physical storm's share of the storm each icicle was fed while its neighbours
         competed for the rim (`icefarm.stages.rims.compete`); None: all of it.
     growth : (k,) float or None
-        A physical storm's growth ratio of each drip point's icicle (`icefarm.stages.storm.
+        A physical storm's growth ratio of each drip point's icicle (`icefarm.stages.icicle_size.
         growth_ratios`); None: ``surface.growth_ratio``.
     """
 

@@ -45,7 +45,7 @@ class TrajectoryResult:
     branch_growth : (b,) float or None
         Growth ratio of each branch's profile (base radius added per meter of length) under
         a physical storm, whose short icicles thicken as much as long ones (its icicle's,
-        `icefarm.stages.storm.growth_ratios`). None: ``surface.growth_ratio`` for all.
+        `icefarm.stages.icicle_size.growth_ratios`). None: ``surface.growth_ratio`` for all.
     """
 
     points: np.ndarray
