@@ -23,9 +23,9 @@ def return_freed_memory() -> None:
     """Hand the heap's freed pages back to the system before the render loads its scene.
 
     The surface stage frees hundreds of MB of temporaries that glibc keeps mapped; Mitsuba's
-    scene and BVH then came on top of them: the 3 m house's preview peaked at 1.62-1.96 GB
-    resident in the render (5 runs), against 1.53-1.54 GB with this (3 runs), its peak then the
-    surface stage's. glibc only (``malloc_trim``); elsewhere nothing happens."""
+    scene and BVH then come on top of them: without this the 3 m house's preview peaks at
+    1.62-1.96 GB resident in the render (5 runs), against 1.53-1.54 GB with it (3 runs), its peak
+    then the surface stage's. glibc only (``malloc_trim``); elsewhere nothing happens."""
     import ctypes
 
     try:
@@ -64,7 +64,7 @@ def render_step(spec, job_dir: Path, obj: trimesh.Trimesh, ice_mesh: trimesh.Tri
     scene = job_scene(obj, ice_mesh, gravity, material=spec.material, placement=spec.placement,
                       impurity=spec.params.surface.impurity,  # impure water: a cloudy core
                       # framed on trajectories.json's axes, as `icefarm render` frames it again
-                      # (stage 4's, with roots hung under the rims, moved the ice view)
+                      # (stage 4's, with roots hung under the rims, would move the ice view)
                       icicle_axes=icicle_axes)
     material = scene.material
     # POV-Ray files written meanwhile

@@ -107,7 +107,7 @@ def orient_outward(mesh: trimesh.Trimesh) -> tuple[trimesh.Trimesh, int]:
     outward, and how many faces turned.
 
     DCC exports come inside out now and then (a negative scale, a flipped-normals toggle);
-    water and rain read the winding, and a 0.3 m bunny wound inside out caught no rain at all:
+    water and rain read the winding, and a 0.3 m bunny wound inside out catches no rain at all:
     no glaze, no icicles. trimesh's ``fix_inversion`` turns watertight pieces only; scans
     have holes. A piece's signed volume about its own centroid (`INSIDE_OUT`) tells without
     a closed surface. A piece within another's bounding box is left alone: the wall of a
@@ -199,8 +199,8 @@ FLAT_THICKNESS_M = 0.002  # a sheet of metal, a sign's board (at most FLAT_THICK
 FLAT_THICKNESS_RATIO = 0.01
 # A mesh whose height along gravity is under this fraction of its largest extent lies flat:
 # ``size_m`` is then its largest extent. A level sheet out of a DCC is level only to its float
-# noise (1e-8 to 1e-5 of its size); scaling that noise to ``size_m`` made a 1 m roof panel
-# thousands of kilometres wide, which the proxy then refused or ran out of memory on.
+# noise (1e-8 to 1e-5 of its size); scaling that noise to ``size_m`` would make a 1 m roof panel
+# thousands of kilometres wide, which the proxy would then refuse or run out of memory on.
 LEVEL_FRACTION = 1e-4
 
 

@@ -106,7 +106,7 @@ def resolve(*layers: Mapping[str, Any] | Params | None) -> Params:
         for key, value in flat.items():
             param = lookup(key)
             out[param.group][param.name] = param.validate(value)
-        # Legacy glaze.balls (ngi, before glaze.mode): 0 is no glaze; a positive count turns
+        # Legacy glaze.balls (ngi) as the glaze's switch: 0 is no glaze; a positive count turns
         # the glaze on. A glaze.mode in the same layer wins.
         if "glaze.balls" in flat and "glaze.mode" not in flat:
             if out["glaze"]["balls"] == 0:

@@ -9,8 +9,7 @@
   about 100 ulps at 10 m);
 - plain numbers: the float slack of comparing ratios, or vectors of unit scale.
 
-Each value is the literal its callers held before it moved here: changing one changes
-meshes.
+Changing a value changes meshes.
 """
 
 from __future__ import annotations

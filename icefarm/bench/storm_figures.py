@@ -177,8 +177,8 @@ def glaze_coverage(thickness: np.ndarray, threshold: float = GLAZED) -> tuple[fl
     share : float
         Points with more than ``threshold``, 0 to 1 (nan for no points).
     p50 : float
-        Median of ``thickness`` over all the points, bare ones included as they are (issue
-        23's "Glaze p50: the median of that thickness"), meters; so it is 0 when under
+        Median of ``thickness`` over all the points, bare ones included as they are (what
+        glaze p50 means: the median of that thickness), meters; so it is 0 when under
         half the points are glazed. nan for no points.
     """
     thickness = np.asarray(thickness, dtype=np.float64).reshape(-1)

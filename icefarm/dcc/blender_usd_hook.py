@@ -101,7 +101,7 @@ class IcefarmIceHook(bpy.types.USDHook):
         bsdf.inputs["Roughness"].default_value = float(_value(shader, roughness, 0.0))
         tint = tuple(float(c) for c in _value(shader, color, (1.0, 1.0, 1.0)))
         bsdf.inputs["Base Color"].default_value = tint + (1.0,)
-        bsdf.inputs["Alpha"].default_value = 1.0  # the preview surface's 0.1 made a faint shell
+        bsdf.inputs["Alpha"].default_value = 1.0  # the preview surface's 0.1 makes a faint shell
         # (setting surface_render_method here crashes Blender 5.0's importer: left as imported)
         return True
 

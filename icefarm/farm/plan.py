@@ -50,7 +50,8 @@ class JobRecord:
     status : JobState
         ``done``, ``failed`` or ``pending`` (not run: a dry run, or an interrupted sweep).
     seconds : float
-        Wall time the worker spent on the job (sum of the stage times), 0 when not run.
+        Wall time the worker spent on the job (the sum of its recorded step times,
+        `icefarm.jobdir.total_seconds`), 0 when not run.
     reused : tuple of str
         Stages taken from the cache.
     attempts : int

@@ -99,7 +99,7 @@ def _collapse(vertices, faces, tol, near):
     if len(faces) == 0:
         return vertices, faces, None
     # Vertices a hair apart end an edge that short: only those ends are searched (a tree of
-    # every vertex of a million-face mesh took most of the time).
+    # every vertex of a million-face mesh would take most of the time).
     look = faces if near is None else faces[face_any(np.asarray(near, dtype=bool), faces)]
     a, b, c = vertices[look[:, 0]], vertices[look[:, 1]], vertices[look[:, 2]]
     edges = [(0, 1, b - a), (1, 2, c - b), (2, 0, a - c)]
@@ -184,7 +184,7 @@ def flip_needles(vertices: np.ndarray, faces: np.ndarray, height: float, near: n
     n = len(vertices)
     # Every edge a flip reads or makes joins two vertices of the needles' faces or of their
     # neighbours across an edge, so the lookup holds the faces at those vertices only (an
-    # argsort of every edge of a million-face mesh took most of the time).
+    # argsort of every edge of a million-face mesh would take most of the time).
     near = np.zeros(n, dtype=bool)
     near[faces[needles]] = True
     local = np.flatnonzero(face_any(near, faces))

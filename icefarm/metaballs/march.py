@@ -17,7 +17,7 @@ MARCH_POWER = KAPPA**2 / 2
 _NUDGE = 1e-3
 # Floats in one batch of halo blocks for marching cubes: about 100 blocks, whose volume,
 # mask and the marching's own buffers stay in cache. Table 2's dragon coat (736 blocks)
-# marched 12-17 % faster than in batches of 4,000,000 (medians; 125,000 and 250,000 no
+# marches 12-17 % faster than in batches of 4,000,000 (medians; 125,000 and 250,000 no
 # better). Vertices inside a cell (a few of Lewiner's cases) are placed in
 # single precision from the packed volume's origin, so they move by up to 8e-6 voxels
 # with the batch: 267 of the coat's 590,478 faces.

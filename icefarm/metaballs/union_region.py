@@ -111,10 +111,10 @@ def surface_region(field: Field, other: Field, other_lattice: np.ndarray) -> Reg
     all on that side (`icefarm.metaballs.fuse._inside`).
 
     `near_region`'s margin must allow for a cell in any direction around each vertex. On
-    Table 2's dragon (row c, coat cells four times the icicles'), this region put 59 k of the
+    Table 2's dragon (row c, coat cells four times the icicles'), this region puts 59 k of the
     icicles' faces in the union instead of 153 k, and 6.5 k of the coat's instead of 26 k;
-    manifold3d was handed 131 k faces instead of 196 k (more of them caps), and
-    `icefarm.metaballs.fuse_fields` ran about a tenth faster (medians of three alternated
+    manifold3d is handed 131 k faces instead of 196 k (more of them caps), and
+    `icefarm.metaballs.fuse_fields` runs about a tenth faster (medians of three alternated
     rounds of four), giving the same mesh to 3e-9 m.
 
     Parameters

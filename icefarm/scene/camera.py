@@ -158,8 +158,8 @@ def frame_view(points: np.ndarray, gravity, azimuth: float, elevation: float, as
     near = max(float(depth.min()) * 0.5, 1e-4)
     if ground is not None:
         # Nor may the ground at the frame's lower edge lie before the near plane: a low eye
-        # before a big asset (a car, 15 cm over the ground) clipped its nearest metres, and
-        # the rays started under the ground saw a flat dark band across the frame's foot.
+        # before a big asset (a car, 15 cm over the ground) would clip its nearest metres, and
+        # the rays starting under the ground see a flat dark band across the frame's foot.
         fwd = (target - origin) / dist
         right = np.cross(fwd, up)
         right /= np.linalg.norm(right)

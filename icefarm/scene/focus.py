@@ -67,7 +67,7 @@ class IceFocus:
 
 def _edge_length(vertices: np.ndarray, faces: np.ndarray) -> float:
     """Median edge length (m) of the mesh's faces (their first edges: whatever the faces'
-    order, unlike every so-many of them; 2.7 M faces in 0.05 s)."""
+    order, unlike every so-many of them)."""
     faces = np.asarray(faces)
     d = vertices[faces[:, 1]] - vertices[faces[:, 0]]
     return float(np.median(np.sqrt(np.einsum("kd,kd->k", d, d))))
@@ -76,8 +76,8 @@ def _edge_length(vertices: np.ndarray, faces: np.ndarray) -> float:
 def spread_sample(points: np.ndarray, count: int) -> np.ndarray:
     """About ``count`` of ``points`` (n, 3), in coordinate order: the same ones for the same
     points in any order. Those whose single-precision coordinates hash to a multiple of
-    ``n // count``: every so-many in memory order moved an ice view 35 cm along the 0.4 m
-    fountain's rim when marching cubes' batches changed only the ice vertices' order."""
+    ``n // count``: every so-many in memory order would move an ice view 35 cm along the 0.4 m
+    fountain's rim when marching cubes' batches change only the ice vertices' order."""
     points = np.asarray(points, dtype=np.float64)
     step = len(points) // count
     if step > 1:
@@ -223,8 +223,8 @@ def ice_focus(ice_vertices: np.ndarray, ice_faces: np.ndarray, object_points: np
     if axis_tree is not None:
         # Where the icicles hang, from their axes: those do not move when only the ice's
         # surface does (impurity, ripples, glaze), and the ice view framed from them stays
-        # put; the sections' centres moved the car's and the fountain's ice views to other
-        # icicles when a change to the ripples moved vertices by a millimetre.
+        # put; the sections' centres would move the car's and the fountain's ice views to other
+        # icicles when a change to the ripples moves vertices by a millimetre.
         hung = axes[~np.isfinite(tree.query(axes, distance_upper_bound=reach)[0])]
         if len(hung) >= 3:
             points = hung
@@ -236,8 +236,8 @@ def visible(camera: Camera, points: np.ndarray, cast, tolerance: float) -> np.nd
     camera to each, cast against the object (``cast``, an `icefarm.geometry.ray_caster` of
     it), hits nothing nearer than the point less ``tolerance`` (m).
 
-    It replaced a z-buffer of splatted surface points, whose empty cells hid nothing: the big
-    flat faces of a car's wheel, a few samples each, let the ice view frame the icicles
+    Rays, not a z-buffer of splatted surface points, whose empty cells hide nothing: the big
+    flat faces of a car's wheel, a few samples each, would let the ice view frame the icicles
     behind it.
     """
     points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
@@ -291,7 +291,7 @@ def zoom_on_ice(full: Camera, focus: IceFocus, width: int, height: int, cast=Non
     zoom = min(zoom, MAX_ZOOM)
     # Best window: weights in bins a quarter of the window, summed over 4 x 4 bins. The
     # window searched is the zoom's to the nearest power of sqrt 2: the icicles' measured
-    # width moves with their ripples, and a grid of bins that moved with it framed other
+    # width moves with their ripples, and a grid of bins that moved with it would frame other
     # icicles.
     win = np.array([width, height]) / 2.0 ** (np.round(2.0 * np.log2(zoom)) / 2.0)
     bins = win / 4
@@ -334,7 +334,7 @@ def _frame_lengthwise(full: Camera, focus: IceFocus, aimed: np.ndarray, cx: floa
                       width: int, height: int) -> tuple[float, float]:
     """The picture row (of ``full``'s) to centre an ice view on, and its zoom, so that the
     icicles it aims at show whole, from where they leave the object to their tips: sections
-    through them (``aimed``) can lie at their tips only, and aiming there left a lamp's
+    through them (``aimed``) can lie at their tips only, and aiming there leaves a lamp's
     icicles cut off at the frame's top over an empty sky.
 
     The icicles' samples joined to the aimed sections (`_joined`) and within ``2 diameter``
@@ -372,7 +372,7 @@ def _frame_lengthwise(full: Camera, focus: IceFocus, aimed: np.ndarray, cx: floa
     if span <= room:  # whole, nudged up towards the object they hang from
         return (root + bottom) / 2 - 0.5 * (room - span) * ROOT_LIFT, zoom
     # longer: their tips at the foot of the window, as much above them as fits (a curtain of
-    # metre-long icicles framed from the top was a wall of blue ice)
+    # metre-long icicles framed from the top is a wall of blue ice)
     return bottom + margin - 0.5 * window, zoom
 
 

@@ -22,7 +22,7 @@ LLVM_DIRS = ("/usr/lib/x86_64-linux-gnu", "/usr/lib/aarch64-linux-gnu", "/usr/li
              "/usr/local/lib", "/opt/homebrew/opt/llvm/lib", "/usr/local/opt/llvm/lib")
 _LLVM_NAME = re.compile(r"^libLLVM(?:-(?P<a>\d+)[\w.]*?)?\.(?:so|dylib)(?:\.(?P<b>\d+)[\d.]*)?$")
 # Measured (Mitsuba 3.9): with a one-thread Dr.Jit pool, reading any EXR (the sky) waits forever,
-# so a process pinned to one core (taskset, a one-CPU container) hung in its first scene load.
+# so a process pinned to one core (taskset, a one-CPU container) hangs in its first scene load.
 MIN_POOL_THREADS = 2
 
 

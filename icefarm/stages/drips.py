@@ -57,7 +57,7 @@ class DripResult:
         A physical storm's share of the storm each icicle was fed while its neighbours
         competed for the rim (`icefarm.stages.rims.compete`); None: all of it.
     growth : (k,) float or None
-        A physical storm's growth ratio of each drip point's icicle (`icefarm.stages.storm.
+        A physical storm's growth ratio of each drip point's icicle (`icefarm.stages.icicle_size.
         growth_ratios`); None: ``surface.growth_ratio``.
     """
 
@@ -396,7 +396,7 @@ def find_drips(mesh: trimesh.Trimesh, water: np.ndarray, gravity, count: int, dr
         coefficients = volume if sizing is None else sizing.length(volume, active, exposure) / length_scale
         if sizing is not None and min_fall > 0:
             # An icicle stops short of what lies below it (the water then drips onto it): grown
-            # down to it, the icicle was cut there and thickened into a pillar (the fountain's
+            # down to it, the icicle would be cut there and thicken into a pillar (the fountain's
             # winners, down to its lower bowl; the bench's, down to the ground).
             fall = free_fall(caster, positions, normals, gravity, floor)
             coefficients = np.minimum(coefficients, FALL_SHARE * fall / length_scale)

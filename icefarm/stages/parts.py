@@ -3,7 +3,7 @@
 A proxy's lengths (`icefarm.stages.proxy`: the wrap's alpha and offset, the remesh's edge)
 are fractions of a bounding-box diagonal. Over objects far apart (two 30 cm cubes 3 m, or
 300 m, apart) the whole mesh's diagonal is that of the empty space between them: each
-cube was wrapped with the offset of a 300 m object into a 1.5 m blob that grew 30 icicles,
+cube would be wrapped with the offset of a 300 m object into a 1.5 m blob that grows 30 icicles,
 where the cube alone grows none. Each part is built at its own scale instead.
 
 Pieces (connected by shared edges) belong to one part when their bounding boxes, grown by

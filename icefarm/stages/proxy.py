@@ -26,7 +26,7 @@ meshes stages 1-2 run on a proxy built with pymeshlab:
 
 Lengths are fractions of a bounding-box diagonal: of each part's own where parts lie far
 apart (`icefarm.stages.parts`), each built as it would be alone. Over the whole mesh's, two
-30 cm cubes 300 m apart were each wrapped into a 1.5 m blob that grew 30 icicles, where a
+30 cm cubes 300 m apart would each be wrapped into a 1.5 m blob that grows 30 icicles, where a
 cube alone grows none.
 
 Drip points found on the proxy are moved back onto the real mesh with `snap_to_surface`,
@@ -69,8 +69,8 @@ REMESH_ITERATIONS = 3
 UNIT_TRIANGLE_AREA = np.sqrt(3.0) / 4.0
 # A manifold piece with more than this many times proxy.face_budget faces (a scan) is first
 # thinned out to that many by fast quadric simplification: on a 1.1 M-face scan of the bunny
-# pymeshlab's hole filling took 6.4 s and its topology-keeping decimation 17 s on the full
-# mesh; the rough cut to 240 k takes 1.8 s and leaves holes holes and edges manifold.
+# the rough cut to 240 k costs under a tenth of pymeshlab's hole filling and topology-keeping
+# decimation on the full mesh, and leaves holes holes and edges manifold.
 PRE_DECIMATE = 4
 # Remeshing overshoots its area estimate by up to ~15 %: aim below the budget.
 BUDGET_MARGIN = 0.8
@@ -87,8 +87,8 @@ FEATURE_PERCENTILE = 10
 # Parts far apart (`icefarm.stages.parts`) are built one by one, each at its own scale: a
 # part's wrap, refinement or hole filling as it would be alone, with a share of
 # proxy.face_budget by area, at least MIN_PART_FACES (the parameter's own floor). Past
-# MAX_PARTS (a scatter of pebbles; 10 coarse cubes take 0.1 s, the time grows with the
-# parts) they are built together, at the whole mesh's scale.
+# MAX_PARTS (a scatter of pebbles: the time grows with the parts) they are built together,
+# at the whole mesh's scale.
 MAX_PARTS = 256
 MIN_PART_FACES = 100
 
@@ -565,8 +565,8 @@ def snap_to_surface(points: np.ndarray, mesh: trimesh.Trimesh,
         object, as a wrap does, even on soups with random winding), and a point on the
         surface (within `tol.on_surface` of the diagonal) keeps its face's own normal. A
         decimated proxy lies on both sides of the object: on a 1.1 M-face scan of the bunny,
-        the side a point came from turned 25 of 28 drip normals inwards and their icicles
-        never grew.
+        the side a point came from turns 25 of 28 drip normals inwards and their icicles
+        never grow.
     faces : (k,) int
         Face holding each closest point.
     """

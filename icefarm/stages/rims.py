@@ -51,7 +51,7 @@ NUCLEUS_SPREAD = 0.5
 # Each icicle's share of the storm's cold varies: half of them have it all, the others less
 # (their drip started a night later, they hang sheltered from the wind or the sky): a factor
 # min(1, log-normal of this sigma) on its heat budget, so that the icicles the cold limits are
-# not all one length (a meltwater eave's winners hung as an even comb). Chosen.
+# not all one length (a meltwater eave's winners would hang as an even comb). Chosen.
 HEAT_SPREAD = 0.4
 ACTIVE_FEED = 0.25
 # Icicles whose surfaces come closer than this (m) at half the shorter one's length fuse in

@@ -24,8 +24,8 @@ def film_routes(mesh: trimesh.Trimesh, g: np.ndarray, cos_up: np.ndarray, area: 
 
     A film spreads over a face rather than running in one channel: each vertex passes its
     water to all its lower edge neighbours, in proportion to the slope towards each raised
-    to `FLOW_CONVERGENCE` (multiple flow directions; one steepest neighbour ran it down in stripes, which the
-    glaze on a car's doors showed as dark streaks). A level, upward vertex with no lower
+    to `FLOW_CONVERGENCE` (multiple flow directions; one steepest neighbour runs it down in stripes, which the
+    glaze on a car's doors shows as dark streaks). A level, upward vertex with no lower
     neighbour (a table top) passes it across level edges towards the nearest vertex that has
     one; a downward vertex with none drips (an outlet); an upward one with no way out is a
     basin (it pools).
@@ -90,7 +90,7 @@ def run_film(catch, capacity, passing, tilt, routes, order, outlet):
     """Route the water in ``order`` (a Python loop: each vertex waits for all that feed it).
     A vertex freezes its own catch up to its budget, then the share
     ``passing`` of the water running through, within what is left of it; sheds as its tilt
-    passes the tilt the water has seen (averaged over the water arriving: a maximum let a
+    passes the tilt the water has seen (averaged over the water arriving: a maximum lets a
     trickle that passed a steep spot stop the shedding of all the water it joined); passes the rest on along its
     ``routes`` (`film_routes`' start, target, share). Returns frozen, shed and pooled water per vertex, m^3."""
     n = len(catch)

@@ -72,7 +72,7 @@ RUNOUT_M = 0.25
 # standard deviation half of it along each direction, whatever the mesh's resolution.
 GLAZE_BLUR_M = 0.03
 # Glaze thinner than this (m) is left out of the coat: it reads as a wet sheen, and a coat far
-# thinner than its voxels tore into speckles and was slow to mesh on a fence.
+# thinner than its voxels tears into speckles and is slow to mesh (on a fence).
 GLAZE_MIN_M = 0.001
 # glaze.lifetime moves the freezing budget along the water's walk by at most this share
 # (lt 0: 1.5x at the top, 0.5x at the bottom; lt 0.5: even).
@@ -269,11 +269,11 @@ def _spread(mesh: trimesh.Trimesh, volume: np.ndarray, area: np.ndarray) -> np.n
     (``2 tau``): the same on a coarse proxy as on a refined mesh. The matrix is an
     M-matrix whose rows of L sum to 0: the total stays the same, no thickness goes negative
     and an even coat stays even. Ice does not freeze vertex by vertex: the water each route
-    carries left the glaze on walls in speckles and in sharp-edged fans, which the coat
-    rendered as black patches on a fence's pickets. The explicit passes this replaces (one
-    edge each, at most 12) relaxed a step over 6 to 7 mm (3/4 to 1/4 of it) on any mesh, a
-    quarter of `GLAZE_BLUR_M`: a 25 cm teapot's spout, on a 7 mm proxy, kept steps of 8 mm
-    across one edge, and its coat meshed into a crumpled sheet of flaps. Now 15 mm.
+    carries would leave the glaze on walls in speckles and in sharp-edged fans, which the coat
+    renders as black patches on a fence's pickets. One implicit step, not explicit passes (one
+    edge each, at most 12): those relax a step over 6 to 7 mm (3/4 to 1/4 of it) on any mesh, a
+    quarter of `GLAZE_BLUR_M`: under them a 25 cm teapot's spout, on a 7 mm proxy, keeps steps of 8 mm
+    across one edge, and its coat meshes into a crumpled sheet of flaps.
     """
     edges = np.asarray(mesh.edges_unique)
     n = len(volume)
@@ -294,8 +294,8 @@ def _spread(mesh: trimesh.Trimesh, volume: np.ndarray, area: np.ndarray) -> np.n
     system = (lap * tau + diags(diagonal)).tocsr()
     rhs = np.where(area > 0, v, 0.0)
     # Conjugate gradients from the unrelaxed coat (an even one is already the answer): 140
-    # iterations, 0.3 s, on a car's 218 k vertices; skinny faces (a box-modelled bench) take up
-    # to 550. A sparse LU took 5.6 s on the car. The last round-off of the total is scaled away.
+    # iterations on a car's 218 k vertices, about 20 times faster than a sparse LU there; skinny
+    # faces (a box-modelled bench) take up to 550. The last round-off of the total is scaled away.
     t, _ = cg(system, rhs, x0=np.divide(v, area, out=np.zeros(n), where=area > 0), rtol=1e-10, atol=0.0,
               maxiter=5000, M=diags(1.0 / diagonal))
     out = np.maximum(t, 0.0) * np.where(area > 0, area, 0.0)

@@ -45,7 +45,7 @@ class TrajectoryResult:
     branch_growth : (b,) float or None
         Growth ratio of each branch's profile (base radius added per meter of length) under
         a physical storm, whose short icicles thicken as much as long ones (its icicle's,
-        `icefarm.stages.storm.growth_ratios`). None: ``surface.growth_ratio`` for all.
+        `icefarm.stages.icicle_size.growth_ratios`). None: ``surface.growth_ratio`` for all.
     """
 
     points: np.ndarray
@@ -216,7 +216,7 @@ def grow_trajectories(mesh: trimesh.Trimesh, positions: np.ndarray, normals: np.
             # [+(30) F^n -(30) F X]: the spread may not outgrow a third of the generations
             # left, so a late branch is a short side tip hanging beside its parent's (as on
             # real icicles) instead of a finger splayed at 30 degrees to its end: three or
-            # four of those made the fence's and the eaves' tips into claws
+            # four of those make the fence's and the eaves' tips into claws
             left_gens = np.ceil(branch_life * (generations[turtles.icicle[rows]] - gen - 1)).astype(np.int64)
             turtles.last[rows] = gen + 1 + left_gens
             steps = np.clip(1 + left_gens, 1, n_spread)

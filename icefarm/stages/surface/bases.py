@@ -21,7 +21,7 @@ BASE_KAPPA = 1.0
 BASE_SWELL = 0.7
 # Base balls sit this many of their radii inside the object: what shows is a low lens
 # hugging the surface (a fillet, as ice at real icicle roots), not a ball on it; a
-# surface-centred cluster read as a milky snowball at lookdev.
+# surface-centred cluster reads as a milky snowball at lookdev.
 BASE_SINK = 0.5
 # Candidate points drawn per drip point (at least; more for nmb over 60).
 BASE_POOL = 256

@@ -202,7 +202,7 @@ def build_ice(object_mesh: trimesh.Trimesh, flow_mesh: trimesh.Trimesh, water: W
         with ThreadPoolExecutor(1) as pool:
             # A lattice that needs no coat is sampled and marched while the coat's band runs
             # (its kernel leaves the GIL that marching cubes holds): Table 2's dragon's stage 4
-            # took a median 1.06-1.22 s against 1.17-1.36 s (three alternated rounds of five);
+            # runs about a tenth faster (medians of three alternated rounds of five);
             # the 3 m house's preview peaks at 1.67 GB either way.
             early = pool.submit(_marched, ice, voxel) if one and len(ice) else None
             note(f"glaze coat over {len(coat_surface.mesh.faces):,} faces")
@@ -289,8 +289,8 @@ def fitted_voxel(count: Callable[[float], int], surface: SurfaceParams, guess: f
     the tip radius, as in `budget_voxel`.
 
     The profiles leave out bases, curtains and where icicles merge: on the real-size bench
-    they said 1.8 M faces at 1.14 mm where marching made 3.9 M (the job 4.25 M of a 3 M
-    budget); counting on the balls themselves predicts it within 3 %.
+    they say 1.8 M faces at 1.14 mm where marching makes 3.9 M; counting on the balls
+    themselves predicts it within 3 %.
     """
     lo, hi = surface.voxel_size, max(surface.voxel_size, surface.tip_radius)
     voxel = float(np.clip(guess, lo, hi))

@@ -172,7 +172,7 @@ def _thickness_range(mesh: trimesh.Trimesh, thickness: np.ndarray, wet: np.ndarr
     ``faces``): a sample's thickness carried along its slope stays within these, exact where
     the thickness is linear (a lattice sample's nearest surface sample may lie on the next
     face), bounded where it is not (the slope of a small face of noisy thickness carried
-    past it made lumps of +-5 mm on a car's windscreen)."""
+    past it makes lumps of +-5 mm on a car's windscreen)."""
     t = np.where(wet, thickness, np.nan)
     low, high = t.copy(), t.copy()
     a, b = np.asarray(mesh.edges_unique).T
@@ -190,9 +190,9 @@ def _thickness_slope(mesh: trimesh.Trimesh, thickness: np.ndarray, wet: np.ndarr
     vertices (m/m, (f, 3), in the face's plane); 0 on faces not wet at all three vertices.
 
     A lattice sample reads the thickness at its foot from its nearest surface sample's value
-    and this slope: the sample's value alone made the coat's outer face a staircase of
+    and this slope: the sample's value alone makes the coat's outer face a staircase of
     plateaus, one per sample (0.08 mm steps where the thickness changes by 1 cm per metre),
-    which the sun picked out as a hammered-glass glitter on the car's windscreen.
+    which the sun picks out as a hammered-glass glitter on the car's windscreen.
     """
     tri = mesh.triangles
     e1, e2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
@@ -229,7 +229,7 @@ def _convex_edges(mesh: trimesh.Trimesh, face: np.ndarray, reach: float) -> Edge
     that do not touch it), up to 3 a face, its own first. None if there are none.
 
     Per face, not per sample: on Table 2's dragon (102,516 samples, 6,288 such edges) a
-    k-d tree of points along the edges, queried per sample, took 0.15 s."""
+    k-d tree of points along the edges, queried per sample, is about six times slower."""
     n_faces = len(mesh.faces)
     used = np.zeros(n_faces, dtype=bool)
     used[face] = True
@@ -240,7 +240,7 @@ def _convex_edges(mesh: trimesh.Trimesh, face: np.ndarray, reach: float) -> Edge
     planar = np.linalg.norm(mesh.face_normals, axis=1) > 0.5
     sharp = np.flatnonzero((angle > _SHARP) & used[adj].any(axis=1) & planar[adj].all(axis=1))
     # Convex: the far corner of the second face lies under the first one's plane (trimesh's
-    # face_adjacency_convex takes every pair: 80 ms of the 3 m house's 1.4 M).
+    # face_adjacency_convex takes every pair: all 1.4 M of the 3 m house's).
     edge = mesh.face_adjacency_edges[sharp]
     second = mesh.faces[adj[sharp, 1]]
     far = second[(second != edge[:, :1]) & (second != edge[:, 1:])]
@@ -297,8 +297,8 @@ def _convex_edges(mesh: trimesh.Trimesh, face: np.ndarray, reach: float) -> Edge
         ok = (gap >= -1e-9 * mesh.scale) & (gap <= reach)
         ok &= np.einsum("kd,kd->k", mesh.face_normals[nb], normal[line]) > math.cos(_SHARP / 3)
         new_face, new_line = nb[ok], line[ok]
-        # two sorted runs: a stable (run-merging) sort is linear; the default re-sorted all
-        # of it on each of fandisk's 113 rings (0.3 s)
+        # two sorted runs: a stable (run-merging) sort is linear; the default re-sorts all
+        # of it on each ring (fandisk has 113)
         known = np.sort(np.concatenate([known, record[ok]]), kind="stable")
         rec_face.append(new_face)
         rec_line.append(new_line)

@@ -45,8 +45,8 @@ MAX_BAND_POINTS = 60_000_000
 _CHUNK_POINTS = 131_072
 # The taper past the rim ends where it would be thinner than this, in voxels, instead of
 # thinning to nothing: a coat whose outer face runs within a ray's offset (about 0.1 mm in a
-# scene a metre across) of the object's surface let Mitsuba's refracted rays start under the
-# object, and its ragged line of contact rendered as black cracks on the fountain's basin
+# scene a metre across) of the object's surface lets Mitsuba's refracted rays start under the
+# object, and its ragged line of contact renders as black cracks on the fountain's basin
 # wall at 1920 x 1080. A quarter voxel is below what marching cubes places to begin with.
 TAPER_END = 0.25
 

@@ -5,14 +5,14 @@ nearest surface sample each, then a dozen small steps (the sample's plane, its s
 edges, the thickness carried to the foot, the taper past the rim, the wall at excluded
 samples). Done with numpy over arrays of samples, each step allocates and walks its own
 temporaries, and pykdtree answers the nearest-sample queries at about 0.45 us each: on
-Table 2's dragon (row c, 846 k lattice samples) the band took 0.62 s of one core, 0.28 s of
+Table 2's dragon (row c, 846 k lattice samples) the band takes 0.62 s of one core, 0.28 s of
 it in the queries. Here each sample goes through every step at once, compiled (numba,
 without the GIL: the band's threads share the cores), and its nearest sample is looked up
 in a k-d tree (`point_tree`) among the leaves near its tile, gathered once for the tile's
 eight samples and bounded by the tile's nearest sample (`_tile_nearest`): 0.27 s of one
 core on the dragon.
 
-The numpy code it replaced is kept in tests/test_coat_kernel.py as the reference: they
+The numpy version is kept in tests/test_coat_kernel.py as the reference: they
 agree to 1e-12 m but where two samples lie alike far.
 """
 
@@ -27,7 +27,7 @@ import numpy as np
 LEAF = 8
 # Under a sample's plane, the coat's bound falls this many meters per meter of lateral
 # offset past the sample's reach, where no sharp edge (`coat_band.Edges`) says what lies
-# there: the coat's hidden inner part, `coat.INNER` voxels deep, otherwise came out beside a
+# there: the coat's hidden inner part, `coat.INNER` voxels deep, otherwise comes out beside a
 # convex edge whose other side is dry, as sawtooth spikes up to 1 cm long along a fence's
 # picket edges wet with thin rivulets. At the plane the bound meets the outer face's.
 BESIDE = 3.0
@@ -89,7 +89,7 @@ def point_tree(points: np.ndarray) -> PointTree | None:
 
     A k-d tree in the layout of a complete binary tree: each node's points split at its
     middle leaf across their widest extent (`_split`, compiled), then the boxes, level by
-    level. (Morton order instead left leaves of eight of the dragon's coat samples 8 mm
+    level. (Morton order instead makes leaves of eight of the dragon's coat samples 8 mm
     across, median, where they lie 1.2 mm apart: 1.6 us a query.)
     """
     points = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)

@@ -1,8 +1,8 @@
 """A geometric-error budget for the icicles: thick parts on a coarse lattice, thin ends fine.
 
 One marching-cubes lattice must resolve the thinnest tip (a chain narrower than about two
-voxels breaks into beads), so on a big asset every square centimetre of a 5 cm thick icicle
-was meshed at the tip's 2.4 mm: the 3 m house's icicles made 7.2 M faces. Marching a
+voxels breaks into beads), so on a big asset one lattice meshes every square centimetre of a
+5 cm thick icicle at the tip's 2.4 mm: the 3 m house's icicles make 7.2 M faces. Marching a
 surface of radius r at voxel h misses it by about ``h^2 / (8 r)``; a ball of radius at least
 h therefore stays within ``h / 8`` of its exact surface. So the icicles' balls at least
 `COARSE` times the fine voxel in radius go to a lattice that much coarser, the thinner ones

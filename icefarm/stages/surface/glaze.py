@@ -37,7 +37,7 @@ from .coat import coat_field
 # thick (the extra thickness goes inside the object), so marching cubes tears it less.
 COAT_SHEET = 2.0
 # Under a physical storm the coat's lattice is at least its median thickness over this
-# many voxels: a 25 mm coat at 4 mm voxels was millions of faces no lookdev view resolves.
+# many voxels: a 25 mm coat at 4 mm voxels is millions of faces no lookdev view resolves.
 STORM_COAT_VOXELS = 4.0
 # The coat's mesh holds about this many faces per voxel face of the wet area (both its
 # sides, its rims and the creases it follows; 7.6 measured on the 3 m house).
@@ -48,12 +48,12 @@ REACH = 0.01
 # `measure_glaze` builds its first tree over the ice this far along its rays (meters): past
 # the thickest coats the storms lay (25 mm is crippling), so few rays need a second round.
 GLAZE_CAST_REACH = 0.05
-# ... on ice of more faces than this; under it the whole tree is as quick (its 20,000 rays,
-# near_caster against the whole tree: bunny 0.22 M faces 0.28 / 0.18 s, fountain 0.84 M
-# 0.80 / 0.82 s, bench 2.2 M 0.96 / 1.75 s, car 2.4 M 1.08 / 2.04 s).
+# ... on ice of more faces than this; under it the whole tree is as quick (its 20,000 rays:
+# near_caster is even with the whole tree on the fountain's 0.84 M faces, slower on the
+# bunny's 0.22 M, nearly twice as fast on the bench's 2.2 M and the car's 2.4 M).
 NEAR_CASTER_FACES = 1_000_000
 # `carry_water` splits the object's edges down to this many times the flow mesh's median
-# edge: as fine as the wrap's (1), the teapot's spout took the wrap's patchy wet and dry
+# edge: as fine as the wrap's (1), the teapot's spout takes the wrap's patchy wet and dry
 # faces as islands of coat with ragged rims; at 3 its coat is as smooth as unsplit.
 CARRY_EDGE = 3.0
 
@@ -108,8 +108,8 @@ def carry_water(object_mesh: trimesh.Trimesh, flow_mesh: trimesh.Trimesh, water:
     wrap around it (`icefarm.stages.proxy`) carried over.
 
     A wrap lies up to its alpha off the object, on either side of it. A coat hugging the wrap
-    then crosses the object: the teapot's spout (under its wrap by a median 1.4 mm) came
-    out through the coat in patches whose outlines rendered as dark cracks, whatever the
+    then crosses the object: the teapot's spout (under its wrap by a median 1.4 mm) comes
+    out through the coat in patches whose outlines render as dark cracks, whatever the
     coat's sampling or thickness. On the object itself the coat has no such outlines.
 
     The object's long edges are split (midpoint subdivision, `icefarm.stages.storm.refine`;
@@ -169,14 +169,14 @@ def _open(mesh: trimesh.Trimesh, wet: np.ndarray) -> np.ndarray:
     """``(n,) bool``: the vertices of ``mesh`` (wound outward) that are not wet (``wet``) only
     on faces buried in the object: a wet face whose normal, cast from just off its centre,
     first meets the object from behind (the inside of a part it lies in) is buried. One ray
-    a face, and no closed surface needed (parity counts went wrong on the chair's open,
-    non-manifold seat and dried a third of its wet faces).
+    a face, and no closed surface needed (parity counts go wrong on the chair's open,
+    non-manifold seat and dry a third of its wet faces).
 
     A wrap's water reaches the object's surface inside the wrap whether or not it is buried:
     on the box soup 13 % of the wet area (25 % with a coarser wrap), on the teapot 4.8 % (the
     spout's root inside the body, the lid's rim). A coat grown there lies inside the opaque
     object, or comes out through its surface where that is closer than the coat is thick, and
-    the glaze measured on it read 38.7 mm at p90 on the box soup.
+    the glaze measured on it reads 38.7 mm at p90 on the box soup.
     """
     faces = np.asarray(mesh.faces)
     wet_face = np.flatnonzero(wet[faces].sum(axis=1) >= 2)
@@ -198,10 +198,10 @@ def _outward(mesh: trimesh.Trimesh, wrap: trimesh.Trimesh, index, reach: float) 
     does: by the area of its faces within ``reach`` of the wrap (``index``, `point_index` of
     its vertices), weighted by the cosine between each face's normal and the nearest wrap
     vertex's. `icefarm.mesh.prepare` cannot turn the pieces of a mesh with non-manifold edges:
-    the chair's seat (its bowl, 1,746 faces) faced 99 % of its area against its wrap, and its
-    coat grew inside the shell, leaving the bowl bare. Single faces are not turned: near
+    the chair's seat (its bowl, 1,746 faces) faces 99 % of its area against its wrap, and its
+    coat would grow inside the shell, leaving the bowl bare. Single faces are not turned: near
     creases and a spout's mouth the nearest wrap vertex faces elsewhere (216 of the teapot's
-    6,320 faces turned wrongly broke its coat into flakes)."""
+    6,320 faces would turn wrongly and break its coat into flakes)."""
     faces = np.asarray(mesh.faces)
     distance, nearest_vertex = nearest(index, mesh.triangles_center)
     cosine = np.einsum("kd,kd->k", mesh.face_normals, wrap.vertex_normals[nearest_vertex])

@@ -116,7 +116,7 @@ def root_shifts(normals: np.ndarray, gravity: np.ndarray, thickness: np.ndarray)
     that looks down (the ball's top is inside the object there already), or where the
     thickness is not finite.
 
-    A ball centred on an eave's rim put a glass dome in front of the fascia, above the edge;
+    A ball centred on an eave's rim puts a glass dome in front of the fascia, above the edge;
     moved in by its radius, its front is flush with the fascia and its top inside the eave.
     """
     g = np.asarray(gravity, dtype=np.float64) / np.linalg.norm(gravity)

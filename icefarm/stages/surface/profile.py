@@ -15,8 +15,8 @@ TIP_CALM = 2.0
 # 083101, 2006), confirmed on 93 lab icicles (Chen & Morris, Phys. Rev. E 83, 026307, 2011).
 PHYSICAL_EXPONENT = 0.75
 # An icicle the ground stopped goes on thickening as if it were longer by at most this
-# many times its own length. Unlimited, the water of a 50 cm icicle on a 10 cm stub made
-# 6 cm milky pillars at lookdev; at 1, the bunny's chin icicles merged into one block.
+# many times its own length. Unlimited, the water of a 50 cm icicle on a 10 cm stub makes
+# 6 cm milky pillars at lookdev; at 1, the bunny's chin icicles merge into one block.
 GROUND_THICKENING = 0.5
 
 

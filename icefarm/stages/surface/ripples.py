@@ -78,7 +78,7 @@ def carve_ripples_and_bands(vertices: np.ndarray, traj: TrajectoryResult, prof: 
     The carve moves vertices across the axis only, so each keeps its place along the
     ripple: the bands read off the carve's own waves are those `ripple_bands` reads off the
     carved mesh (save a vertex whose nearest axis sample changes as it moves, at a bend),
-    without a second search of the mesh (the 8 m roof: 2.8 s).
+    without a second search of the mesh.
 
     Returns
     -------
@@ -227,7 +227,7 @@ def _waves(vertices: np.ndarray, traj: TrajectoryResult, prof: dict, max_radius:
 # smooth, some ribbed); they rise from nothing at the root over ROOT_FADE of the icicle's length, and the
 # last TIP_QUIET metres above the tip are smooth, rising to full depth over the next TIP_RISE.
 # Uniform, steep crests read as a stack of glass coins whatever their texture (the bench's
-# close-up view at 480 x 360, icicles 13 px wide): 1.1 mm crests with 1 rad of tilt refracted
+# close-up view at 480 x 360, icicles 13 px wide): 1.1 mm crests with 1 rad of tilt refract
 # the seat above into a zebra of dark stripes on every icicle alike. Nearly level, whole
 # crests keep more of their depth in the radius measured around the trunk (a crest tilted by
 # T keeps J0(T) of it), so the measure needs no steeper flanks for them; roots without
@@ -260,7 +260,7 @@ TIP_RISE = 0.03
 # moves. Every 5 wavelengths with WANDER 0.15, ripple texture (depth mm, correlation, crest
 # CV) at the defaults: bench 0.50, 0.22, 0.21; car 0.54, 0.22, 0.33; table 0.57, 0.21,
 # 0.30 (WANDER 0.25, no forks: 0.54, -0.14, 0.22; 0.56, -0.14, 0.31; 0.60, -0.13, 0.28).
-# Every 3.5 wavelengths the car's CV reached 0.35. Every 8 since the ripples come in
+# Every 3.5 wavelengths the car's CV reaches 0.35. Every 8 because the ripples come in
 # patches (`PATCH_FLOOR`): a calm stretch's crests fall under the measure's threshold and
 # widen the gaps it reads (the fountain, relative storm, floor 0.3: CV 0.36 every 5, 0.30
 # every 8).
@@ -353,9 +353,9 @@ def _fork_shift(forks: _Forks, b: np.ndarray, x: np.ndarray, u: np.ndarray, v: n
 # measured depth stays at least 0.4 mm (relative storm, spectral amplitude / texture
 # depth / crest CV: bunny 0.407 / 0.637 / 0.14 mm without patches, 0.445 / 0.651 / 0.13 with
 # them; fountain 0.421 / 0.535 / 0.28, 0.460 / 0.524 / 0.24; at the defaults, car 0.428 /
-# 0.543 / 0.33, 0.444 / 0.554 / 0.34). A calmer floor, 0.3 with a gain of 1.5, put the car's
+# 0.543 / 0.33, 0.444 / 0.554 / 0.34). A calmer floor, 0.3 with a gain of 1.5, puts the car's
 # crest CV at 0.36, over the natural 0.35 (its calm stretches' crests fall under the
-# measure's threshold); 0.15 with no gain read better still on the bench, but measured
+# measure's threshold); 0.15 with no gain reads better still on the bench, but measures
 # 0.27 mm on one 12 cm icicle.
 PATCH_FLOOR = 0.4
 PATCH_GAIN = 1.4

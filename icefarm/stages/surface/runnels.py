@@ -4,7 +4,7 @@ Freezing rain does not set as an even varnish where it runs: the film gathers in
 that freeze into ridges along the slope, a centimetre or two apart, and into beads where
 their drops stop. A level top stays smooth (its water stands or spreads). Here the coat's
 face is carved after marching (`carve_runnels`: per vertex, smooth at the voxel; scaling
-the thickness the coat's field is built from tore its two-voxel samples into shards): its
+the thickness the coat's field is built from tears its two-voxel samples into shards): its
 height over the object is scaled by a relief that runs down the slope: a sum of
 waves across the downhill direction (the rivulets), switched on and off along it (they start
 and stop), sharpened into ridges, with beads strung along them; the share of it grows with
@@ -67,8 +67,8 @@ def runnel_relief(points: np.ndarray, normals: np.ndarray, gravity, amplitude: f
     steep = np.sqrt(np.clip(1.0 - (normals @ g) ** 2, 0.0, 1.0))  # 0 on a level face, 1 on a vertical one
     # Waves across level directions, the same all the way down: on a wall they are streaks
     # down it, on a slope the vertical projection of the same pattern (longer the steeper).
-    # Local frames (across each normal's slope) turned too fast on a curved object: the
-    # bunny's coat came out furred.
+    # Local frames (across each normal's slope) turn too fast on a curved object: the
+    # bunny's coat comes out furred.
     e1, e2 = perpendicular_basis(g)
     v = points @ g  # down the slope
     waves = np.zeros(k)

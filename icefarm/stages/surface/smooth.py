@@ -2,7 +2,7 @@
 
 The coat's field is a patchwork of its surface samples' tangent planes (`coat_band`), two
 voxels apart: on a curved object the face it marches carries small kinks at that spacing.
-Seen close, the sky they reflect broke into ragged white flecks on the bunny's glaze (the
+Seen close, the sky they reflect breaks into ragged white flecks on the bunny's glaze (the
 close-up view at lookdev; the same flecks at 128 spp without a denoiser, none with the sky
 off): a few Taubin steps, which do not shrink the coat, turn them into smooth highlights.
 """
@@ -25,7 +25,7 @@ TAUBIN = (0.5, -0.53)
 # (their tips, ripples and bases keep their shape) and stay put.
 ICICLE_SHARE = 0.25
 # No coat vertex moves farther than this, in the coat's voxels (the kinks are up to about
-# a millimetre deep at 4 mm voxels: 10 steps moved the bunny's coat by 1.1 mm at the median),
+# a millimetre deep at 4 mm voxels: 10 steps move the bunny's coat by 1.1 mm at the median),
 # and none moves that lies closer than CLEAR voxels over the object: the coat's face stays
 # clear of it (`coat_band.TAPER_END`), and so does its hidden inner face.
 MAX_MOVE = 0.3
@@ -122,10 +122,10 @@ def smooth_glaze(vertices: np.ndarray, faces: np.ndarray, voxel: float, coat: Co
     if iterations <= 0 or len(faces) == 0 or not free.any():
         return vertices
     # trimesh's Taubin filter on the free vertices and their neighbours only (a 3 m house:
-    # 0.18 M of 1.36 M vertices move; the filter over the whole mesh took 0.31 s, over these 0.05 s), with the
+    # 0.18 M of 1.36 M vertices move; about six times faster than over the whole mesh), with the
     # equal-weight Laplacian of `trimesh.smoothing.laplacian_calculation` in which a pinned
     # vertex is its own only neighbour. (Built here: that one sizes its matrix by the largest
-    # vertex in the faces, and a pinned vertex past it aborted the process in scipy.)
+    # vertex in the faces, and a pinned vertex past it aborts the process in scipy.)
     sub = faces[face_any(free, faces)]
     edges = sub[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
     edges = edges[free[edges[:, 0]]]
