@@ -1,7 +1,7 @@
 """icefarm as a library: grow ice on a mesh, get typed results, write or render them.
 
 `grow` takes a `trimesh.Trimesh` (or a file, or ``generator:NAME``), a storm by name or by
-values and a seed, runs the job as ``icefarm run`` does (`icefarm.pipeline.run_job`: the
+values and a seed, runs the job as ``icefarm run`` does (`icefarm.job.pipeline.run_job`: the
 same stages, the same figures, the same errors) and returns an `Ice`: the ice mesh, the
 icicles with their roots, tips, lengths and axes, the storm's glaze per vertex of the
 object, and the figures of ``timings.json``. `write` turns an `Ice` into a job folder that
@@ -37,12 +37,12 @@ from . import artifacts
 from .errors import InputError, cannot_write
 from .generators import GENERATOR_PREFIX
 from .job import Stage, Step, run_stages
+from .job.cache import StageCache, digest, write_policy
+from .job.pipeline import Box, JobSpec, load_object, mesh_digest, run_job
 from .jobdir import DONE, ERROR, ICE, PARAMS, TIMINGS, TRAJECTORIES, JobState, clear_job, read_job, stage_phrase
 from .mesh import PreparedMesh
 from .params import Params, flatten, idle_keys, resolve
-from .pipeline import Box, JobSpec, load_object, mesh_digest, run_job
 from .placement import PLACEMENTS
-from .stage_cache import StageCache, digest, write_policy
 from .stages.trajectories import TrajectoryResult
 from .stages.trajectory_stats import measure_trajectories
 
@@ -195,7 +195,7 @@ def grow(mesh: MeshInput, *, size_m: float | None = None, storm: str | Mapping[s
          cache: str | os.PathLike[str] | None = None, progress: bool = False) -> Ice:
     """Grow icicles and glaze on ``mesh`` under a storm, as ``icefarm run --no-render`` does.
 
-    The job runs in a temporary folder (`icefarm.pipeline.run_job`: the same stages, cache
+    The job runs in a temporary folder (`icefarm.job.pipeline.run_job`: the same stages, cache
     keys, figures and failures as the command line) and is read back; nothing is left on
     disk. Write it with `write`, render it with `render`.
 
@@ -285,9 +285,9 @@ def job_spec(mesh: str | os.PathLike[str], *, size_m: float | None = None, storm
              kind: str = "freezing_rain", params: Mapping[str, Any] | None = None, seed: int = 0,
              placement: str = "ground", exclude: Sequence[tuple[Sequence[float], Sequence[float]]] = (),
              render: str | os.PathLike[str] | None = None, warn_stacklevel: int = 2) -> JobSpec:
-    """The `icefarm.pipeline.JobSpec` of a job on a file or a generator, its input checked
+    """The `icefarm.job.pipeline.JobSpec` of a job on a file or a generator, its input checked
     once, as `grow` checks it: for a caller that runs the job into a folder of its own
-    (`icefarm.pipeline.run_job`), as ``icefarm run`` does.
+    (`icefarm.job.pipeline.run_job`), as ``icefarm run`` does.
 
     Parameters
     ----------
@@ -498,7 +498,7 @@ def _glaze_thickness(spec: JobSpec, prepared: PreparedMesh, cache: StageCache) -
         return cache.get(step.name, key, missing) if key else missing()
 
     p = spec.params
-    try:  # the pipeline's mesh key (icefarm.pipeline.run_job), so the same entries are read
+    try:  # the pipeline's mesh key (icefarm.job.pipeline.run_job), so the same entries are read
         r = run_stages(prepared, p, spec.seed, placement=spec.placement, exclude=spec.exclude, until=Stage.WATER,
                        mesh_key=digest(mesh_digest(spec.mesh), spec.size_m, p.water.gravity), step=cached)
     except Missing:

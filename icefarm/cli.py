@@ -107,7 +107,7 @@ def run(mesh, size_m, assignments, seed, out, until, render, no_render, placemen
     """
     from .api import job_spec
     from .asset_io import missing_size
-    from .pipeline import GENERATOR_PREFIX, Stage, run_job
+    from .job.pipeline import GENERATOR_PREFIX, Stage, run_job
     from .progress import ProgressMode
 
     values = set_values(assignments)

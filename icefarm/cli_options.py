@@ -28,7 +28,7 @@ def readable_cache(cache: str | Path) -> Path:
     cache) is used read-only, said once on stderr; one that cannot be read is refused."""
     import click
 
-    from .stage_cache import StageCache
+    from .job.cache import StageCache
 
     cache = Path(cache)
     try:
@@ -49,8 +49,8 @@ def set_values(values: tuple[str, ...]) -> dict:
 
 
 def exclusion_box(text: str):
-    """``--exclude``'s six numbers as a `icefarm.pipeline.Box`."""
-    from .pipeline import Box
+    """``--exclude``'s six numbers as a `icefarm.job.pipeline.Box`."""
+    from .job.pipeline import Box
 
     try:
         v = [float(x) for x in text.split(",")]

@@ -2,7 +2,7 @@
 the records read back, in one place.
 
 Every name below is a constant of this module; other modules use the constants (a test, the
-layout test, holds them to at most three literals elsewhere). The pipeline (`icefarm.pipeline`)
+layout test, holds them to at most three literals elsewhere). The pipeline (`icefarm.job.pipeline`)
 writes a job's folder; the sweep, the report, the contact sheets, the exporters and the CLI
 read it back through `read_job`, `check_done`, `read_views` and `scan_sweep`.
 

@@ -119,7 +119,7 @@ class GroundIceParams:
 
 @dataclass(frozen=True)
 class GrowthParams:
-    """Growth over time (`icefarm.growth`)."""
+    """Growth over time (`icefarm.job.frames`)."""
 
     frames: int
 

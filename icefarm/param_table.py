@@ -328,7 +328,7 @@ PARAMS: tuple[Param, ...] = (
     _p("ground_ice", "width", "-", "m/m", _F, 0.35,
        "base radius a stalagmite adds per meter of its length (icicles: surface.growth_ratio); "
        "its top is twice the icicle's tip radius", low=0.0),
-    # Growth over time (beyond the paper; icefarm.growth)
+    # Growth over time (beyond the paper; icefarm.job.frames)
     _p("growth", "frames", "-", "-", _I, 0,
        "also render the ice at this many moments from the first drip to full growth, into "
        "growth/ (meshes, frames, an MP4, a time-sampled USD); 0: only the full growth",

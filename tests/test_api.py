@@ -144,7 +144,7 @@ def test_a_job_spec_for_the_command_line(tmp_path):
     (ValueError("a bug"), RuntimeError, "^job failed after stage prepare: ValueError: a bug"),
 ])
 def test_a_job_that_fails_inside_raises_its_error(raised, caught, message, monkeypatch):
-    from icefarm import pipeline
+    from icefarm.job import pipeline
 
     def fail(*args, **kwargs):
         raise raised

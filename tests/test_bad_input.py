@@ -18,8 +18,8 @@ from click.testing import CliRunner
 
 from icefarm import params
 from icefarm.cli import main
+from icefarm.job.pipeline import JobSpec, Stage, run_job
 from icefarm.mesh import prepare
-from icefarm.pipeline import JobSpec, Stage, run_job
 
 ICEFARM = Path(sys.executable).parent / "icefarm"
 MEMORY = 4 << 30  # address space of a command that must not expand a huge sweep

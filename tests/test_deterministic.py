@@ -82,7 +82,7 @@ def assert_same_render(a, b):
 
 
 def test_a_job_run_twice_writes_the_same_stage_files(tmp_path, ball, sweep_kit):
-    from icefarm.pipeline import JobSpec, Stage, run_job
+    from icefarm.job.pipeline import JobSpec, Stage, run_job
 
     spec = JobSpec("ball", str(ball), 0.3, params.resolve(quick(sweep_kit)), seed=5)
     for run in ("a", "b"):

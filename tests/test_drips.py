@@ -14,8 +14,8 @@ from icefarm import params
 from icefarm.generators import generate
 from icefarm.generators.fountain import lathe, resample_polyline
 from icefarm.geometry import sample_faces
+from icefarm.job.pipeline import JobSpec, Stage, run_job
 from icefarm.mesh import detect_problems, prepare
-from icefarm.pipeline import JobSpec, Stage, run_job
 from icefarm.stages.drips import drip_region, find_drips
 from icefarm.stages.proxy import ProxyMethod, build_proxy, proxy_reason
 from icefarm.stages.rims import drip_flux

@@ -24,8 +24,8 @@ from click.testing import CliRunner
 from icefarm import params
 from icefarm.cli import main
 from icefarm.export.usd import up_axis, write_job_usd, write_usdz
+from icefarm.job.pipeline import JobSpec, run_job
 from icefarm.jobdir import check_done
-from icefarm.pipeline import JobSpec, run_job
 from icefarm.scene.config import ABSORPTION_PER_M, render_config_from_dict
 from icefarm.scene.material import material_from_dict
 from icefarm.scene.write import write_scenes

@@ -17,8 +17,8 @@ from icefarm import params
 from icefarm.artifacts import atomic_write
 from icefarm.errors import CacheWarning
 from icefarm.farm.sweep import SweepOptions, run_sweep
-from icefarm.pipeline import JobSpec, Stage, run_job
-from icefarm.stage_cache import StageCache
+from icefarm.job.cache import StageCache
+from icefarm.job.pipeline import JobSpec, Stage, run_job
 
 pytestmark = pytest.mark.slow  # real processes, clusters and renders: `pytest -m "not slow"` skips them
 

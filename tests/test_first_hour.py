@@ -108,7 +108,7 @@ def test_a_sweep_over_the_icicles_look_without_an_ice_view_says_to_use_lookdev(t
 def test_run_reads_a_shared_cache_it_may_not_write(tmp_path, monkeypatch):
     import os
 
-    import icefarm.stage_cache as stage_cache
+    import icefarm.job.cache as stage_cache
 
     cache = tmp_path / "cache"
     first = run("run", "generator:sign", "--until", "water", "--cache", cache, "-o", tmp_path / "a")

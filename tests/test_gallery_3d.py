@@ -10,8 +10,8 @@ import pytest
 import trimesh
 
 from icefarm import params, sheets as S
-from icefarm.pipeline import JobSpec, run_job
-from icefarm.sheets.models import PREVIEW_FACES, model_viewer_js
+from icefarm.job.pipeline import JobSpec, run_job
+from icefarm.sheets.previews import PREVIEW_FACES, model_viewer_js
 
 
 @pytest.fixture(scope="module")

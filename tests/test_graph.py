@@ -11,8 +11,8 @@ import trimesh
 from icefarm import params
 from icefarm.bench.timings import stage_timings
 from icefarm.job import STEPS, JobInputs, Stage, run_graph, run_stages, step_keys
+from icefarm.job.pipeline import JobSpec, run_job
 from icefarm.mesh import prepare
-from icefarm.pipeline import JobSpec, run_job
 
 SMALL = {"water.rays": 1500, "drips.count": 6, "storm.max_icicles": 6, "glaze.mode": "none",
          "surface.voxel_size": 0.003}

@@ -1,4 +1,4 @@
-"""Growth over time (icefarm.growth): prefixes of the full growth, one seed, N frames."""
+"""Growth over time (icefarm.job.frames): prefixes of the full growth, one seed, N frames."""
 
 import json
 import subprocess
@@ -14,8 +14,8 @@ from icefarm import params as P
 from icefarm.artifacts import trajectories_from_json
 from icefarm.cli import main
 from icefarm.farm.manifest import load_manifest
-from icefarm.growth import read_frames
-from icefarm.pipeline import JobSpec, run_job
+from icefarm.job.frames import read_frames
+from icefarm.job.pipeline import JobSpec, run_job
 from icefarm.stages.drips import DripResult
 from icefarm.stages.growth import frame_fractions, stage4_inputs_at, trajectories_at
 from icefarm.stages.surface.icicles import icicle_balls

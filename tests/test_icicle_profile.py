@@ -131,7 +131,7 @@ def test_the_bunny_at_the_defaults_grows_carrots_not_straws(shared_mesh, tmp_pat
     import json
 
     from icefarm import params
-    from icefarm.pipeline import JobSpec, Stage, run_job
+    from icefarm.job.pipeline import JobSpec, Stage, run_job
 
     spec = JobSpec("bunny", str(shared_mesh("stanford-bunny.obj")), 0.3, params.resolve({"storm.mode": "relative"}),
                    seed=0)
@@ -155,7 +155,7 @@ def test_the_fountains_long_icicles_ripple_like_real_ones(tmp_path):
     import json
 
     from icefarm import params
-    from icefarm.pipeline import JobSpec, Stage, run_job
+    from icefarm.job.pipeline import JobSpec, Stage, run_job
 
     spec = JobSpec("fountain", "generator:fountain", 0.4,
                    params.resolve({"water.pools": "overflow"}), seed=0)

@@ -23,9 +23,9 @@ from icefarm.asset_io import asset_gravity, read_asset
 from icefarm.errors import InputError
 from icefarm.farm.manifest import load_manifest
 from icefarm.farm.points import parse_set
+from icefarm.job.cache import StageCache, write_policy
+from icefarm.job.pipeline import JobSpec, Stage, run_job
 from icefarm.jobdir import check_done
-from icefarm.pipeline import JobSpec, Stage, run_job
-from icefarm.stage_cache import StageCache, write_policy
 from icefarm.yaml_io import load_yaml
 
 

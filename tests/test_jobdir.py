@@ -18,8 +18,8 @@ def test_a_failure_between_steps_is_not_blamed_on_the_step_before(tmp_path, monk
     outside them: a bad render config (a manifest edited since) fails the job before its
     stages compute anything, as ``render config``, not as the stage before or after it."""
     from icefarm import params
+    from icefarm.job.pipeline import JobSpec, run_job
     from icefarm.jobdir import stage_phrase
-    from icefarm.pipeline import JobSpec, run_job
 
     assert stage_phrase("surface") == "in stage surface"
     assert stage_phrase("after measure") == "after stage measure"

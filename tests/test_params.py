@@ -10,7 +10,7 @@ import pytest
 
 from icefarm import params
 from icefarm.errors import InputError
-from icefarm.stage_cache import digest
+from icefarm.job.cache import digest
 
 
 def test_resolve_types_every_group_and_normalises_gravity_once():

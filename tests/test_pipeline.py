@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from icefarm import params
-from icefarm.pipeline import JobSpec, Stage, run_job
+from icefarm.job.pipeline import JobSpec, Stage, run_job
 
 
 def sphere_job(tmp_path, sphere, **values):
@@ -70,8 +70,8 @@ def test_cache_entries_round_trip_every_stage_result_without_pickle(tmp_path):
 
     from icefarm.generators import generate
     from icefarm.job import run_stages
+    from icefarm.job.codec import decode, encode
     from icefarm.mesh import prepare
-    from icefarm.stage_codec import decode, encode
 
     prepared = prepare(generate("roof"), 0.4)
     quick = {"surface.voxel_size": 0.006, "glaze.voxel_size": 0.024, "storm.max_icicles": 4, "storm.flow_edge": 0.05}
@@ -101,10 +101,10 @@ def test_cache_entries_round_trip_every_stage_result_without_pickle(tmp_path):
         same(result, decode(data))
     import pytest
 
-    from icefarm.stage_codec import _decode
+    from icefarm.job.codec import _decode
 
     for forged in ({"dataclass": "subprocess:Popen", "fields": {}}, {"enum": "os:system", "value": 1},
-                   {"dataclass": "icefarm.stage_codec:encode", "fields": {}}):
+                   {"dataclass": "icefarm.job.codec:encode", "fields": {}}):
         with pytest.raises(ValueError):
             _decode(forged, {})
 
@@ -113,7 +113,7 @@ def test_cache_entries_round_trip_every_stage_result_without_pickle(tmp_path):
 def test_freed_heap_goes_back_to_the_system_before_the_render():
     """Small temporaries freed between survivors stay mapped (the heap's top is not free, so
     glibc cannot shrink it); the pipeline hands their pages back before the render."""
-    from icefarm.job_render import return_freed_memory
+    from icefarm.job.render import return_freed_memory
 
     def resident_mb():
         return next(int(line.split()[1]) for line in open("/proc/self/status") if line.startswith("VmRSS")) / 1024

@@ -11,7 +11,7 @@ import trimesh
 from icefarm import params
 from icefarm.errors import InputError
 from icefarm.farm.manifest import load_manifest
-from icefarm.pipeline import JobSpec, Stage, run_job
+from icefarm.job.pipeline import JobSpec, Stage, run_job
 from icefarm.placement import ground_height, sole_vertices, stop_at_ground
 from icefarm.stages.trajectories import TrajectoryResult
 

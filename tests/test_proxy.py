@@ -10,8 +10,8 @@ import trimesh
 
 from icefarm import params
 from icefarm.errors import InputError
+from icefarm.job.pipeline import JobSpec, Stage, run_job
 from icefarm.mesh import detect_problems, prepare
-from icefarm.pipeline import JobSpec, Stage, run_job
 from icefarm.stages.proxy import ProxyMethod, boundary_loops, build_proxy, drop_voids, proxy_reason, snap_to_surface
 
 SHARED_MESHES = Path(__file__).resolve().parents[1].parent / "shared" / "meshes"

@@ -6,7 +6,7 @@ import pytest
 
 from icefarm import params
 from icefarm.export import meshed_coarser
-from icefarm.pipeline import JobSpec, Stage, run_job
+from icefarm.job.pipeline import JobSpec, Stage, run_job
 from icefarm.scene.config import load_render_config
 from icefarm.stages.surface.detail import VIEW_PX, VIEW_PX_HIGH, view_surface
 
@@ -47,8 +47,8 @@ def test_a_preview_job_meshes_fewer_faces_records_its_view_and_lookdev_says_so(t
 
 def test_a_deferred_render_finishes_the_job_elsewhere_and_only_once(tmp_path, ball, sweep_kit):
     from icefarm.errors import InputError
+    from icefarm.job.pipeline import finish_render
     from icefarm.jobdir import JobState, job_state
-    from icefarm.pipeline import finish_render
 
     p = params.resolve({**sweep_kit.fast, "storm": {"max_icicles": 4}, "surface": {"voxel_size": 0.004}})
     spec = JobSpec("ball", str(ball), 0.3, p, seed=3, render=str(sweep_kit.tiny_render(tmp_path)))
@@ -70,6 +70,6 @@ def test_a_deferred_render_finishes_the_job_elsewhere_and_only_once(tmp_path, ba
     assert (job / "done.json").read_bytes() == before and not (job / "error.json").exists()
     # growth frames render inside stage 4: such a job runs whole
     growing = JobSpec("ball", str(ball), 0.3, p.updated({"growth.frames": 2}), seed=3, render=spec.render)
-    from icefarm.pipeline import renders_apart
+    from icefarm.job.pipeline import renders_apart
 
     assert renders_apart(spec) and not renders_apart(growing) and not renders_apart(spec, Stage.SURFACE)

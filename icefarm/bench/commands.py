@@ -108,7 +108,7 @@ def bench_render(mesh, size_m, drips, render, repeat, assignments):
     """
     from tqdm import tqdm
 
-    from ..pipeline import GENERATOR_PREFIX
+    from ..job.pipeline import GENERATOR_PREFIX
     from .timings import peak_memory_gb, render_timings
 
     if not mesh.startswith(GENERATOR_PREFIX) and not Path(mesh).is_file():
@@ -157,7 +157,7 @@ def bench_job(mesh, size_m, render, repeat, assignments):
     from tqdm import tqdm
 
     from ..asset_io import missing_size, with_asset_gravity
-    from ..pipeline import GENERATOR_PREFIX
+    from ..job.pipeline import GENERATOR_PREFIX
     from .timings import job_timings, peak_memory_gb
 
     if not mesh.startswith(GENERATOR_PREFIX) and not Path(mesh).is_file():
@@ -223,7 +223,7 @@ def bench_growth(mesh, size_m, drips, frames, render, assignments):
     Runs one job with FRAMES growth frames (stages 1-3 once; stage 4 and a render per
     frame) and prints the median frame's stage 4 and render next to the job's own.
     """
-    from ..pipeline import GENERATOR_PREFIX
+    from ..job.pipeline import GENERATOR_PREFIX
     from .timings import growth_timings
 
     if not mesh.startswith(GENERATOR_PREFIX) and not Path(mesh).is_file():

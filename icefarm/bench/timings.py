@@ -125,7 +125,7 @@ def render_timings(mesh: str, size_m: float, p: dict, render_config: str, repeat
     render_config : str
         Render config name or YAML path.
     """
-    from ..pipeline import GENERATOR_PREFIX, JobSpec, run_job
+    from ..job.pipeline import GENERATOR_PREFIX, JobSpec, run_job
     from ..scene.config import load_render_config
     from ..scene.render import render_job
 
@@ -183,7 +183,7 @@ def job_timings(mesh: str, size_m: float | None, p: Params, render_config: str |
     """Run a whole job ``repeat`` times in scratch folders, without a stage cache, as
     ``icefarm run`` does (``size_m`` None: the size a real-size generator or a USD file
     carries; ``render_config`` None: no render)."""
-    from ..pipeline import GENERATOR_PREFIX, JobSpec, run_job
+    from ..job.pipeline import GENERATOR_PREFIX, JobSpec, run_job
 
     if not mesh.startswith(GENERATOR_PREFIX):
         mesh = str(Path(mesh).resolve())
@@ -244,8 +244,8 @@ def growth_timings(mesh: str, size_m: float, p: Params, render_config: str | Non
                    seed: int = 0) -> GrowthRuns:
     """Run one job with ``frames`` growth frames in a scratch folder and time its frames
     against the job's own stage 4 and render (``p``: the resolved parameters)."""
-    from ..growth import read_frames
-    from ..pipeline import GENERATOR_PREFIX, JobSpec, run_job
+    from ..job.frames import read_frames
+    from ..job.pipeline import GENERATOR_PREFIX, JobSpec, run_job
 
     if not mesh.startswith(GENERATOR_PREFIX):
         mesh = str(Path(mesh).resolve())

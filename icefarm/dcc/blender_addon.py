@@ -85,7 +85,7 @@ TINT_DISTANCE_M = 0.1
 # As icefarm.mesh.LEVEL_FRACTION: an object whose height is under this fraction of its
 # largest extent lies flat, and icefarm reads size_m as that extent.
 LEVEL_FRACTION = 1e-4
-# A job's steps (icefarm.pipeline) and their rough share of its time, from an icefarm run
+# A job's steps (icefarm.job.pipeline) and their rough share of its time, from an icefarm run
 # on a 1 m cube and a 0.3 m bunny: the surface (meshing the ice) and a render dominate.
 STEP_WEIGHTS = {"prepare": 1, "proxy": 1, "water": 2, "drips": 1, "trajectories": 1, "surface": 8, "measure": 2}
 RENDER_STEP_WEIGHTS = {"render": 10, "usd": 1}

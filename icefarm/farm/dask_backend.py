@@ -224,7 +224,7 @@ def run_dask(tasks: Sequence[Task], *, workers: int, on_outcome: OnOutcome,
     a LocalCluster of ``workers`` single-threaded worker processes started (and stopped) here.
 
     Where the cluster has workers that declare `RENDER_RESOURCE`, each job with a render runs
-    in two tasks: its stages on the other workers, its render (`icefarm.pipeline.finish_render`)
+    in two tasks: its stages on the other workers, its render (`icefarm.job.pipeline.finish_render`)
     on a render worker, which starts it as soon as the stages are done.
 
     The workers must import icefarm and see the sweep folder at the same path (one machine, or
@@ -238,7 +238,7 @@ def run_dask(tasks: Sequence[Task], *, workers: int, on_outcome: OnOutcome,
     from distributed import as_completed
     from distributed.scheduler import KilledWorker
 
-    from ..pipeline import Stage, renders_apart
+    from ..job.pipeline import Stage, renders_apart
 
     threads = threads_per_worker(workers) if scheduler is None else None
     run = uuid.uuid4().hex[:8]

@@ -109,7 +109,7 @@ SOURCE_KEY = "water.source"
 
 
 def source_path(source: str, mesh: str) -> Path:
-    """Where a job looks for its ``water.source`` mesh (as `icefarm.pipeline` does):
+    """Where a job looks for its ``water.source`` mesh (as `icefarm.job.pipeline` does):
     a relative path is taken from the mesh file's folder (for a generator: the working folder)."""
     path = Path(source).expanduser()
     if not path.is_absolute() and not mesh.startswith(GENERATOR_PREFIX):

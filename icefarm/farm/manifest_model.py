@@ -72,7 +72,7 @@ class ObjectSpec:
     params : dict
         Flat ``{"group.name": value}``, validated; over the manifest's defaults.
     exclude : tuple of Box
-        Where no icicle may hang (`icefarm.pipeline.Box`), in meters, object frame.
+        Where no icicle may hang (`icefarm.job.pipeline.Box`), in meters, object frame.
     overrides : tuple
         ``((stage, absolute path), ...)`` files replacing a stage's result.
     material : Material or None

@@ -187,7 +187,7 @@ def _vec3(value: Any) -> tuple[float, float, float] | None:
 
 def _exclude(value: Any, where: str, errors: list[str]) -> tuple:
     """`Box` es, given as ``{min: [x, y, z], max: [x, y, z]}`` or ``[[xmin, ymin, zmin], [xmax, ymax, zmax]]``."""
-    from ..pipeline import Box
+    from ..job.pipeline import Box
 
     if value is None:
         return ()

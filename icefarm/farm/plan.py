@@ -27,7 +27,7 @@ class PlannedJob:
 
     Attributes
     ----------
-    spec : icefarm.pipeline.JobSpec
+    spec : icefarm.job.pipeline.JobSpec
     job_id : str
         ``pipeline.job_id(spec)``; the job's folder name.
     object_id : str
@@ -104,7 +104,7 @@ def plan_jobs(manifest: Manifest, render: bool = True) -> tuple[tuple[PlannedJob
     InputError
         A sweep point puts a parameter out of its domain together with the others.
     """
-    from ..pipeline import JobSpec, job_id
+    from ..job.pipeline import JobSpec, job_id
 
     points = expand(manifest.sweep, manifest.seed)
     keys = swept_keys(manifest.sweep)

@@ -339,7 +339,7 @@ def _open_folder(sweep_dir: Path, manifest: Manifest, jobs: Sequence[PlannedJob]
         shutil.rmtree(running, ignore_errors=True)  # markers of an earlier run that was stopped
         running.mkdir(parents=True, exist_ok=True)
         if cache_dir is not None:
-            from ..stage_cache import write_policy
+            from ..job.cache import write_policy
 
             if not write_policy(cache_dir, private_stages(jobs)):
                 note(f"the stage cache {cache_dir} is read-only: its results are reused, "

@@ -31,7 +31,7 @@ class Task:
 
     Attributes
     ----------
-    spec : icefarm.pipeline.JobSpec
+    spec : icefarm.job.pipeline.JobSpec
     job_id, object_id : str
     job_dir : str
         Folder the job writes; emptied before each attempt.
@@ -89,7 +89,7 @@ def attempts_started(task: Task) -> int:
 
 def failed_outcome(message: str, stage: str | None = None, trace: str = ""):
     """A `JobOutcome` for a job that the farm, not the pipeline, saw fail."""
-    from ..pipeline import JobOutcome
+    from ..job.pipeline import JobOutcome
 
     return JobOutcome(status=JobState.FAILED, seconds={}, reused=(), failed_stage=stage,
                       error=message + ("\n" + trace if trace else ""))
@@ -105,7 +105,7 @@ def write_error(job_dir: str | Path, message: str, stage: str | None = None, tra
 
 def execute(task: Task, defer_render: bool = False) -> tuple[Any, int]:
     """Run one job in this worker process; with ``defer_render``, its stages only when its
-    render can run apart (`icefarm.pipeline.renders_apart`: status ``pending`` until
+    render can run apart (`icefarm.job.pipeline.renders_apart`: status ``pending`` until
     `execute_render`).
 
     Returns
@@ -124,7 +124,7 @@ def execute(task: Task, defer_render: bool = False) -> tuple[Any, int]:
         shutil.rmtree(job_dir)
     job_dir.mkdir(parents=True)
     try:
-        from .. import pipeline
+        from ..job import pipeline
 
         if task.spec.render is not None and task.threads and not defer_render:
             _render_threads(task.threads)
@@ -151,7 +151,7 @@ def execute_render(task: Task, geometry: tuple[Any, int]) -> tuple[Any, int]:
     if outcome.status is not JobState.PENDING:
         return outcome, attempt
     try:
-        from .. import pipeline
+        from ..job import pipeline
 
         if task.threads:
             _render_threads(task.threads)

@@ -1,8 +1,11 @@
-"""A job's steps as one declared graph and the one runner that runs it.
+"""One job: its steps as one declared graph, the one runner that runs it, and the job around it.
 
 `graph` declares each step once (`STEPS`); `work` holds what each computes, `figures` what
 each writes and reports; `runner` runs the graph for a job, a sweep worker, the benchmarks,
-Table 2, growth frames and the tests. Loaded on first use (`lazy_loader`).
+Table 2, growth frames and the tests. `pipeline` runs a whole job into its folder
+(`run_job`: the graph through `cache` and `codec`, then `render` and the growth `frames`).
+The folder's contract (`icefarm.jobdir`, `icefarm.artifacts`) lies below this package:
+every package reads job folders. Loaded on first use (`lazy_loader`).
 """
 
 import lazy_loader as _lazy

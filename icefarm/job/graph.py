@@ -14,8 +14,8 @@ from pathlib import Path
 from typing import Any
 
 from ..params import Params
-from ..stage_cache import digest, file_digest
 from . import figures, work
+from .cache import digest, file_digest
 from .records import JobInputs, Stage, StageResults
 
 

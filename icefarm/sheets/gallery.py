@@ -14,7 +14,7 @@ from .. import jobdir as jd, params as P
 from ..artifacts import atomic_write
 from .labels import assignment, axis_title, canonical, fixed_changes, format_value, short_name, varying_keys
 from .model import SHEETS_DIR, JobInfo, JobState, RunInfo, SheetResult
-from .models import model_id, write_models
+from .previews import model_id, write_models
 from .read import scan_run
 
 # gallery
@@ -244,7 +244,7 @@ def write_gallery(run_dir: Path, sheets: list[SheetResult]) -> Path:
     message. Links are relative, nothing is fetched from elsewhere, so the page works from
     disk. On load a small inline script sets ``data-missing-images`` on ``<body>`` to the
     count of images that failed to load. Each job that rendered gets an "orbit in 3D"
-    button: ``<model-viewer>`` with a light GLB of the job (`icefarm.sheets.models`);
+    button: ``<model-viewer>`` with a light GLB of the job (`icefarm.sheets.previews`);
     ``#3d=<object>-<job>`` in the address opens one.
 
     Returns

@@ -77,7 +77,7 @@ def drip_criterion(normals: np.ndarray, gravity: np.ndarray, drip_limit: float) 
 
 def excluded_vertices(vertices: np.ndarray, boxes=()) -> np.ndarray:
     """``(n,) bool``: vertices inside any box ``((xmin, ymin, zmin), (xmax, ymax, zmax))`` (a job's
-    `icefarm.pipeline.Box` is such a pair)."""
+    `icefarm.job.pipeline.Box` is such a pair)."""
     inside = np.zeros(len(vertices), dtype=bool)
     for lo, hi in boxes:
         inside |= np.all((vertices >= np.asarray(lo)) & (vertices <= np.asarray(hi)), axis=1)

@@ -1,5 +1,5 @@
 """Growth over time, the pure part: a job's stage 1-3 results as they stood at a fraction of
-their growth, and the water-driven sizes of stage 4 then (`icefarm.growth` runs the frames,
+their growth, and the water-driven sizes of stage 4 then (`icefarm.job.frames` runs the frames,
 writes and renders them).
 
 Each frame is a prefix of the full growth, so every frame's trajectories are prefixes of the

@@ -4,7 +4,7 @@ process (or its driver) while it is inside a job.
 Python imports ``sitecustomize`` at start-up from the first folder of ``sys.path`` that has
 one, so every process started with this folder on ``PYTHONPATH`` runs this file: the driver,
 the spawned workers of the local pool, and the Dask scheduler, nannies and workers. Tests get
-that environment from `pause_env`. In such a process, once `icefarm.pipeline` is imported,
+that environment from `pause_env`. In such a process, once `icefarm.job.pipeline` is imported,
 its ``run_job`` is wrapped: a job of object ``OBJECT_ID`` first touches ``<paused>/<pid>``
 (when a folder is given), the event a test waits on, then sleeps ``SECONDS`` and runs. The
 farm's worker looks ``pipeline.run_job`` up when it runs a job, so it calls the wrapper.
@@ -25,7 +25,7 @@ from pathlib import Path
 PAUSE_ENV = "ICEFARM_FARM_TEST_PAUSE"  # OBJECT_ID=SECONDS
 PAUSED_ENV = "ICEFARM_FARM_TEST_PAUSED_DIR"  # where a paused worker touches a file named by its pid
 HOOKS = Path(__file__).resolve().parent
-TARGET = "icefarm.pipeline"
+TARGET = "icefarm.job.pipeline"
 
 
 def pause_env(object_id: str, seconds: float, paused: Path | None = None) -> dict[str, str]:
@@ -54,7 +54,7 @@ def _pausing(run_job):
 
 
 class _WrapOnImport(importlib.abc.MetaPathFinder):
-    """Finds `icefarm.pipeline` as the normal path finder does, and wraps its ``run_job``
+    """Finds `icefarm.job.pipeline` as the normal path finder does, and wraps its ``run_job``
     right after the module ran."""
 
     def find_spec(self, name, path, target=None):

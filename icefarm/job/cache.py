@@ -1,4 +1,4 @@
-"""The stage cache: stage results (`icefarm.stage_codec`: arrays and JSON, no pickle) under
+"""The stage cache: stage results (`icefarm.job.codec`: arrays and JSON, no pickle) under
 keys hashed from their inputs.
 
 A job's stage results are stored under a digest of everything the stage reads (inputs,
@@ -18,8 +18,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from . import artifacts, jobdir
-from .stage_codec import Unencodable, decode, encode
+from .. import artifacts, jobdir
+from .codec import Unencodable, decode, encode
 
 READ_ONLY = (errno.EACCES, errno.EPERM, errno.EROFS)  # a write refused: the cache is read, not written
 
@@ -98,7 +98,7 @@ class StageCache:
     def code_version(cls) -> str:
         """Hash of icefarm's version and of every source file of the package (12 hex digits)."""
         if cls._code is None:
-            from . import __version__
+            from .. import __version__
 
             h = hashlib.sha256(__version__.encode())
             package = Path(__file__).resolve().parent
@@ -137,7 +137,7 @@ class StageCache:
         """``(True, value)`` for an intact entry; a damaged one is deleted: ``(False, None)``."""
         import warnings
 
-        from .errors import CacheWarning
+        from ..errors import CacheWarning
 
         try:
             data = path.read_bytes()

@@ -1,8 +1,8 @@
 """A job's render step: its object and ice as a scene, rendered with its render config, and
 the USD scene for DCCs.
 
-`icefarm.pipeline.run_job` runs it after the surface stage; on a farm whose renders go to
-GPU workers, `icefarm.pipeline.finish_render` runs it on its own from the job's files.
+`icefarm.job.pipeline.run_job` runs it after the surface stage; on a farm whose renders go to
+GPU workers, `icefarm.job.pipeline.finish_render` runs it on its own from the job's files.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 import trimesh
 
-from .placement import ground_height
+from ..placement import ground_height
 
 Timed = Callable[[str, Callable[[], Any]], Any]  # timed(step, work): runs and times one step
 
@@ -38,7 +38,7 @@ def return_freed_memory() -> None:
 
 def render_step(spec, job_dir: Path, obj: trimesh.Trimesh, ice_mesh: trimesh.Trimesh | None,
                 icicle_axes: np.ndarray | None, timed: Timed, progress: bool) -> dict:
-    """Render ``spec``'s job (an `icefarm.pipeline.JobSpec` with a render config) into
+    """Render ``spec``'s job (an `icefarm.job.pipeline.JobSpec` with a render config) into
     ``job_dir`` and write its USD scene; the figures of the render for ``timings.json``.
 
     Parameters
@@ -54,9 +54,9 @@ def render_step(spec, job_dir: Path, obj: trimesh.Trimesh, ice_mesh: trimesh.Tri
     progress : bool
         Bars over the render's samples.
     """
-    from .scene.config import load_render_config
-    from .scene.render import render_job
-    from .scene.write import job_scene
+    from ..scene.config import load_render_config
+    from ..scene.render import render_job
+    from ..scene.write import job_scene
 
     gravity = spec.params.gravity
 
@@ -82,7 +82,7 @@ def render_step(spec, job_dir: Path, obj: trimesh.Trimesh, ice_mesh: trimesh.Tri
                  scene_write_seconds=result.write_seconds, scene_load_seconds=result.load_seconds,
                  scene_wait_seconds=result.wait_seconds,
                  povray_write_cpu_seconds=result.povray_write_cpu_seconds)
-    from .export.usd import write_job_usd
+    from ..export.usd import write_job_usd
 
     # scene.usda (object.usdc, ice.usdc) for DCCs: the render's cameras, sun, sky, materials.
     timed("usd", lambda: write_job_usd(job_dir, material=material, ice_mesh=ice_mesh,

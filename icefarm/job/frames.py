@@ -24,10 +24,10 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from . import artifacts
-from .export.growth_usd import write_growth_usd
-from .geometry import arc_lengths
-from .jobdir import (
+from .. import artifacts
+from ..export.growth_usd import write_growth_usd
+from ..geometry import arc_lengths
+from ..jobdir import (
     FRAMES,
     GROWTH_MP4,
     GROWTH_SCRATCH,
@@ -38,11 +38,11 @@ from .jobdir import (
     growth_frame,
     growth_ice,
 )
-from .params import GlazeParams, SurfaceParams
-from .scene.write import JobScene
-from .stages.drips import DripResult
-from .stages.growth import frame_fractions, noise_draws, stage4_inputs_at, trajectories_at
-from .stages.trajectories import TrajectoryResult
+from ..params import GlazeParams, SurfaceParams
+from ..scene.write import JobScene
+from ..stages.drips import DripResult
+from ..stages.growth import frame_fractions, noise_draws, stage4_inputs_at, trajectories_at
+from ..stages.trajectories import TrajectoryResult
 
 # The movie lasts about this long, at 1 to 24 frames per second.
 MOVIE_SECONDS = 3.0
@@ -158,7 +158,7 @@ def grow_frames(folder: str | Path, growing: Growing, *, build: Callable,
     """
     from tqdm import tqdm
 
-    from .stages.surface import measure_icicles
+    from ..stages.surface import measure_icicles
 
     traj, drips, surface, glaze, frames = growing.traj, growing.drips, growing.surface, growing.glaze, growing.frames
     folder = Path(folder)
@@ -216,7 +216,7 @@ def render_frame(view: FrameView, ice: trimesh.Trimesh, scratch: Path, png: Path
     densest icicles of each frame: its camera would move), with Mitsuba when the config
     uses it (POV-Ray otherwise), at the config's resolution and samples.
     """
-    from .scene.render import render_job
+    from ..scene.render import render_job
 
     config = view.config
     main = dataclasses.replace(config.views[0], frame="all")

@@ -18,14 +18,12 @@ from typing import Any, NamedTuple
 
 import trimesh
 
-from . import artifacts
-from .artifacts import read_ice_mesh, trajectories_from_json
-from .asset_io import USD_SUFFIXES
-from .errors import InputError, cannot_write
-from .generators import GENERATOR_PREFIX
-from .job import JobInputs, Stage, StageResults, Step, build_surface, ice_mesh, run_graph, stage_rng, stops
-from .job_render import render_step
-from .jobdir import (
+from .. import artifacts
+from ..artifacts import read_ice_mesh, trajectories_from_json
+from ..asset_io import USD_SUFFIXES
+from ..errors import InputError, cannot_write
+from ..generators import GENERATOR_PREFIX
+from ..jobdir import (
     DONE,
     ERROR,
     GROWTH_DIR,
@@ -40,11 +38,13 @@ from .jobdir import (
     job_state,
     read_json,
 )
-from .mesh import PreparedMesh, prepare
-from .params import Params
-from .progress import ProgressMode, StepProgress, step_progress
-from .scene.material import Material
-from .stage_cache import StageCache, digest as _digest, file_digest as _file_digest
+from ..mesh import PreparedMesh, prepare
+from ..params import Params
+from ..progress import ProgressMode, StepProgress, step_progress
+from ..scene.material import Material
+from . import JobInputs, Stage, StageResults, Step, build_surface, ice_mesh, run_graph, stage_rng, stops
+from .cache import StageCache, digest as _digest, file_digest as _file_digest
+from .render import render_step
 
 
 class Box(NamedTuple):
@@ -98,7 +98,7 @@ def render_digest(render: str | None) -> str:
     """Hash of the resolved render config, so editing a config file changes job ids."""
     if render is None:
         return "none"
-    from .scene.config import load_render_config, render_config_to_dict
+    from ..scene.config import load_render_config, render_config_to_dict
 
     return _digest(render_config_to_dict(load_render_config(render)))
 
@@ -117,7 +117,7 @@ def load_object(spec: JobSpec) -> PreparedMesh:
     """The job's mesh, cleaned and in meters (without ``size_m``: at the size it carries)."""
     gravity = spec.params.water.gravity
     if spec.mesh.startswith(GENERATOR_PREFIX):
-        from .generators import generate, natural_size
+        from ..generators import generate, natural_size
 
         name = spec.mesh[len(GENERATOR_PREFIX):]
         size = spec.size_m if spec.size_m is not None else natural_size(name)
@@ -288,12 +288,12 @@ def meshing_params(spec: JobSpec) -> tuple[Params, dict]:
     that record it: a render config smaller than lookdev's scales ``surface.face_budget``
     and ``surface.error_px`` to its view (`icefarm.stages.surface.detail.view_surface`); a
     job without a render meshes for lookdev. ``params.yaml`` keeps the values as set."""
-    from .stages.surface import VIEW_PX, meshing_view, view_surface
+    from ..stages.surface import VIEW_PX, meshing_view, view_surface
 
     p = spec.params
     resolution, close_up = None, False
     if spec.render is not None:
-        from .scene.config import load_render_config
+        from ..scene.config import load_render_config
 
         config = load_render_config(spec.render)
         resolution, close_up = config.resolution, any(v.frame == "ice" for v in config.views)
@@ -334,7 +334,7 @@ def _run_stages(spec: JobSpec, job_dir: Path, run: _Run, cache: StageCache, unti
         stats.update(render_step(spec, job_dir, r.mesh, ice_mesh(r), r.trajectories.points, run.timed,
                                  run.progress))
     if Path(spec.mesh).suffix.lower() in USD_SUFFIXES:  # rendered or not: the ice over the asset's file
-        from .export.ice_layer import write_ice_layer
+        from ..export.ice_layer import write_ice_layer
 
         try:
             run.timed("ice_layer", lambda: write_ice_layer(job_dir, spec.mesh, scale=prepared.scale,
@@ -347,16 +347,16 @@ def _run_stages(spec: JobSpec, job_dir: Path, run: _Run, cache: StageCache, unti
 
 
 def _growth(spec: JobSpec, job_dir: Path, run: _Run, inputs: JobInputs, r: StageResults) -> dict:
-    """``growth/``: the ice at ``growth.frames`` moments of its growth (`icefarm.growth`),
+    """``growth/``: the ice at ``growth.frames`` moments of its growth (`icefarm.job.frames`),
     rendered with the job's camera: the one framed on the full-grown ice."""
-    from .growth import FrameView, Growing, grow_frames
+    from .frames import FrameView, Growing, grow_frames
 
     p, gravity = inputs.params, inputs.gravity
     assert r.drips is not None and r.trajectories is not None  # the graph reached stage 4
     view = None
     if spec.render is not None:
-        from .scene.config import load_render_config
-        from .scene.write import job_scene
+        from ..scene.config import load_render_config
+        from ..scene.write import job_scene
 
         full = trimesh.load(job_dir / ICE, process=False, force="mesh")
         assert isinstance(full, trimesh.Trimesh)  # what force="mesh" loads
