@@ -34,8 +34,8 @@ from .yaml_io import load_yaml
 
 __all__ = ["GROUPS", "PARAMS", "DripsParams", "GlazeParams", "GroundIceParams", "GrowthParams", "Kind", "Param",
            "Params", "ProxyParams", "StormParams", "SurfaceParams", "TrajectoriesParams", "WaterParams", "defaults",
-           "flatten", "group_type", "lookup", "idle_keys", "param_index", "parse_assignment", "parse_value", "resolve",
-           "table", "typed"]
+           "flatten", "group_type", "lookup", "idle_keys", "param_index", "parse_assignment", "parse_assignments",
+           "parse_value", "resolve", "table", "typed"]
 
 
 GROUPS: tuple[str, ...] = ("storm", "water", "drips", "trajectories", "surface", "glaze", "ground_ice", "growth",
@@ -239,6 +239,11 @@ def parse_assignment(text: str) -> tuple[str, Any]:
     if not sep or not key.strip():
         raise InputError(f"expected group.param=value, got {text!r}")
     return lookup(key.strip()).key, parse_value(raw.strip())
+
+
+def parse_assignments(values: Iterable[str]) -> dict[str, Any]:
+    """``--set GROUP.PARAM=VALUE`` pairs as ``{"group.param": value}``."""
+    return dict(parse_assignment(v) for v in values)
 
 
 def table() -> list[dict[str, Any]]:

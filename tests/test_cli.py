@@ -247,7 +247,7 @@ def test_run_says_what_the_storm_did_and_warns_when_little_shows(tmp_path):
 def test_the_summary_says_when_the_face_budget_left_the_ripples_off(capsys):
     """A big asset's thick icicles, meshed on the budget's coarse lattice, carry no ripple:
     the run says so and how to keep them, rather than only "none above the noise"."""
-    from icefarm.cli_summary import print_job_summary
+    from icefarm.cli.summary import print_job_summary
 
     timings = {"ice_faces": 10, "icicles": 2, "tip_radius_mm": 2.4, "ripple_amplitude_mm": None,
                "ripple_wavelength_cm": None}
@@ -261,7 +261,7 @@ def test_the_summary_says_when_the_face_budget_left_the_ripples_off(capsys):
 def test_the_summary_hints_at_overflow_when_much_water_stands_in_basins(capsys):
     """A fountain under the defaults keeps 27 % of its water in its bowls: the run says how to
     let full basins spill, and says nothing once they do or when little pools."""
-    from icefarm.cli_summary import print_storm
+    from icefarm.cli.summary import print_storm
 
     timings = {"storm_kind": "freezing_rain", "storm_intensity": "moderate", "precipitation_mm": 37.0,
                "storm_glaze_p50_mm": 18.1, "icicles": 103, "icicles_per_m": 34.0, "water_frozen": 0.67,

@@ -10,7 +10,7 @@ from click.testing import CliRunner
 from icefarm import params
 from icefarm.asset_io import size_hint
 from icefarm.cli import main
-from icefarm.cli_summary import verdict
+from icefarm.cli.summary import verdict
 
 
 def run(*args):
@@ -88,7 +88,7 @@ def test_a_figure_outside_its_real_range_says_which_knob_moves_it(key, value, wo
 
 
 def test_render_again_defaults_to_lookdev_not_a_ten_minute_final():
-    from icefarm.cli import render_command
+    from icefarm.cli.main import render_command
 
     option = next(p for p in render_command.params if p.name == "render")
     assert option.default == "lookdev"

@@ -9,7 +9,6 @@ from pathlib import Path
 import click
 
 from .. import params
-from ..cli_options import set_values
 from ..errors import InputError
 
 # The options the benchmarks share.
@@ -45,7 +44,7 @@ def bench_stages(mesh, size_m, drips, repeat, assignments, surface):
     """Median seconds per stage on MESH (mesh loading excluded; the BVH build counts in water)."""
     from .timings import peak_memory_gb, stage_timings
 
-    values = {"drips.count": drips, **set_values(assignments)}
+    values = {"drips.count": drips, **params.parse_assignments(assignments)}
     runs = stage_timings(mesh, size_m, params.resolve(values), repeat, surface)
     click.echo(f"{mesh}: {runs.faces} faces, {runs.icicles} icicles, {repeat} runs (median, min)")
     for stage, samples in runs.seconds.items():
@@ -81,7 +80,7 @@ def bench_proxy(mesh, size_m, repeat, assignments):
     from ..mesh import prepare
     from ..stages.proxy import build_proxy
 
-    p = params.resolve({"proxy.mode": "always", **set_values(assignments)})
+    p = params.resolve({"proxy.mode": "always", **params.parse_assignments(assignments)})
     prepared = prepare(mesh, size_m, p.water.gravity)
     runs = [build_proxy(prepared.mesh, p.proxy, prepared.problems) for _ in range(repeat)]
     click.echo(f"{mesh}: {prepared.problems.faces} faces, {prepared.problems.components} components")
@@ -113,7 +112,7 @@ def bench_render(mesh, size_m, drips, render, repeat, assignments):
 
     if not mesh.startswith(GENERATOR_PREFIX) and not Path(mesh).is_file():
         raise InputError(f"mesh file not found: {mesh}")
-    p = params.resolve({"drips.count": drips, **set_values(assignments)})
+    p = params.resolve({"drips.count": drips, **params.parse_assignments(assignments)})
     with tqdm(total=repeat + 1, desc="render jobs", unit="job", leave=False) as bar:
         runs = render_timings(mesh, size_m, p, render, repeat, on_run=bar.update)
     med = statistics.median
@@ -164,7 +163,7 @@ def bench_job(mesh, size_m, render, repeat, assignments):
         raise InputError(f"mesh file not found: {mesh}")
     if size_m is None and (why := missing_size(mesh)):
         raise InputError(f"{why}: pass the object's real height in meters with --size-m")
-    p = params.resolve(with_asset_gravity(mesh, set_values(assignments)))
+    p = params.resolve(with_asset_gravity(mesh, params.parse_assignments(assignments)))
     with tqdm(total=repeat, desc="jobs", unit="job", leave=False) as bar:
         runs = job_timings(mesh, size_m, p, None if render == "none" else render, repeat, on_run=bar.update)
     med = statistics.median
@@ -228,7 +227,7 @@ def bench_growth(mesh, size_m, drips, frames, render, assignments):
 
     if not mesh.startswith(GENERATOR_PREFIX) and not Path(mesh).is_file():
         raise InputError(f"mesh file not found: {mesh}")
-    p = params.resolve({"drips.count": drips, **set_values(assignments)})
+    p = params.resolve({"drips.count": drips, **params.parse_assignments(assignments)})
     runs = growth_timings(mesh, size_m, p, None if render == "none" else render, frames)
     med = statistics.median
     per_frame = [s + r for s, r in zip(runs.frame_surface, runs.frame_render)]

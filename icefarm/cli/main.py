@@ -10,12 +10,10 @@ from pathlib import Path
 
 import click
 
-from . import __version__, params
-from .bench.commands import bench
-from .cli_options import exclusion_box, readable_cache, set_values, writable_folder
-from .cli_summary import print_job_summary
-from .errors import InputError, Interrupted, cannot_write, one_line_each
-from .jobdir import (
+from .. import __version__, params
+from ..bench.commands import bench
+from ..errors import InputError, Interrupted, cannot_write, one_line_each
+from ..jobdir import (
     ERROR,
     EXPORT_DIR,
     FRAMES,
@@ -33,7 +31,9 @@ from .jobdir import (
     read_job,
     stage_phrase,
 )
-from .placement import PLACEMENTS
+from ..placement import PLACEMENTS
+from .options import exclusion_box, readable_cache, writable_folder
+from .summary import print_job_summary
 
 
 class _Group(click.Group):
@@ -105,14 +105,14 @@ def run(mesh, size_m, assignments, seed, out, until, render, no_render, placemen
     red, water blue), drips.json, trajectories.json, ice.ply, scene.xml/scene.pov,
     render.exr/png and timings.json.
     """
-    from .api import job_spec
-    from .asset_io import missing_size
-    from .job.pipeline import GENERATOR_PREFIX, Stage, run_job
-    from .progress import ProgressMode
+    from ..api import job_spec
+    from ..asset_io import missing_size
+    from ..job.pipeline import GENERATOR_PREFIX, Stage, run_job
+    from ..progress import ProgressMode
 
-    values = set_values(assignments)
+    values = params.parse_assignments(assignments)
     if growth_frames is not None:
-        from .stages.growth import MAX_FRAMES
+        from ..stages.growth import MAX_FRAMES
 
         if not 1 <= growth_frames <= MAX_FRAMES:
             raise InputError(f"--growth-frames {growth_frames}: expected 1 to {MAX_FRAMES} frames")
@@ -167,8 +167,8 @@ def render_command(job_dir, render, out):
     progress lines when its output is not a terminal, and leaves INCOMPLETE.txt in the
     folder until the render is done.
     """
-    from .export import RENDER_FILES, estimate_seconds, meshed_coarser, render_again
-    from .scene.config import load_render_config
+    from ..export import RENDER_FILES, estimate_seconds, meshed_coarser, render_again
+    from ..scene.config import load_render_config
 
     out = Path(out) if out else Path(job_dir) / RENDERS_DIR / Path(render).stem
     config = load_render_config(render)
@@ -219,9 +219,9 @@ def export_command(job_dir, fmt, out):
     """
     out = Path(out) if out else Path(job_dir) / EXPORT_DIR / f"scene.{fmt}"
     if fmt == "glb":
-        from .export.gltf import write_glb as write
+        from ..export.gltf import write_glb as write
     else:
-        from .export.usd import write_usdz as write
+        from ..export.usd import write_usdz as write
     click.echo(f"done: {write(Path(job_dir), out)}")
 
 
@@ -237,7 +237,7 @@ def blender_addon_command(out):
     """Write the Blender add-on as a zip: in Blender, Edit > Preferences > Add-ons, Install from
     Disk, pick it and enable "icefarm"; a panel in the 3D view's sidebar (N) grows ice on the
     selected objects by running this icefarm (name its executable in the add-on's preferences)."""
-    from .dcc.addon_zip import write_blender_addon
+    from ..dcc.addon_zip import write_blender_addon
 
     click.echo(f"done: {write_blender_addon(out)}")
 
@@ -263,8 +263,8 @@ def params_command(as_json):
             group = row["group"]
             click.echo(f"[{group}]")
         click.echo("  ".join(v.ljust(w) for v, w in zip(line, widths)) + "  " + row["doc"])
-    from .stages.icicle_size import constants as icicle_constants
-    from .stages.storm import constants
+    from ..stages.icicle_size import constants as icicle_constants
+    from ..stages.storm import constants
 
     for title, listed in (("the storm model (icefarm.stages.storm)", constants()),
                           ("the icicles' sizes and fringe (icefarm.stages.icicle_size, rims)", icicle_constants())):
@@ -282,7 +282,7 @@ def sheet(run_dir, cell_width, name):
 
     RUN_DIR is a sweep folder (<out>/<sweep name>) as `icefarm sweep` writes it.
     """
-    from .sheets import build_sheets
+    from ..sheets import build_sheets
 
     results = build_sheets(Path(run_dir), cell_width, name)
     for r in results:
@@ -298,7 +298,7 @@ def report(run_dir):
     Input polygons, icicles, ice polygons, seconds per stage and in total, render and proxy
     seconds and the render variant; stages taken from the cache show as "cached".
     """
-    from .report import build_report
+    from ..report import build_report
 
     for path in build_report(Path(run_dir)):
         click.echo(str(path))
@@ -306,8 +306,8 @@ def report(run_dir):
 
 def _after_sweep(summary) -> None:
     """Contact sheets and the timing report for a finished sweep (failed jobs included)."""
-    from .report import build_report
-    from .sheets import build_sheets
+    from ..report import build_report
+    from ..sheets import build_sheets
 
     if not any(r.job_dir and Path(r.job_dir).is_dir() for r in summary.jobs):
         return
@@ -319,7 +319,7 @@ def _after_sweep(summary) -> None:
 
 
 def _register_farm() -> None:
-    from .farm.commands import bench_farm, make_sweep_command, validate
+    from ..farm.commands import bench_farm, make_sweep_command, validate
 
     main.add_command(validate)
     main.add_command(make_sweep_command(after=_after_sweep))

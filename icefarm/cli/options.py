@@ -5,8 +5,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from . import params
-from .errors import InputError
+from ..errors import InputError
 
 
 def writable_folder(out: str | Path) -> Path:
@@ -28,7 +27,7 @@ def readable_cache(cache: str | Path) -> Path:
     cache) is used read-only, said once on stderr; one that cannot be read is refused."""
     import click
 
-    from .job.cache import StageCache
+    from ..job.cache import StageCache
 
     cache = Path(cache)
     try:
@@ -43,14 +42,9 @@ def readable_cache(cache: str | Path) -> Path:
     return cache
 
 
-def set_values(values: tuple[str, ...]) -> dict:
-    """``--set GROUP.PARAM=VALUE`` pairs as ``{"group.param": value}``."""
-    return dict(params.parse_assignment(v) for v in values)
-
-
 def exclusion_box(text: str):
     """``--exclude``'s six numbers as a `icefarm.job.pipeline.Box`."""
-    from .job.pipeline import Box
+    from ..job.pipeline import Box
 
     try:
         v = [float(x) for x in text.split(",")]
