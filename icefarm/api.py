@@ -20,14 +20,12 @@ Examples
 
 from __future__ import annotations
 
-import math
 import os
 import tempfile
-import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, cast
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import numpy.typing as npt
@@ -35,14 +33,13 @@ import trimesh
 
 from . import artifacts
 from .errors import InputError, cannot_write
-from .generators import GENERATOR_PREFIX
-from .job import Stage, Step, run_stages
+from .job import Stage, Step, ancestors, cached_steps, run_stages
 from .job.cache import StageCache, digest, write_policy
-from .job.pipeline import Box, JobSpec, load_object, mesh_digest, run_job
+from .job.pipeline import JobSpec, load_object, mesh_digest, run_job
+from .job.spec import IN_MEMORY, MeshInput, job_spec, mesh_source, write_input
 from .jobdir import DONE, ERROR, ICE, PARAMS, TIMINGS, TRAJECTORIES, JobState, clear_job, read_job, stage_phrase
 from .mesh import PreparedMesh
-from .params import Params, flatten, idle_keys, resolve
-from .placement import PLACEMENTS
+from .params import Params
 from .stages.trajectories import TrajectoryResult
 from .stages.trajectory_stats import measure_trajectories
 
@@ -51,15 +48,6 @@ if TYPE_CHECKING:
     from .scene.write import JobScene
 
 __all__ = ["Ice", "Icicles", "MeshInput", "grow", "job_spec", "render", "write"]
-
-MeshInput = trimesh.Trimesh | str | os.PathLike
-"""What `grow` takes as the object: a mesh in memory (meters, +Y up), the path of any file
-``icefarm run`` reads (USD, glTF/GLB, OBJ, PLY, STL, OFF, ...) or ``generator:NAME``."""
-
-# `grow`'s own stage cache keeps only the proxy and the water, which it reads back (the
-# storm's glaze per vertex is not in the job folder); the other steps are not stored there.
-_PRIVATE_STEPS = ("drips", "trajectories", "landing", "ground_ice", "surface")
-_IN_MEMORY = "mesh"  # object id of a job grown on a mesh in memory
 
 
 @dataclass(frozen=True, eq=False)
@@ -167,7 +155,7 @@ class Ice:
     seed: int = 0
     placement: str = "ground"
     input_transform: npt.NDArray[np.float64] = field(default_factory=lambda: np.eye(4))
-    name: str = _IN_MEMORY
+    name: str = IN_MEMORY
 
     @property
     def gravity(self) -> npt.NDArray[np.float64]:
@@ -244,13 +232,13 @@ def grow(mesh: MeshInput, *, size_m: float | None = None, storm: str | Mapping[s
     RuntimeError
         A job that failed otherwise (the stage and the traceback in its message's notes).
     """
-    source, name, written = _mesh_source(mesh)
+    source, name, written = mesh_source(mesh)
     options: dict[str, Any] = dict(size_m=size_m, storm=storm, kind=kind, params=params, seed=seed, placement=placement,
                    exclude=exclude)
     with tempfile.TemporaryDirectory(prefix="icefarm-") as tmp:
         try:
             if written is not None:  # glTF carries meters and +Y up: the job keeps the mesh as it is
-                source = str(_write_input(written, Path(tmp)))
+                source = str(write_input(written, Path(tmp)))
             spec = job_spec(source, **options, warn_stacklevel=3)
             if written is not None:
                 spec = replace(spec, object_id=name)
@@ -264,7 +252,10 @@ def grow(mesh: MeshInput, *, size_m: float | None = None, storm: str | Mapping[s
                              "(icefarm run --growth-frames)")
         cache_dir = Path(cache) if cache is not None else Path(tmp) / "cache"
         if cache is None:
-            write_policy(cache_dir, list(_PRIVATE_STEPS))
+            # its own cache keeps the water and what it reads (the storm's glaze per vertex,
+            # read back below, is not in the job folder); the other steps are not stored
+            kept = {s.name for s in ancestors("water")}
+            write_policy(cache_dir, [name for name in cached_steps() if name not in kept])
         job_dir = Path(tmp) / "job"
         outcome = run_job(spec, job_dir, cache_dir, progress=progress)
         if outcome.status is not JobState.DONE:
@@ -279,67 +270,6 @@ def grow(mesh: MeshInput, *, size_m: float | None = None, storm: str | Mapping[s
                glaze_thickness=glaze, figures=dict(job.stats), params=spec.params, object_mesh=prepared.mesh,
                seconds=dict(job.seconds), seed=spec.seed, placement=spec.placement,
                input_transform=_input_transform(prepared), name=spec.object_id)
-
-
-def job_spec(mesh: str | os.PathLike[str], *, size_m: float | None = None, storm: str | Mapping[str, Any] = "moderate",
-             kind: str = "freezing_rain", params: Mapping[str, Any] | None = None, seed: int = 0,
-             placement: str = "ground", exclude: Sequence[tuple[Sequence[float], Sequence[float]]] = (),
-             render: str | os.PathLike[str] | None = None, warn_stacklevel: int = 2) -> JobSpec:
-    """The `icefarm.job.pipeline.JobSpec` of a job on a file or a generator, its input checked
-    once, as `grow` checks it: for a caller that runs the job into a folder of its own
-    (`icefarm.job.pipeline.run_job`), as ``icefarm run`` does.
-
-    Parameters
-    ----------
-    mesh : path or str
-        A file ``icefarm run`` reads, or ``generator:NAME``.
-    size_m, storm, kind, params, seed, placement, exclude
-        As `grow` takes them.
-    render : str or path, optional
-        A render config name or YAML path (checked here, a path made absolute); None: no
-        render.
-    warn_stacklevel : int
-        Where the warnings point (a parameter the storm's mode does not read, an unlikely
-        size): 2, the caller.
-
-    Returns
-    -------
-    JobSpec
-
-    Raises
-    ------
-    InputError
-        As `grow` raises it for its input.
-    """
-    source, name, _ = _mesh_source(mesh)
-    if isinstance(mesh, trimesh.Trimesh):
-        raise InputError("job_spec takes a file or generator:NAME; grow() takes a mesh in memory")
-    size = _checked_size(size_m, warn_stacklevel + 1)
-    if size is None:
-        from .asset_io import missing_size
-
-        if why := missing_size(source):
-            raise InputError(f"{why}: pass the object's real height in meters with size_m")
-    if placement not in PLACEMENTS:
-        raise InputError(f"placement {placement!r}: one of {', '.join(PLACEMENTS)}")
-    given = {**_storm_values(storm), **flatten(dict(params or {}))}
-    from .asset_io import with_asset_gravity
-
-    resolved = resolve(with_asset_gravity(source, {"storm.kind": kind, **given}))
-    # Warned about: what the caller set that the storm's mode does not read (the defaults
-    # of ``storm`` and ``kind`` stand for no choice)
-    chosen = [key for key in given if not (key == "storm.intensity" and storm == "moderate")]
-    chosen += ["storm.kind"] if kind != "freezing_rain" else []
-    for line in idle_keys(chosen, resolved.storm.mode):
-        warnings.warn(line, UserWarning, stacklevel=warn_stacklevel)
-    if render is not None:
-        from .scene.config import load_render_config
-
-        load_render_config(render)  # a bad config fails now, in one line, not after the stages
-        if Path(render).expanduser().is_file():
-            render = str(Path(render).expanduser().resolve())
-    return JobSpec(object_id=name, mesh=source, size_m=size, params=resolved, seed=int(seed),
-                   render=None if render is None else str(render), exclude=_boxes(exclude), placement=placement)
 
 
 def write(ice: Ice, folder: str | os.PathLike[str], *, config: str | os.PathLike[str] = "preview") -> Path:
@@ -430,61 +360,6 @@ def render(ice: Ice, folder: str | os.PathLike[str], config: str | os.PathLike[s
 
 
 # ---------------------------------------------------------------- grow's input
-def _mesh_source(mesh: MeshInput) -> tuple[str, str, trimesh.Trimesh | None]:
-    """``(source, name, in memory)``: the path or ``generator:NAME`` a job reads (empty for
-    a mesh in memory, written later), its object id, and the mesh in memory if it is one."""
-    if isinstance(mesh, trimesh.Trimesh):
-        if len(mesh.faces) == 0 or not np.isfinite(mesh.vertices).all():
-            raise InputError("the mesh is empty or has non-finite vertices")
-        return "", _IN_MEMORY, mesh
-    if isinstance(mesh, trimesh.Scene):
-        raise InputError("a trimesh.Scene: pass one mesh (scene.to_geometry() or scene.dump(concatenate=True))")
-    if not isinstance(mesh, (str, os.PathLike)):
-        raise InputError(f"mesh must be a trimesh.Trimesh, a path or generator:NAME, not {type(mesh).__name__}")
-    text = os.fspath(mesh)
-    if isinstance(text, str) and text.startswith(GENERATOR_PREFIX):
-        return text, text[len(GENERATOR_PREFIX):], None
-    path = Path(text)
-    if not path.is_file():
-        raise InputError(f"mesh file not found: {text}")
-    return str(path.resolve()), path.stem, None
-
-
-def _checked_size(size_m: float | None, stacklevel: int) -> float | None:
-    if size_m is None:
-        return None
-    try:
-        size = float(size_m)
-    except (TypeError, ValueError):
-        size = math.nan
-    if not (math.isfinite(size) and size > 0):
-        raise InputError(f"size_m {size_m!r}: the object's real height in meters is a number above 0")
-    from .asset_io import size_hint
-
-    if hint := size_hint(size):
-        warnings.warn(hint, UserWarning, stacklevel=stacklevel)
-    return size
-
-
-def _storm_values(storm: str | Mapping[str, Any]) -> dict[str, Any]:
-    """``storm`` as flat ``storm.*`` values: a name is ``storm.intensity``."""
-    if isinstance(storm, str):
-        return {"storm.intensity": storm}
-    if not isinstance(storm, Mapping):
-        raise InputError(f"storm must be an intensity (light, moderate, severe) or a mapping of storm.* "
-                         f"values, not {type(storm).__name__}")
-    return {key if str(key).startswith("storm.") else f"storm.{key}": value for key, value in storm.items()}
-
-
-def _write_input(mesh: trimesh.Trimesh, folder: Path) -> Path:
-    """A mesh in memory as a GLB in ``folder``: glTF carries meters, so the job keeps its size
-    (``size_m`` None) as it would a GLB's."""
-    path = folder / f"{_IN_MEMORY}.glb"
-    plain = trimesh.Trimesh(np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.faces), process=False)
-    path.write_bytes(cast(bytes, plain.export(file_type="glb")))  # a GLB exports as bytes
-    return path
-
-
 def _glaze_thickness(spec: JobSpec, prepared: PreparedMesh, cache: StageCache) -> npt.NDArray[np.float64] | None:
     """The storm's glaze per vertex of the object, from the job's water stage in ``cache``;
     None without a storm, or when the water is not there (not recomputed)."""
@@ -527,20 +402,6 @@ def _raise_failure(job_dir: Path, stage: str | None, message: str | None) -> Non
     if hasattr(exc, "add_note"):  # Python 3.11 and later
         exc.add_note(f"the job's traceback (its {ERROR}):\n{text}")
     raise exc
-
-
-def _boxes(exclude: Sequence[tuple[Sequence[float], Sequence[float]]]) -> tuple[Box, ...]:
-    """``exclude`` as the job's `Box` es, each corner three finite numbers."""
-    boxes = []
-    for box in exclude:
-        try:
-            lo, hi = (np.asarray(corner, dtype=np.float64) for corner in box)
-        except (TypeError, ValueError):
-            lo = hi = np.zeros(0)
-        if lo.shape != (3,) or hi.shape != (3,) or not (np.isfinite(lo).all() and np.isfinite(hi).all()):
-            raise InputError(f"exclude box {box!r}: two corners of three numbers, meters, lowest first")
-        boxes.append(Box(tuple(lo.tolist()), tuple(hi.tolist())))
-    return tuple(boxes)
 
 
 def _input_transform(prepared: PreparedMesh) -> npt.NDArray[np.float64]:
