@@ -23,7 +23,9 @@ from ..params import GlazeParams, Params
 from ..placement import Placement, ground_height, ground_level, sole_vertices, stop_at_ground
 from ..stages import (
     BRANCH_LIFE,
+    DripOptions,
     DripResult,
+    DripStorm,
     IcicleSizing,
     TrajectoryResult,
     WaterResult,
@@ -34,6 +36,7 @@ from ..stages import (
     refine,
     storm_water,
     thickening_m,
+    trajectory_options,
 )
 from .records import JobInputs, Stage, StageResults, stage_rng
 
@@ -95,18 +98,17 @@ def drips(i: JobInputs, r: StageResults) -> DripResult:
     grounded = heights < heights.min() + d.ground_clearance * np.ptp(heights)
     if i.physical and i.placement != Placement.GROUND.value:
         grounded[:] = False  # a hanging sign's lowest rim is where it drips, not where it stands
-    shed = sizing = None
+    storm = None
     if i.physical and wet.storm is not None:
-        shed = wet.storm.shed
-        sizing = IcicleSizing(p.storm, p.surface, p.trajectories.branch_spread
-                              if p.trajectories.division_probability > 0 else 0.0)
-    found = find_drips(surface, wet.water, i.gravity, p.storm.max_icicles if i.physical else d.count,
-                       d.drip_limit, stage_rng(i.seed, Stage.DRIPS),
-                       exclude_boxes=i.exclude, exclude_vertices=grounded if d.ground_clearance > 0 else None,
-                       caster=i.caster(surface), spacing=d.spacing, distribution=d.distribution,
-                       min_fall=d.min_fall, floor=ground_level(i.placement, i.mesh, i.gravity),
-                       min_water=d.min_length / kl, shed=shed, sizing=sizing, length_scale=kl)
-    if shed is not None and len(found.positions):
+        storm = DripStorm(wet.storm.shed, IcicleSizing(p.storm, p.surface, p.trajectories.branch_spread
+                                                       if p.trajectories.division_probability > 0 else 0.0), kl)
+    options = DripOptions(p.storm.max_icicles if i.physical else d.count, d.drip_limit, spacing=d.spacing,
+                          distribution=d.distribution, min_fall=d.min_fall, min_water=d.min_length / kl,
+                          floor=ground_level(i.placement, i.mesh, i.gravity), exclude_boxes=i.exclude,
+                          exclude_vertices=grounded if d.ground_clearance > 0 else None)
+    found = find_drips(surface, wet.water, i.gravity, options, stage_rng(i.seed, Stage.DRIPS),
+                       caster=i.caster(surface), storm=storm)
+    if storm is not None and len(found.positions):
         # Each icicle thickens as the storm does, whatever its water; and the glaze at the
         # rim swallows its first centimetres: it hangs its length below the ice.
         growth = growth_ratios(found.water * kl, thickening_m(p.storm, found.active), p.surface.growth_ratio)
@@ -132,10 +134,10 @@ def trajectories(i: JobInputs, r: StageResults) -> TrajectoryResult:
         faces = np.clip(found.faces, 0, len(obj.faces) - 1)
         lift = found.normals if r.flow is not obj else np.where(
             (found.faces >= 0)[:, None], obj.face_normals[faces], found.normals)
-        result = grow_trajectories(obj, found.positions, lift, found.water, i.gravity,
-                                   stage_rng(i.seed, Stage.TRAJECTORIES), drip_limit=p.drips.drip_limit,
-                                   caster=i.caster(obj), branch_life=BRANCH_LIFE if i.physical else 1.0,
-                                   **dataclasses.asdict(p.trajectories))
+        options = trajectory_options(p.trajectories, i.gravity, p.drips.drip_limit,
+                                     branch_life=BRANCH_LIFE if i.physical else 1.0)
+        result = grow_trajectories(obj, found.positions, lift, found.water, stage_rng(i.seed, Stage.TRAJECTORIES),
+                                   options, caster=i.caster(obj))
     if found.growth is not None and result.n_branches:
         result = dataclasses.replace(result, branch_growth=found.growth[result.branch_icicle])
     if i.placement == Placement.GROUND.value:  # an icicle that reaches the ground stops at it
