@@ -183,8 +183,8 @@ def build(surface_kit):
     """``build(obj, traj, water, p, **kw)``: stage 4 on ``obj`` without glaze water, drips at the trunks' roots."""
 
     def ice(obj, traj, water, p, **kw):
-        return S.build_ice(obj, obj, surface_kit.dry(obj), _drips(obj, traj, water), traj, p.surface, p.glaze,
-                           G, np.random.default_rng(0), **kw)
+        inputs = S.IceInputs(obj, obj, surface_kit.dry(obj), _drips(obj, traj, water), traj, **kw)
+        return S.build_ice(inputs, p.surface, p.glaze, G, np.random.default_rng(0))
 
     return ice
 

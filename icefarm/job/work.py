@@ -206,14 +206,15 @@ def build_surface(i: JobInputs, r: StageResults, rng: np.random.Generator, glaze
     -------
     IceResult
     """
-    from ..stages import build_ice
+    from ..stages import IceInputs, build_ice
 
     p = i.params
     assert r.water is not None and r.drips is not None and r.trajectories is not None
     glaze = p.glaze if glaze is None else glaze
-    ice = build_ice(i.mesh, r.flow, r.water, r.drips, r.trajectories, p.surface, glaze, i.gravity, rng,
-                    exclude=sole(r.flow, p, i.gravity, i.placement), cast=i.caster(r.flow), measure=False,
-                    extra_balls=None if r.ground is None else r.ground.balls, note=i.note, coat_surface=r.wet)
+    inputs = IceInputs(i.mesh, r.flow, r.water, r.drips, r.trajectories,
+                       exclude=sole(r.flow, p, i.gravity, i.placement), coat_surface=r.wet,
+                       extra_balls=None if r.ground is None else r.ground.balls, cast=i.caster(r.flow))
+    ice = build_ice(inputs, p.surface, glaze, i.gravity, rng, measure=False, note=i.note)
     floor = ground_level(i.placement, i.mesh, i.gravity)
     if floor is None or len(ice.vertices) == 0:
         return ice

@@ -20,7 +20,7 @@ __getattr__, __dir__, __all__ = _lazy.attach(__name__, submod_attrs={
     "landing": ["find_landings"],
     "proxy": ["ProxyMethod", "build_proxy", "proxy_reason", "snap_to_surface"],
     "storm": ["constants", "drip_rim_length", "precipitation_m", "refine", "storm_water"],
-    "surface": ["SLIVER", "CoatSurface", "build_ice", "carry_water", "fringe_figures", "ground_ice_balls",
+    "surface": ["SLIVER", "CoatSurface", "IceInputs", "build_ice", "carry_water", "fringe_figures", "ground_ice_balls",
                 "icicle_balls", "measure_glaze", "measure_icicles", "meshing_view", "profile_args", "ripple_bands",
                 "view_surface", "VIEW_PX"],
     "trajectories": ["TrajectoryOptions", "TrajectoryResult", "grow_trajectories", "trajectory_options"],
