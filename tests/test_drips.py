@@ -20,7 +20,7 @@ from icefarm.stages.drips import DripOptions, drip_region, find_drips
 from icefarm.stages.proxy import ProxyMethod, build_proxy, proxy_reason
 from icefarm.stages.rims import drip_flux
 from icefarm.stages.trajectories import grow_trajectories, trajectory_options
-from icefarm.stages.water import compute_water
+from icefarm.stages.water import RainOptions, compute_water
 
 G = np.array([0.0, -1.0, 0.0])
 DEFAULTS = params.resolve()
@@ -51,7 +51,7 @@ def umbrella_drips(mesh, water, distribution, count=40, spacing=0.025, seed=3):
 @pytest.fixture(scope="module")
 def wet_umbrella():
     mesh = umbrella()
-    return mesh, compute_water(mesh, G, 4000, 0.01, np.random.default_rng(1)).water
+    return mesh, compute_water(mesh, G, RainOptions(4000, 0.01), np.random.default_rng(1)).water
 
 
 def rim_distance(points: np.ndarray, rim=UMBRELLA_RIM) -> np.ndarray:
@@ -61,7 +61,7 @@ def rim_distance(points: np.ndarray, rim=UMBRELLA_RIM) -> np.ndarray:
 
 @pytest.mark.parametrize("distribution", ["water", "area"])
 def test_drip_points_keep_the_spacing(sphere, distribution):
-    water = compute_water(sphere, G, 4000, 0.01, np.random.default_rng(2)).water
+    water = compute_water(sphere, G, RainOptions(4000, 0.01), np.random.default_rng(2)).water
     drips = find_drips(sphere, water, G, DripOptions(40, 75.0, spacing=0.03, distribution=distribution),
                        np.random.default_rng(3))
     assert len(drips.positions) == 40
@@ -74,7 +74,7 @@ def test_drip_points_keep_the_spacing(sphere, distribution):
 
 
 def test_area_without_spacing_is_the_papers_spread(sphere):
-    water = compute_water(sphere, G, 4000, 0.01, np.random.default_rng(2)).water
+    water = compute_water(sphere, G, RainOptions(4000, 0.01), np.random.default_rng(2)).water
     drips = find_drips(sphere, water, G, DripOptions(30, 60.0, spacing=0.0, distribution="area"),
                        np.random.default_rng(5))
     region = drip_region(sphere, water, G, 60.0)
@@ -105,7 +105,7 @@ def test_a_sharp_lip_sheds_its_water_and_a_dome_its_whole_cap(sphere, wet_umbrel
     shed = flux > 0
     assert (rim_distance(mesh.vertices[shed]) < 0.01).all()
     # a dome sheds as the paper spreads: over its whole cap, not at one ring
-    water = compute_water(sphere, G, 4000, 0.01, np.random.default_rng(2)).water
+    water = compute_water(sphere, G, RainOptions(4000, 0.01), np.random.default_rng(2)).water
     flux = drip_flux(sphere, water, G, 75.0, drip_region(sphere, water, G, 75.0))
     heights = sphere.vertices[flux > 0, 1]
     assert np.ptp(heights) > 0.1
@@ -142,7 +142,7 @@ def test_fountain_icicles_hang_from_the_upper_bowls_lip():
     size = 0.6
     prepared = prepare(generate("fountain"), size, G)
     mesh = prepared.mesh
-    water = compute_water(mesh, G, 4000, 0.01, np.random.default_rng(0), pools="overflow").water
+    water = compute_water(mesh, G, RainOptions(4000, 0.01, "overflow"), np.random.default_rng(0)).water
     ground = off_the_ground(mesh, 0.3)
     results = {}
     for distribution in ("water", "area"):

@@ -27,6 +27,8 @@ from ..stages import (
     DripResult,
     DripStorm,
     IcicleSizing,
+    RainOptions,
+    StormOptions,
     TrajectoryResult,
     WaterResult,
     compute_water,
@@ -76,11 +78,11 @@ def water(i: JobInputs, r: StageResults) -> WaterResult:
     p, surface = i.params, r.flow
     source = i.source() if i.source else None
     if i.physical:
-        result = storm_water(surface, i.gravity, p.storm, lifetime=p.glaze.lifetime, drip_limit=p.drips.drip_limit,
-                             cast=i.caster(surface), source=source, pools=p.water.pools)
+        options = StormOptions(p.storm, p.glaze.lifetime, p.drips.drip_limit, p.water.pools)
+        result = storm_water(surface, i.gravity, options, cast=i.caster(surface), source=source)
     else:
-        result = compute_water(surface, i.gravity, p.water.rays, p.water.influence_radius,
-                               stage_rng(i.seed, Stage.WATER), source, i.caster(surface), pools=p.water.pools)
+        rain = RainOptions(p.water.rays, p.water.influence_radius, p.water.pools)
+        result = compute_water(surface, i.gravity, rain, stage_rng(i.seed, Stage.WATER), source, i.caster(surface))
     if "water" in i.overrides:  # painted water replaces the coefficients and the storm, keeps the walks
         supply, painted = artifacts.read_water_ply(Path(i.overrides["water"]), len(surface.vertices))
         result = dataclasses.replace(result, supply=supply, water=painted, storm=None)
@@ -147,13 +149,13 @@ def trajectories(i: JobInputs, r: StageResults) -> TrajectoryResult:
 
 def landing(i: JobInputs, r: StageResults) -> Any:
     """Where the water off the icicles' tips lands."""
-    from ..stages import find_landings
+    from ..stages import LandingOptions, find_landings
 
     gi, obj = i.params.ground_ice, i.mesh
     assert r.trajectories is not None and r.drips is not None
-    return find_landings(r.trajectories, r.drips.water, i.gravity, runoff=gi.runoff, merge=gi.merge,
-                         cast=i.caster(obj), face_normals=obj.face_normals,
-                         floor=ground_level(i.placement, i.mesh, i.gravity))
+    options = LandingOptions(gi.runoff, gi.merge, floor=ground_level(i.placement, i.mesh, i.gravity))
+    return find_landings(r.trajectories, r.drips.water, i.gravity, options, cast=i.caster(obj),
+                         face_normals=obj.face_normals)
 
 
 def ground_ice(i: JobInputs, r: StageResults) -> Any:
