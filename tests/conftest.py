@@ -126,9 +126,9 @@ def _no_icicles():
 
 def _ice(obj, water, drips, traj, surface, glaze, seed=0):
     """Stage 4 on ``obj`` (its own collision mesh) under gravity -Y."""
-    from icefarm.stages.surface import build_ice
+    from icefarm.stages.surface import IceInputs, build_ice
 
-    return build_ice(obj, obj, water, drips, traj, surface, glaze, G, np.random.default_rng(seed))
+    return build_ice(IceInputs(obj, obj, water, drips, traj), surface, glaze, G, np.random.default_rng(seed))
 
 
 @pytest.fixture

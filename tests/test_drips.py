@@ -16,11 +16,11 @@ from icefarm.generators.fountain import lathe, resample_polyline
 from icefarm.geometry import sample_faces
 from icefarm.job.pipeline import JobSpec, Stage, run_job
 from icefarm.mesh import detect_problems, prepare
-from icefarm.stages.drips import drip_region, find_drips
+from icefarm.stages.drips import DripOptions, drip_region, find_drips
 from icefarm.stages.proxy import ProxyMethod, build_proxy, proxy_reason
 from icefarm.stages.rims import drip_flux
-from icefarm.stages.trajectories import grow_trajectories
-from icefarm.stages.water import compute_water
+from icefarm.stages.trajectories import grow_trajectories, trajectory_options
+from icefarm.stages.water import RainOptions, compute_water
 
 G = np.array([0.0, -1.0, 0.0])
 DEFAULTS = params.resolve()
@@ -43,14 +43,15 @@ def off_the_ground(mesh: trimesh.Trimesh, fraction: float = 0.05) -> np.ndarray:
 
 
 def umbrella_drips(mesh, water, distribution, count=40, spacing=0.025, seed=3):
-    return find_drips(mesh, water, G, count, 75.0, np.random.default_rng(seed), spacing=spacing,
-                      distribution=distribution, exclude_vertices=off_the_ground(mesh))
+    options = DripOptions(count, 75.0, spacing=spacing, distribution=distribution,
+                          exclude_vertices=off_the_ground(mesh))
+    return find_drips(mesh, water, G, options, np.random.default_rng(seed))
 
 
 @pytest.fixture(scope="module")
 def wet_umbrella():
     mesh = umbrella()
-    return mesh, compute_water(mesh, G, 4000, 0.01, np.random.default_rng(1)).water
+    return mesh, compute_water(mesh, G, RainOptions(4000, 0.01), np.random.default_rng(1)).water
 
 
 def rim_distance(points: np.ndarray, rim=UMBRELLA_RIM) -> np.ndarray:
@@ -60,21 +61,22 @@ def rim_distance(points: np.ndarray, rim=UMBRELLA_RIM) -> np.ndarray:
 
 @pytest.mark.parametrize("distribution", ["water", "area"])
 def test_drip_points_keep_the_spacing(sphere, distribution):
-    water = compute_water(sphere, G, 4000, 0.01, np.random.default_rng(2)).water
-    drips = find_drips(sphere, water, G, 40, 75.0, np.random.default_rng(3), spacing=0.03,
-                       distribution=distribution)
+    water = compute_water(sphere, G, RainOptions(4000, 0.01), np.random.default_rng(2)).water
+    drips = find_drips(sphere, water, G, DripOptions(40, 75.0, spacing=0.03, distribution=distribution),
+                       np.random.default_rng(3))
     assert len(drips.positions) == 40
     assert pdist(drips.positions).min() >= 0.03
     # a region too small for the count gives fewer points, still spaced
-    crowded = find_drips(sphere, water, G, 200, 30.0, np.random.default_rng(3), spacing=0.03,
-                         distribution=distribution)
+    crowded = find_drips(sphere, water, G, DripOptions(200, 30.0, spacing=0.03, distribution=distribution),
+                         np.random.default_rng(3))
     assert 1 <= len(crowded.positions) < 60
     assert pdist(crowded.positions).min() >= 0.03
 
 
 def test_area_without_spacing_is_the_papers_spread(sphere):
-    water = compute_water(sphere, G, 4000, 0.01, np.random.default_rng(2)).water
-    drips = find_drips(sphere, water, G, 30, 60.0, np.random.default_rng(5), spacing=0.0, distribution="area")
+    water = compute_water(sphere, G, RainOptions(4000, 0.01), np.random.default_rng(2)).water
+    drips = find_drips(sphere, water, G, DripOptions(30, 60.0, spacing=0.0, distribution="area"),
+                       np.random.default_rng(5))
     region = drip_region(sphere, water, G, 60.0)
     points, face, _ = sample_faces(sphere, region, 60, np.random.default_rng(5))
     np.testing.assert_array_equal(drips.positions, points[:30])
@@ -103,7 +105,7 @@ def test_a_sharp_lip_sheds_its_water_and_a_dome_its_whole_cap(sphere, wet_umbrel
     shed = flux > 0
     assert (rim_distance(mesh.vertices[shed]) < 0.01).all()
     # a dome sheds as the paper spreads: over its whole cap, not at one ring
-    water = compute_water(sphere, G, 4000, 0.01, np.random.default_rng(2)).water
+    water = compute_water(sphere, G, RainOptions(4000, 0.01), np.random.default_rng(2)).water
     flux = drip_flux(sphere, water, G, 75.0, drip_region(sphere, water, G, 75.0))
     heights = sphere.vertices[flux > 0, 1]
     assert np.ptp(heights) > 0.1
@@ -118,14 +120,14 @@ def test_more_water_longer_icicles(wet_umbrella):
     # two umbrellas, one twice as wet: its icicles get more water and grow longer
     pair = trimesh.util.concatenate([mesh, umbrella((1.0, 0.0, 0.0))])
     wet = np.r_[water, 2 * water]
-    drips = find_drips(pair, wet, G, 60, 75.0, np.random.default_rng(4), spacing=0.025, distribution="water",
-                       exclude_vertices=off_the_ground(pair))
+    options = DripOptions(60, 75.0, spacing=0.025, distribution="water", exclude_vertices=off_the_ground(pair))
+    drips = find_drips(pair, wet, G, options, np.random.default_rng(4))
     second = drips.positions[:, 0] > 0.5
     assert 10 <= second.sum() <= 50
     assert drips.water[second].mean() > 1.5 * drips.water[~second].mean()
-    traj = grow_trajectories(pair, drips.positions, drips.normals, drips.water, G, np.random.default_rng(0),
-                             drip_limit=75.0, **{**dataclasses.asdict(DEFAULTS.trajectories), "curve_angle": 0.0,
-                                                 "division_probability": 0.0})
+    straight = dataclasses.replace(DEFAULTS.trajectories, curve_angle=0.0, division_probability=0.0)
+    traj = grow_trajectories(pair, drips.positions, drips.normals, drips.water, np.random.default_rng(0),
+                             trajectory_options(straight, G, 75.0))
     trunks = np.flatnonzero(traj.branch_parent == -1)
     length = np.array([np.linalg.norm(np.diff(traj.branch(b), axis=0), axis=1).sum() for b in trunks])
     icicle_of = traj.branch_icicle[trunks]
@@ -140,12 +142,12 @@ def test_fountain_icicles_hang_from_the_upper_bowls_lip():
     size = 0.6
     prepared = prepare(generate("fountain"), size, G)
     mesh = prepared.mesh
-    water = compute_water(mesh, G, 4000, 0.01, np.random.default_rng(0), pools="overflow").water
+    water = compute_water(mesh, G, RainOptions(4000, 0.01, "overflow"), np.random.default_rng(0)).water
     ground = off_the_ground(mesh, 0.3)
     results = {}
     for distribution in ("water", "area"):
-        drips = find_drips(mesh, water, G, 32, 75.0, np.random.default_rng(1), spacing=0.025,
-                           distribution=distribution, exclude_vertices=ground)
+        options = DripOptions(32, 75.0, spacing=0.025, distribution=distribution, exclude_vertices=ground)
+        drips = find_drips(mesh, water, G, options, np.random.default_rng(1))
         # the lip: (r, y) = (0.58, 1.00) to (0.56, 0.97) in the profile's units, 1.17 tall
         scale = size / 1.17
         points = drips.positions + prepared.offset
@@ -221,9 +223,9 @@ def test_no_drip_point_without_room_to_hang(wet_umbrella, distribution):
     mesh, water = wet_umbrella
     rng = lambda: np.random.default_rng(4)  # noqa: E731
     kwargs = dict(spacing=0.025, distribution=distribution, exclude_vertices=off_the_ground(mesh))
-    free = find_drips(mesh, water, G, 20, 75.0, rng(), **kwargs)
-    room = find_drips(mesh, water, G, 20, 75.0, rng(), min_fall=0.1, floor=0.05, **kwargs)
-    none = find_drips(mesh, water, G, 20, 75.0, rng(), min_fall=0.1, floor=0.28, **kwargs)
+    free = find_drips(mesh, water, G, DripOptions(20, 75.0, **kwargs), rng())
+    room = find_drips(mesh, water, G, DripOptions(20, 75.0, min_fall=0.1, floor=0.05, **kwargs), rng())
+    none = find_drips(mesh, water, G, DripOptions(20, 75.0, min_fall=0.1, floor=0.28, **kwargs), rng())
     assert len(free.positions) > 5 and len(room.positions) > 5
     assert (room.positions[:, 1] - 0.05 >= 0.1).all()
     assert len(none.positions) == 0
@@ -235,7 +237,8 @@ def test_dry_drip_points_grow_no_icicle(wet_umbrella):
     mesh, water = wet_umbrella
     every = umbrella_drips(mesh, water, "water")
     threshold = float(np.quantile(every.water, 0.5))
-    wet = find_drips(mesh, water, G, 40, 75.0, np.random.default_rng(3), spacing=0.025,
-                     distribution="water", exclude_vertices=off_the_ground(mesh), min_water=threshold)
+    options = DripOptions(40, 75.0, spacing=0.025, distribution="water", exclude_vertices=off_the_ground(mesh),
+                          min_water=threshold)
+    wet = find_drips(mesh, water, G, options, np.random.default_rng(3))
     assert 0 < len(wet.positions) < len(every.positions)
     assert (wet.water >= threshold).all()

@@ -24,7 +24,7 @@ from icefarm.stages.surface.glaze import (
     measure_glaze,
     wet_vertices,
 )
-from icefarm.stages.water import WaterResult, compute_water
+from icefarm.stages.water import RainOptions, WaterResult, compute_water
 
 G = np.array([0.0, -1.0, 0.0])
 BUNNY = Path(__file__).resolve().parents[1].parent / "shared" / "meshes" / "stanford-bunny.obj"
@@ -62,14 +62,14 @@ def bunny_water():
     if not BUNNY.is_file():
         pytest.skip(f"{BUNNY} not available")
     mesh = prepare(BUNNY, 0.3, G).mesh
-    return mesh, compute_water(mesh, G, 400, 0.01, np.random.default_rng(0)), _grounded(mesh)
+    return mesh, compute_water(mesh, G, RainOptions(400, 0.01), np.random.default_rng(0)), _grounded(mesh)
 
 
 @pytest.fixture(scope="module")
 def roof_water():
     """A small generated roof (0.5 m), wet by 400 rain rays, with its sole."""
     mesh = prepare(generate("roof", 2), 0.5, G).mesh
-    return mesh, compute_water(mesh, G, 400, 0.01, np.random.default_rng(0)), _grounded(mesh)
+    return mesh, compute_water(mesh, G, RainOptions(400, 0.01), np.random.default_rng(0)), _grounded(mesh)
 
 
 @pytest.mark.parametrize("case", [pytest.param("bunny_water", marks=pytest.mark.slow),  # ../shared/meshes

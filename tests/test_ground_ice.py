@@ -15,7 +15,7 @@ from icefarm.geometry import ray_caster
 from icefarm.job.pipeline import JobSpec, Stage, run_job
 from icefarm.stages import surface as S
 from icefarm.stages.drips import DripResult
-from icefarm.stages.landing import find_landings
+from icefarm.stages.landing import LandingOptions, find_landings
 from icefarm.stages.surface.curtains import curtain_balls
 from icefarm.stages.surface.ground_ice import STALAGMITE_TOP, ground_ice_balls
 from icefarm.stages.trajectories import TrajectoryResult
@@ -53,8 +53,8 @@ def eave_icicles(surface_kit):
 
 
 def _landings(obj, traj, water, merge=0.02, runoff=0.5, floor=0.0):
-    return find_landings(traj, water, G, runoff=runoff, merge=merge, cast=ray_caster(obj),
-                         face_normals=obj.face_normals, floor=floor)
+    return find_landings(traj, water, G, LandingOptions(runoff, merge, floor), cast=ray_caster(obj),
+                         face_normals=obj.face_normals)
 
 
 def test_every_landing_point_lies_on_a_surface_straight_below_its_tip(eave_icicles):
@@ -81,8 +81,8 @@ def test_every_landing_point_lies_on_a_surface_straight_below_its_tip(eave_icicl
 def test_a_hanging_object_loses_the_water_that_falls_past_it(eave_icicles):
     obj = _step()
     traj, water = eave_icicles
-    land = find_landings(traj, water, G, runoff=0.5, merge=0.0, cast=ray_caster(obj),
-                         face_normals=obj.face_normals, floor=None)
+    land = find_landings(traj, water, G, LandingOptions(0.5, 0.0), cast=ray_caster(obj),
+                         face_normals=obj.face_normals)
     assert len(land) == 1 and not land.on_ground[0]  # only the ledge catches any
     assert (land.branch_landing == -1).sum() == 5
 
@@ -93,7 +93,7 @@ def test_merged_landing_points_keep_the_merge_distance_and_the_water(surface_kit
     traj = surface_kit.straight(starts, rng.uniform(0.02, 0.2, 60))
     water = rng.uniform(0.01, 0.2, 60)
     merge = 0.03
-    land = find_landings(traj, water, G, runoff=0.4, merge=merge, floor=0.0)
+    land = find_landings(traj, water, G, LandingOptions(0.4, merge, 0.0))
     assert 1 < len(land) < 60
     d = np.linalg.norm(land.positions[:, None] - land.positions[None], axis=2)
     assert d[np.triu_indices(len(land), 1)].min() >= merge
@@ -108,7 +108,7 @@ def test_merged_landing_points_keep_the_merge_distance_and_the_water(surface_kit
 def test_branch_tips_share_their_icicles_water_by_length():
     pts = np.array([[0, 0.3, 0], [0, 0.2, 0], [0, 0.2, 0], [0.05, 0.15, 0]], float)
     traj = TrajectoryResult(pts, np.array([0, 2, 4]), np.array([0, 0]), np.array([-1, 0]))
-    land = find_landings(traj, np.array([0.1]), G, runoff=1.0, merge=0.0, floor=0.0)
+    land = find_landings(traj, np.array([0.1]), G, LandingOptions(1.0, 0.0, 0.0))
     trunk, branch = 0.1, np.hypot(0.05, 0.05)
     assert land.water[land.branch_landing] == pytest.approx([0.1 * trunk / (trunk + branch),
                                                              0.1 * branch / (trunk + branch)])
@@ -183,8 +183,8 @@ def build(surface_kit):
     """``build(obj, traj, water, p, **kw)``: stage 4 on ``obj`` without glaze water, drips at the trunks' roots."""
 
     def ice(obj, traj, water, p, **kw):
-        return S.build_ice(obj, obj, surface_kit.dry(obj), _drips(obj, traj, water), traj, p.surface, p.glaze,
-                           G, np.random.default_rng(0), **kw)
+        inputs = S.IceInputs(obj, obj, surface_kit.dry(obj), _drips(obj, traj, water), traj, **kw)
+        return S.build_ice(inputs, p.surface, p.glaze, G, np.random.default_rng(0))
 
     return ice
 

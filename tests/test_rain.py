@@ -8,7 +8,7 @@ import trimesh
 from icefarm import params
 from icefarm.geometry import ray_caster
 from icefarm.stages.rain import FALL_SPEED, open_sky, rain_vector
-from icefarm.stages.storm import precipitation_m, refine, storm_water
+from icefarm.stages.storm import StormOptions, precipitation_m, refine, storm_water
 
 G = np.array([0.0, -1.0, 0.0])
 
@@ -22,7 +22,7 @@ def _plate(max_edge=0.03):
 
 def _storm(mesh, **kw):
     p = params.typed("storm", {"wind": (0.0, 0.0, 0.0), **kw})  # still air unless a test blows
-    return storm_water(mesh, G, p, lifetime=0.5, drip_limit=75.0, cast=ray_caster(mesh)).storm
+    return storm_water(mesh, G, StormOptions(p, 0.5, 75.0), cast=ray_caster(mesh)).storm
 
 
 def _faces(mesh):

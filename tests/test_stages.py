@@ -6,9 +6,9 @@ import trimesh
 
 from icefarm.mesh import prepare
 from icefarm.stages.basins import overflow_heights, spill_levels, spill_over, spill_routes
-from icefarm.stages.drips import find_drips
-from icefarm.stages.trajectories import GOLDEN_ROLL, grow_trajectories
-from icefarm.stages.water import compute_water, water_coefficients
+from icefarm.stages.drips import DripOptions, find_drips
+from icefarm.stages.trajectories import GOLDEN_ROLL, TrajectoryOptions, grow_trajectories
+from icefarm.stages.water import RainOptions, compute_water, water_coefficients
 
 G = np.array([0.0, -1.0, 0.0])
 TRAJ = dict(curve_angle=2.0, division_probability=0.1, roll_angle=360.0, step_length=0.004,
@@ -78,8 +78,8 @@ def test_a_full_cup_spills_its_depth_over_its_rim():
     assert not overflow_heights(mesh, np.zeros(len(y), bool), G).any()  # no rain in it, nothing spills
     # Walks up the outer wall end on the rim and carry the cup's water; the paper's
     # Algorithm 1 (pools ignored) is unchanged.
-    plain = compute_water(mesh, G, 3000, 0.01, np.random.default_rng(0))
-    spilled = compute_water(mesh, G, 3000, 0.01, np.random.default_rng(0), pools="overflow")
+    plain = compute_water(mesh, G, RainOptions(3000, 0.01), np.random.default_rng(0))
+    spilled = compute_water(mesh, G, RainOptions(3000, 0.01, "overflow"), np.random.default_rng(0))
     np.testing.assert_array_equal(spilled.supply, plain.supply)
     outer_wall = (np.hypot(mesh.vertices[:, 0], mesh.vertices[:, 2]) > 0.0999) & (y > 0.01) & (y < 0.17)
     np.testing.assert_allclose(spilled.water[outer_wall] - plain.water[outer_wall], 0.08, atol=1e-9)
@@ -133,7 +133,7 @@ def test_water_dripping_clear_of_the_object_leaves_it():
 
 
 def test_water_only_where_walk_reaches_supply(sphere, rng):
-    result = compute_water(sphere, G, 2000, 0.01, rng)
+    result = compute_water(sphere, G, RainOptions(2000, 0.01), rng)
     assert result.supply.any() and not result.supply.all()
     up_normals = sphere.vertex_normals @ G < 0
     assert not (result.supply & ~up_normals).any(), "supply vertices must face against gravity"
@@ -158,8 +158,8 @@ def test_overhang_shadows_the_supply(sphere):
     both = trimesh.util.concatenate([sphere, plate])
     under = np.flatnonzero((np.linalg.norm(sphere.vertices[:, [0, 2]], axis=1) < 0.03)
                            & (sphere.vertices[:, 1] > 0))
-    open_sky = compute_water(sphere, G, 20000, 0.01, np.random.default_rng(1))
-    shaded = compute_water(both, G, 20000, 0.01, np.random.default_rng(1))
+    open_sky = compute_water(sphere, G, RainOptions(20000, 0.01), np.random.default_rng(1))
+    shaded = compute_water(both, G, RainOptions(20000, 0.01), np.random.default_rng(1))
     assert open_sky.supply[under].all()
     assert not shaded.supply[under].any()
     assert shaded.supply[len(sphere.vertices):].any(), "the plate's top is wet"
@@ -167,8 +167,8 @@ def test_overhang_shadows_the_supply(sphere):
 
 @pytest.mark.parametrize("drip_limit", [20.0, 45.0, 75.0])
 def test_every_drip_point_within_drip_limit(sphere, drip_limit):
-    water = compute_water(sphere, G, 4000, 0.01, np.random.default_rng(2))
-    drips = find_drips(sphere, water.water, G, 50, drip_limit, np.random.default_rng(3))
+    water = compute_water(sphere, G, RainOptions(4000, 0.01), np.random.default_rng(2))
+    drips = find_drips(sphere, water.water, G, DripOptions(50, drip_limit), np.random.default_rng(3))
     assert len(drips.positions) == 50
     angles = np.degrees(np.arccos(np.clip(drips.normals @ G, -1, 1)))
     assert (angles <= drip_limit + 1e-9).all()
@@ -184,28 +184,28 @@ def test_coarse_mesh_drips_on_transition(rng):
     tilt = trimesh.transformations.rotation_matrix(np.radians(10), (1, 0, 0))
     coarse.apply_transform(tilt @ down)
     water = np.ones(len(coarse.vertices))
-    drips = find_drips(coarse, water, G, 5, 20.0, rng)
+    drips = find_drips(coarse, water, G, DripOptions(5, 20.0), rng)
     assert len(drips.region_faces) == 0
     assert len(drips.positions) >= 1
     assert (np.degrees(np.arccos(drips.normals @ G)) <= 20.0 + 1e-9).all()
 
 
 def test_exclusion_box_keeps_icicles_off(sphere, rng):
-    water = compute_water(sphere, G, 4000, 0.01, rng)
+    water = compute_water(sphere, G, RainOptions(4000, 0.01), rng)
     box = ((-1.0, -1.0, -1.0), (0.0, 1.0, 1.0))
-    drips = find_drips(sphere, water.water, G, 60, 75.0, rng, exclude_boxes=[box])
+    drips = find_drips(sphere, water.water, G, DripOptions(60, 75.0, exclude_boxes=[box]), rng)
     assert (drips.positions[:, 0] > 0).all()
 
 
 def grow(mesh, drips, seed=0, **overrides):
-    return grow_trajectories(mesh, drips.positions, mesh.face_normals[drips.faces], drips.water, G,
-                             np.random.default_rng(seed), **{**TRAJ, **overrides})
+    return grow_trajectories(mesh, drips.positions, mesh.face_normals[drips.faces], drips.water,
+                             np.random.default_rng(seed), TrajectoryOptions(gravity=G, **{**TRAJ, **overrides}))
 
 
 @pytest.fixture
 def sphere_drips(sphere):
-    water = compute_water(sphere, G, 4000, 0.01, np.random.default_rng(2))
-    return find_drips(sphere, water.water, G, 30, 60.0, np.random.default_rng(3))
+    water = compute_water(sphere, G, RainOptions(4000, 0.01), np.random.default_rng(2))
+    return find_drips(sphere, water.water, G, DripOptions(30, 60.0), np.random.default_rng(3))
 
 
 def test_straight_icicles_when_c_and_d_are_zero(sphere, sphere_drips):
@@ -232,9 +232,10 @@ def test_full_division_branches_every_generation_at_30_degrees():
     start = np.array([[0.0, -0.01, 0.0]])
     gens = 5
     # branch_spread = 0: the paper's p1'' exactly, one F at 30 degrees
-    traj = grow_trajectories(mesh, start, [[0, -1, 0]], [0.004 * (1 + 3 * gens) / 0.6], G,
-                             np.random.default_rng(0), **{**TRAJ, "curve_angle": 0.0, "branch_spread": 0.0,
-                                                           "division_probability": 1.0, "max_branches": 1000})
+    options = TrajectoryOptions(gravity=G, **{**TRAJ, "curve_angle": 0.0, "branch_spread": 0.0,
+                                              "division_probability": 1.0, "max_branches": 1000})
+    traj = grow_trajectories(mesh, start, [[0, -1, 0]], [0.004 * (1 + 3 * gens) / 0.6], np.random.default_rng(0),
+                             options)
     assert traj.n_branches - 1 == lsystem_branches(gens)
     for b in np.flatnonzero(traj.branch_parent >= 0):
         pts = traj.branch(b)
@@ -247,9 +248,10 @@ def test_full_division_branches_every_generation_at_30_degrees():
 @pytest.mark.parametrize("roll_angle", [0.0, 90.0, 360.0])
 def test_roll_follows_au(roll_angle):
     mesh = trimesh.creation.box(extents=(0.1, 0.02, 0.1))
-    traj = grow_trajectories(mesh, np.array([[0.0, -0.01, 0.0]]), [[0, -1, 0]], [0.5], G,
-                             np.random.default_rng(0), **{**TRAJ, "curve_angle": 0.0, "roll_angle": roll_angle,
-                                                           "division_probability": 1.0, "max_branches": 1000})
+    options = TrajectoryOptions(gravity=G, **{**TRAJ, "curve_angle": 0.0, "roll_angle": roll_angle,
+                                              "division_probability": 1.0, "max_branches": 1000})
+    traj = grow_trajectories(mesh, np.array([[0.0, -0.01, 0.0]]), [[0, -1, 0]], [0.5], np.random.default_rng(0),
+                             options)
     trunk_children = np.flatnonzero(traj.branch_parent == 0)
     assert len(trunk_children) >= 4
     out = np.array([traj.branch(b)[1] - traj.branch(b)[0] for b in trunk_children])
@@ -283,8 +285,8 @@ def crossing_segments(mesh, traj) -> int:
 @pytest.mark.parametrize("name", ["cow.obj", "teapot.obj", "stanford-bunny.obj"])
 def test_no_trajectory_enters_the_object(shared_mesh, name):
     mesh = prepare(shared_mesh(name), 0.3).mesh
-    water = compute_water(mesh, G, 4000, 0.01, np.random.default_rng(0))
-    drips = find_drips(mesh, water.water, G, 120, 75.0, np.random.default_rng(1))
+    water = compute_water(mesh, G, RainOptions(4000, 0.01), np.random.default_rng(0))
+    drips = find_drips(mesh, water.water, G, DripOptions(120, 75.0), np.random.default_rng(1))
     traj = grow(mesh, drips, curve_angle=8.0, division_probability=0.3)
     assert traj.n_branches >= len(drips.positions) > 50
     if mesh.is_watertight:

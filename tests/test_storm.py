@@ -13,7 +13,7 @@ from icefarm.job import Stage, run_stages
 from icefarm.mesh import prepare
 from icefarm.stages.icicle_size import grow_icicles, growth_ratios, icicle_volume, thickening_m
 from icefarm.stages.rain import open_sky
-from icefarm.stages.storm import WATER_TO_ICE, precipitation_m, refine, storm_water
+from icefarm.stages.storm import WATER_TO_ICE, StormOptions, precipitation_m, refine, storm_water
 
 G = np.array([0.0, -1.0, 0.0])
 
@@ -27,7 +27,7 @@ def _slab(width=0.9, thick=0.03, height=0.7, max_edge=0.025):
 
 def _storm(mesh, pools="ignore", **kw):
     p = params.typed("storm", {"wind": (0.0, 0.0, 0.0), **kw})  # still air unless a test blows
-    return storm_water(mesh, G, p, lifetime=0.5, drip_limit=75.0, cast=ray_caster(mesh), pools=pools).storm
+    return storm_water(mesh, G, StormOptions(p, 0.5, 75.0, pools), cast=ray_caster(mesh)).storm
 
 
 def test_presets_leave_their_radial_ice_on_a_bar():

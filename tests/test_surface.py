@@ -297,8 +297,8 @@ def test_real_meshes_through_stages_1_to_4_are_watertight(name, shared_mesh):
 
     p = params.resolve({"storm.mode": "relative", "drips.count": 8, "water.rays": 800, "surface.voxel_size": 0.0015})
     result = run_stages(prepare(path, 0.3), p, 1)
-    ice = S.build_ice(result.mesh, result.flow, result.water, result.drips, result.trajectories, p.surface,
-                      p.glaze, G, np.random.default_rng(1))
+    inputs = S.IceInputs(result.mesh, result.flow, result.water, result.drips, result.trajectories)
+    ice = S.build_ice(inputs, p.surface, p.glaze, G, np.random.default_rng(1))
     _closed_and_clean(ice)
     assert np.isfinite(ice.icicles.tip_radius_mm)
 
@@ -320,10 +320,10 @@ def test_a_cut_icicle_thickens_as_if_longer_and_rests_on_its_foot(surface_kit):
     cut = stop_at_ground(long, G, floor=floor, margin=0.00244)
     assert cut.cut[0] == pytest.approx(0.08) and cut.branch(0)[-1] == pytest.approx(free.branch(0)[-1])
     p = params.resolve({"surface.impurity": 0.0, "surface.base_balls": 0, "glaze.mode": "none"})
-    free_ice = S.build_ice(obj, obj, kit.dry(obj), kit.drips(obj, [start]), free, p.surface, p.glaze, G,
-                           np.random.default_rng(0))
-    cut_ice = S.build_ice(obj, obj, kit.dry(obj), kit.drips(obj, [start]), cut, p.surface, p.glaze, G,
-                          np.random.default_rng(0))
+    free_ice = S.build_ice(S.IceInputs(obj, obj, kit.dry(obj), kit.drips(obj, [start]), free), p.surface, p.glaze,
+                           G, np.random.default_rng(0))
+    cut_ice = S.build_ice(S.IceInputs(obj, obj, kit.dry(obj), kit.drips(obj, [start]), cut), p.surface, p.glaze,
+                          G, np.random.default_rng(0))
     assert cut_ice.icicles.taper[0] > 1.2 * free_ice.icicles.taper[0]
     assert cut_ice.vertices[:, 1].min() >= floor - 1e-6  # on the ground, not in it
     assert np.isnan(cut_ice.icicles.tip_radius_mm)  # a foot, not a drop: no tip to measure

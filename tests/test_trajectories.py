@@ -7,18 +7,19 @@ import trimesh
 from icefarm.job import Stage, run_stages
 from icefarm.mesh import prepare
 from icefarm.params import defaults, resolve
-from icefarm.stages.drips import find_drips
-from icefarm.stages.trajectories import TrajectoryResult, grow_trajectories, spread_steps
+from icefarm.stages.drips import DripOptions, find_drips
+from icefarm.stages.trajectories import TrajectoryOptions, TrajectoryResult, grow_trajectories, spread_steps
 from icefarm.stages.trajectory_stats import measure_trajectories
 from icefarm.stages.turtles import BRANCH_ANGLE
-from icefarm.stages.water import compute_water
+from icefarm.stages.water import RainOptions, compute_water
 
 G = np.array([0.0, -1.0, 0.0])
 TRAJ = {**defaults()["trajectories"], "drip_limit": 75.0}  # the defaults, as the pipeline passes them
 
 
 def grow(mesh, starts, normals, water, seed=0, **overrides):
-    return grow_trajectories(mesh, starts, normals, water, G, np.random.default_rng(seed), **{**TRAJ, **overrides})
+    options = TrajectoryOptions(gravity=G, **{**TRAJ, **overrides})
+    return grow_trajectories(mesh, starts, normals, water, np.random.default_rng(seed), options)
 
 
 def segments(traj):
@@ -47,8 +48,8 @@ def plate():
 @pytest.fixture(scope="module")
 def sphere_setup():
     sphere = trimesh.creation.icosphere(subdivisions=4, radius=0.15)
-    water = compute_water(sphere, G, 4000, 0.01, np.random.default_rng(2))
-    drips = find_drips(sphere, water.water, G, 30, 60.0, np.random.default_rng(3))
+    water = compute_water(sphere, G, RainOptions(4000, 0.01), np.random.default_rng(2))
+    drips = find_drips(sphere, water.water, G, DripOptions(30, 60.0), np.random.default_rng(3))
     return sphere, drips.positions, sphere.face_normals[drips.faces], drips.water
 
 

@@ -23,8 +23,12 @@ from ..params import GlazeParams, Params
 from ..placement import Placement, ground_height, ground_level, sole_vertices, stop_at_ground
 from ..stages import (
     BRANCH_LIFE,
+    DripOptions,
     DripResult,
+    DripStorm,
     IcicleSizing,
+    RainOptions,
+    StormOptions,
     TrajectoryResult,
     WaterResult,
     compute_water,
@@ -34,6 +38,7 @@ from ..stages import (
     refine,
     storm_water,
     thickening_m,
+    trajectory_options,
 )
 from .records import JobInputs, Stage, StageResults, stage_rng
 
@@ -73,11 +78,11 @@ def water(i: JobInputs, r: StageResults) -> WaterResult:
     p, surface = i.params, r.flow
     source = i.source() if i.source else None
     if i.physical:
-        result = storm_water(surface, i.gravity, p.storm, lifetime=p.glaze.lifetime, drip_limit=p.drips.drip_limit,
-                             cast=i.caster(surface), source=source, pools=p.water.pools)
+        options = StormOptions(p.storm, p.glaze.lifetime, p.drips.drip_limit, p.water.pools)
+        result = storm_water(surface, i.gravity, options, cast=i.caster(surface), source=source)
     else:
-        result = compute_water(surface, i.gravity, p.water.rays, p.water.influence_radius,
-                               stage_rng(i.seed, Stage.WATER), source, i.caster(surface), pools=p.water.pools)
+        rain = RainOptions(p.water.rays, p.water.influence_radius, p.water.pools)
+        result = compute_water(surface, i.gravity, rain, stage_rng(i.seed, Stage.WATER), source, i.caster(surface))
     if "water" in i.overrides:  # painted water replaces the coefficients and the storm, keeps the walks
         supply, painted = artifacts.read_water_ply(Path(i.overrides["water"]), len(surface.vertices))
         result = dataclasses.replace(result, supply=supply, water=painted, storm=None)
@@ -95,18 +100,17 @@ def drips(i: JobInputs, r: StageResults) -> DripResult:
     grounded = heights < heights.min() + d.ground_clearance * np.ptp(heights)
     if i.physical and i.placement != Placement.GROUND.value:
         grounded[:] = False  # a hanging sign's lowest rim is where it drips, not where it stands
-    shed = sizing = None
+    storm = None
     if i.physical and wet.storm is not None:
-        shed = wet.storm.shed
-        sizing = IcicleSizing(p.storm, p.surface, p.trajectories.branch_spread
-                              if p.trajectories.division_probability > 0 else 0.0)
-    found = find_drips(surface, wet.water, i.gravity, p.storm.max_icicles if i.physical else d.count,
-                       d.drip_limit, stage_rng(i.seed, Stage.DRIPS),
-                       exclude_boxes=i.exclude, exclude_vertices=grounded if d.ground_clearance > 0 else None,
-                       caster=i.caster(surface), spacing=d.spacing, distribution=d.distribution,
-                       min_fall=d.min_fall, floor=ground_level(i.placement, i.mesh, i.gravity),
-                       min_water=d.min_length / kl, shed=shed, sizing=sizing, length_scale=kl)
-    if shed is not None and len(found.positions):
+        storm = DripStorm(wet.storm.shed, IcicleSizing(p.storm, p.surface, p.trajectories.branch_spread
+                                                       if p.trajectories.division_probability > 0 else 0.0), kl)
+    options = DripOptions(p.storm.max_icicles if i.physical else d.count, d.drip_limit, spacing=d.spacing,
+                          distribution=d.distribution, min_fall=d.min_fall, min_water=d.min_length / kl,
+                          floor=ground_level(i.placement, i.mesh, i.gravity), exclude_boxes=i.exclude,
+                          exclude_vertices=grounded if d.ground_clearance > 0 else None)
+    found = find_drips(surface, wet.water, i.gravity, options, stage_rng(i.seed, Stage.DRIPS),
+                       caster=i.caster(surface), storm=storm)
+    if storm is not None and len(found.positions):
         # Each icicle thickens as the storm does, whatever its water; and the glaze at the
         # rim swallows its first centimetres: it hangs its length below the ice.
         growth = growth_ratios(found.water * kl, thickening_m(p.storm, found.active), p.surface.growth_ratio)
@@ -132,10 +136,10 @@ def trajectories(i: JobInputs, r: StageResults) -> TrajectoryResult:
         faces = np.clip(found.faces, 0, len(obj.faces) - 1)
         lift = found.normals if r.flow is not obj else np.where(
             (found.faces >= 0)[:, None], obj.face_normals[faces], found.normals)
-        result = grow_trajectories(obj, found.positions, lift, found.water, i.gravity,
-                                   stage_rng(i.seed, Stage.TRAJECTORIES), drip_limit=p.drips.drip_limit,
-                                   caster=i.caster(obj), branch_life=BRANCH_LIFE if i.physical else 1.0,
-                                   **dataclasses.asdict(p.trajectories))
+        options = trajectory_options(p.trajectories, i.gravity, p.drips.drip_limit,
+                                     branch_life=BRANCH_LIFE if i.physical else 1.0)
+        result = grow_trajectories(obj, found.positions, lift, found.water, stage_rng(i.seed, Stage.TRAJECTORIES),
+                                   options, caster=i.caster(obj))
     if found.growth is not None and result.n_branches:
         result = dataclasses.replace(result, branch_growth=found.growth[result.branch_icicle])
     if i.placement == Placement.GROUND.value:  # an icicle that reaches the ground stops at it
@@ -145,13 +149,13 @@ def trajectories(i: JobInputs, r: StageResults) -> TrajectoryResult:
 
 def landing(i: JobInputs, r: StageResults) -> Any:
     """Where the water off the icicles' tips lands."""
-    from ..stages import find_landings
+    from ..stages import LandingOptions, find_landings
 
     gi, obj = i.params.ground_ice, i.mesh
     assert r.trajectories is not None and r.drips is not None
-    return find_landings(r.trajectories, r.drips.water, i.gravity, runoff=gi.runoff, merge=gi.merge,
-                         cast=i.caster(obj), face_normals=obj.face_normals,
-                         floor=ground_level(i.placement, i.mesh, i.gravity))
+    options = LandingOptions(gi.runoff, gi.merge, floor=ground_level(i.placement, i.mesh, i.gravity))
+    return find_landings(r.trajectories, r.drips.water, i.gravity, options, cast=i.caster(obj),
+                         face_normals=obj.face_normals)
 
 
 def ground_ice(i: JobInputs, r: StageResults) -> Any:
@@ -204,14 +208,15 @@ def build_surface(i: JobInputs, r: StageResults, rng: np.random.Generator, glaze
     -------
     IceResult
     """
-    from ..stages import build_ice
+    from ..stages import IceInputs, build_ice
 
     p = i.params
     assert r.water is not None and r.drips is not None and r.trajectories is not None
     glaze = p.glaze if glaze is None else glaze
-    ice = build_ice(i.mesh, r.flow, r.water, r.drips, r.trajectories, p.surface, glaze, i.gravity, rng,
-                    exclude=sole(r.flow, p, i.gravity, i.placement), cast=i.caster(r.flow), measure=False,
-                    extra_balls=None if r.ground is None else r.ground.balls, note=i.note, coat_surface=r.wet)
+    inputs = IceInputs(i.mesh, r.flow, r.water, r.drips, r.trajectories,
+                       exclude=sole(r.flow, p, i.gravity, i.placement), coat_surface=r.wet,
+                       extra_balls=None if r.ground is None else r.ground.balls, cast=i.caster(r.flow))
+    ice = build_ice(inputs, p.surface, glaze, i.gravity, rng, measure=False, note=i.note)
     floor = ground_level(i.placement, i.mesh, i.gravity)
     if floor is None or len(ice.vertices) == 0:
         return ice

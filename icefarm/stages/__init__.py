@@ -13,17 +13,17 @@ the package imports no other.
 import lazy_loader as _lazy
 
 __getattr__, __dir__, __all__ = _lazy.attach(__name__, submod_attrs={
-    "drips": ["DripResult", "find_drips"],
+    "drips": ["DripOptions", "DripResult", "DripStorm", "find_drips"],
     "growth": ["MAX_FRAMES", "frame_fractions", "noise_draws", "stage4_inputs_at", "trajectories_at"],
     "icicle_size": ["BRANCH_LIFE", "IcicleGrowth", "IcicleSizing", "grow_icicles", "growth_ratios", "icicle_lengths",
                     "thickening_m"],
-    "landing": ["find_landings"],
+    "landing": ["LandingOptions", "find_landings"],
     "proxy": ["ProxyMethod", "build_proxy", "proxy_reason", "snap_to_surface"],
-    "storm": ["constants", "drip_rim_length", "precipitation_m", "refine", "storm_water"],
-    "surface": ["SLIVER", "CoatSurface", "build_ice", "carry_water", "fringe_figures", "ground_ice_balls",
+    "storm": ["StormOptions", "constants", "drip_rim_length", "precipitation_m", "refine", "storm_water"],
+    "surface": ["SLIVER", "CoatSurface", "IceInputs", "build_ice", "carry_water", "fringe_figures", "ground_ice_balls",
                 "icicle_balls", "measure_glaze", "measure_icicles", "meshing_view", "profile_args", "ripple_bands",
                 "view_surface", "VIEW_PX"],
-    "trajectories": ["TrajectoryResult", "grow_trajectories"],
+    "trajectories": ["TrajectoryOptions", "TrajectoryResult", "grow_trajectories", "trajectory_options"],
     "trajectory_stats": ["measure_trajectories"],
-    "water": ["WaterResult", "compute_water"],
+    "water": ["RainOptions", "WaterResult", "compute_water"],
 })

@@ -13,7 +13,10 @@ its stretch of the rim sheds (`icefarm.stages.rims`), so icicles that drain more
 
 from __future__ import annotations
 
+import dataclasses
+from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import trimesh
@@ -235,13 +238,87 @@ def _rim_pool(mesh, flux, region, gravity, spacing, count) -> int:
     return min(MAX_POOL, max(2 * hold, POOL_PER_POINT * hold, MIN_POOL))
 
 
-def find_drips(mesh: trimesh.Trimesh, water: np.ndarray, gravity, count: int, drip_limit: float,
-               rng: np.random.Generator, exclude_boxes=(),
-               exclude_vertices: np.ndarray | None = None, caster=None,
-               spacing: float = 0.0, distribution: str = "area", min_fall: float = 0.0,
-               floor: float | None = None, min_water: float = 0.0, shed: np.ndarray | None = None,
-               sizing=None, length_scale: float = 1.0) -> DripResult:
-    """Stage 2: the drip region and up to ``count`` drip points on it.
+@dataclass(frozen=True)
+class DripOptions:
+    """How stage 2 places its drip points: the ``drips`` parameter group as a job applies it.
+
+    Attributes
+    ----------
+    count : int
+        Drip points wanted (ns); fewer come back when the region cannot hold more at
+        ``spacing`` or has fewer vertices.
+    drip_limit : float
+        dl, degrees from gravity.
+    spacing : float
+        Least distance between two drip points, in meters (``drips.spacing``).
+    distribution : {"water", "area"}
+        ``drips.distribution``.
+    min_fall : float
+        Least free fall below a drip point, in meters (``drips.min_fall``): to the first
+        surface of the mesh straight below it or to ``floor``. Where the drop lands sooner
+        there is no room for an icicle (it would be a stub cut by what is below); the water
+        lands there instead. 0 keeps every point.
+    min_water : float
+        Least water coefficient of a drip point (meters): where less drips, the drop freezes
+        in place as part of the glaze instead of growing an icicle. The pipeline sets it
+        from ``drips.min_length`` over the length scale kL. 0 keeps every point.
+    floor : float, optional
+        Height of the ground along -gravity (a grounded object), meters.
+    exclude_boxes : sequence of ((3,), (3,)) corners, meters
+        No icicles on faces touching a vertex inside a box.
+    exclude_vertices : (n,) bool, optional
+        No icicles on faces touching these vertices (a painted mask, the sole).
+    """
+
+    count: int
+    drip_limit: float
+    spacing: float = 0.0
+    distribution: str = "area"
+    min_fall: float = 0.0
+    min_water: float = 0.0
+    floor: float | None = None
+    exclude_boxes: Sequence = ()
+    exclude_vertices: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class DripStorm:
+    """A physical storm's water off the object (`icefarm.stages.storm`), for `find_drips`.
+
+    Attributes
+    ----------
+    shed : (n,) float
+        The water dripping off at each vertex, m^3. It replaces the water coefficients'
+        `drip_flux`: the region is where it sheds, points are drawn by it along the rims (as
+        many as the rims hold at ``spacing``, at most ``count``), each point's water is the
+        volume its stretch of rim sheds (`catchment_volume`); the icicles compete for the rim
+        (`icefarm.stages.rims.compete`) and those a bigger one would fuse with feed it
+        (`icefarm.stages.rims.swallow`).
+    sizing : icefarm.stages.icicle_size.IcicleSizing, optional
+        Icicles' lengths and radii from their water; a drip point's water is then the
+        length over ``length_scale`` (kL).
+    length_scale : float
+        kL, meters (with ``sizing``).
+    """
+
+    shed: np.ndarray
+    sizing: Any = None
+    length_scale: float = 1.0
+
+
+@dataclass(frozen=True)
+class _Rim:
+    """Where the water drips off, as the draining of drip points reads it: the region's faces,
+    the water shed at each vertex (None: spread by area) and the step along the rims, m."""
+
+    region: np.ndarray
+    flux: np.ndarray | None
+    step: float
+
+
+def find_drips(mesh: trimesh.Trimesh, water: np.ndarray, gravity, options: DripOptions,
+               rng: np.random.Generator, *, caster=None, storm: DripStorm | None = None) -> DripResult:
+    """Stage 2: the drip region and up to ``options.count`` drip points on it.
 
     ``distribution="area"`` spreads the points area-weighted over the region's faces (the
     paper). ``distribution="water"`` draws them by the water that drips off there
@@ -261,69 +338,70 @@ def find_drips(mesh: trimesh.Trimesh, water: np.ndarray, gravity, count: int, dr
     water : (n,) float
         Water coefficients of its vertices.
     gravity : (3,) float
-    count : int
-        Drip points wanted (ns); fewer come back when the region cannot hold more at
-        ``spacing`` or has fewer vertices.
-    drip_limit : float
-        dl, degrees from gravity.
+    options : DripOptions
+        How many points, where and how far apart.
     rng : numpy.random.Generator
-    exclude_boxes : sequence of ((3,), (3,)) corners, meters
-        No icicles on faces touching a vertex inside a box.
-    exclude_vertices : (n,) bool, optional
-        No icicles on faces touching these vertices (a painted mask).
     caster : callable, optional
         A `icefarm.geometry.ray_caster` of ``mesh`` to reuse.
-    spacing : float
-        Least distance between two drip points, in meters (``drips.spacing``).
-    distribution : {"water", "area"}
-        ``drips.distribution``.
-    min_fall : float
-        Least free fall below a drip point, in meters (``drips.min_fall``): to the first
-        surface of ``mesh`` straight below it or to ``floor``. Where the drop lands sooner
-        there is no room for an icicle (it would be a stub cut by what is below); the water
-        lands there instead. 0 keeps every point.
-    floor : float, optional
-        Height of the ground along -gravity (a grounded object), meters.
-    min_water : float
-        Least water coefficient of a drip point (meters): where less drips, the drop freezes
-        in place as part of the glaze instead of growing an icicle. The pipeline sets it
-        from ``drips.min_length`` over the length scale kL. 0 keeps every point.
-    shed : (n,) float, optional
-        A physical storm (`icefarm.stages.storm`): the water dripping off at each vertex,
-        m^3. It replaces the water coefficients' `drip_flux`: the region is where it sheds,
-        points are drawn by it along the rims (as many as the rims hold at ``spacing``, at
-        most ``count``), each point's water is the volume its stretch of rim sheds
-        (`catchment_volume`); the icicles compete for the rim (`icefarm.stages.rims.compete`)
-        and those a bigger one would fuse with feed it (`icefarm.stages.rims.swallow`).
-    sizing : icefarm.stages.icicle_size.IcicleSizing, optional
-        With ``shed``: icicles' lengths and radii from their water; ``water`` is then the
-        length over ``length_scale`` (kL).
-    length_scale : float
-        kL, meters (with ``sizing``).
+    storm : DripStorm, optional
+        A physical storm's shed water and icicle sizing.
     """
     water = np.asarray(water, dtype=np.float64)
     if water.shape != (len(mesh.vertices),):
         raise ValueError(f"water must have one value per vertex ({len(mesh.vertices)}), got {water.shape}")
-    if not (np.isfinite(min_water) and min_water >= 0):  # derived (drips.min_length / kL), not a parameter
-        raise ValueError(f"min_water must be a non-negative water coefficient, got {min_water}")
-    if min_fall > 0:
+    o = options
+    if not (np.isfinite(o.min_water) and o.min_water >= 0):  # derived (drips.min_length / kL), not a parameter
+        raise ValueError(f"min_water must be a non-negative water coefficient, got {o.min_water}")
+    if o.min_fall > 0:
         caster = caster or ray_caster(mesh)
-    excluded = excluded_vertices(mesh.vertices, exclude_boxes)
-    if exclude_vertices is not None:
-        excluded |= np.asarray(exclude_vertices, dtype=bool)
-    if shed is not None:
-        shed = np.asarray(shed, dtype=np.float64)
-        if shed.shape != water.shape:
-            raise ValueError(f"shed must have one value per vertex ({len(mesh.vertices)}), got {shed.shape}")
-        region = drip_region(mesh, shed, gravity, drip_limit, excluded)
-        flux = np.where(np.isin(np.arange(len(shed)), mesh.faces[region]), shed, 0.0)
-        pool = _rim_pool(mesh, flux, region, gravity, spacing, count)
-    else:
-        region = drip_region(mesh, water, gravity, drip_limit, excluded)
-        pool = 2 * count if spacing == 0 else min(MAX_POOL, max(2 * count, POOL_PER_POINT * count, MIN_POOL))
-        flux = drip_flux(mesh, water, gravity, drip_limit, region) if distribution == "water" else None
+    excluded = excluded_vertices(mesh.vertices, o.exclude_boxes)
+    if o.exclude_vertices is not None:
+        excluded |= np.asarray(o.exclude_vertices, dtype=bool)
+    if storm is not None:
+        storm = dataclasses.replace(storm, shed=np.asarray(storm.shed, dtype=np.float64))
+        if storm.shed.shape != water.shape:
+            raise ValueError(f"shed must have one value per vertex ({len(mesh.vertices)}), got {storm.shed.shape}")
+    region, flux, pool = _drip_sources(mesh, water, gravity, o, excluded, storm)
     by_water = flux is not None and flux.sum() > 0
-    if by_water:
+    corners, bary, face = _drawn_points(mesh, gravity, o, region, flux if by_water else None, pool, rng, caster,
+                                         storm is not None)
+    if len(face) == 0 and o.count > 0:
+        by_water = False
+        corners, bary, face = _transition_drips(mesh, water, gravity, o, excluded, pool, rng, caster)
+    positions = np.einsum("ij,ijk->ik", bary, mesh.vertices[corners])
+    normals = unit(np.einsum("ij,ijk->ik", bary, mesh.vertex_normals[corners]))
+    coefficients = np.einsum("ij,ij->i", bary, water[corners])
+    rim = _Rim(region, flux, (o.spacing or float(np.median(mesh.edges_unique_length))) / SAMPLES_PER_SPACING)
+    drain = _drainer(mesh, water, gravity, o, rim, storm) if by_water else None
+    positions, normals, face, coefficients = _drop_dry(positions, normals, face, coefficients, o.min_water, drain)
+    active = None
+    if by_water and storm is not None and len(positions):
+        keep, coefficients, active = _compete(mesh, gravity, o, rim, storm, positions, normals, rng, caster)
+        positions, normals, face, coefficients, active = (positions[keep], normals[keep], face[keep],
+                                                          coefficients[keep], active[keep])
+    return DripResult(region_faces=region, positions=positions, normals=normals,
+                      water=coefficients, faces=face, active=active)
+
+
+def _drip_sources(mesh, water, gravity, o: DripOptions, excluded, storm):
+    """The drip region, the water shed at each vertex that draws the points along its rims
+    (None: by area) and how many candidates to draw."""
+    if storm is not None:
+        region = drip_region(mesh, storm.shed, gravity, o.drip_limit, excluded)
+        flux = np.where(np.isin(np.arange(len(storm.shed)), mesh.faces[region]), storm.shed, 0.0)
+        return region, flux, _rim_pool(mesh, flux, region, gravity, o.spacing, o.count)
+    region = drip_region(mesh, water, gravity, o.drip_limit, excluded)
+    count = o.count
+    pool = 2 * count if o.spacing == 0 else min(MAX_POOL, max(2 * count, POOL_PER_POINT * count, MIN_POOL))
+    flux = drip_flux(mesh, water, gravity, o.drip_limit, region) if o.distribution == "water" else None
+    return region, flux, pool
+
+
+def _drawn_points(mesh, gravity, o: DripOptions, region, flux, pool, rng, caster, physical: bool):
+    """Candidates drawn along the rims by ``flux`` (or by area), those buried or without room
+    below dropped, the rest thinned to ``o.spacing``: ``(corners (k, 3) int, barycentric
+    weights (k, 3), faces (k,))``."""
+    if flux is not None:
         face, bary = rim_points(mesh, flux, region, gravity, pool, rng)
     else:
         _, face, bary = sample_faces(mesh, region, pool, rng)
@@ -333,75 +411,85 @@ def find_drips(mesh: trimesh.Trimesh, water: np.ndarray, gravity, count: int, dr
         lifted = points + tol.offset * float(np.linalg.norm(mesh.extents)) * mesh.face_normals[face]
         free = ~inside(caster or ray_caster(mesh), lifted)
         face, bary, points = face[free], bary[free], points[free]
-    if min_fall > 0:
-        room = free_fall(caster, points, mesh.face_normals[face], gravity, floor) >= min_fall
-        if shed is not None:  # a physical storm's fringe; the relative mode keeps the paper's points
-            room[room] = side_room(caster, mesh.face_normals, points[room], gravity, 0.5 * min_fall)
+    if o.min_fall > 0:
+        room = free_fall(caster, points, mesh.face_normals[face], gravity, o.floor) >= o.min_fall
+        if physical:  # a physical storm's fringe; the relative mode keeps the paper's points
+            room[room] = side_room(caster, mesh.face_normals, points[room], gravity, 0.5 * o.min_fall)
         face, bary, points = face[room], bary[room], points[room]
-    keep = _spaced(points, spacing, count)
-    face, bary = face[keep], bary[keep]
-    corners = mesh.faces[face]
-    if len(face) == 0 and count > 0:
-        by_water = False
-        ok = drip_criterion(mesh.vertex_normals, gravity, drip_limit) & ~excluded
-        corners, bary = _transition_points(mesh, water, ok, count if spacing == 0 else pool, rng)
-        if min_fall > 0:
-            at = np.einsum("ij,ijk->ik", bary, mesh.vertices[corners])
-            room = free_fall(caster, at, np.einsum("ij,ijk->ik", bary, mesh.vertex_normals[corners]),
-                             gravity, floor) >= min_fall
-            corners, bary = corners[room], bary[room]
-        keep = _spaced(np.einsum("ij,ijk->ik", bary, mesh.vertices[corners]), spacing, count)
-        corners, bary = corners[keep], bary[keep]
-        face = mesh.vertex_faces[corners[:, 0], 0]
-    positions = np.einsum("ij,ijk->ik", bary, mesh.vertices[corners])
-    normals = unit(np.einsum("ij,ijk->ik", bary, mesh.vertex_normals[corners]))
-    coefficients = np.einsum("ij,ij->i", bary, water[corners])
-    step = (spacing or float(np.median(mesh.edges_unique_length))) / SAMPLES_PER_SPACING
+    keep = _spaced(points, o.spacing, o.count)
+    return mesh.faces[face[keep]], bary[keep], face[keep]
 
+
+def _transition_drips(mesh, water, gravity, o: DripOptions, excluded, pool, rng, caster):
+    """Drip points on the qualifying edges or vertices where no face qualifies
+    (`_transition_points`), with room below and spaced: as `_drawn_points` returns them."""
+    ok = drip_criterion(mesh.vertex_normals, gravity, o.drip_limit) & ~excluded
+    corners, bary = _transition_points(mesh, water, ok, o.count if o.spacing == 0 else pool, rng)
+    if o.min_fall > 0:
+        at = np.einsum("ij,ijk->ik", bary, mesh.vertices[corners])
+        room = free_fall(caster, at, np.einsum("ij,ijk->ik", bary, mesh.vertex_normals[corners]),
+                         gravity, o.floor) >= o.min_fall
+        corners, bary = corners[room], bary[room]
+    keep = _spaced(np.einsum("ij,ijk->ik", bary, mesh.vertices[corners]), o.spacing, o.count)
+    corners, bary = corners[keep], bary[keep]
+    return corners, bary, mesh.vertex_faces[corners[:, 0], 0]
+
+
+def _drainer(mesh, water, gravity, o: DripOptions, rim: _Rim, storm: DripStorm | None):
+    """The water of drip points at ``positions`` (k, 3) drained from their stretches of rim:
+    a physical storm's volume (or icicle length over kL), else `catchment_water`."""
     def drained(positions: np.ndarray) -> np.ndarray:
-        if shed is not None:
-            reach = RIM_REACH * max(spacing, step)
-            volume = catchment_volume(mesh, flux, region, gravity, positions, step, reach=reach)
-            return volume if sizing is None else sizing.length(volume) / length_scale
-        return catchment_water(mesh, water, flux, region, gravity, positions, step)
+        if storm is not None:
+            reach = RIM_REACH * max(o.spacing, rim.step)
+            volume = catchment_volume(mesh, rim.flux, rim.region, gravity, positions, rim.step, reach=reach)
+            return volume if storm.sizing is None else storm.sizing.length(volume) / storm.length_scale
+        return catchment_water(mesh, water, rim.flux, rim.region, gravity, positions, rim.step)
 
-    if by_water:
-        coefficients = drained(positions)
-    for _ in range(MAX_DRY_PASSES):  # the rest drain the dry points' stretches of rim too
+    return drained
+
+
+def _drop_dry(positions, normals, face, coefficients, min_water, drain):
+    """The drip points with at least ``min_water``; with ``drain`` (`_drainer`) the rest drain
+    the dropped points' stretches of rim too, over up to `MAX_DRY_PASSES` rounds."""
+    if drain is not None:
+        coefficients = drain(positions)
+    for _ in range(MAX_DRY_PASSES):
         wet = coefficients >= min_water
         if wet.all():
             break
         positions, normals, face, coefficients = positions[wet], normals[wet], face[wet], coefficients[wet]
-        if by_water and len(positions):
-            coefficients = drained(positions)
+        if drain is not None and len(positions):
+            coefficients = drain(positions)
     wet = coefficients >= min_water
-    positions, normals, face, coefficients = positions[wet], normals[wet], face[wet], coefficients[wet]
-    active = None
-    if by_water and shed is not None and len(positions):
-        # Only now do the icicles compete for the rim: those it starves stay short, as nubs
-        # (frozen pendant drops) down to NUB_SHARE of drips.min_length; shorter ones freeze
-        # into the glaze, their water dripping off the rim.
-        volume = catchment_volume(mesh, flux, region, gravity, positions, step, reach=RIM_REACH * max(spacing, step))
-        volume, active = compete(volume, positions, rng, spacing)
-        # half of them had the storm's whole cold, the others less (a later start, shelter)
-        exposure = np.minimum(1.0, rng.lognormal(0.0, HEAT_SPREAD, len(volume)))
-        kept = np.ones(len(volume), dtype=bool)
-        if sizing is not None:
-            volume, active, kept = swallow(volume, active, positions, sizing, gravity, exposure=exposure)
-            if min_fall > 0 and kept.any():  # an icicle that would touch a wall below its rim runs down it
-                length = sizing.length(volume[kept], active[kept], exposure[kept])
-                depth = 0.5 * length
-                clear = sizing.radius(length, active[kept], depth) + FUSE_MARGIN
-                kept[kept] = side_room(caster, mesh.face_normals, positions[kept], gravity, depth, clear)
-        coefficients = volume if sizing is None else sizing.length(volume, active, exposure) / length_scale
-        if sizing is not None and min_fall > 0:
-            # An icicle stops short of what lies below it (the water then drips onto it): grown
-            # down to it, the icicle would be cut there and thicken into a pillar (the fountain's
-            # winners, down to its lower bowl; the bench's, down to the ground).
-            fall = free_fall(caster, positions, normals, gravity, floor)
-            coefficients = np.minimum(coefficients, FALL_SHARE * fall / length_scale)
-        wet = kept & (coefficients >= NUB_SHARE * min_water)  # the starved stay as frozen pendant drops
-        positions, normals, face, coefficients, active = (positions[wet], normals[wet], face[wet],
-                                                          coefficients[wet], active[wet])
-    return DripResult(region_faces=region, positions=positions, normals=normals,
-                      water=coefficients, faces=face, active=active)
+    return positions[wet], normals[wet], face[wet], coefficients[wet]
+
+
+def _compete(mesh, gravity, o: DripOptions, rim: _Rim, storm: DripStorm, positions, normals, rng, caster):
+    """A physical storm's icicles compete for the rim: ``(kept (k,) bool, water (k,),
+    active (k,))``.
+
+    Only now do the icicles compete for the rim: those it starves stay short, as nubs
+    (frozen pendant drops) down to `NUB_SHARE` of drips.min_length; shorter ones freeze
+    into the glaze, their water dripping off the rim."""
+    sizing, kl = storm.sizing, storm.length_scale
+    reach = RIM_REACH * max(o.spacing, rim.step)
+    volume = catchment_volume(mesh, rim.flux, rim.region, gravity, positions, rim.step, reach=reach)
+    volume, active = compete(volume, positions, rng, o.spacing)
+    # half of them had the storm's whole cold, the others less (a later start, shelter)
+    exposure = np.minimum(1.0, rng.lognormal(0.0, HEAT_SPREAD, len(volume)))
+    kept = np.ones(len(volume), dtype=bool)
+    if sizing is not None:
+        volume, active, kept = swallow(volume, active, positions, sizing, gravity, exposure=exposure)
+        if o.min_fall > 0 and kept.any():  # an icicle that would touch a wall below its rim runs down it
+            length = sizing.length(volume[kept], active[kept], exposure[kept])
+            depth = 0.5 * length
+            clear = sizing.radius(length, active[kept], depth) + FUSE_MARGIN
+            kept[kept] = side_room(caster, mesh.face_normals, positions[kept], gravity, depth, clear)
+    coefficients = volume if sizing is None else sizing.length(volume, active, exposure) / kl
+    if sizing is not None and o.min_fall > 0:
+        # An icicle stops short of what lies below it (the water then drips onto it): grown
+        # down to it, the icicle would be cut there and thicken into a pillar (the fountain's
+        # winners, down to its lower bowl; the bench's, down to the ground).
+        fall = free_fall(caster, positions, normals, gravity, o.floor)
+        coefficients = np.minimum(coefficients, FALL_SHARE * fall / kl)
+    return kept & (coefficients >= NUB_SHARE * o.min_water), coefficients, active

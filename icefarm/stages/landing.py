@@ -60,8 +60,27 @@ class LandingResult:
         return len(self.water)
 
 
-def find_landings(traj: TrajectoryResult, drip_water: np.ndarray, gravity, *, runoff: float, merge: float,
-                  cast=None, face_normals: np.ndarray | None = None, floor: float | None = None) -> LandingResult:
+@dataclass(frozen=True)
+class LandingOptions:
+    """How the drops off the tips fall and gather (`find_landings`).
+
+    Attributes
+    ----------
+    runoff : float
+        Share of an icicle's water that drips off its tips, in [0, 1] (``ground_ice.runoff``).
+    merge : float
+        Landing points closer than this merge, meters (0: none merge; ``ground_ice.merge``).
+    floor : float, optional
+        Height of the ground plane along -gravity (a grounded object); None: no ground.
+    """
+
+    runoff: float
+    merge: float
+    floor: float | None = None
+
+
+def find_landings(traj: TrajectoryResult, drip_water: np.ndarray, gravity, options: LandingOptions, *,
+                  cast=None, face_normals: np.ndarray | None = None) -> LandingResult:
     """Follow gravity from every branch tip to the first surface below it.
 
     Each non-empty branch drips from its tip: ``runoff`` of its icicle's water coefficient
@@ -83,16 +102,12 @@ def find_landings(traj: TrajectoryResult, drip_water: np.ndarray, gravity, *, ru
         Water coefficient of each icicle (`DripResult.water`), meters.
     gravity : (3,) float
         Direction of gravity.
-    runoff : float
-        Share of an icicle's water that drips off its tips, in [0, 1].
-    merge : float
-        Landing points closer than this merge, meters (0: none merge).
+    options : LandingOptions
+        The share that runs off, the merge distance and the ground's height.
     cast : callable, optional
         `icefarm.geometry.ray_caster` of the object; None: the object is not looked at.
     face_normals : (f, 3) float, optional
         The object's face normals (for the normal at a landing point); needed with ``cast``.
-    floor : float, optional
-        Height of the ground plane along -gravity (a grounded object); None: no ground.
 
     Returns
     -------
@@ -113,7 +128,8 @@ def find_landings(traj: TrajectoryResult, drip_water: np.ndarray, gravity, *, ru
     icicle = np.asarray(traj.branch_icicle, dtype=np.int64)
     if len(icicle) and (icicle.min() < 0 or icicle.max() >= len(drip_water)):
         raise ValueError("trajectories.branch_icicle indexes icicles outside drip_water")
-    return _find_landings(traj, off, icicle, drip_water, g, runoff, merge, cast, face_normals, floor)
+    return _find_landings(traj, off, icicle, drip_water, g, options.runoff, options.merge, cast, face_normals,
+                          options.floor)
 
 
 def _find_landings(traj, off, icicle, drip_water, g, runoff, merge, cast, face_normals, floor):

@@ -45,6 +45,7 @@ from scipy.sparse.linalg import cg
 from scipy.spatial import cKDTree
 
 from ..geometry import unit
+from ..params import StormParams
 from .basins import spill_over, spill_routes
 from .rain import FALL_SPEED, facing_rain, open_sky, rain_vector
 from .runoff import film_routes, run_film
@@ -175,10 +176,40 @@ def vertex_areas(mesh: trimesh.Trimesh) -> np.ndarray:
                        minlength=len(mesh.vertices))
 
 
-def accrete(mesh: trimesh.Trimesh, gravity, sky: np.ndarray, precipitation: float, *, kind: str,
-            freeze: float, wall_freeze: float, lifetime: float, drip_limit: float,
-            d_up: np.ndarray, d_down: np.ndarray, rain=None, pools: str = "ignore",
-            cast=None) -> StormResult:
+@dataclass(frozen=True)
+class StormOptions:
+    """A physical storm as stage 1 runs it: the ``storm`` group with what it reads from others.
+
+    Attributes
+    ----------
+    storm : StormParams
+        The resolved ``storm`` group: its kind, precipitation (`precipitation_m`), freeze
+        and wall freeze shares, wind.
+    lifetime : float
+        ``glaze.lifetime``: 0 puts the freezing budget high on the walk, 1 low, 0.5 evens it.
+    drip_limit : float
+        ``drips.drip_limit``: degrees from gravity within which a surface sheds its film.
+    pools : {"ignore", "overflow"}
+        ``water.pools``: ``overflow`` takes basins as full (a fountain's bowls, a gutter),
+        so what pools in them spills over their rims and runs on
+        (`icefarm.stages.basins.spill_routes`), down to the next basin or a drip rim.
+    """
+
+    storm: StormParams
+    lifetime: float
+    drip_limit: float
+    pools: str = "ignore"
+
+
+def walk_position(d_up: np.ndarray, d_down: np.ndarray) -> np.ndarray:
+    """``(n,)`` where each vertex lies on its walk, from Algorithm 1's walked distances up and
+    down (meters): 0 at the top, 1 at the bottom, 0.5 on no walk."""
+    walk = np.asarray(d_up, dtype=np.float64) + np.asarray(d_down, dtype=np.float64)
+    return np.divide(d_up, walk, out=np.full(len(walk), 0.5), where=walk > 0)
+
+
+def accrete(mesh: trimesh.Trimesh, gravity, sky: np.ndarray, low: np.ndarray, options: StormOptions, *,
+            rain=None, cast=None) -> StormResult:
     """Catch, freeze, run off and shed a storm's water over ``mesh``.
 
     Parameters
@@ -188,26 +219,13 @@ def accrete(mesh: trimesh.Trimesh, gravity, sky: np.ndarray, precipitation: floa
     gravity : (3,) float
     sky : (n,) bool
         `icefarm.stages.rain.open_sky` of the vertices.
-    precipitation : float
-        Meters of water (`precipitation_m`): rain, or melted snow for ``meltwater``.
-    kind : {"freezing_rain", "meltwater"}
-    freeze : float
-        Share of a level face's catch that it can freeze in place, [0, 1].
-    wall_freeze : float
-        A vertical or downward face's freezing budget over a level one's, [0, 1].
-    lifetime : float
-        ``glaze.lifetime``: 0 puts the budget high on the walk, 1 low, 0.5 evens it.
-    drip_limit : float
-        Degrees from gravity within which a surface sheds its film.
-    d_up, d_down : (n,) float
-        Algorithm 1's walked distances up and down, meters (where on its walk a vertex lies).
+    low : (n,) float
+        Where each vertex lies on its walk (`walk_position`): 0 at the top, 1 at the bottom.
+    options : StormOptions
+        The storm, the glaze's lifetime, the drip limit and what pools do.
     rain : (3,) float, optional
         `icefarm.stages.rain.rain_vector`: freezing rain slanted by the wind lands on the
         faces that turn towards it; None: along gravity.
-    pools : {"ignore", "overflow"}
-        ``water.pools``: ``overflow`` takes basins as full (a fountain's bowls, a gutter),
-        so what pools in them spills over their rims and runs on
-        (`icefarm.stages.basins.spill_routes`), down to the next basin or a drip rim.
     cast : callable, optional
         A `icefarm.geometry.ray_caster` of ``mesh`` to reuse (``overflow`` only).
 
@@ -215,7 +233,10 @@ def accrete(mesh: trimesh.Trimesh, gravity, sky: np.ndarray, precipitation: floa
     -------
     StormResult
     """
-    kind = StormKind(kind).value
+    storm, lifetime = options.storm, options.lifetime
+    precipitation = precipitation_m(storm.intensity, storm.precipitation)
+    freeze, wall_freeze = storm.freeze, storm.wall_freeze
+    kind = StormKind(storm.kind).value
     g = unit(np.asarray(gravity, dtype=np.float64))
     n = len(mesh.vertices)
     normals = np.asarray(mesh.vertex_normals)
@@ -227,10 +248,8 @@ def accrete(mesh: trimesh.Trimesh, gravity, sky: np.ndarray, precipitation: floa
         catch = precipitation * np.where(snow, cos_up, 0.0) * area
     else:
         catch = precipitation * np.where(sky, facing_rain(normals, g if rain is None else rain), 0.0) * area
-    cos_limit = math.cos(math.radians(drip_limit))
+    cos_limit = math.cos(math.radians(options.drip_limit))
     tilt = np.clip((normals @ g - cos_limit) / (1.0 - cos_limit), 0.0, 1.0)
-    walk = np.asarray(d_up, dtype=np.float64) + np.asarray(d_down, dtype=np.float64)
-    low = np.divide(d_up, walk, out=np.full(n, 0.5), where=walk > 0)  # 0 at the top of the walk, 1 at the bottom
     lean = 1.0 + LIFETIME_CONTRAST * (2.0 * lifetime - 1.0) * (low - 0.5)
     capacity = freeze * precipitation * area * lean * (wall_freeze + (1.0 - wall_freeze) * np.maximum(cos_up, 0.0))
     if kind == StormKind.MELTWATER.value:  # the warm body melts, the cold rims refreeze
@@ -244,7 +263,7 @@ def accrete(mesh: trimesh.Trimesh, gravity, sky: np.ndarray, precipitation: floa
     runout = RUNOUT_M * 2.0 * lifetime
     passing = 1.0 - np.exp(-step / runout) if runout > 0 else np.ones(n)
     frozen, shed, pooled = run_film(catch, capacity, passing, tilt, (start, target, share), order, outlet)
-    if pools == "overflow" and pooled.any():
+    if options.pools == "overflow" and pooled.any():
         spills = spill_routes(mesh, g, cast)
         for _ in range(SPILL_CASCADE):
             arriving, kept = spill_over(pooled, spills)
@@ -303,8 +322,8 @@ def _spread(mesh: trimesh.Trimesh, volume: np.ndarray, area: np.ndarray) -> np.n
     return out * (rhs.sum() / total) if total > 0 else out
 
 
-def storm_water(mesh: trimesh.Trimesh, gravity, storm, *, lifetime: float, drip_limit: float, cast,
-                source: trimesh.Trimesh | None = None, pools: str = "ignore"):
+def storm_water(mesh: trimesh.Trimesh, gravity, options: StormOptions, *, cast,
+                source: trimesh.Trimesh | None = None):
     """Stage 1 under a physical storm: the supply is every upward vertex under open sky,
     Algorithm 1 walks on it (where each vertex lies on its walk) and `accrete` runs the storm.
 
@@ -313,17 +332,13 @@ def storm_water(mesh: trimesh.Trimesh, gravity, storm, *, lifetime: float, drip_
     mesh : trimesh.Trimesh
         The flow surface, in meters.
     gravity : (3,) float
-    storm : StormParams
-        The resolved ``storm`` group.
-    lifetime, drip_limit : float
-        ``glaze.lifetime`` and ``drips.drip_limit`` (degrees).
+    options : StormOptions
+        The resolved ``storm`` group, the glaze's lifetime, the drip limit and what pools do.
     cast : callable
         A `icefarm.geometry.ray_caster` of ``mesh``.
     source : trimesh.Trimesh, optional
         ``water.source``: the storm falls only from this surface (a vertex must also see it
         straight up); None: the whole sky.
-    pools : {"ignore", "overflow"}
-        ``water.pools`` (`accrete`).
 
     Returns
     -------
@@ -332,6 +347,7 @@ def storm_water(mesh: trimesh.Trimesh, gravity, storm, *, lifetime: float, drip_
     """
     from .water import WaterResult, water_coefficients
 
+    storm = options.storm
     g = unit(np.asarray(gravity, dtype=np.float64))
     # Snow lies where it fell: only freezing rain drifts with the wind.
     rain = rain_vector(g, storm.wind) if storm.kind == StormKind.FREEZING_RAIN.value else g
@@ -344,9 +360,7 @@ def storm_water(mesh: trimesh.Trimesh, gravity, storm, *, lifetime: float, drip_
         sky[under] = np.isfinite(ray_caster(source)(mesh.vertices[under], np.broadcast_to(back, (len(under), 3)))[0])
     supply = sky & (facing_rain(np.asarray(mesh.vertex_normals), rain) > 0)
     water, top, d_up, bottom, d_down = water_coefficients(mesh, supply, g)
-    result = accrete(mesh, g, sky, precipitation_m(storm.intensity, storm.precipitation), kind=storm.kind,
-                     freeze=storm.freeze, wall_freeze=storm.wall_freeze, lifetime=lifetime,
-                     drip_limit=drip_limit, d_up=d_up, d_down=d_down, rain=rain, pools=pools, cast=cast)
+    result = accrete(mesh, g, sky, walk_position(d_up, d_down), options, rain=rain, cast=cast)
     return WaterResult(supply=supply, water=water, top=top, d_up=d_up, bottom=bottom, d_down=d_down,
                        hits=np.asarray(mesh.vertices)[supply], storm=result)
 

@@ -13,12 +13,15 @@ The turtle that draws them, with its collisions, is `turtles`; their shape stati
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import trimesh
 
 from ..geometry import perpendicular_basis, unit
+from ..params import TrajectoriesParams
 from ..tol import tol
 from .turtles import BRANCH_ANGLE, _Grower, _Turtles
 
@@ -86,13 +89,68 @@ def spread_steps(branch_spread: float, step_length: float) -> int:
     return max(1, int(np.ceil(branch_spread / aside - tol.slack)))
 
 
+@dataclass(frozen=True)
+class TrajectoryOptions:
+    """How stage 3 grows the icicles: the ``trajectories`` parameter group with what it reads
+    from elsewhere (gravity, ``drips.drip_limit``, a physical storm's branch life).
+
+    Attributes
+    ----------
+    gravity : (3,) float
+        Direction of gravity.
+    drip_limit : float
+        dl, degrees: where a collision slide may drip again.
+    curve_angle, roll_angle : float
+        c and au, degrees.
+    division_probability : float
+        d, in [0, 1].
+    step_length : float
+        Length of F, meters.
+    length_scale : float
+        Icicle meters per meter of water coefficient.
+    max_branches : int
+        Branches per icicle at most (d = 1 would otherwise double them every generation).
+    max_tilt : float
+        Degrees in [0, 90]: no heading leans further than this from gravity.
+    wind : (3,) float
+        Direction the wind blows; only its part perpendicular to gravity counts, and zero
+        (still air) leaves each icicle's bend to its random initial spin and the roll.
+    branch_spread : float
+        Meters a new branch moves aside from its parent before it grows on parallel; 0
+        keeps the paper's single F (``F sin 30`` aside).
+    contact : {"slide", "stop"}
+        Where a step meets the object: the paper's slide, or the branch ends on the surface.
+    branch_life : float
+        In ]0, 1]: a branch grows for this share of the generations its icicle has left when
+        it splits off (1: the paper's, to the icicle's last generation, so that every branch
+        ends beside the trunk's tip; a physical storm's `BRANCH_LIFE`).
+    """
+
+    gravity: Any
+    drip_limit: float
+    curve_angle: float
+    division_probability: float
+    roll_angle: float
+    step_length: float
+    length_scale: float
+    max_branches: int
+    max_tilt: float = 60.0
+    wind: Any = (0.0, 0.0, 0.0)
+    branch_spread: float = 0.02
+    contact: str = "slide"
+    branch_life: float = 1.0
+
+
+def trajectory_options(group: TrajectoriesParams, gravity, drip_limit: float,
+                       branch_life: float = 1.0) -> TrajectoryOptions:
+    """The `TrajectoryOptions` of a job's ``trajectories`` parameter group."""
+    return TrajectoryOptions(gravity=gravity, drip_limit=drip_limit, branch_life=branch_life,
+                             **dataclasses.asdict(group))
+
+
 def grow_trajectories(mesh: trimesh.Trimesh, positions: np.ndarray, normals: np.ndarray,
-                      water: np.ndarray, gravity, rng: np.random.Generator, *,
-                      curve_angle: float, division_probability: float, roll_angle: float,
-                      step_length: float, length_scale: float, max_branches: int,
-                      drip_limit: float, max_tilt: float = 60.0, wind=(0.0, 0.0, 0.0),
-                      branch_spread: float = 0.02, contact: str = "slide", caster=None,
-                      branch_life: float = 1.0) -> TrajectoryResult:
+                      water: np.ndarray, rng: np.random.Generator, options: TrajectoryOptions, *,
+                      caster=None) -> TrajectoryResult:
     """Stage 3: grow one icicle per drip point with the paper's L-system.
 
     ``w: FX;  p1': X -(1-d)-> +(c)FFF/(a)X;  p1'': X -(d)-> [(c)+(30)F-(30)FX]A;
@@ -118,52 +176,69 @@ def grow_trajectories(mesh: trimesh.Trimesh, positions: np.ndarray, normals: np.
         into thin parts).
     water : (k,) float
         Water coefficient at each drip point, meters.
-    gravity : (3,) float
     rng : numpy.random.Generator
-    curve_angle, roll_angle : float
-        c and au, degrees.
-    division_probability : float
-        d, in [0, 1].
-    step_length : float
-        Length of F, meters.
-    length_scale : float
-        Icicle meters per meter of water coefficient.
-    max_branches : int
-        Branches per icicle at most (d = 1 would otherwise double them every generation).
-    drip_limit : float
-        dl, degrees: where a collision slide may drip again.
-    max_tilt : float
-        Degrees in [0, 90]: no heading leans further than this from gravity.
-    wind : (3,) float
-        Direction the wind blows; only its part perpendicular to gravity counts, and zero
-        (still air) leaves each icicle's bend to its random initial spin and the roll.
-    branch_spread : float
-        Meters a new branch moves aside from its parent before it grows on parallel; 0
-        keeps the paper's single F (``F sin 30`` aside).
-    contact : {"slide", "stop"}
-        Where a step meets the object: the paper's slide, or the branch ends on the surface.
+    options : TrajectoryOptions
+        The L-system's angles, steps and limits, and gravity.
     caster : callable, optional
         A `icefarm.geometry.ray_caster` of ``mesh`` to reuse (stage 1 may have built one).
-    branch_life : float
-        In ]0, 1]: a branch grows for this share of the generations its icicle has left when
-        it splits off (1: the paper's, to the icicle's last generation, so that every branch
-        ends beside the trunk's tip; a physical storm's `BRANCH_LIFE`).
     """
+    o = options
     positions = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
     normals = np.asarray(normals, dtype=np.float64).reshape(-1, 3)
     water = np.asarray(water, dtype=np.float64).reshape(-1)
     if not len(positions) == len(normals) == len(water):
         raise ValueError("positions, normals and water need one row per drip point")
-    if not 0 < branch_life <= 1:  # not a parameter, so the registry does not check it
-        raise ValueError(f"branch_life must lie in ]0, 1], got {branch_life}")
+    if not 0 < o.branch_life <= 1:  # not a parameter, so the registry does not check it
+        raise ValueError(f"branch_life must lie in ]0, 1], got {o.branch_life}")
+    grower, turtles, generations = _start(mesh, positions, normals, water, rng, o, caster)
+    parents = [-1] * len(positions)
+    branch_count = np.ones(len(positions), dtype=int)
+    roll = o.roll_angle * GOLDEN_ROLL / 360.0
+    n_spread = spread_steps(o.branch_spread, o.step_length)
+    for gen in range(int(generations.max(initial=0))):
+        active = turtles.alive & (turtles.last > gen)
+        draws = rng.random(len(turtles.alive))
+        resting = active & (turtles.rest > 0)
+        turtles.rest[resting] -= 1
+        active &= ~resting
+        divide = active & ~turtles.pending_a & (draws < o.division_probability)
+        for r in np.flatnonzero(divide):  # cap per icicle, in turtle order
+            if branch_count[turtles.icicle[r]] >= o.max_branches:
+                divide[r] = False
+            else:
+                branch_count[turtles.icicle[r]] += 1
+        grow = np.flatnonzero(active & ~divide)
+        turtles.pending_a[grow] = False
+        grower.bend(turtles, grow, o.curve_angle)
+        for _ in range(3):
+            grower.forward(turtles, grow)
+        grower.roll(turtles, grow, roll)
+        split = np.flatnonzero(divide)
+        if len(split):
+            parents.extend(turtles.branch[split].tolist())
+            turtles = _branch(grower, turtles, split, generations, gen, o, n_spread)
+    counts = np.array([len(p) for p in grower.points], dtype=np.int64)
+    branch_icicle = np.empty(len(counts), dtype=np.int64)
+    branch_icicle[turtles.branch] = turtles.icicle
+    return TrajectoryResult(
+        points=np.concatenate([np.array(p).reshape(-1, 3) for p in grower.points]) if counts.size else np.zeros((0, 3)),
+        branch_offsets=np.r_[0, np.cumsum(counts)],
+        branch_icicle=branch_icicle,
+        branch_parent=np.array(parents, dtype=np.int64),
+    )
+
+
+def _start(mesh, positions, normals, water, rng, o: TrajectoryOptions, caster):
+    """The grower, one turtle per drip point just off the surface heading along gravity
+    after the axiom's F, and each icicle's generations ``(k,) int``."""
     n = len(positions)
-    g = unit(np.asarray(gravity, dtype=np.float64).reshape(3))
-    wind = np.asarray(wind, dtype=np.float64).reshape(3)
+    g = unit(np.asarray(o.gravity, dtype=np.float64).reshape(3))
+    wind = np.asarray(o.wind, dtype=np.float64).reshape(3)
     wind = wind - (wind @ g) * g
     blowing = bool(np.linalg.norm(wind) > tol.zero)
-    grower = _Grower(mesh, g, step_length, drip_limit, caster, max_tilt, unit(wind) if blowing else None,
-                     slide=contact == "slide")
-    generations = np.maximum(0, np.round((length_scale * water - step_length) / (3 * step_length))).astype(int)
+    grower = _Grower(mesh, g, o.step_length, o.drip_limit, caster, o.max_tilt, unit(wind) if blowing else None,
+                     slide=o.contact == "slide")
+    generations = np.maximum(0, np.round((o.length_scale * water - o.step_length) / (3 * o.step_length))).astype(int)
     u, v = perpendicular_basis(g)
     spin = rng.uniform(0, 2 * np.pi, n)[:, None]  # drawn in wind too: the same seed, the same branches
     turtles = _Turtles(
@@ -178,62 +253,35 @@ def grow_trajectories(mesh: trimesh.Trimesh, positions: np.ndarray, normals: np.
         last=generations.astype(np.int64),
     )
     grower.points = [[p.copy()] for p in turtles.pos]
-    parents = [-1] * n
-    branch_count = np.ones(n, dtype=int)
-    roll = roll_angle * GOLDEN_ROLL / 360.0
-    n_spread = spread_steps(branch_spread, step_length)
     met = grower.forward(turtles, np.arange(n))  # the axiom's F
-    if contact == "stop":  # the drop falls straight onto the object: no icicle (an empty branch)
+    if o.contact == "stop":  # the drop falls straight onto the object: no icicle (an empty branch)
         for r in met:
             grower.points[r] = []
-    for gen in range(int(generations.max(initial=0))):
-        active = turtles.alive & (turtles.last > gen)
-        draws = rng.random(len(turtles.alive))
-        resting = active & (turtles.rest > 0)
-        turtles.rest[resting] -= 1
-        active &= ~resting
-        divide = active & ~turtles.pending_a & (draws < division_probability)
-        for r in np.flatnonzero(divide):  # cap per icicle, in turtle order
-            if branch_count[turtles.icicle[r]] >= max_branches:
-                divide[r] = False
-            else:
-                branch_count[turtles.icicle[r]] += 1
-        grow = np.flatnonzero(active & ~divide)
-        turtles.pending_a[grow] = False
-        grower.bend(turtles, grow, curve_angle)
-        for _ in range(3):
-            grower.forward(turtles, grow)
-        grower.roll(turtles, grow, roll)
-        split = np.flatnonzero(divide)
-        if len(split):
-            parents.extend(turtles.branch[split].tolist())
-            child = grower.new_branches(turtles, split)
-            turtles.pending_a[split] = True
-            turtles = turtles.append(child)
-            rows = np.arange(len(turtles.alive) - len(split), len(turtles.alive))
-            grower.bend(turtles, rows, curve_angle)
-            parallel, parallel_left = grower.depart(turtles, rows)
-            # [+(30) F^n -(30) F X]: the spread may not outgrow a third of the generations
-            # left, so a late branch is a short side tip hanging beside its parent's (as on
-            # real icicles) instead of a finger splayed at 30 degrees to its end: three or
-            # four of those make the fence's and the eaves' tips into claws
-            left_gens = np.ceil(branch_life * (generations[turtles.icicle[rows]] - gen - 1)).astype(np.int64)
-            turtles.last[rows] = gen + 1 + left_gens
-            steps = np.clip(1 + left_gens, 1, n_spread)
-            spreading = np.ones(len(rows), dtype=bool)
-            for k in range(int(steps.max())):
-                hit = grower.forward(turtles, rows[spreading & (steps > k)])
-                spreading &= ~np.isin(rows, hit)  # a collision's slide already set its course
-            turtles.heading[rows[spreading]] = parallel[spreading]
-            turtles.left[rows[spreading]] = parallel_left[spreading]
-            turtles.rest[rows] = np.rint((steps - 1) / 3).astype(np.int64)
-            grower.forward(turtles, rows)
-    counts = np.array([len(p) for p in grower.points], dtype=np.int64)
-    branch_icicle = np.empty(len(counts), dtype=np.int64)
-    branch_icicle[turtles.branch] = turtles.icicle
-    return TrajectoryResult(
-        points=np.concatenate([np.array(p).reshape(-1, 3) for p in grower.points]) if counts.size else np.zeros((0, 3)),
-        branch_offsets=np.r_[0, np.cumsum(counts)],
-        branch_icicle=branch_icicle,
-        branch_parent=np.array(parents, dtype=np.int64),
-    )
+    return grower, turtles, generations
+
+
+def _branch(grower, turtles, split, generations, gen: int, o: TrajectoryOptions, n_spread: int):
+    """p1'' on the turtles ``split``: each starts a branch ``[+(30) F^n -(30) F X]``; returns
+    the turtles with the new branches appended."""
+    child = grower.new_branches(turtles, split)
+    turtles.pending_a[split] = True
+    turtles = turtles.append(child)
+    rows = np.arange(len(turtles.alive) - len(split), len(turtles.alive))
+    grower.bend(turtles, rows, o.curve_angle)
+    parallel, parallel_left = grower.depart(turtles, rows)
+    # [+(30) F^n -(30) F X]: the spread may not outgrow a third of the generations
+    # left, so a late branch is a short side tip hanging beside its parent's (as on
+    # real icicles) instead of a finger splayed at 30 degrees to its end: three or
+    # four of those make the fence's and the eaves' tips into claws
+    left_gens = np.ceil(o.branch_life * (generations[turtles.icicle[rows]] - gen - 1)).astype(np.int64)
+    turtles.last[rows] = gen + 1 + left_gens
+    steps = np.clip(1 + left_gens, 1, n_spread)
+    spreading = np.ones(len(rows), dtype=bool)
+    for k in range(int(steps.max())):
+        hit = grower.forward(turtles, rows[spreading & (steps > k)])
+        spreading &= ~np.isin(rows, hit)  # a collision's slide already set its course
+    turtles.heading[rows[spreading]] = parallel[spreading]
+    turtles.left[rows[spreading]] = parallel_left[spreading]
+    turtles.rest[rows] = np.rint((steps - 1) / 3).astype(np.int64)
+    grower.forward(turtles, rows)
+    return turtles

@@ -158,9 +158,28 @@ def water_coefficients(mesh: trimesh.Trimesh, supply: np.ndarray, gravity: np.nd
     return sums[:, 0], top, sums[:, 1], bottom, d_down[:, 0]
 
 
-def compute_water(mesh: trimesh.Trimesh, gravity, rays: int, influence_radius: float,
-                  rng: np.random.Generator, source: trimesh.Trimesh | None = None,
-                  caster=None, pools: str = "ignore") -> WaterResult:
+@dataclass(frozen=True)
+class RainOptions:
+    """How stage 1 rains on the object: the ``water`` group's rays, radius and pools.
+
+    Attributes
+    ----------
+    rays : int
+        Rain rays (nr).
+    influence_radius : float
+        rii, in meters.
+    pools : {"ignore", "overflow"}
+        ``overflow`` adds what full basins spill (`overflow_heights`) to the water of
+        every vertex whose upward walk ends on a rim; ``ignore`` is Algorithm 1 as published.
+    """
+
+    rays: int
+    influence_radius: float
+    pools: str = "ignore"
+
+
+def compute_water(mesh: trimesh.Trimesh, gravity, rain: RainOptions, rng: np.random.Generator,
+                  source: trimesh.Trimesh | None = None, caster=None) -> WaterResult:
     """Stage 1: the water supply and the water coefficients of every vertex.
 
     Parameters
@@ -169,26 +188,21 @@ def compute_water(mesh: trimesh.Trimesh, gravity, rays: int, influence_radius: f
         The surface the water flows on, in meters.
     gravity : (3,) float
         Direction of gravity.
-    rays : int
-        Rain rays (nr).
-    influence_radius : float
-        rii, in meters.
+    rain : RainOptions
+        Rays, their radius of influence and what pools do.
     rng : numpy.random.Generator
     source : trimesh.Trimesh, optional
         Source surface ss; by default a rectangle above the object (`rain_source`).
     caster : callable, optional
         A `icefarm.geometry.ray_caster` of ``mesh``, shared with later stages.
-    pools : {"ignore", "overflow"}
-        ``overflow`` adds what full basins spill (`overflow_heights`) to the water of
-        every vertex whose upward walk ends on a rim; ``ignore`` is Algorithm 1 as published.
     """
     g = unit(gravity)
     if not np.any(g):
         raise ValueError("gravity must not be the zero vector")
     caster = caster or ray_caster(mesh)
-    supply, hits = water_supply(mesh, g, rays, influence_radius, rng, source, caster)
+    supply, hits = water_supply(mesh, g, rain.rays, rain.influence_radius, rng, source, caster)
     water, top, d_up, bottom, d_down = water_coefficients(mesh, supply, g)
-    if pools == "overflow":
+    if rain.pools == "overflow":
         water = water + overflow_heights(mesh, supply, g, caster)[top]
     return WaterResult(supply=supply, water=water, top=top, d_up=d_up,
                        bottom=bottom, d_down=d_down, hits=hits)

@@ -20,7 +20,7 @@ closed tube with the same profile instead: instant, no fusion, no base, no glaze
 
 from __future__ import annotations
 
-from .build import SLIVER, IceResult, build_ice
+from .build import SLIVER, IceInputs, IceResult, build_ice
 from .detail import VIEW_PX, meshing_view, view_surface
 from .fringe import FringeFigures, fringe_figures
 from .glaze import CoatSurface, carry_water, measure_glaze
@@ -30,6 +30,6 @@ from .measure import measure_icicles
 from .profile import TIP_CALM, profile_args, profile_radius, smooth_radius
 from .ripples import ripple_bands
 
-__all__ = ["SLIVER", "CoatSurface", "FringeFigures", "IceResult", "fringe_figures", "TIP_CALM", "build_ice",
-           "carry_water", "ground_ice_balls", "icicle_balls", "measure_glaze", "measure_icicles", "profile_args",
-           "profile_radius", "ripple_bands", "smooth_radius", "VIEW_PX", "meshing_view", "view_surface"]
+__all__ = ["SLIVER", "CoatSurface", "FringeFigures", "IceInputs", "IceResult", "fringe_figures", "TIP_CALM",
+           "build_ice", "carry_water", "ground_ice_balls", "icicle_balls", "measure_glaze", "measure_icicles",
+           "profile_args", "profile_radius", "ripple_bands", "smooth_radius", "VIEW_PX", "meshing_view", "view_surface"]

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 from collections.abc import Callable
@@ -83,11 +84,49 @@ class IceResult:
     bands: np.ndarray | None = None
 
 
-def build_ice(object_mesh: trimesh.Trimesh, flow_mesh: trimesh.Trimesh, water: WaterResult,
-              drips: DripResult, trajectories: TrajectoryResult, surface: SurfaceParams,
-              glaze: GlazeParams, gravity: np.ndarray, rng: np.random.Generator, exclude: np.ndarray | None = None,
-              cast=None, measure: bool = True, extra_balls: Balls | None = None,
-              note: Callable[[str], None] | None = None, coat_surface: CoatSurface | None = None) -> IceResult:
+@dataclass(frozen=True)
+class IceInputs:
+    """What stage 4 builds on: the object, the surface the water ran on and stages 1-3.
+
+    Attributes
+    ----------
+    object_mesh : trimesh.Trimesh
+        The object, in meters; the drip points lie on it and the bases grow on it.
+    flow_mesh : trimesh.Trimesh
+        The surface stages 1-2 ran on (the object or its proxy); the glaze grows on it.
+    water : WaterResult
+        Per vertex of ``flow_mesh``.
+    drips : DripResult
+        Drip points on ``object_mesh``.
+    trajectories : TrajectoryResult
+        Branch polylines, base to tip, in meters.
+    exclude : (n,) bool, optional
+        Flow-mesh vertices where no glaze may be (the sole the object stands on).
+    coat_surface : CoatSurface, optional
+        The surface the glaze grows on, with its water and excluded vertices, when not
+        ``flow_mesh`` (the object under a wrap, `glaze.carry_water`); ``water`` and
+        ``exclude`` still say where the icicles' water came from.
+    extra_balls : Balls, optional
+        More metaballs for the icicles' field, in meters. None (or no curtain) leaves the
+        mesh exactly as without them.
+    cast : callable, optional
+        A ray caster of ``flow_mesh`` to reuse (`icefarm.geometry.ray_caster`).
+    """
+
+    object_mesh: trimesh.Trimesh
+    flow_mesh: trimesh.Trimesh
+    water: WaterResult
+    drips: DripResult
+    trajectories: TrajectoryResult
+    exclude: np.ndarray | None = None
+    coat_surface: CoatSurface | None = None
+    extra_balls: Balls | None = None
+    cast: Callable | None = None
+
+
+def build_ice(inputs: IceInputs, surface: SurfaceParams, glaze: GlazeParams, gravity: np.ndarray,
+              rng: np.random.Generator, *, measure: bool = True,
+              note: Callable[[str], None] | None = None) -> IceResult:
     """Stage 4: icicles, their bases and glaze ice as one mesh (paper 4.4).
 
     ``surface.mode == "metaballs"``: one watertight mesh of the icicle chains and the
@@ -101,16 +140,8 @@ def build_ice(object_mesh: trimesh.Trimesh, flow_mesh: trimesh.Trimesh, water: W
 
     Parameters
     ----------
-    object_mesh : trimesh.Trimesh
-        The object, in meters; the drip points lie on it and the bases grow on it.
-    flow_mesh : trimesh.Trimesh
-        The surface stages 1-2 ran on (the object or its proxy); the glaze grows on it.
-    water : WaterResult
-        Per vertex of ``flow_mesh``.
-    drips : DripResult
-        Drip points on ``object_mesh``.
-    trajectories : TrajectoryResult
-        Branch polylines, base to tip, in meters.
+    inputs : IceInputs
+        The object, the flow surface, stages 1-3's results and what else joins the ice.
     surface, glaze : SurfaceParams, GlazeParams
         The two groups of the resolved parameters (``params.surface``, ``params.glaze``).
     gravity : (3,) float
@@ -119,23 +150,12 @@ def build_ice(object_mesh: trimesh.Trimesh, flow_mesh: trimesh.Trimesh, water: W
         Noise and base balls of the icicles; the glaze draws from a stream spawned off it
         (`numpy.random.Generator.spawn`), so its balls, drops and runnels stay the same
         whatever the icicles draw (a sweep over them keeps one glaze).
-    exclude : (n,) bool, optional
-        Flow-mesh vertices where no glaze may be (the sole the object stands on).
-    cast : callable, optional
-        A ray caster of ``flow_mesh`` to reuse (`icefarm.geometry.ray_caster`).
     measure : bool
         Measure the icicles on the mesh (`measure_icicles`); False leaves
         ``IceResult.icicles`` None (a caller that times the modelling alone measures apart).
-    extra_balls : Balls, optional
-        More metaballs for the icicles' field, in meters. None (or no curtain) leaves the
-        mesh exactly as without them.
     note : callable, optional
         ``note(text)`` as each part starts (glaze coat, icicle field, meshing, ripples,
         clean-up): progress for a caller that shows it.
-    coat_surface : CoatSurface, optional
-        The surface the glaze grows on, with its water and excluded vertices, when not
-        ``flow_mesh`` (the object under a wrap, `glaze.carry_water`); ``water`` and
-        ``exclude`` still say where the icicles' water came from.
 
     Returns
     -------
@@ -149,103 +169,154 @@ def build_ice(object_mesh: trimesh.Trimesh, flow_mesh: trimesh.Trimesh, water: W
         A voxel size (``surface.voxel_size`` or ``glaze.voxel_size``) too fine for the
         extent of the ice.
     """
+    g = _checked(inputs, gravity)
+    if surface.mode == "tubes":
+        verts, faces = tube_mesh(inputs.trajectories, surface, g)
+        ice = IceResult(verts, faces, None, 0, 0.0, inputs.trajectories, None, None)
+    else:
+        ice = _metaball_ice(inputs, surface, glaze, g, rng, note or (lambda text: None))
+    if measure:
+        ice = dataclasses.replace(ice, icicles=measure_icicles(ice.vertices, ice.faces, ice.axes, surface))
+    return ice
+
+
+def _checked(inputs: IceInputs, gravity) -> np.ndarray:
+    """Gravity as ``(3,) float64``, once the inputs' shapes agree (else ValueError)."""
+    water, drips, trajectories = inputs.water, inputs.drips, inputs.trajectories
     g = np.asarray(gravity, dtype=np.float64).reshape(-1)
     if g.shape != (3,) or not np.isfinite(g).all() or not g.any():
         raise ValueError(f"gravity must be 3 finite numbers, not all zero; got {gravity!r}")
-    nv = len(flow_mesh.vertices)
+    nv = len(inputs.flow_mesh.vertices)
     for name in ("supply", "water", "d_up", "d_down"):
         if len(getattr(water, name)) != nv:
             raise ValueError(f"water.{name} has {len(getattr(water, name))} values for {nv} flow-mesh vertices")
     k = len(drips.positions)
     if not (len(drips.normals) == len(drips.water) == len(drips.faces) == k):
         raise ValueError("drips.positions, normals, water and faces differ in length")
-    if len(drips.faces) and (np.min(drips.faces) < 0 or np.max(drips.faces) >= len(object_mesh.faces)):
+    if len(drips.faces) and (np.min(drips.faces) < 0 or np.max(drips.faces) >= len(inputs.object_mesh.faces)):
         raise ValueError("drips.faces index faces outside object_mesh")
     off = np.asarray(trajectories.branch_offsets)
     if off.ndim != 1 or len(off) != trajectories.n_branches + 1 or (len(off) and off[-1] != len(trajectories.points)):
         raise ValueError("trajectories.branch_offsets must have n_branches + 1 entries ending at len(points)")
-    if surface.mode == "tubes":
-        verts, faces = tube_mesh(trajectories, surface, g)
-        n_balls, curtain_area, coarse, bands = 0, 0.0, None, None
-    else:
-        voxel = surface.voxel_size
-        budget = surface.face_budget if water.storm is not None else 0
-        note = note or (lambda text: None)
-        own_cast = cast if flow_mesh is object_mesh and cast is not None else ray_caster(object_mesh)
-        if k:  # roots on a rim move in under the object: stage 4 builds and measures on these axes
-            thickness = object_thickness(object_mesh, drips.positions, drips.normals, own_cast)
-            trajectories = hang_roots(trajectories, surface, root_shifts(drips.normals, g, BASE_THICKNESS * thickness))
-        glaze_rng = rng.spawn(1)[0]
-        chains = icicle_balls(trajectories, surface, rng)
-        ice = concat_balls(chains,
-                           base_balls(object_mesh, drips, surface, rng, _root_radius(trajectories, k, surface),
-                                      cast=own_cast, gravity=g))
-        curtains = curtain_balls(trajectories, surface, g)
-        more = [b for b in (curtains.balls, extra_balls) if b is not None and len(b)]
-        if more:  # nothing appended otherwise: the field's sums stay bit for bit
-            ice = concat_balls(ice, *more)
-        if coat_surface is None:
-            coat_surface = CoatSurface(flow_mesh, water, exclude)
-        coat_cast = cast if coat_surface.mesh is flow_mesh else own_cast if coat_surface.mesh is object_mesh else None
-        extent = float(np.linalg.norm(np.ptp(object_mesh.vertices, axis=0)))
-        chain = np.arange(len(ice)) < len(chains)
-        # One lattice, rippled, whenever it holds the budget (fitted without the coat); the
-        # coarse lattice (whose thick parts carry no ripple) only where even the tips'
-        # coarsest voxel would not.
-        coarse, fine, one = None, None, True
-        if budget:
-            share = ICICLE_SHARE * budget
-            guess = budget_voxel(trajectories, surface, share)
-            one_lattice = functools.lru_cache(maxsize=None)(lambda v: _icicle_faces(v, None, ice, None))
-            voxel = fitted_voxel(one_lattice, surface, guess, share)
-            one = one_lattice(voxel) <= (1 + FIT_SLACK) * share  # counted already when the fit settled
-        with ThreadPoolExecutor(1) as pool:
-            # A lattice that needs no coat is sampled and marched while the coat's band runs
-            # (its kernel leaves the GIL that marching cubes holds): Table 2's dragon's stage 4
-            # runs about a tenth faster (medians of three alternated rounds of five);
-            # the 3 m house's preview peaks at 1.67 GB either way.
-            early = pool.submit(_marched, ice, voxel) if one and len(ice) else None
-            note(f"glaze coat over {len(coat_surface.mesh.faces):,} faces")
-            coat = glaze_field(coat_surface.mesh, coat_surface.water, glaze, glaze_rng, exclude=coat_surface.exclude,
-                               cast=coat_cast, face_budget=(1.0 - ICICLE_SHARE) * budget)
+    return g
 
-            def lattices(fine_voxel: float):
-                # (coarse voxel, the balls on it, the thin rest on the fine one)
-                coarse = coarse_voxel(fine_voxel, extent, surface.error_px, *_ripple(surface))
-                if coarse is None:
-                    return None, ice, None
-                clearance = _coat_reach(coat_surface.mesh, coat_surface.water, glaze, coat, coarse, fine_voxel)
-                return coarse, *split_balls(ice, coarse, coat_surface.mesh.vertices, clearance, chain)
 
-            if not one:
-                voxel = fitted_voxel(lambda v: _icicle_faces(v, *lattices(v)), surface, guess, share)
-                coarse, ice, fine = lattices(voxel)
-            field, marched = early.result() if early is not None else (None, None)
-        voxel_ice = voxel if coarse is None else coarse
-        note(f"icicle field: {len(ice) + (len(fine) if fine is not None else 0):,} balls at "
-             f"{voxel_ice * 1000:.2g}" + (f" and {voxel * 1000:.2g}" if fine is not None else "") + " mm")
-        if field is None and len(ice):
-            field = sample_field(ice, voxel_ice)
-        fields = (field, coat, sample_field(fine, voxel) if fine is not None and len(fine) else None)
-        blocks = sum(len(f.blocks) for f in fields if f is not None)
-        note(f"meshing {blocks:,} blocks and uniting the glaze")
-        verts, faces = fuse_fields(*fields, a_marched=marched)
-        thin = sliver_candidates(verts, [f for f in fields if f is not None], SLIVER * voxel)
-        note(f"ripples on {len(faces):,} faces")
-        verts, bands = carve_ripples_and_bands(verts, trajectories, profile_args(surface), max_radius=coarse)
-        note("clean-up")
-        verts, faces, kept = clean_slivers(verts, faces, SLIVER * voxel, near=thin)
-        if bands is not None:
-            bands = bands[kept]
-        if coat is not None and glaze.mode == "coat" and (glaze.smoothing or glaze.runnels > 0):
-            on_coat = coat_vertices(verts, faces, coat.voxel, [f for f in fields if f is not None and f is not coat],
-                                    coat_surface.mesh)
-            verts = smooth_glaze(verts, faces, coat.voxel, on_coat, glaze.smoothing)
-            verts = carve_runnels(verts, on_coat, coat_surface.mesh, gravity, glaze.runnels, coat.voxel,
-                                  glaze_rng)
-        n_balls, curtain_area = len(ice), curtains.area
-    return IceResult(verts, faces, measure_icicles(verts, faces, trajectories, surface) if measure else None,
-                     n_balls, curtain_area, trajectories, coarse, bands)
+@dataclass(frozen=True)
+class _Lattices:
+    """The icicles' balls on their lattices and the glaze coat's field: ``voxel`` (m) of the fine
+    lattice, ``coarse`` (m, None: one lattice) with ``ice`` on it and the thin rest ``fine``
+    on the fine one, ``field``/``marched`` already sampled and marched (or None)."""
+
+    voxel: float
+    coarse: float | None
+    ice: Balls
+    fine: Balls | None
+    field: object
+    marched: object
+    coat: object
+
+
+def _metaball_ice(inputs: IceInputs, surface: SurfaceParams, glaze: GlazeParams, g: np.ndarray,
+                  rng: np.random.Generator, note: Callable[[str], None]) -> IceResult:
+    """``surface.mode == "metaballs"``: the balls, their lattices and the coat, meshed and
+    united, rippled and cleaned (not measured)."""
+    object_mesh, flow_mesh, drips = inputs.object_mesh, inputs.flow_mesh, inputs.drips
+    trajectories, cast, k = inputs.trajectories, inputs.cast, len(inputs.drips.positions)
+    own_cast = cast if flow_mesh is object_mesh and cast is not None else ray_caster(object_mesh)
+    if k:  # roots on a rim move in under the object: stage 4 builds and measures on these axes
+        thickness = object_thickness(object_mesh, drips.positions, drips.normals, own_cast)
+        trajectories = hang_roots(trajectories, surface, root_shifts(drips.normals, g, BASE_THICKNESS * thickness))
+    glaze_rng = rng.spawn(1)[0]
+    chains = icicle_balls(trajectories, surface, rng)
+    ice = concat_balls(chains,
+                       base_balls(object_mesh, drips, surface, rng, _root_radius(trajectories, k, surface),
+                                  cast=own_cast, gravity=g))
+    curtains = curtain_balls(trajectories, surface, g)
+    more = [b for b in (curtains.balls, inputs.extra_balls) if b is not None and len(b)]
+    if more:  # nothing appended otherwise: the field's sums stay bit for bit
+        ice = concat_balls(ice, *more)
+    coat_surface = inputs.coat_surface
+    if coat_surface is None:
+        coat_surface = CoatSurface(flow_mesh, inputs.water, inputs.exclude)
+    coat_cast = cast if coat_surface.mesh is flow_mesh else own_cast if coat_surface.mesh is object_mesh else None
+    budget = surface.face_budget if inputs.water.storm is not None else 0
+    chain = np.arange(len(ice)) < len(chains)
+    lat = _lattices(ice, chain, trajectories, object_mesh, coat_surface, coat_cast, surface, glaze, budget,
+                    glaze_rng, note)
+    verts, faces, bands = _meshed(lat, trajectories, coat_surface, surface, glaze, g, glaze_rng, note)
+    return IceResult(verts, faces, None, len(lat.ice), curtains.area, trajectories, lat.coarse, bands)
+
+
+def _lattices(ice: Balls, chain: np.ndarray, trajectories: TrajectoryResult, object_mesh: trimesh.Trimesh,
+              coat_surface: CoatSurface, coat_cast, surface: SurfaceParams, glaze: GlazeParams, budget: int,
+              glaze_rng: np.random.Generator, note: Callable[[str], None]) -> _Lattices:
+    """The lattices that hold the face ``budget`` (0: ``surface.voxel_size``), the glaze coat
+    sampled while the one lattice, where it is enough, is marched beside it."""
+    voxel = surface.voxel_size
+    extent = float(np.linalg.norm(np.ptp(object_mesh.vertices, axis=0)))
+    # One lattice, rippled, whenever it holds the budget (fitted without the coat); the
+    # coarse lattice (whose thick parts carry no ripple) only where even the tips'
+    # coarsest voxel would not.
+    coarse, fine, one = None, None, True
+    if budget:
+        share = ICICLE_SHARE * budget
+        guess = budget_voxel(trajectories, surface, share)
+        one_lattice = functools.lru_cache(maxsize=None)(lambda v: _icicle_faces(v, None, ice, None))
+        voxel = fitted_voxel(one_lattice, surface, guess, share)
+        one = one_lattice(voxel) <= (1 + FIT_SLACK) * share  # counted already when the fit settled
+    with ThreadPoolExecutor(1) as pool:
+        # A lattice that needs no coat is sampled and marched while the coat's band runs
+        # (its kernel leaves the GIL that marching cubes holds): Table 2's dragon's stage 4
+        # runs about a tenth faster (medians of three alternated rounds of five);
+        # the 3 m house's preview peaks at 1.67 GB either way.
+        early = pool.submit(_marched, ice, voxel) if one and len(ice) else None
+        note(f"glaze coat over {len(coat_surface.mesh.faces):,} faces")
+        coat = glaze_field(coat_surface.mesh, coat_surface.water, glaze, glaze_rng, exclude=coat_surface.exclude,
+                           cast=coat_cast, face_budget=(1.0 - ICICLE_SHARE) * budget)
+
+        def lattices(fine_voxel: float):
+            # (coarse voxel, the balls on it, the thin rest on the fine one)
+            coarse = coarse_voxel(fine_voxel, extent, surface.error_px, *_ripple(surface))
+            if coarse is None:
+                return None, ice, None
+            clearance = _coat_reach(coat_surface.mesh, coat_surface.water, glaze, coat, coarse, fine_voxel)
+            return coarse, *split_balls(ice, coarse, coat_surface.mesh.vertices, clearance, chain)
+
+        if not one:
+            voxel = fitted_voxel(lambda v: _icicle_faces(v, *lattices(v)), surface, guess, share)
+            coarse, ice, fine = lattices(voxel)
+        field, marched = early.result() if early is not None else (None, None)
+    return _Lattices(voxel, coarse, ice, fine, field, marched, coat)
+
+
+def _meshed(lat: _Lattices, trajectories: TrajectoryResult, coat_surface: CoatSurface, surface: SurfaceParams,
+            glaze: GlazeParams, g: np.ndarray, glaze_rng: np.random.Generator, note: Callable[[str], None]):
+    """The icicles' fields and the coat meshed and united, rippled, cleaned of slivers and the
+    coat smoothed and carved: ``(vertices (n, 3), faces (m, 3), bands (n,) or None)``."""
+    voxel, coarse, ice, fine, coat = lat.voxel, lat.coarse, lat.ice, lat.fine, lat.coat
+    voxel_ice = voxel if coarse is None else coarse
+    note(f"icicle field: {len(ice) + (len(fine) if fine is not None else 0):,} balls at "
+         f"{voxel_ice * 1000:.2g}" + (f" and {voxel * 1000:.2g}" if fine is not None else "") + " mm")
+    field = lat.field
+    if field is None and len(ice):
+        field = sample_field(ice, voxel_ice)
+    fields = (field, coat, sample_field(fine, voxel) if fine is not None and len(fine) else None)
+    blocks = sum(len(f.blocks) for f in fields if f is not None)
+    note(f"meshing {blocks:,} blocks and uniting the glaze")
+    verts, faces = fuse_fields(*fields, a_marched=lat.marched)
+    thin = sliver_candidates(verts, [f for f in fields if f is not None], SLIVER * voxel)
+    note(f"ripples on {len(faces):,} faces")
+    verts, bands = carve_ripples_and_bands(verts, trajectories, profile_args(surface), max_radius=coarse)
+    note("clean-up")
+    verts, faces, kept = clean_slivers(verts, faces, SLIVER * voxel, near=thin)
+    if bands is not None:
+        bands = bands[kept]
+    if coat is not None and glaze.mode == "coat" and (glaze.smoothing or glaze.runnels > 0):
+        on_coat = coat_vertices(verts, faces, coat.voxel, [f for f in fields if f is not None and f is not coat],
+                                coat_surface.mesh)
+        verts = smooth_glaze(verts, faces, coat.voxel, on_coat, glaze.smoothing)
+        verts = carve_runnels(verts, on_coat, coat_surface.mesh, g, glaze.runnels, coat.voxel, glaze_rng)
+    return verts, faces, bands
 
 
 def _ripple(surface: SurfaceParams) -> tuple[float, float]:
