@@ -281,7 +281,7 @@ def test_glb_export_has_the_ice_with_transmission_and_ior(job):
 @pytest.mark.slow  # a rendered job (module fixture)
 def test_glb_is_a_complete_scene_with_ground_cameras_and_sun(job):
     """The ground the render stood on, the rendered cameras and the sun: what a viewer needs."""
-    from icefarm.export.rendered import read_rendered
+    from icefarm.scene import read_scene_spec
     from icefarm.scene.camera import world_frame
 
     out = job.parent / "complete.glb"
@@ -293,16 +293,16 @@ def test_glb_is_a_complete_scene_with_ground_cameras_and_sun(job):
     assert {"object", "ice", "ground", "camera_three_quarter", "camera_ice", "sun"} <= set(nodes)
     scene = tree["scenes"][tree.get("scene", 0)]["nodes"]
     assert all(tree["nodes"].index(nodes[k]) in scene for k in ("ground", "camera_three_quarter", "sun"))
-    rendered = read_rendered(job)
-    frame = world_frame(rendered.gravity)
+    spec = read_scene_spec(job)
+    frame = world_frame(spec.gravity)
 
     def turned(quaternion, v):
         x, y, z, w = quaternion
         m = trimesh.transformations.quaternion_matrix([w, x, y, z])[:3, :3]
         return m @ np.asarray(v, dtype=float)
 
-    for camera, name in zip(rendered.cameras, rendered.view_names):
-        node = nodes[f"camera_{name}"]
+    for camera, view in zip(spec.cameras, spec.views):
+        node = nodes[f"camera_{view.name}"]
         np.testing.assert_allclose(node["translation"], frame @ camera.origin, atol=1e-6)
         np.testing.assert_allclose(turned(node["rotation"], [0, 0, -1]), frame @ camera.forward, atol=1e-6)
         assert turned(node["rotation"], [0, 1, 0])[1] > 0  # upright: glTF's +Y is minus gravity
@@ -310,7 +310,7 @@ def test_glb_is_a_complete_scene_with_ground_cameras_and_sun(job):
     sun = nodes["sun"]
     light = tree["extensions"]["KHR_lights_punctual"]["lights"][sun["extensions"]["KHR_lights_punctual"]["light"]]
     assert light["type"] == "directional" and light["intensity"] > 0
-    np.testing.assert_allclose(turned(sun["rotation"], [0, 0, 1]), frame @ rendered.sun, atol=1e-6)
+    np.testing.assert_allclose(turned(sun["rotation"], [0, 0, 1]), frame @ spec.sun.direction, atol=1e-6)
     ground = trimesh.load(out).geometry["ground"]
     assert len(ground.faces) == 2 and np.ptp(ground.vertices[:, 1]) < 1e-6  # level in glTF's Y-up
     assert ground.vertices[:, 1].max() <= trimesh.load(out).geometry["object"].vertices[:, 1].min() + 1e-3
@@ -392,7 +392,7 @@ def test_ice_carries_a_materialx_openpbr_glass_and_the_object_is_double_sided(jo
     """Readers of MaterialX (usdview, Houdini, Maya, Omniverse) get glass, not a faint shell."""
     from pxr import Usd, UsdGeom, UsdShade
 
-    from icefarm.export.rendered import TINT_DISTANCE_M
+    from icefarm.export.looks import TINT_DISTANCE_M
     from icefarm.export.usd import OPENPBR_ID
 
     stage = Usd.Stage.Open(str(job / "scene.usda"))
@@ -460,7 +460,7 @@ def test_scene_json_describes_what_scene_xml_renders(job, tmp_path):
     for jobs from before scene.json)."""
     import shutil
 
-    from icefarm.export.rendered import read_rendered
+    from icefarm.scene import read_scene_spec
 
     spec = json.loads((job / "scene.json").read_text())  # a rendered job has scene.json, listed as an artifact
     assert "scene.json" in json.loads((job / "done.json").read_text())["artifacts"]
@@ -468,20 +468,20 @@ def test_scene_json_describes_what_scene_xml_renders(job, tmp_path):
     old = tmp_path / "old"
     shutil.copytree(job, old)
     (old / "scene.json").unlink()
-    a, b = read_rendered(job), read_rendered(old)
-    assert a.view_names == b.view_names and (a.width, a.height) == (b.width, b.height)
+    a, b = read_scene_spec(job), read_scene_spec(old)
+    assert [v.name for v in a.views] == [v.name for v in b.views] and a.resolution == b.resolution
     for ca, cb in zip(a.cameras, b.cameras, strict=True):
         for name in ("origin", "target", "up"):
             np.testing.assert_allclose(getattr(ca, name), getattr(cb, name), atol=1e-6)
         assert ca.fov_x == pytest.approx(cb.fov_x, abs=1e-6) and ca.far == pytest.approx(cb.far, rel=1e-6)
-    np.testing.assert_allclose(a.sun, b.sun, atol=1e-6)
-    np.testing.assert_allclose(a.sun_irradiance, b.sun_irradiance, rtol=1e-6)
-    assert a.sky.name == b.sky.name and a.sky_scale == pytest.approx(b.sky_scale)
-    np.testing.assert_allclose(a.sky_frame, b.sky_frame, atol=1e-9)
+    np.testing.assert_allclose(a.sun.direction, b.sun.direction, atol=1e-6)
+    np.testing.assert_allclose(a.sun.irradiance, b.sun.irradiance, rtol=1e-6)
+    assert a.sky.file == b.sky.file and a.sky.scale == pytest.approx(b.sky.scale)
+    np.testing.assert_allclose(a.frame, b.frame, atol=1e-9)
     np.testing.assert_allclose(a.ground.corners, b.ground.corners, atol=1e-6)
     np.testing.assert_allclose(a.ground.color, b.ground.color, atol=1e-6)
-    assert a.ice.ior == pytest.approx(b.ice.ior) and a.ice.alpha == pytest.approx(b.ice.alpha)
-    assert a.ice.flip == b.ice.flip and a.ice.tint == pytest.approx(b.ice.tint)
+    assert a.ice.ior == pytest.approx(b.ice.ior) and a.ice.roughness == pytest.approx(b.ice.roughness)
+    assert a.ice_flip == b.ice_flip and a.ice.tint == pytest.approx(b.ice.tint)
     np.testing.assert_allclose(a.ice.absorption, b.ice.absorption, rtol=1e-6)
     assert a.ice.scattering == pytest.approx(b.ice.scattering, rel=1e-6)
     assert a.ice.shimmer == pytest.approx(b.ice.shimmer) and a.ice.shimmer > 0  # the job's ice is impure
@@ -491,13 +491,13 @@ def test_scene_json_describes_what_scene_xml_renders(job, tmp_path):
 
 @pytest.mark.parametrize("flip", [False, True])
 def test_the_ice_surface_takes_the_normals_the_render_computed(flip):
-    """USD's ice normals can come from the render (Mitsuba computes them on load, for the
+    """USD's ice normals can come from the scene's writer (`SceneFiles.ice_normals`, for the
     unflipped faces): the same as computing them again, flipped with the faces."""
-    from icefarm.export.rendered import ice_surface
+    from icefarm.export.meshes import ice_surface
     from icefarm.scene.geometry import smooth_normals
 
     mesh = trimesh.creation.icosphere(subdivisions=3)
-    faces = mesh.faces[:, ::-1] if flip else mesh.faces  # inward-wound ice, as IceShading.flip says
+    faces = mesh.faces[:, ::-1] if flip else mesh.faces  # inward-wound ice, as SceneSpec.ice_flip says
     computed = ice_surface(mesh.vertices, faces, flip)
     given = ice_surface(mesh.vertices, faces, flip, normals=smooth_normals(mesh.vertices, faces))
     np.testing.assert_array_equal(given.faces, computed.faces)

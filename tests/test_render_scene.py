@@ -132,11 +132,11 @@ def test_vector_lines_refuses_what_it_cannot_write():
 
 
 def test_smooth_normals_are_the_ones_mitsuba_computes(tmp_path):
-    """POV-Ray gets the ice normals Mitsuba computed on load, or these: they must agree."""
+    """Mitsuba computes the ice's normals when it loads ice.ply; POV-Ray and the exports get
+    these (`SceneFiles.ice_normals`): they must agree."""
     import mitsuba as mi
 
     from icefarm.scene.geometry import smooth_normals, write_ply
-    from icefarm.scene.render import _vertex_normals
     from icefarm.scene.variants import pick_variant
 
     mesh = trimesh.creation.icosphere(3, 0.1)
@@ -146,7 +146,8 @@ def test_smooth_normals_are_the_ones_mitsuba_computes(tmp_path):
     mi.set_variant(pick_variant("auto"))
     scene = mi.load_dict({"type": "scene", "m": {"type": "ply", "id": "m", "filename": str(tmp_path / "m.ply")}})
     ours = smooth_normals(mesh.vertices, mesh.faces)
-    np.testing.assert_allclose(_vertex_normals(scene, "m"), ours, atol=2e-5)
+    mitsubas = np.array(mi.traverse(scene.shapes()[0])["vertex_normals"], dtype=np.float64).reshape(-1, 3)
+    np.testing.assert_allclose(mitsubas, ours, atol=2e-5)
     area_weighted = np.zeros_like(ours)
     np.add.at(area_weighted, mesh.faces.ravel(), np.repeat(mesh.triangles_cross, 3, axis=0))
     area_weighted /= np.linalg.norm(area_weighted, axis=1, keepdims=True)
@@ -194,20 +195,26 @@ def test_ice_holds_an_absorbing_medium_that_scatters_with_impurity(tmp_path, box
         write_scenes(tmp_path / "bad", box, ice, config, impurity=1.5)
 
 
-def test_scene_xml_with_the_medium_loads_and_gives_icepath_its_coefficients(tmp_path, box_with_icicles, tiny_config):
+def test_scene_xml_loads_with_the_medium_icepath_gets_from_the_spec(tmp_path, box_with_icicles, tiny_config):
+    """icepath takes the ice's medium from the spec; Mitsuba's own integrators from scene.xml:
+    the same coefficients."""
     import mitsuba as mi
 
+    from icefarm.scene.config import ice_medium
     from icefarm.scene.integrator import medium_coefficients
     from icefarm.scene.variants import pick_variant
 
     box, ice = box_with_icicles()
     config = tiny_config()
     files = write_scenes(tmp_path, box, ice, config, impurity=0.5)
+    medium = ice_medium(files.spec.ice)
+    np.testing.assert_allclose(medium.absorption, config.ice.absorption)
+    assert medium.scattering == pytest.approx(config.ice.scattering * 0.5)
     mi.set_variant(pick_variant("auto"))
     scene = mi.load_file(str(files.xml))
     sigma_a, sigma_s = medium_coefficients(scene, "ice")
-    np.testing.assert_allclose(sigma_a, config.ice.absorption, rtol=1e-4)
-    np.testing.assert_allclose(sigma_s, [config.ice.scattering * 0.5] * 3, rtol=1e-4)
+    np.testing.assert_allclose(sigma_a, medium.absorption, rtol=1e-4)
+    np.testing.assert_allclose(sigma_s, [medium.scattering] * 3, rtol=1e-4)
     assert medium_coefficients(scene, "object") is None
 
 

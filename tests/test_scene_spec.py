@@ -13,8 +13,9 @@ import pytest
 import yaml
 
 from icefarm.scene import mitsuba as mx, povray as pov
+from icefarm.scene.config import ice_medium
 from icefarm.scene.spec import SceneSpec, read_spec
-from icefarm.scene.write import build_spec, write_scenes
+from icefarm.scene.write import build_spec, read_scene_spec, write_scenes
 
 FLIP = np.array([1.0, 1.0, -1.0])  # POV-Ray's left-handed world
 
@@ -46,7 +47,7 @@ def test_scene_xml_says_what_the_spec_says(spec):
     m = floats(root.find("shape[@id='ground']/transform/matrix").get("value")).reshape(4, 4)
     local = np.array([[-1.0, -1.0, 0.0, 1.0], [1.0, -1.0, 0.0, 1.0], [1.0, 1.0, 0.0, 1.0], [-1.0, 1.0, 0.0, 1.0]])
     np.testing.assert_allclose((local @ m.T)[:, :3], spec.ground.corners, rtol=1e-7, atol=1e-9)
-    assert root.find("shape[@id='ice']/medium") is not None and spec.ice.medium is not None
+    assert root.find("shape[@id='ice']/medium") is not None and ice_medium(spec.ice) is not None
 
 
 def test_scene_pov_says_what_the_spec_says(spec):
@@ -81,7 +82,7 @@ def test_write_scenes_writes_scene_json_and_views_from_the_spec(tmp_path, box_wi
     box, ice = box_with_icicles()
     files = write_scenes(tmp_path, box, ice, tiny_config(views=["three_quarter", "ice"]))
     spec = read_spec(tmp_path / "scene.json")
-    assert spec.to_json() == files.spec.to_json() and spec.object_file == "object.ply" and spec.ice.file == "ice.ply"
+    assert spec.to_json() == files.spec.to_json() and spec.object_file == "object.ply" and spec.ice_file == "ice.ply"
     assert files.xml.read_text() == mx.scene_xml(files.spec)
     views = json.loads((tmp_path / "views.json").read_text())
     assert [v["name"] for v in views] == [v.name for v in spec.views] == ["three_quarter", "ice"]
@@ -92,20 +93,19 @@ def test_write_scenes_writes_scene_json_and_views_from_the_spec(tmp_path, box_wi
 def test_a_folder_without_scene_json_reads_from_scene_xml_and_exports(tmp_path, box_with_icicles, tiny_config):
     """Jobs rendered before scene.json: the exporters read scene.xml (icefarm.scene.legacy)."""
     from icefarm.export.gltf import write_glb
-    from icefarm.export.rendered import read_rendered
 
     box, ice = box_with_icicles()
     write_scenes(tmp_path, box, ice, tiny_config(views=["three_quarter", "front"]), impurity=0.5)
     (tmp_path / "params.yaml").write_text(yaml.safe_dump({"water": {"gravity": [0.0, -1.0, 0.0]}}))
-    new = read_rendered(tmp_path)
+    new = read_scene_spec(tmp_path)
     (tmp_path / "scene.json").unlink()
-    old = read_rendered(tmp_path)
-    assert old.view_names == new.view_names == ("three_quarter", "front")
-    assert (old.width, old.height) == (new.width, new.height)
+    old = read_scene_spec(tmp_path)
+    assert [v.name for v in old.views] == [v.name for v in new.views] == ["three_quarter", "front"]
+    assert old.resolution == new.resolution
     for a, b in zip(old.cameras, new.cameras, strict=True):
         np.testing.assert_allclose(a.origin, b.origin, atol=1e-7)
         assert a.fov_y == pytest.approx(b.fov_y, abs=1e-6)
-    np.testing.assert_allclose(old.sun, new.sun, atol=1e-7)
+    np.testing.assert_allclose(old.sun.direction, new.sun.direction, atol=1e-7)
     np.testing.assert_allclose(old.ground.corners, new.ground.corners, atol=1e-6)
     assert old.ice.absorption == pytest.approx(new.ice.absorption, rel=1e-6)
     assert old.ice.scattering == pytest.approx(new.ice.scattering, rel=1e-6)
@@ -114,4 +114,4 @@ def test_a_folder_without_scene_json_reads_from_scene_xml_and_exports(tmp_path, 
     from icefarm.errors import InputError
 
     with pytest.raises(InputError, match="not a scene.xml written by icefarm"):
-        read_rendered(tmp_path)
+        read_scene_spec(tmp_path)

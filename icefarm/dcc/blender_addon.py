@@ -76,7 +76,7 @@ ENVIRONMENT_VARIABLE = "ICEFARM"
 ICE_FILE = "ice.ply"
 INPUT_FILE = "input.glb"
 MATERIAL_NAME = "icefarm ice"
-# The glass of icefarm's USD export (icefarm.scene.config and icefarm.scene.spec): water
+# The glass of icefarm's USD export (icefarm.scene.config and icefarm.export.looks): water
 # ice's index of refraction, and white light through 10 cm of ice, exp(-(3.2, 1.0, 0.7) /m
 # * 0.1 m), as the ice's colour.
 ICE_IOR = 1.31

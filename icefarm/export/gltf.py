@@ -28,8 +28,9 @@ from trimesh.visual.material import PBRMaterial
 
 from ..artifacts import atomic_write
 from ..jobdir import ICE, OBJECT, PARAMS, SCENE_XML
-from ..scene.camera import world_frame
-from .rendered import TINT_DISTANCE_M, IceShading, Surface, object_surface, pbr, read_ice, read_rendered, require
+from ..scene import IceLook, SceneSpec, read_scene_spec, world_frame
+from .looks import TINT_DISTANCE_M, pbr, perceptual_roughness, sun_light
+from .meshes import Surface, object_surface, read_ice, require
 
 # Thickness hint of KHR_materials_volume (meters): a typical icicle's diameter. Viewers that
 # refract by rasterising offset the background by it; path tracers use the real mesh.
@@ -62,15 +63,15 @@ def write_glb(job_dir: str | Path, out: str | Path, max_faces: int | None = None
     """
     job_dir, out = Path(job_dir), Path(out)
     require(job_dir, ICE, OBJECT, SCENE_XML, PARAMS)
-    rendered = read_rendered(job_dir)
+    spec = read_scene_spec(job_dir)
     up = np.eye(4)
-    up[:3, :3] = world_frame(rendered.gravity)  # rows right, up, front: to glTF's X, Y, Z
+    up[:3, :3] = world_frame(spec.gravity)  # rows right, up, front: to glTF's X, Y, Z
     scene = trimesh.Scene()
-    look = pbr(rendered.material)
+    look = pbr(spec.material)
     obj_material = PBRMaterial(name="object", baseColorFactor=[*look.base_color, 1.0], metallicFactor=look.metallic,
                                roughnessFactor=look.roughness, doubleSided=True)  # rendered two-sided
     obj_surface = object_surface(job_dir)
-    ice_surface = read_ice(job_dir, rendered.ice.flip) if rendered.ice is not None else None
+    ice_surface = read_ice(job_dir, spec.ice_flip) if spec.ice is not None else None
     if max_faces is not None:
         obj_surface, ice_surface = _decimated((obj_surface, ice_surface), max_faces)
     scene.add_geometry(_mesh(obj_surface, obj_material), node_name="object", geom_name="object",
@@ -78,15 +79,15 @@ def write_glb(job_dir: str | Path, out: str | Path, max_faces: int | None = None
     # Names to what trimesh cannot write: extensions, and base colours unrounded (it keeps 8 bits).
     matte = {} if look.specular else {"KHR_materials_specular": {"specularFactor": 0.0}}  # Mitsuba's diffuse
     finish = {"object": (look.base_color, matte)}
-    if rendered.ice is not None:
-        ice = rendered.ice
+    if spec.ice is not None:
+        ice = spec.ice
         ice_material = PBRMaterial(name="ice", baseColorFactor=[*ice.tint, 1.0], metallicFactor=0.0,
-                                   roughnessFactor=ice.roughness, alphaMode="OPAQUE")
+                                   roughnessFactor=perceptual_roughness(ice.roughness), alphaMode="OPAQUE")
         scene.add_geometry(_mesh(ice_surface, ice_material), node_name="ice", geom_name="ice",
                            transform=up)
         finish["ice"] = (ice.tint, ice_extensions(ice))
-    if rendered.ground is not None:
-        ground = rendered.ground
+    if spec.ground is not None:
+        ground = spec.ground
         if max_faces is not None:  # a preview frames the object: its ground a little wider than it
             ground = _ground_around(ground, np.vstack([obj_surface.vertices] + (
                 [ice_surface.vertices] if ice_surface is not None else [])))
@@ -97,12 +98,12 @@ def write_glb(job_dir: str | Path, out: str | Path, max_faces: int | None = None
         scene.add_geometry(quad, node_name="ground", geom_name="ground", transform=up)
         finish["ground"] = (ground.color, {"KHR_materials_specular": {"specularFactor": 0.0}})
     data = export_glb(scene, include_normals=True, tree_postprocessor=functools.partial(
-        _finish, materials=finish, rendered=rendered, frame=up[:3, :3]))
+        _finish, materials=finish, spec=spec, frame=up[:3, :3]))
     atomic_write(out, data)
     return out
 
 
-def ice_extensions(ice: IceShading) -> dict:
+def ice_extensions(ice: IceLook) -> dict:
     """The glTF material extensions of the ice: transmission, ior and, when the ice
     absorbs, volume (``attenuationColor`` is what white light keeps after
     ``attenuationDistance`` meters)."""
@@ -157,11 +158,11 @@ def _mesh(surface: Surface, material: PBRMaterial) -> trimesh.Trimesh:
     return mesh
 
 
-def _finish(tree: dict, materials: dict, rendered=None, frame: np.ndarray | None = None) -> None:
+def _finish(tree: dict, materials: dict, spec: SceneSpec | None = None, frame: np.ndarray | None = None) -> None:
     """Complete a glTF ``tree`` in place.
 
     ``materials`` maps a material's name to its linear RGB base colour ``(3,)`` and its
-    extensions, listed in ``extensionsUsed``. With ``rendered`` (`Rendered`) and ``frame``
+    extensions, listed in ``extensionsUsed``. With the job's ``spec`` and ``frame``
     (``(3, 3)``: world to glTF axes), the rendered cameras and the sun
     (``KHR_lights_punctual``) join the scene. The asset names icefarm as its generator and
     every bufferView its target (vertex data or indices).
@@ -170,8 +171,8 @@ def _finish(tree: dict, materials: dict, rendered=None, frame: np.ndarray | None
 
     tree.setdefault("asset", {})["generator"] = f"icefarm {__version__}"
     _buffer_targets(tree)
-    if rendered is not None and frame is not None:
-        _cameras_and_sun(tree, rendered, frame)
+    if spec is not None and frame is not None:
+        _cameras_and_sun(tree, spec, frame)
     used = set(tree.get("extensionsUsed", []))
     for material in tree.get("materials", []):
         if material.get("name") not in materials:
@@ -212,32 +213,33 @@ def _quaternion(columns: np.ndarray) -> list[float]:
     return [float(x), float(y), float(z), float(w)]
 
 
-def _cameras_and_sun(tree: dict, rendered, frame: np.ndarray) -> None:
+def _cameras_and_sun(tree: dict, spec: SceneSpec, frame: np.ndarray) -> None:
     """The rendered views as glTF cameras (looking down their local -Z, +Y up) and the sun
     as a ``KHR_lights_punctual`` directional light (shining down its local -Z; intensity:
     Mitsuba's irradiance, W/m^2), each on a node of the default scene."""
     nodes = tree.setdefault("nodes", [])
     scene = tree["scenes"][tree.get("scene", 0)].setdefault("nodes", [])
     cameras = tree.setdefault("cameras", [])
-    for camera, name in zip(rendered.cameras, rendered.view_names):
+    width, height = spec.resolution
+    for camera, name in zip(spec.cameras, (v.name for v in spec.views)):
         forward = frame @ camera.forward
         right = np.cross(forward, frame @ np.asarray(camera.up))
         right /= np.linalg.norm(right)
         up = np.cross(right, forward)
         cameras.append({"name": name, "type": "perspective", "perspective": {
-            "yfov": float(np.radians(camera.fov_y)), "aspectRatio": rendered.width / rendered.height,
+            "yfov": float(np.radians(camera.fov_y)), "aspectRatio": width / height,
             "znear": float(max(camera.near, 1e-4)), "zfar": float(camera.far)}})
         nodes.append({"name": f"camera_{name}", "camera": len(cameras) - 1,
                       "translation": [float(v) for v in frame @ camera.origin],
                       "rotation": _quaternion(np.column_stack([right, up, -forward]))})
         scene.append(len(nodes) - 1)
-    if rendered.sun is not None:
-        z = frame @ (rendered.sun / np.linalg.norm(rendered.sun))  # local +Z towards the sun
+    sun = sun_light(spec)
+    if sun is not None:
+        towards, strength, color = sun
+        z = frame @ towards  # local +Z towards the sun
         x = np.cross((0.0, 1.0, 0.0) if abs(z[1]) < 0.9 else (1.0, 0.0, 0.0), z)
         x /= np.linalg.norm(x)
-        strength = float(np.max(rendered.sun_irradiance))
-        light = {"name": "sun", "type": "directional", "intensity": strength,
-                 "color": [float(c) for c in rendered.sun_irradiance / max(strength, 1e-12)]}
+        light = {"name": "sun", "type": "directional", "intensity": strength, "color": [float(c) for c in color]}
         tree.setdefault("extensions", {}).setdefault("KHR_lights_punctual", {}).setdefault("lights", []).append(light)
         nodes.append({"name": "sun", "rotation": _quaternion(np.column_stack([x, np.cross(z, x), z])),
                       "extensions": {"KHR_lights_punctual": {"light": 0}}})

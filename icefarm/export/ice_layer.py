@@ -43,8 +43,7 @@ from ..artifacts import read_ice_mesh
 from ..asset_io import USD_SUFFIXES
 from ..errors import InputError
 from ..jobdir import ICE, ICE_LAYER, ICE_USDC, SCENE_SPEC
-from ..scene import config as render_config, geometry as geo
-from ..scene.spec import IceShading, read_spec
+from ..scene import IceLook, ice_at_impurity, read_scene_spec, winds_inward
 from .usd import authored, ice_material, write_ice_mesh
 
 GROUP = "Icefarm"  # the group under the asset's root prim: the ice and its material
@@ -123,11 +122,11 @@ def write_ice_layer(job_dir: str | Path, asset: str | Path, *, scale: float, off
         raise InputError(f"USD cannot open the asset {asset}, so no layer can compose over it: "
                          "save it again from a USD tool (a .usda without a byte-order mark)")
     mesh = read_ice_mesh(job_dir / ICE)
-    ice = _shading(job_dir, mesh, impurity) if len(mesh.faces) else None
+    ice, flip = _look(job_dir, mesh, impurity) if len(mesh.faces) else (None, False)
     axis = "Z" if UsdGeom.GetStageUpAxis(source) == UsdGeom.Tokens.z else "Y"
     usdc = job_dir / ICE_USDC
     if ice is not None and (not usdc.is_file() or usdc.stat().st_mtime_ns < (job_dir / ICE).stat().st_mtime_ns):
-        write_ice_mesh(usdc, mesh, flip=ice.flip, axis=axis)  # a job that did not render has none yet
+        write_ice_mesh(usdc, mesh, flip=flip, axis=axis)  # a job that did not render has none yet
     default = source.GetDefaultPrim()
     arc, root = _composition(source)
     # The job read the asset at its earliest time (`icefarm.asset_io.read_asset`)
@@ -177,19 +176,14 @@ def _to_asset(scale: float, offset: np.ndarray | Sequence[float]) -> np.ndarray:
     return m
 
 
-def _shading(job_dir: Path, mesh: trimesh.Trimesh, impurity: float) -> IceShading:
-    """The ice's look: the rendered one (``scene.json``), else the render configs' default
-    ice (`icefarm.scene.config.IceLook`) at ``impurity``."""
+def _look(job_dir: Path, mesh: trimesh.Trimesh, impurity: float) -> tuple[IceLook, bool]:
+    """The ice's look and whether its faces wind inwards: as the job rendered them (its
+    ``scene.json``), else the render configs' default ice at ``impurity``."""
     if (job_dir / SCENE_SPEC).is_file():
-        rendered = read_spec(job_dir / SCENE_SPEC).ice
-        if rendered is not None:
-            return rendered
-    look = render_config.IceLook()
-    medium = render_config.ice_medium(look, impurity)
-    return IceShading(ior=look.ior, alpha=look.roughness, tint=tuple(look.tint),
-                      absorption=tuple(medium.absorption) if medium is not None else (0.0, 0.0, 0.0),
-                      scattering=float(medium.scattering) if medium is not None else 0.0,
-                      flip=bool(geo.winds_inward(mesh.vertices, mesh.faces)), file=ICE)
+        spec = read_scene_spec(job_dir)
+        if spec.ice is not None:
+            return spec.ice, spec.ice_flip
+    return ice_at_impurity(IceLook(), impurity), bool(winds_inward(mesh.vertices, mesh.faces))
 
 
 def _free_child(stage: Usd.Stage, parent: Sdf.Path, name: str) -> Sdf.Path:

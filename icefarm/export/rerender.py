@@ -69,7 +69,7 @@ def render_again(job_dir: Path, render: str, out_dir: Path, progress: bool = Fal
     is left as it is; ``out_dir`` gets its own scenes (``scene.xml``, ``scene.pov`` and
     their meshes) and renders. Needs a job that rendered (its ``object.ply`` is the object
     in meters). Gravity and the object's material are those the job's scene records
-    (``scene.json``, `icefarm.export.rendered.read_rendered`); the cameras are framed anew for
+    (``scene.json``, `icefarm.scene.read_scene_spec`); the cameras are framed anew for
     the config's views.
 
     Parameters
@@ -96,10 +96,10 @@ def render_again(job_dir: Path, render: str, out_dir: Path, progress: bool = Fal
         Not a finished job, a job that never rendered, a bad render config, or an ``out_dir``
         holding files that are not a render's.
     """
+    from ..scene import read_scene_spec
     from ..scene.config import load_render_config
-    from ..scene.render import render_job
+    from ..scene.render import render_job  # looked up here, at call time: tests stand in for it
     from ..scene.write import job_scene
-    from .rendered import read_rendered
 
     job_dir, out_dir = Path(job_dir), Path(out_dir)
     job = read_job(job_dir)
@@ -120,13 +120,13 @@ def render_again(job_dir: Path, render: str, out_dir: Path, progress: bool = Fal
     (out_dir / INCOMPLETE).write_text(f"icefarm render of {job_dir.resolve()} with {render}, started "
                                       f"{time.strftime('%Y-%m-%d %H:%M:%S')}: not finished (stopped or still "
                                       "running); render it again to finish\n")
-    rendered = read_rendered(job_dir)
+    spec = read_scene_spec(job_dir)
     obj = trimesh.load(job_dir / OBJECT, process=False)
     obj.merge_vertices(merge_norm=True)  # object.ply splits vertices along creases
     ice = read_ice_mesh(job_dir / ICE)
     axes = trajectories_from_json(job_dir / TRAJECTORIES).points if (job_dir / TRAJECTORIES).is_file() else None
-    scene = job_scene(obj, ice if isinstance(ice, trimesh.Trimesh) else None, rendered.gravity,
-                      material=rendered.material, placement=job.stats.get("placement", Placement.HANGING.value),
+    scene = job_scene(obj, ice if isinstance(ice, trimesh.Trimesh) else None, spec.gravity,
+                      material=spec.material, placement=job.stats.get("placement", Placement.HANGING.value),
                       impurity=float((job.params or {}).get("surface.impurity", 0.0)),  # 0 for jobs older than it
                       icicle_axes=axes)
     result = render_job(out_dir, config, scene, progress=progress, report=report)

@@ -4,7 +4,7 @@
 and references the heavy meshes, binary ``object.usdc`` and ``ice.usdc``, by relative paths:
 the job folder moves as a whole. Everything is in meters (``metersPerUnit`` 1) in the job's
 own frame, the points exactly those of ``object.ply`` and ``ice.ply``; the cameras, sun and
-sky are the ones Mitsuba rendered (`rendered.read_rendered`).
+sky are the ones Mitsuba rendered (the job's `SceneSpec`, `icefarm.scene.read_scene_spec`).
 
 Written with Pixar's ``usd-core`` (``pxr``), never by hand. Most of the time goes to the
 normals and to the crate writer compressing the face indices (to a quarter of their size);
@@ -27,20 +27,10 @@ from pxr import Gf, Sdf, Tf, Usd, UsdGeom, UsdLux, UsdShade, UsdUtils, Vt
 
 from ..artifacts import read_ice_mesh
 from ..errors import InputError
-from ..jobdir import ICE, ICE_BANDS, ICE_USDC, OBJECT, OBJECT_USDC, SCENE_USDA
-from ..scene.material import Material
-from .rendered import (
-    TINT_DISTANCE_M,
-    IceShading,
-    Rendered,
-    Surface,
-    ice_surface,
-    object_surface,
-    pbr,
-    read_rendered,
-    require,
-    water_at,
-)
+from ..jobdir import ICE, ICE_BANDS, ICE_USDC, OBJECT, OBJECT_USDC, PARAMS, SCENE_USDA, SCENE_XML
+from ..scene import IceLook, Material, SceneSpec, read_scene_spec
+from .looks import TINT_DISTANCE_M, ice_color, pbr, perceptual_roughness, sun_light
+from .meshes import Surface, ice_surface, object_surface, require, water_at
 
 SCENE_FILE, OBJECT_FILE, ICE_FILE = SCENE_USDA, OBJECT_USDC, ICE_USDC  # (`icefarm.jobdir`)
 # Film back of the cameras: 36 mm wide (full frame), in USD's tenths of a scene unit. Only
@@ -105,8 +95,8 @@ def write_job_usd(job_dir: str | Path, *, material: Material | None = None,
     out_dir : path, optional
         Where to write; default ``job_dir``. Elsewhere, the sky is named by its absolute path.
     ice_normals : (n, 3) float, optional
-        The ice's vertex normals as the render computed them (`RenderResult.ice_normals`),
-        if at hand: `ice_surface` computes them otherwise.
+        The ice's vertex normals as the scene's writer computed them
+        (`icefarm.scene.SceneFiles.ice_normals`), if at hand: `ice_surface` computes them otherwise.
 
     Returns
     -------
@@ -120,28 +110,28 @@ def write_job_usd(job_dir: str | Path, *, material: Material | None = None,
     start = time.perf_counter()
     job_dir = Path(job_dir)
     out_dir = job_dir if out_dir is None else Path(out_dir)
-    require(job_dir, ICE, OBJECT)
-    rendered = read_rendered(job_dir, material)
-    axis = up_axis(rendered.gravity)
+    require(job_dir, ICE, OBJECT, SCENE_XML, PARAMS)
+    spec = read_scene_spec(job_dir, material)
+    axis = up_axis(spec.gravity)
     obj = object_surface(job_dir)
     layers = [out_dir / OBJECT_FILE]
     _write_mesh_layer(layers[0], "Object", obj, axis, _object_primvars(job_dir, obj), double_sided=True)
-    if rendered.ice is not None:
+    if spec.ice is not None:
         mesh = read_ice_mesh(job_dir / ICE) if ice_mesh is None else ice_mesh
-        layers.append(write_ice_mesh(out_dir / ICE_FILE, mesh, flip=rendered.ice.flip, axis=axis,
-                                     normals=ice_normals))
+        layers.append(write_ice_mesh(out_dir / ICE_FILE, mesh, flip=spec.ice_flip, axis=axis, normals=ice_normals))
     else:  # no ice: no layer of an earlier run's ice beside the scene
         (out_dir / ICE_FILE).unlink(missing_ok=True)
-    sky = f"./{rendered.sky.name}" if out_dir.resolve() == job_dir.resolve() else str(rendered.sky.resolve())
+    sky_file = job_dir / spec.sky.file
+    sky = f"./{sky_file.name}" if out_dir.resolve() == job_dir.resolve() else str(sky_file.resolve())
     with authored(out_dir / SCENE_FILE) as stage:
-        _scene(stage, rendered, axis, sky, has_ice=len(layers) > 1)
+        _scene(stage, spec, axis, sky, has_ice=len(layers) > 1)
     return UsdScene(out_dir / SCENE_FILE, tuple(layers), axis, time.perf_counter() - start)
 
 
 def write_ice_mesh(path: str | Path, mesh: trimesh.Trimesh, *, flip: bool, axis: str,
                    normals: np.ndarray | None = None) -> Path:
     """``ice.usdc``: the ice ``mesh`` (meters, the job's frame, as ``ice.ply``) as the default
-    prim ``/Ice`` of a binary layer, wound outwards (``flip``: `IceShading.flip`), with its
+    prim ``/Ice`` of a binary layer, wound outwards (``flip``: `SceneSpec.ice_flip`), with its
     ``crest`` primvar; ``axis`` the stage's up axis (`up_axis`), ``normals`` as `ice_surface`
     takes them. `write_job_usd` and `icefarm.export.ice_layer` reference it. Returns ``path``."""
     path = Path(path)
@@ -252,35 +242,37 @@ def _ice_primvars(mesh: trimesh.Trimesh) -> dict:
     return {ICE_PRIMVAR: (np.asarray(bands, dtype=np.float32), Sdf.ValueTypeNames.FloatArray)}
 
 
-def _scene(stage: Usd.Stage, rendered: Rendered, axis: str, sky: str, has_ice: bool) -> None:
+def _scene(stage: Usd.Stage, spec: SceneSpec, axis: str, sky: str, has_ice: bool) -> None:
     """The contents of ``scene.usda``: /World with Object, Ice, Looks, Cameras and Lights."""
     world = UsdGeom.Xform.Define(stage, "/World")
     _stage_metadata(stage, axis, world.GetPrim())
     stage.GetRootLayer().documentation = "icefarm job: object and ice as rendered (meters)"
     looks = UsdGeom.Scope.Define(stage, "/World/Looks").GetPath()
-    meshes = [("Object", OBJECT_FILE, _object_material(stage, looks, rendered))]
+    meshes = [("Object", OBJECT_FILE, _object_material(stage, looks, spec.material))]
     if has_ice:
-        meshes.append(("Ice", ICE_FILE, ice_material(stage, looks, rendered.ice)))
+        meshes.append(("Ice", ICE_FILE, ice_material(stage, looks, spec.ice)))
     for name, layer, material in meshes:
         prim = stage.DefinePrim(f"/World/{name}")  # a Mesh, by its reference
         prim.GetReferences().AddReference(f"./{layer}")
         UsdShade.MaterialBindingAPI.Apply(prim).Bind(material)
-    if rendered.ground is not None:
-        _ground(stage, looks, rendered.ground)
+    if spec.ground is not None:
+        _ground(stage, looks, spec.ground)
     UsdGeom.Scope.Define(stage, "/World/Cameras")
-    for camera, view in zip(rendered.cameras, rendered.view_names):
-        _camera(stage, f"/World/Cameras/{Tf.MakeValidIdentifier(view)}", camera, rendered.width / rendered.height)
+    width, height = spec.resolution
+    for camera, view in zip(spec.cameras, spec.views):
+        _camera(stage, f"/World/Cameras/{Tf.MakeValidIdentifier(view.name)}", camera, width / height)
     UsdGeom.Scope.Define(stage, "/World/Lights")
-    if rendered.sun is not None:
-        _sun(stage, rendered)
+    sun = sun_light(spec)
+    if sun is not None:
+        _sun(stage, *sun)
     # DomeLight (not DomeLight_1): its pole is +Y whatever the stage's up axis, and its
     # latlong layout (OpenEXR's: u = 0 at -Z, 1/4 at +X, the top row at +Y) is Mitsuba's
     # envmap's, so the sky's own to_world turns it the same way.
     dome = UsdLux.DomeLight.Define(stage, "/World/Lights/Sky")
     dome.CreateTextureFileAttr(Sdf.AssetPath(sky))
     dome.CreateTextureFormatAttr(UsdLux.Tokens.latlong)
-    dome.CreateIntensityAttr(float(rendered.sky_scale))
-    dome.AddTransformOp().Set(_rows(rendered.sky_frame, np.zeros(3)))
+    dome.CreateIntensityAttr(float(spec.sky.scale))
+    dome.AddTransformOp().Set(_rows(spec.frame, np.zeros(3)))
 
 
 def _ground(stage: Usd.Stage, looks: Sdf.Path, ground) -> None:
@@ -325,17 +317,16 @@ def _camera(stage: Usd.Stage, path: str, camera, aspect: float) -> None:
     cam.CreateClippingRangeAttr(Gf.Vec2f(float(camera.near), float(camera.far)))
 
 
-def _sun(stage: Usd.Stage, rendered: Rendered) -> None:
-    """The sun: a distant light shining along its local -Z, so local +Z points at the sun;
-    its intensity is Mitsuba's irradiance (W/m^2), its colour the irradiance's hue."""
-    z = rendered.sun / np.linalg.norm(rendered.sun)
+def _sun(stage: Usd.Stage, z: np.ndarray, intensity: float, color: np.ndarray) -> None:
+    """The sun (`looks.sun_light`): a distant light shining along its local -Z, so local +Z
+    (``z``) points at the sun; its intensity is Mitsuba's irradiance (W/m^2), its colour the
+    irradiance's hue."""
     x = np.cross((0.0, 1.0, 0.0) if abs(z[1]) < 0.9 else (1.0, 0.0, 0.0), z)
     x /= np.linalg.norm(x)
     sun = UsdLux.DistantLight.Define(stage, "/World/Lights/Sun")
     sun.AddTransformOp().Set(_rows(np.stack([x, np.cross(z, x), z]), np.zeros(3)))
-    strength = float(rendered.sun_irradiance.max())
-    sun.CreateIntensityAttr(strength)
-    sun.CreateColorAttr(Gf.Vec3f(*(rendered.sun_irradiance / strength).tolist()))
+    sun.CreateIntensityAttr(intensity)
+    sun.CreateColorAttr(Gf.Vec3f(*color.tolist()))
     sun.CreateAngleAttr(SUN_ANGLE)
 
 
@@ -350,10 +341,10 @@ def _preview_surface(stage: Usd.Stage, path: Sdf.Path, inputs: dict) -> UsdShade
     return material
 
 
-def _object_material(stage: Usd.Stage, looks: Sdf.Path, rendered: Rendered) -> UsdShade.Material:
+def _object_material(stage: Usd.Stage, looks: Sdf.Path, material: Material) -> UsdShade.Material:
     """The manifest material: diffuse (no highlight: specular workflow, black specular),
     plastic, or metal (its F0 as base colour)."""
-    look = pbr(rendered.material)
+    look = pbr(material)
     color = Gf.Vec3f(*map(float, look.base_color))
     inputs = {"diffuseColor": (color, Sdf.ValueTypeNames.Color3f),
               "roughness": (look.roughness, Sdf.ValueTypeNames.Float),
@@ -364,14 +355,14 @@ def _object_material(stage: Usd.Stage, looks: Sdf.Path, rendered: Rendered) -> U
     return _preview_surface(stage, looks.AppendChild("ObjectMaterial"), inputs)
 
 
-def ice_material(stage: Usd.Stage, looks: Sdf.Path, ice: IceShading) -> UsdShade.Material:
+def ice_material(stage: Usd.Stage, looks: Sdf.Path, ice: IceLook) -> UsdShade.Material:
     """``looks/IceMaterial``: a MaterialX OpenPBR network (`_ice_openpbr`: glass that
     transmits, refracts and absorbs, for readers of MaterialX), and beside it the
     UsdPreviewSurface fallback: ior 1.31, low opacity, its roughness, and as diffuse colour
-    the tint of thick ice (`IceShading.color_at`), since UsdPreviewSurface has no transmission."""
+    the tint of thick ice (`looks.ice_color`), since UsdPreviewSurface has no transmission."""
     material = _preview_surface(stage, looks.AppendChild("IceMaterial"), {
-        "diffuseColor": (Gf.Vec3f(*map(float, ice.color_at())), Sdf.ValueTypeNames.Color3f),
-        "roughness": (ice.roughness, Sdf.ValueTypeNames.Float),
+        "diffuseColor": (Gf.Vec3f(*map(float, ice_color(ice))), Sdf.ValueTypeNames.Color3f),
+        "roughness": (perceptual_roughness(ice.roughness), Sdf.ValueTypeNames.Float),
         "metallic": (0.0, Sdf.ValueTypeNames.Float),
         "ior": (ice.ior, Sdf.ValueTypeNames.Float),
         "opacity": (ICE_OPACITY, Sdf.ValueTypeNames.Float),
@@ -389,7 +380,7 @@ def ice_material(stage: Usd.Stage, looks: Sdf.Path, ice: IceShading) -> UsdShade
 OPENPBR_ID = "ND_open_pbr_surface_surfaceshader"
 
 
-def _ice_openpbr(stage: Usd.Stage, material: UsdShade.Material, ice) -> UsdShade.Shader:
+def _ice_openpbr(stage: Usd.Stage, material: UsdShade.Material, ice: IceLook) -> UsdShade.Shader:
     """The ice as OpenPBR Surface: no diffuse base, full transmission at its ior, the colour
     white light has after `TINT_DISTANCE_M` of it (``transmission_color`` at that
     ``transmission_depth``), and its scattering as ``transmission_scatter`` (the scattering
@@ -402,9 +393,9 @@ def _ice_openpbr(stage: Usd.Stage, material: UsdShade.Material, ice) -> UsdShade
             ("base_weight", 0.0, Sdf.ValueTypeNames.Float),
             ("specular_weight", 1.0, Sdf.ValueTypeNames.Float),
             ("specular_ior", float(ice.ior), Sdf.ValueTypeNames.Float),
-            ("specular_roughness", float(ice.roughness), Sdf.ValueTypeNames.Float),
+            ("specular_roughness", perceptual_roughness(ice.roughness), Sdf.ValueTypeNames.Float),
             ("transmission_weight", 1.0, Sdf.ValueTypeNames.Float),
-            ("transmission_color", color(ice.color_at()), Sdf.ValueTypeNames.Color3f),
+            ("transmission_color", color(ice_color(ice)), Sdf.ValueTypeNames.Color3f),
             ("transmission_depth", float(TINT_DISTANCE_M), Sdf.ValueTypeNames.Float),
             ("transmission_scatter", color((scatter,) * 3), Sdf.ValueTypeNames.Color3f),
             ("geometry_thin_walled", False, Sdf.ValueTypeNames.Bool)):

@@ -84,7 +84,8 @@ def render_step(spec, job_dir: Path, obj: trimesh.Trimesh, ice_mesh: trimesh.Tri
                  povray_write_cpu_seconds=result.povray_write_cpu_seconds)
     from ..export.usd import write_job_usd
 
-    # scene.usda (object.usdc, ice.usdc) for DCCs: the render's cameras, sun, sky, materials.
+    # scene.usda (object.usdc, ice.usdc) for DCCs: the render's cameras, sun, sky, materials; the
+    # ice's normals those the scene was written with.
     timed("usd", lambda: write_job_usd(job_dir, material=material, ice_mesh=ice_mesh,
-                                       ice_normals=result.ice_normals))
+                                       ice_normals=result.scene.ice_normals))
     return stats

@@ -87,32 +87,36 @@ SCATTERING_PER_M = 8.0
 # Impure icicles hold milky inclusions under their ripple crests (Ladan & Morris, Phys. Rev.
 # E 106, 2022): seen through the ice the ripples are a shimmer of bands, not grooves. Under a
 # full crest of ice from the most impure water (surface.impurity = 1) this share of the
-# light goes through a frosted surface instead of a clear one (`IceShading.shimmer`). At 1 the
+# light goes through a frosted surface instead of a clear one (`IceLook.shimmer`). At 1 the
 # bands read as screw threads down a dense fringe; real impure ice shows them faintly.
 SHIMMER = 0.4
 
 
 @dataclass(frozen=True)
 class IceLook:
-    """The ice material.
+    """The ice's look: the one record of it, for the render configs, the scene spec and the exports.
+
+    A render config's ``ice`` gives ``scattering`` and ``shimmer`` at ``surface.impurity`` 1;
+    a `SceneSpec`'s ice is a job's, with its impurity applied (`ice_at_impurity`) and its
+    shimmer 0 where the ice mesh has no ripple crests.
 
     Attributes
     ----------
     ior : float
         Index of refraction (1.31, water ice).
     roughness : float
-        GGX roughness of the surface (0: smooth).
+        GGX roughness (alpha) of the surface (0: smooth); formats with a perceptual
+        roughness take its square root.
     tint : (3,) float
         Transmittance per surface crossing (1, 1, 1: none); the colour of thick ice comes
         from ``absorption``, which depends on the distance travelled.
     absorption : (3,) float
         Absorption coefficients per meter (R, G, B) inside the ice (Beer-Lambert).
     scattering : float
-        Scattering coefficient per meter at ``surface.impurity`` 1 (the job's impurity
-        scales it): the milky core of ice grown from impure water.
+        Scattering coefficient per meter: the milky core of ice grown from impure water.
     shimmer : float
-        Share of the light frosted under a full ripple crest at ``surface.impurity`` 1 (the
-        job's impurity scales it; 0: clear ripples): milky bands along rippled icicles.
+        Share of the light frosted under a full ripple crest (0: clear ripples): milky
+        bands along rippled icicles.
     """
 
     ior: float = 1.31
@@ -142,11 +146,9 @@ class IceMedium:
         return tuple(self.scattering / t if t > 0 else 0.0 for t in self.extinction)
 
 
-def ice_medium(ice: IceLook, impurity: float = 0.0) -> IceMedium | None:
-    """The medium inside the ice of a job with ``impurity`` (``surface.impurity``, [0, 1]).
-
-    Absorption is the config's; scattering grows with impurity (0: none, clear ice).
-    None when the ice neither absorbs nor scatters.
+def ice_at_impurity(look: IceLook, impurity: float) -> IceLook:
+    """The ice of a job with ``impurity`` (``surface.impurity``, [0, 1]): ``look``'s scattering
+    and shimmer, which a render config gives at impurity 1, scaled by it (0: clear ice).
 
     Raises
     ------
@@ -156,7 +158,13 @@ def ice_medium(ice: IceLook, impurity: float = 0.0) -> IceMedium | None:
     impurity = float(impurity)
     if not 0.0 <= impurity <= 1.0:
         raise ValueError(f"impurity must be in [0, 1], got {impurity}")
-    medium = IceMedium(tuple(float(a) for a in ice.absorption), float(ice.scattering) * impurity)
+    return replace(look, tint=tuple(look.tint), absorption=tuple(float(a) for a in look.absorption),
+                   scattering=float(look.scattering) * impurity, shimmer=look.shimmer * impurity)
+
+
+def ice_medium(ice: IceLook) -> IceMedium | None:
+    """What fills a job's ice (`ice_at_impurity`), None when it neither absorbs nor scatters."""
+    medium = IceMedium(tuple(float(a) for a in ice.absorption), float(ice.scattering))
     return medium if max(medium.extinction) > 0 else None
 
 

@@ -1,6 +1,7 @@
 """The ice-aware path tracer as Mitsuba's ``icepath`` plugin: its class per JIT variant
-(`integrator_class`), an instance with a job's settings (`ice_integrator`), and the ice's
-medium read back from a loaded scene (`medium_coefficients`).
+(`integrator_class`), an instance with a job's settings (`ice_integrator`, the ice's look
+from its `SceneSpec`), and the ice's medium read back from a loaded scene, to check a
+``scene.xml`` against its spec (`medium_coefficients`).
 
 What it samples, and why (transmissive shadows through ice, the medium inside it), is in
 `icefarm.scene.icepath`.
@@ -82,7 +83,7 @@ def ice_integrator(variant: str, max_depth: int = 12, ior: float = IceLook.ior,
         Pass-throughs per path segment and per shadow ray before the light is absorbed.
     sigma_a, sigma_s : (3,) float or float
         Absorption and scattering coefficients inside the ice, per scene unit (meter):
-        the ice's ``homogeneous`` medium (`medium_coefficients` reads them from a scene).
+        the ice's ``homogeneous`` medium (`icefarm.scene.config.ice_medium` of the spec's ice).
     features : bool
         Also write the denoiser's feature buffers (`FEATURE_CHANNELS`): ``mi.render``
         then returns these six channels after the three of RGB.

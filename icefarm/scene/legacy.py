@@ -1,6 +1,6 @@
 """The `SceneSpec` of a job from before ``scene.json``, read back from its ``scene.xml``.
 
-Only the scene package parses a renderer's file: `icefarm.export.rendered.read_rendered` calls
+Only the scene package parses a renderer's file: `icefarm.scene.write.read_scene_spec` calls
 `spec_from_xml` for such a job and supplies what the XML does not hold (gravity, the
 object's material, the views' names). The XML is icefarm's own (`icefarm.scene.mitsuba`):
 sensors with a ``lookat``, an ``envmap`` and a ``directional`` emitter, ``ply`` shapes
@@ -17,9 +17,10 @@ import numpy as np
 
 from ..jobdir import SCENE_XML
 from .camera import Camera
+from .config import IceLook
 from .material import Material
 from .mitsuba import WATER_ICE_IOR
-from .spec import Ground, IceShading, SceneSpec, Sky, SpecView, Sun
+from .spec import Ground, SceneSpec, Sky, SpecView, Sun
 
 
 def spec_from_xml(path: str | Path, *, gravity, material: Material, view_names: Sequence[str] | None) -> SceneSpec:
@@ -53,6 +54,7 @@ def spec_from_xml(path: str | Path, *, gravity, material: Material, view_names: 
         if len(names) != len(cameras):
             names = [f"view{i}" for i in range(len(cameras))]
         g = np.asarray(gravity, dtype=np.float64)
+        ice, ice_file, ice_flip = _ice(shapes["ice"]) if "ice" in shapes else (None, None, False)
         return SceneSpec(
             resolution=(width, height), views=tuple(SpecView(n) for n in names), cameras=cameras, frame=frame,
             gravity=g / np.linalg.norm(g),
@@ -60,7 +62,7 @@ def spec_from_xml(path: str | Path, *, gravity, material: Material, view_names: 
             sun=None if sun is None else Sun(-_floats(_named(sun, "vector", "direction")),
                                              _floats(_named(sun, "rgb", "irradiance"))),
             ground=_ground(shapes.get("ground")), object_file=_named(shapes["object"], "string", "filename"),
-            material=material, ice=_ice(shapes["ice"]) if "ice" in shapes else None)
+            material=material, ice=ice, ice_file=ice_file, ice_flip=ice_flip)
     except (ET.ParseError, KeyError, AttributeError, TypeError, ValueError) as exc:
         raise ValueError(f"{path}: not a {SCENE_XML} written by icefarm ({exc})") from None
 
@@ -95,7 +97,8 @@ def _ground(shape) -> Ground | None:
     return Ground(corners=(local @ m.T)[:, :3], color=np.mean(colors, axis=0) if colors else np.full(3, 0.1))
 
 
-def _ice(shape: ET.Element) -> IceShading:
+def _ice(shape: ET.Element) -> tuple[IceLook, str, bool]:
+    """The ice's look, its mesh file and whether its faces are flipped."""
     bsdf = shape.find("bsdf")
     shimmer = 0.0
     if bsdf.get("type") == "blendbsdf":  # milky bands: the clear surface is the first of the two
@@ -110,8 +113,7 @@ def _ice(shape: ET.Element) -> IceShading:
         extinction = _floats(_named(medium, "rgb", "sigma_t")) * float(_named(medium, "float", "scale"))
         albedo = _floats(_named(medium, "rgb", "albedo"))
         absorption, scattering = extinction * (1.0 - albedo), float(np.mean(extinction * albedo))
-    return IceShading(ior=float(ior), alpha=float(_named(bsdf, "float", "alpha") or 0.0),
-                      tint=tuple(_floats(tint)) if tint else (1.0, 1.0, 1.0),
-                      absorption=tuple(float(a) for a in absorption), scattering=scattering,
-                      flip=_named(shape, "boolean", "flip_normals") == "true",
-                      file=_named(shape, "string", "filename"), shimmer=shimmer)
+    look = IceLook(ior=float(ior), roughness=float(_named(bsdf, "float", "alpha") or 0.0),
+                   tint=tuple(_floats(tint)) if tint else (1.0, 1.0, 1.0),
+                   absorption=tuple(float(a) for a in absorption), scattering=scattering, shimmer=shimmer)
+    return look, _named(shape, "string", "filename"), _named(shape, "boolean", "flip_normals") == "true"

@@ -13,9 +13,9 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from .config import IceMedium
+from .config import IceLook, IceMedium, ice_medium
 from .material import Material
-from .spec import BAND_ALPHA, BAND_ATTRIBUTE, IceShading, SceneSpec
+from .spec import BAND_ALPHA, BAND_ATTRIBUTE, SceneSpec
 
 WATER_ICE_IOR = 1.31  # Mitsuba's "water ice"
 
@@ -59,19 +59,19 @@ def _bsdf_object(parent: ET.Element, material: Material) -> None:
             _add(b, "float", name="alpha", value=rough)
 
 
-def _bsdf_ice(parent: ET.Element, ice: IceShading) -> None:
+def _bsdf_ice(parent: ET.Element, ice: IceLook) -> None:
     if ice.shimmer > 0:  # milky bands: the clear surface blended, per vertex, with a frosted one
         blend = _add(parent, "bsdf", type="blendbsdf")
         weight = _add(blend, "texture", type="mesh_attribute", name="weight")
         _add(weight, "string", name="name", value=BAND_ATTRIBUTE)
         _add(weight, "float", name="scale", value=ice.shimmer)
-        _dielectric(blend, ice, ice.alpha)
-        _dielectric(blend, ice, max(ice.alpha, BAND_ALPHA))
+        _dielectric(blend, ice, ice.roughness)
+        _dielectric(blend, ice, max(ice.roughness, BAND_ALPHA))
     else:
-        _dielectric(parent, ice, ice.alpha)
+        _dielectric(parent, ice, ice.roughness)
 
 
-def _dielectric(parent: ET.Element, ice: IceShading, alpha: float) -> None:
+def _dielectric(parent: ET.Element, ice: IceLook, alpha: float) -> None:
     b = _add(parent, "bsdf", type="roughdielectric" if alpha > 0 else "dielectric")
     if abs(ice.ior - WATER_ICE_IOR) < 1e-9:
         _add(b, "string", name="int_ior", value="water ice")
@@ -111,7 +111,8 @@ def scene_xml(spec: SceneSpec) -> str:
     width, height = spec.resolution
     sampling, ice = spec.sampling, spec.ice
     root = ET.Element("scene", version="3.0.0")
-    volumetric = ice is not None and ice.medium is not None
+    medium = None if ice is None else ice_medium(ice)
+    volumetric = medium is not None
     root.append(ET.Comment(" icefarm renders scenes with ice with its own `icepath` integrator, a path "
                            "tracer that lets sunlight through the ice to what the glaze covers; the "
                            f"`{'volpath' if volumetric else 'path'}` below (for the mitsuba command) "
@@ -160,12 +161,12 @@ def scene_xml(spec: SceneSpec) -> str:
 
     if ice is not None:
         shape = _add(root, "shape", type="ply", id="ice")
-        _add(shape, "string", name="filename", value=ice.file)
-        if ice.flip:
+        _add(shape, "string", name="filename", value=spec.ice_file)
+        if spec.ice_flip:
             _add(shape, "boolean", name="flip_normals", value="true")
         _bsdf_ice(shape, ice)
-        if ice.medium is not None:
-            _medium_ice(shape, ice.medium)
+        if medium is not None:
+            _medium_ice(shape, medium)
 
     ground = spec.ground
     if ground is not None:

@@ -18,9 +18,9 @@ import numpy as np
 from ..errors import InputError
 from ..jobdir import POVRAY_STEM, SCENE_POV
 from .camera import direction as direction_of
-from .config import GROUND_PLAIN, IceMedium, RenderConfig
+from .config import GROUND_PLAIN, IceLook, IceMedium, RenderConfig, ice_medium
 from .material import Material
-from .spec import IceShading, SceneSpec
+from .spec import SceneSpec
 
 FLIP = np.array([1.0, 1.0, -1.0])  # right-handed world -> POV's left-handed one
 METAL_COLOURS = {"Al": (0.91, 0.92, 0.92), "Ag": (0.97, 0.96, 0.91), "Au": (1.0, 0.78, 0.34),
@@ -158,10 +158,10 @@ def _scattering_media(medium: IceMedium | None) -> str:
             f"scattering {{ 1, rgb {medium.scattering:.6g} }} }}")
 
 
-def _ice_material(ice: IceShading) -> str:
-    medium = ice.medium
-    bumps = (f"\n    normal {{ bumps {min(ice.alpha * 2, 1):.4g} scale 0.0015 }}"
-             if ice.alpha > 0 else "")
+def _ice_material(ice: IceLook) -> str:
+    medium = ice_medium(ice)
+    bumps = (f"\n    normal {{ bumps {min(ice.roughness * 2, 1):.4g} scale 0.0015 }}"
+             if ice.roughness > 0 else "")
     filt = ", ".join(f"{float(t):.6g}" for t in ice.tint)
     return f"""material {{
   texture {{
@@ -235,7 +235,7 @@ def scene_pov(spec: SceneSpec, *, object_inc: str, ice_inc: str | None) -> str:
     if ice_inc is not None:
         out.append(f"#include \"{ice_inc}\"\n")
         # POV-Ray renders media only inside hollow objects.
-        medium = spec.ice.medium
+        medium = ice_medium(spec.ice)
         hollow = " hollow" if medium is not None and medium.scattering > 0 else ""
         out.append(f"object {{ Ice_Mesh{hollow}\n  {_ice_material(spec.ice)}\n}}\n\n")
 

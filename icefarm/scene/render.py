@@ -8,7 +8,6 @@ files written in `icefarm.scene.images`.
 from __future__ import annotations
 
 import dataclasses
-import functools
 import shutil
 import time
 from collections.abc import Callable
@@ -20,11 +19,12 @@ import numpy as np
 from tqdm import tqdm
 
 from ..errors import InputError
-from ..jobdir import POVRAY_STEM, SCENE_XML, view_stem
+from ..jobdir import POVRAY_STEM, SCENE_SPEC, SCENE_XML, view_stem
 from . import povray as pov
-from .config import RenderConfig
+from .config import IceLook, RenderConfig
 from .denoise import denoise, denoiser_version
 from .images import png_to_exr, write_exr, write_png
+from .spec import SceneSpec, read_spec
 from .variants import pick_variant
 from .write import JobScene, SceneFiles, write_scenes
 
@@ -34,20 +34,6 @@ __all__ = ["JobScene", "MitsubaRun", "RenderResult", "SceneFiles", "render_job",
 
 PASS_SAMPLES = 1 << 25  # camera samples per Mitsuba render call: bounded memory, visible progress
 REPORT_S = 10.0  # a render's progress lines in a log: at most one per this many seconds, and one per view
-
-
-def _vertex_normals(scene, shape_id: str) -> np.ndarray | None:
-    """Vertex normals ``(n, 3)`` of the mesh ``shape_id`` in a loaded Mitsuba scene, or None."""
-    import mitsuba as mi
-
-    for shape in scene.shapes():
-        if shape.id() == shape_id:
-            params = mi.traverse(shape)
-            if "vertex_normals" in params:
-                normals = np.array(params["vertex_normals"], dtype=np.float64)
-                if normals.size:
-                    return normals.reshape(-1, 3)
-    return None
 
 
 # ------------------------------------------------------------------------ rendering
@@ -85,9 +71,6 @@ class RenderResult:
         Of ``seconds``, the denoiser's (0 when the config does not denoise).
     scene : SceneFiles or None
         What was written and rendered, when `render_job` was given them or wrote them.
-    ice_normals : (n, 3) float32 or None
-        The ice's vertex normals as Mitsuba computed them on load (`smooth_normals`, not
-        flipped), for other writers of the same mesh (USD); None when Mitsuba did not run.
     """
 
     renderer: str
@@ -103,7 +86,6 @@ class RenderResult:
     view_seconds: tuple[float, ...] = ()
     denoise_seconds: float = 0.0
     scene: SceneFiles | None = None
-    ice_normals: np.ndarray | None = None
 
     @property
     def scene_seconds(self) -> float:
@@ -124,14 +106,15 @@ def sample_passes(pixels: int, spp: int, budget: int = PASS_SAMPLES) -> list[int
     return [base + (k < extra) for k in range(count)]
 
 
-def render_mitsuba(job_dir: Path, config: RenderConfig, variant: str,
+def render_mitsuba(job_dir: Path, config: RenderConfig, variant: str, spec: SceneSpec,
                    on_loaded: Callable[[object], None] | None = None,
                    progress: bool = False, report: Callable[[str], None] | None = None) -> MitsubaRun:
     """Load ``scene.xml`` with ``variant`` and render every view; ``on_loaded(scene)`` runs in between.
 
     Scenes with ice render with the ice-aware path tracer (`integrator.ice_integrator`:
-    sunlight reaches what the glaze covers; the ice's medium as the XML gives it) on JIT
-    variants, with the XML's ``path`` or ``volpath`` otherwise. Large frames render in
+    sunlight reaches what the glaze covers; the ice's look and medium as ``spec``, the scene
+    ``scene.xml`` was written from, gives them) on JIT variants, with the XML's ``path`` or
+    ``volpath`` otherwise. Large frames render in
     passes (`sample_passes`, each with its own seed, averaged), with a progress bar over
     them when ``progress`` is set. ``report(line)``, for a log or a pipe, is told as each view
     ends and at most every `REPORT_S` seconds in between: how far the samples are, and the
@@ -146,7 +129,8 @@ def render_mitsuba(job_dir: Path, config: RenderConfig, variant: str,
     """
     import mitsuba as mi
 
-    from .integrator import FEATURE_CHANNELS, ice_integrator, medium_coefficients
+    from .config import ice_medium
+    from .integrator import FEATURE_CHANNELS, ice_integrator
 
     if mi.variant() != variant:
         mi.set_variant(variant)
@@ -155,15 +139,15 @@ def render_mitsuba(job_dir: Path, config: RenderConfig, variant: str,
     load_seconds = time.perf_counter() - start
     if on_loaded is not None:
         on_loaded(scene)
-    has_ice = any(shape.id() == "ice" for shape in scene.shapes())
     denoised = config.denoise == "oidn"
     integrator = None
-    if (has_ice or denoised) and variant.startswith(("llvm_", "cuda_")):
-        # the medium as scene.xml has it (written from the config and the job's impurity);
+    if (spec.ice is not None or denoised) and variant.startswith(("llvm_", "cuda_")):
         # without ice icepath is a plain path tracer, that also writes the denoiser's features
-        sigma_a, sigma_s = medium_coefficients(scene, "ice") or ((0.0,) * 3, (0.0,) * 3)
-        integrator = ice_integrator(variant, config.max_depth, config.ice.ior, config.ice.tint,
-                                    sigma_a=sigma_a, sigma_s=sigma_s, features=denoised)
+        ice = spec.ice or IceLook()
+        medium = ice_medium(ice) if spec.ice is not None else None
+        integrator = ice_integrator(variant, config.max_depth, ice.ior, ice.tint,
+                                    sigma_a=medium.absorption if medium else 0.0,
+                                    sigma_s=medium.scattering if medium else 0.0, features=denoised)
     channels = 3 + (len(FEATURE_CHANNELS) if denoised and integrator is not None else 0)
     passes = sample_passes(config.width * config.height, config.spp, PASS_SAMPLES)
     n_views = len(scene.sensors())
@@ -271,7 +255,7 @@ def render_job(job_dir: str | Path, config: RenderConfig, scene: JobScene | Scen
     Given a `JobScene`, the scene is written first (`write_scenes`: the spec, then
     ``scene.xml``, ``scene.json``, the meshes; the POV-Ray files while Mitsuba renders).
     Given `SceneFiles`, what `write_scenes` wrote is rendered; given nothing, what
-    ``job_dir`` holds.
+    ``job_dir`` holds (its ``scene.json`` says what ``scene.xml`` holds).
 
     Mitsuba writes ``render.exr`` (linear) and ``render.png`` (sRGB), plus
     ``render_view<i>.*`` for further views; POV-Ray writes ``render_povray.png`` (and,
@@ -297,7 +281,8 @@ def render_job(job_dir: str | Path, config: RenderConfig, scene: JobScene | Scen
     Raises
     ------
     InputError
-        POV-Ray asked for but not installed, or a variant that cannot run here.
+        POV-Ray asked for but not installed, a variant that cannot run here, or for
+        Mitsuba, no scenes written (``scene.xml``, ``scene.json``).
     """
     job_dir = Path(job_dir)
     if isinstance(scene, JobScene):
@@ -309,21 +294,15 @@ def render_job(job_dir: str | Path, config: RenderConfig, scene: JobScene | Scen
     writer = scene.povray_writer if scene is not None else None
     pending: list[Future] = []
     with ThreadPoolExecutor(max_workers=1) as pool:
-        ice_normals: list[np.ndarray] = []  # as Mitsuba computed them on load: for POV-Ray and USD
 
-        def start_povray(normals=None) -> None:
+        def start_povray() -> None:
             if writer is not None and not pending:
-                pending.append(pool.submit(_cpu_seconds, functools.partial(writer, ice_normals=normals)))
-
-        def loaded(mitsuba_scene) -> None:
-            normals = _vertex_normals(mitsuba_scene, "ice")
-            if normals is not None:
-                ice_normals.append(normals.astype(np.float32))
-            start_povray(normals)
+                pending.append(pool.submit(_cpu_seconds, writer))
 
         try:
-            if config.uses_mitsuba and not (job_dir / SCENE_XML).is_file():
-                raise InputError(f"no {SCENE_XML} in {job_dir}: write the scenes first")
+            missing = next((name for name in (SCENE_XML, SCENE_SPEC) if not (job_dir / name).is_file()), None)
+            if config.uses_mitsuba and missing is not None:
+                raise InputError(f"no {missing} in {job_dir}: write the scenes first")
             if config.uses_povray:
                 pov.require_povray()  # before spending time on Mitsuba
             files: list[Path] = []
@@ -331,7 +310,9 @@ def render_job(job_dir: str | Path, config: RenderConfig, scene: JobScene | Scen
             views, denoise_seconds = (), 0.0
             if config.uses_mitsuba:
                 variant = pick_variant(config.variant)
-                run = render_mitsuba(job_dir, config, variant, on_loaded=loaded, progress=progress, report=report)
+                spec = scene.spec if scene is not None else read_spec(job_dir / SCENE_SPEC)
+                run = render_mitsuba(job_dir, config, variant, spec, on_loaded=lambda _loaded: start_povray(),
+                                     progress=progress, report=report)
                 load_seconds, views, denoise_seconds = run.load_seconds, run.view_seconds, run.denoise_seconds
                 files, integrator = list(run.files), run.integrator
         finally:  # the job is not over while its scene.pov is missing or being written
@@ -356,5 +337,4 @@ def render_job(job_dir: str | Path, config: RenderConfig, scene: JobScene | Scen
                         view_seconds=views, denoise_seconds=denoise_seconds,
                         write_seconds=scene.seconds if scene is not None else 0.0,
                         load_seconds=load_seconds, wait_seconds=waited, povray_write_cpu_seconds=writer_cpu,
-                        povray_seconds=pov_seconds, files=tuple(files), scene=scene,
-                        ice_normals=ice_normals[0] if ice_normals else None)
+                        povray_seconds=pov_seconds, files=tuple(files), scene=scene)

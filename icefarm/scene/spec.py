@@ -5,8 +5,9 @@ views and their cameras, the world frame (from gravity), the sky, the sun, the g
 object and its material, the ice and its look. `icefarm.scene.write.write_scenes` builds it
 from a render config and a job's meshes, then renders it to each format: ``scene.xml``
 (`icefarm.scene.mitsuba.scene_xml`), ``scene.pov`` (`icefarm.scene.povray.scene_pov`) and
-``scene.json`` itself (`SceneSpec.to_json`), which the USD and glTF exports read back
-(`icefarm.export.rendered.read_rendered`; jobs from before it through `icefarm.scene.legacy`).
+``scene.json`` itself (`SceneSpec.to_json`), which the render's integrator, the USD and glTF
+exports and ``icefarm render`` read back (`icefarm.scene.write.read_scene_spec`; jobs from
+before it through `icefarm.scene.legacy`).
 
 Lengths in meters, colours linear RGB, angles in degrees. The light keeps its terms as the
 render config gave them (strengths, sun elevation, exposure) beside what they make (the
@@ -27,16 +28,13 @@ import numpy as np
 
 from ..jobdir import ICE_BANDS, SCENE_SPEC
 from .camera import Camera
-from .config import IceMedium
+from .config import IceLook
 from .material import Material, material_from_dict
 
 SPEC_FILE = SCENE_SPEC  # scene.json, in the job folder (`icefarm.jobdir`)
 SPEC_VERSION = 2
 SUN_WARMTH = (1.0, 0.93, 0.84)  # the sun's colour (a late-morning white)
-# The ice's colour, where a format has no absorbing medium (UsdPreviewSurface): what white
-# light looks like after this much ice. 10 cm: the root of a long icicle, where ice shows colour.
-TINT_DISTANCE_M = 0.1
-# GGX alpha of the milky bands (`IceShading.shimmer`): chosen by eye on the bench's and the
+# GGX alpha of the milky bands (`IceLook.shimmer`): chosen by eye on the bench's and the
 # table's ice views, where the ripples refracted the brown seat above as a zebra of dark
 # stripes: at 0.3 they stayed; at 0.5 they blur into pale bands without painting the ice white.
 BAND_ALPHA = 0.5
@@ -120,57 +118,6 @@ def square_ground(centre: np.ndarray, half_size: float, cell: float, frame: np.n
 
 
 @dataclass(frozen=True)
-class IceShading:
-    """The ice's look as rendered.
-
-    Attributes
-    ----------
-    ior : float
-        Index of refraction (1.31, water ice).
-    alpha : float
-        GGX roughness alpha of the surface (0: smooth).
-    tint : (3,) float
-        Transmittance per surface crossing, linear RGB.
-    absorption : (3,) float
-        Absorption inside the ice, per meter (R, G, B).
-    scattering : float
-        Scattering inside the ice, per meter.
-    flip : bool
-        The mesh's faces wind inwards (Mitsuba flips its normals).
-    file : str
-        The mesh, in the job folder.
-    shimmer : float
-        Share of the light frosted (GGX alpha `BAND_ALPHA`) where the mesh's `ICE_BANDS`
-        vertex property is 1, under a full ripple crest; 0: clear everywhere.
-    """
-
-    ior: float
-    alpha: float
-    tint: tuple[float, float, float]
-    absorption: tuple[float, float, float]
-    scattering: float
-    flip: bool
-    file: str
-    shimmer: float = 0.0
-
-    @property
-    def roughness(self) -> float:
-        """Perceptual roughness of UsdPreviewSurface and glTF, whose square is the GGX alpha."""
-        return float(np.sqrt(self.alpha))
-
-    @property
-    def medium(self) -> IceMedium | None:
-        """What fills the ice, None when it neither absorbs nor scatters (as
-        `icefarm.scene.config.ice_medium` decides)."""
-        medium = IceMedium(tuple(self.absorption), self.scattering)
-        return medium if max(medium.extinction) > 0 else None
-
-    def color_at(self, distance: float = TINT_DISTANCE_M) -> np.ndarray:
-        """``(3,)`` linear RGB of white light after ``distance`` meters of ice (Beer-Lambert)."""
-        return np.asarray(self.tint) * np.exp(-np.asarray(self.absorption) * distance)
-
-
-@dataclass(frozen=True)
 class SceneSpec:
     """A job's rendered scene (see the module docstring).
 
@@ -195,8 +142,12 @@ class SceneSpec:
         The object's mesh, in the job folder.
     material : Material
         The object's validated material.
-    ice : IceShading or None
-        None without ice.
+    ice : IceLook or None
+        The ice's look as rendered (the job's impurity applied); None without ice.
+    ice_file : str or None
+        The ice's mesh, in the job folder; None without ice.
+    ice_flip : bool
+        The ice mesh's faces wind inwards (Mitsuba flips its normals; exports reverse them).
     exposure : float or None
         Stops every light is scaled by (None in version 1 files).
     sampling : Sampling or None
@@ -213,7 +164,9 @@ class SceneSpec:
     ground: Ground | None
     object_file: str
     material: Material
-    ice: IceShading | None
+    ice: IceLook | None
+    ice_file: str | None
+    ice_flip: bool
     exposure: float | None = None
     sampling: Sampling | None = None
 
@@ -242,8 +195,9 @@ class SceneSpec:
                 "cell": ground.cell, "pattern": ground.pattern, "colors": [list(c) for c in ground.colors]},
             "object": {"file": self.object_file, "material": self.material.to_dict()},
             "ice": None if ice is None else {
-                "file": ice.file, "flip": bool(ice.flip), "ior": ice.ior, "alpha": ice.alpha, "tint": list(ice.tint),
-                "absorption": list(ice.absorption), "scattering": ice.scattering, "shimmer": ice.shimmer},
+                "file": self.ice_file, "flip": bool(self.ice_flip), "ior": ice.ior, "alpha": ice.roughness,
+                "tint": list(ice.tint), "absorption": list(ice.absorption), "scattering": ice.scattering,
+                "shimmer": ice.shimmer},
             "exposure": self.exposure,
             "sampling": None if self.sampling is None else {
                 "spp": self.sampling.spp, "max_depth": self.sampling.max_depth, "denoise": self.sampling.denoise},
@@ -283,10 +237,11 @@ class SceneSpec:
                 tuple(tuple(float(x) for x in c) for c in ground.get("colors") or ())),
             object_file=str(data["object"]["file"]),
             material=material_from_dict(data["object"]["material"]),
-            ice=None if ice is None else IceShading(
-                ior=float(ice["ior"]), alpha=float(ice["alpha"]), tint=tuple(float(t) for t in ice["tint"]),
+            ice=None if ice is None else IceLook(
+                ior=float(ice["ior"]), roughness=float(ice["alpha"]), tint=tuple(float(t) for t in ice["tint"]),
                 absorption=tuple(float(a) for a in ice["absorption"]), scattering=float(ice["scattering"]),
-                flip=bool(ice["flip"]), file=str(ice["file"]), shimmer=float(ice.get("shimmer", 0.0))),
+                shimmer=float(ice.get("shimmer", 0.0))),
+            ice_file=None if ice is None else str(ice["file"]), ice_flip=ice is not None and bool(ice["flip"]),
             exposure=data.get("exposure"),
             sampling=None if sampling is None else Sampling(int(sampling["spp"]), int(sampling["max_depth"]),
                                                             str(sampling["denoise"])))

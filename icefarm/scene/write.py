@@ -1,5 +1,6 @@
 """Write a job's scenes: ``scene.xml`` (Mitsuba 3), ``scene.pov`` (POV-Ray 3.7) with its mesh
-includes, the meshes, the sky, ``scene.json`` (`icefarm.scene.spec`) and ``views.json``.
+includes, the meshes, the sky, ``scene.json`` (`icefarm.scene.spec`) and ``views.json``; and read
+the scene back from a job folder (`read_scene_spec`).
 
 `icefarm.scene.render` renders what is written here.
 """
@@ -11,7 +12,7 @@ import shutil
 import tempfile
 import time
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -19,20 +20,22 @@ import trimesh
 
 from .. import jobdir as jd
 from ..artifacts import write_mesh
+from ..errors import InputError
 from ..geometry import ray_caster
 from . import camera as cam, geometry as geo, mitsuba as mx, povray as pov
-from .config import GROUND_CHECKER, GROUND_PLAIN, RenderConfig, ice_medium
+from .config import GROUND_CHECKER, GROUND_PLAIN, RenderConfig, ice_at_impurity
 from .focus import ice_focus, pixel_size, surface_points, zoom_on_ice
 from .images import write_exr
+from .legacy import spec_from_xml
 from .material import Material, material_from_dict
 from .sky import procedural_sky
 from .spec import (
-    IceShading,
     Sampling,
     SceneSpec,
     Sky,
     SpecView,
     Sun,
+    read_spec,
     sky_scale,
     square_ground,
     sun_irradiance,
@@ -44,7 +47,7 @@ CREASE_ANGLE = 30.0  # degrees: sharper edges of the object stay sharp in shadin
 
 @dataclass(frozen=True)
 class SceneFiles:
-    """What `write_scenes` wrote into a job folder.
+    """What `write_scenes` wrote into a job folder, and the spec it wrote it from.
 
     Attributes
     ----------
@@ -54,21 +57,18 @@ class SceneFiles:
         Meshes the XML names (``ice_ply`` None without ice).
     sky : Path
         Environment image.
-    cameras : tuple of Camera
-        One per view, the main view first.
-    icicle_px : tuple of (float or None)
-        Per view, how wide (pixels) the densest icicles are in it; None where not
-        measured (no ice view configured, or no icicles).
-    ground_height : float or None
-        Height of the ground plane along -gravity, meters (None: no ground).
     spec : SceneSpec
         The scene every file was written from (``scene.json``).
     seconds : float
         Time taken to write everything written before `write_scenes` returned.
     povray_writer : callable or None
         Writes the POV-Ray files, when `write_scenes` was told to defer them: `render_job`
-        runs it in a thread once Mitsuba has loaded its scene, with the ice normals
-        Mitsuba computed (``ice_normals=``). None once they are written.
+        runs it in a thread once Mitsuba has loaded its scene. None once they are written.
+    ice_normals : (n, 3) float or None
+        The ice's unit vertex normals, for its faces as ``ice.ply`` winds them (not flipped),
+        computed once by `write_spec_files` (`geometry.smooth_normals`: the angle-weighted
+        normals Mitsuba computes when it loads ``ice.ply``), for ``ice.inc`` and the USD
+        export. None without ice.
     """
 
     xml: Path
@@ -76,12 +76,27 @@ class SceneFiles:
     object_ply: Path
     ice_ply: Path | None
     sky: Path
-    cameras: tuple[cam.Camera, ...]
+    spec: SceneSpec
     seconds: float
-    povray_writer: Callable[..., None] | None = None
-    icicle_px: tuple[float | None, ...] = ()
-    ground_height: float | None = None
-    spec: SceneSpec | None = None
+    povray_writer: Callable[[], None] | None = None
+    ice_normals: np.ndarray | None = None
+
+    @property
+    def cameras(self) -> tuple[cam.Camera, ...]:
+        """One per view, the main view first."""
+        return self.spec.cameras
+
+    @property
+    def icicle_px(self) -> tuple[float | None, ...]:
+        """Per view, how wide (pixels) the densest icicles are in it; None where not measured
+        (no ice view configured, or no icicles)."""
+        return tuple(v.icicle_px for v in self.spec.views)
+
+    @property
+    def ground_height(self) -> float | None:
+        """Height of the ground plane along -gravity, meters (None: no ground)."""
+        ground = self.spec.ground
+        return None if ground is None else float(ground.centre @ self.spec.up)
 
 
 @dataclass(frozen=True)
@@ -225,7 +240,7 @@ def build_spec(job_dir: str | Path, object_mesh: trimesh.Trimesh, ice_mesh: trim
     The sky's image is written into ``job_dir`` (created if missing) when it is not there
     yet: the spec names it. Nothing else is written.
     """
-    medium = ice_medium(config.ice, impurity) if ice_mesh is not None else None
+    ice = ice_at_impurity(config.ice, impurity) if ice_mesh is not None else None
     if ground_level is not None and not np.isfinite(ground_level):
         raise ValueError(f"ground_level must be finite, got {ground_level!r}")
     job_dir = Path(job_dir)
@@ -294,11 +309,8 @@ def build_spec(job_dir: str | Path, object_mesh: trimesh.Trimesh, ice_mesh: trim
         sun=Sun(cam.direction(frame, env.sun_azimuth, env.sun_elevation), sun_irradiance(env), env.sun_strength,
                 env.sun_elevation) if env.sun_strength > 0 else None,
         ground=ground, object_file=jd.OBJECT, material=material,
-        ice=None if ice_mesh is None else IceShading(
-            ior=config.ice.ior, alpha=config.ice.roughness, tint=tuple(config.ice.tint),
-            absorption=tuple(medium.absorption) if medium is not None else (0.0, 0.0, 0.0),
-            scattering=float(medium.scattering) if medium is not None else 0.0, flip=bool(ice_flip), file=jd.ICE,
-            shimmer=_shimmer(ice_mesh, config.ice.shimmer * float(impurity))),
+        ice=None if ice is None else replace(ice, shimmer=_shimmer(ice_mesh, ice.shimmer)),
+        ice_file=None if ice is None else jd.ICE, ice_flip=bool(ice_flip),
         exposure=env.exposure, sampling=Sampling(config.spp, config.max_depth, config.denoise))
 
 
@@ -332,14 +344,23 @@ def write_spec_files(job_dir: str | Path, spec: SceneSpec, object_mesh: trimesh.
     (`mitsuba.scene_xml`), ``scene.pov`` and its includes (`povray.scene_pov`; now, or
     deferred as in `write_scenes`), ``scene.json`` and ``views.json``.
 
+    The object's normals are computed here once (`geometry.crease_split`) and written with it
+    (``object.ply``, ``object.inc``); the ice's too (``SceneFiles.ice_normals``), for
+    ``ice.inc`` and the exports. ``ice.ply`` stays as the pipeline wrote it, without normals:
+    Mitsuba computes the same angle-weighted ones (to float32 rounding, 1e-4) when it loads
+    it, so that ``scene.xml`` renders alike with the ``mitsuba`` command.
+
     ``start`` (`time.perf_counter`) is when the work began, for ``SceneFiles.seconds``.
     """
     start = time.perf_counter() if start is None else start
     job_dir = Path(job_dir)
     object_geometry = geo.crease_split(object_mesh, CREASE_ANGLE)
+    # the ice's normals at its points as ice.ply holds them (float32), which Mitsuba renders and exports read
+    ice_normals = None if spec.ice is None else geo.smooth_normals(
+        np.asarray(ice_mesh.vertices, dtype=np.float32), ice_mesh.faces)
     pov_file = job_dir / jd.SCENE_POV
     write_pov = functools.partial(
-        _write_povray, job_dir, pov_file, object_geometry, ice_mesh, spec.ice is not None and spec.ice.flip,
+        _write_povray, job_dir, pov_file, object_geometry, ice_mesh, ice_normals, spec.ice_flip,
         pov.scene_pov(spec, object_inc=jd.OBJECT_INC, ice_inc=None if spec.ice is None else jd.ICE_INC))
     if not defer_povray:
         write_pov()
@@ -348,34 +369,64 @@ def write_spec_files(job_dir: str | Path, spec: SceneSpec, object_mesh: trimesh.
     geo.write_ply(object_ply, obj_v, obj_f, obj_n)
     ice_ply = None
     if spec.ice is not None:
-        ice_ply = job_dir / spec.ice.file
+        ice_ply = job_dir / spec.ice_file
         if not ice_ply.is_file():  # as the pipeline writes it
             write_mesh(ice_ply, ice_mesh)
     xml = job_dir / jd.SCENE_XML
     xml.write_text(mx.scene_xml(spec))
     write_spec(job_dir / jd.SCENE_SPEC, spec)
     jd.write_views(job_dir, [(v.name, v.frame, v.icicle_px) for v in spec.views])
-    ground_height = None if spec.ground is None else float(spec.ground.centre @ spec.up)
     return SceneFiles(xml=xml, pov=pov_file, object_ply=object_ply, ice_ply=ice_ply, sky=job_dir / spec.sky.file,
-                      cameras=spec.cameras, seconds=time.perf_counter() - start,
-                      povray_writer=write_pov if defer_povray else None,
-                      icicle_px=tuple(v.icicle_px for v in spec.views), ground_height=ground_height, spec=spec)
+                      spec=spec, seconds=time.perf_counter() - start,
+                      povray_writer=write_pov if defer_povray else None, ice_normals=ice_normals)
 
 
 def _write_povray(job_dir: Path, pov_file: Path, object_geometry: tuple[np.ndarray, ...],
-                  ice_mesh: trimesh.Trimesh | None, ice_flip: bool,
-                  text: str, ice_normals: np.ndarray | None = None) -> None:
-    """``object.inc``, ``ice.inc`` and then ``scene.pov``: its presence means the includes are whole.
-
-    ``ice_normals`` ``(n, 3)``: the ice's vertex normals as Mitsuba computed them on load,
-    so nothing is computed twice; without them, `geometry.smooth_normals` computes the
-    same angle-weighted normals.
-    """
+                  ice_mesh: trimesh.Trimesh | None, ice_normals: np.ndarray | None, ice_flip: bool,
+                  text: str) -> None:
+    """``object.inc``, ``ice.inc`` (the ice with ``ice_normals``, flipped with its faces where
+    ``ice_flip``) and then ``scene.pov``: its presence means the includes are whole."""
     obj_v, obj_n, obj_f = object_geometry
     pov.write_mesh2(job_dir / jd.OBJECT_INC, "Object_Mesh", obj_v, obj_n, obj_f)
     if ice_mesh is not None:
-        if ice_normals is None or len(ice_normals) != len(ice_mesh.vertices):
-            ice_normals = geo.smooth_normals(ice_mesh.vertices, ice_mesh.faces)
         normals = ice_normals * (-1.0 if ice_flip else 1.0)
         pov.write_mesh2(job_dir / jd.ICE_INC, "Ice_Mesh", ice_mesh.vertices, normals, ice_mesh.faces, inside=True)
     pov_file.write_text(text)
+
+
+def read_scene_spec(job_dir: str | Path, material: Material | Mapping | None = None) -> SceneSpec:
+    """The `SceneSpec` a job folder's scenes were written from: its ``scene.json``, or for a job
+    from before it, what its ``scene.xml`` says (`legacy.spec_from_xml`, with gravity from
+    ``params.yaml``, the object's material from ``done.json`` and the views' names from
+    ``views.json``).
+
+    Parameters
+    ----------
+    job_dir : path
+    material : Material or mapping, optional
+        The object's material, instead of the one the folder records.
+
+    Raises
+    ------
+    InputError
+        Neither file, or one that is not icefarm's, or a bad ``material``.
+    """
+    job_dir = Path(job_dir)
+    if (job_dir / jd.SCENE_SPEC).is_file():
+        try:
+            spec = read_spec(job_dir / jd.SCENE_SPEC)
+        except (KeyError, TypeError, ValueError) as exc:
+            raise InputError(f"{job_dir / jd.SCENE_SPEC}: not a {jd.SCENE_SPEC} written by icefarm ({exc})") from None
+        return spec if material is None else replace(spec, material=material_from_dict(material))
+    if not (job_dir / jd.SCENE_XML).is_file():
+        raise InputError(f"{job_dir} has neither {jd.SCENE_SPEC} nor {jd.SCENE_XML}: its scene was never written")
+    job = jd.read_job(job_dir)
+    views = jd.read_views(job_dir)
+    names = [v["name"] for v in views] if views and all("name" in v for v in views) else None
+    gravity = (job.params or {}).get("water.gravity", (0.0, -1.0, 0.0))
+    own = material if material is not None else job.stats.get("object_material")
+    try:
+        return spec_from_xml(job_dir / jd.SCENE_XML, gravity=gravity, material=material_from_dict(own),
+                             view_names=names)
+    except ValueError as exc:
+        raise InputError(str(exc)) from None
