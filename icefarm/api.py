@@ -37,6 +37,7 @@ from .job import Stage, Step, ancestors, cached_steps, run_stages
 from .job.cache import StageCache, digest, write_policy
 from .job.pipeline import JobSpec, load_object, mesh_digest, run_job
 from .job.spec import IN_MEMORY, MeshInput, job_spec, mesh_source, write_input
+from .job.stats import JobStats, write_record
 from .jobdir import DONE, ERROR, ICE, PARAMS, TIMINGS, TRAJECTORIES, JobState, clear_job, read_job, stage_phrase
 from .mesh import PreparedMesh
 from .params import Params
@@ -438,11 +439,6 @@ def _job_folder(ice: Ice, folder: str | os.PathLike[str]) -> Path:
 
 def _finish(ice: Ice, folder: Path, seconds: dict[str, float], figures: Mapping[str, Any] | None = None) -> None:
     """The job's ``timings.json`` and, last, ``done.json`` listing every file."""
-    stats = {**ice.figures, **(figures or {})}
-    steps = {**ice.seconds, **seconds}
-    try:
-        artifacts.write_json(folder / TIMINGS, {"seconds": steps, **stats, "reused": []})
-        artifacts.write_json(folder / DONE, {"job": ice.name, "seconds": steps, "reused": [], **stats,
-                                             "artifacts": artifacts.list_artifacts(folder)})
-    except OSError as exc:
-        raise cannot_write(exc, f"the job folder {folder}") from None
+    stats = JobStats({**ice.seconds, **seconds}, {**ice.figures, **(figures or {})})
+    stats.write(folder / TIMINGS)
+    write_record(folder / DONE, {"job": ice.name, **stats.as_json(), "artifacts": artifacts.list_artifacts(folder)})

@@ -203,3 +203,24 @@ def test_no_function_switches_on_a_step_name():
             if equal or member:
                 found.append(f"{path.name}:{node.lineno}: {ast.unparse(node)}")
     assert not found, "\n".join(found)
+
+
+def test_timings_json_holds_every_figure_the_steps_declare(tmp_path):
+    """run_job writes what each step that ran declares (`Step.figures`) through one record,
+    `JobStats`, which reads back as it was written."""
+    from icefarm.job import JobStats
+
+    path = _bowl(tmp_path)
+    p = params.resolve({**SMALL, "ground_ice.mode": "mounds"})
+    outcome = run_job(JobSpec("ball", str(path), 0.3, p, seed=4), tmp_path / "job", until=Stage.SURFACE)
+    assert outcome.status == "done", outcome.error
+    stats = JobStats.read(tmp_path / "job" / "timings.json")
+    prepared = prepare(str(path), 0.3, p.water.gravity)
+    inputs = JobInputs(prepared, p, 4)
+    ran = [s for s in STEPS if s.figures is not None and step_keys(inputs)[s.name] is not None]
+    assert {s.name for s in ran} >= {"water", "drips", "trajectories", "ground_ice", "surface", "measure"}
+    results = run_graph(inputs, measuring=True)
+    for s in ran:
+        assert set(s.figures(inputs, results)) <= set(stats.figures), s.name
+    assert set(stats.seconds) >= {s.name for s in ran} and not stats.render_pending
+    assert JobStats.from_json(stats.as_json()) == stats

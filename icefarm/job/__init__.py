@@ -16,5 +16,6 @@ __getattr__, __dir__, __all__ = _lazy.attach(__name__, submod_attrs={
               "overridable", "read_values", "runs", "share_digest", "step", "step_keys"],
     "records": ["STAGE_ORDER", "JobInputs", "Stage", "StageResults", "stage_rng", "stops"],
     "runner": ["StepRunner", "run_graph", "run_stages", "run_step"],
+    "stats": ["JobStats"],
     "work": ["WRAP_REACH", "IceFigures", "build_surface", "sole"],
 })

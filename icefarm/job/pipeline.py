@@ -36,7 +36,6 @@ from ..jobdir import (
     JobState,
     clear_job,
     job_state,
-    read_json,
 )
 from ..mesh import PreparedMesh, prepare
 from ..params import Params
@@ -45,6 +44,7 @@ from ..scene.material import Material
 from . import JobInputs, Stage, StageResults, Step, build_surface, ice_mesh, run_graph, stage_rng, stops
 from .cache import StageCache, digest as _digest, file_digest as _file_digest
 from .render import render_step
+from .stats import JobStats, write_record
 
 
 class Box(NamedTuple):
@@ -198,19 +198,14 @@ def run_job(spec: JobSpec, job_dir: Path, cache_dir: Path | None = None,
     cache = StageCache(Path(cache_dir) if cache_dir else None)
     defer = defer_render and renders_apart(spec, until)
     try:
-        summary = _run_stages(spec, job_dir, run, cache, until, defer)
+        figures = _run_stages(spec, job_dir, run, cache, until, defer)
     except Exception as exc:
         return _failed(job_dir, run, exc, tuple(cache.reused))
+    stats = JobStats(run.seconds, figures, tuple(cache.reused), tuple(cache.warnings), render_pending=defer)
     if defer:
-        _record(job_dir / TIMINGS, {"seconds": run.seconds, **summary, "reused": cache.reused,
-                                    RENDER_PENDING: True, **({"cache_warnings": cache.warnings} if cache.warnings
-                                                             else {})})
-        return JobOutcome(JobState.PENDING, dict(run.seconds), tuple(cache.reused))
-    return _finished(spec, job_dir, run.seconds, summary, cache.reused, cache.warnings)
-
-
-# timings.json of a job whose render is still to come (`run_job` with ``defer_render``)
-RENDER_PENDING = "render_pending"
+        stats.write(job_dir / TIMINGS)
+        return JobOutcome(JobState.PENDING, dict(run.seconds), stats.reused)
+    return _finished(spec, job_dir, stats)
 
 
 def renders_apart(spec: JobSpec, until: Stage | None = None) -> bool:
@@ -232,12 +227,11 @@ def finish_render(spec: JobSpec, job_dir: Path, progress: bool = False) -> JobOu
         nothing there is touched.
     """
     job_dir = Path(job_dir)
-    geometry = read_json(job_dir / TIMINGS)
-    if not geometry.get(RENDER_PENDING) or job_state(job_dir) is not JobState.PENDING:
+    geometry = JobStats.read(job_dir / TIMINGS)
+    if not geometry.render_pending or job_state(job_dir) is not JobState.PENDING:
         raise InputError(f"{job_dir} holds no job waiting for its render: run it with run_job(defer_render=True)")
     run = _Run(progress=progress)
-    run.seconds = dict(geometry.get("seconds") or {})
-    reused = tuple(geometry.get("reused") or ())
+    run.seconds = dict(geometry.seconds)
     try:
         run.stage = "render"
         prepared = load_object(spec)
@@ -246,41 +240,27 @@ def finish_render(spec: JobSpec, job_dir: Path, progress: bool = False) -> JobOu
         stats = render_step(spec, job_dir, prepared.mesh, ice if isinstance(ice, trimesh.Trimesh) else None,
                             axes, run.timed, run.progress)
     except Exception as exc:
-        return _failed(job_dir, run, exc, reused)
-    summary = {k: v for k, v in geometry.items() if k not in ("seconds", "reused", "cache_warnings", RENDER_PENDING)}
-    return _finished(spec, job_dir, run.seconds, {**summary, **stats}, list(reused),
-                     geometry.get("cache_warnings") or [])
+        return _failed(job_dir, run, exc, geometry.reused)
+    return _finished(spec, job_dir, replace(geometry.adding(stats), seconds=run.seconds, render_pending=False))
 
 
 def _failed(job_dir: Path, run: _Run, exc: Exception, reused: tuple) -> JobOutcome:
     """error.json for a job that failed in ``run.stage``, and its outcome."""
     message = str(exc) if isinstance(exc, InputError) else f"{type(exc).__name__}: {exc}"
-    _record(job_dir / ERROR, {
+    write_record(job_dir / ERROR, {
         "stage": run.stage, "message": message, "traceback": traceback.format_exc(),
         "seconds": run.seconds,
     })
     return JobOutcome(JobState.FAILED, dict(run.seconds), reused, run.stage, message)
 
 
-def _finished(spec: JobSpec, job_dir: Path, seconds: dict, summary: dict, reused: list,
-              warnings: list) -> JobOutcome:
+def _finished(spec: JobSpec, job_dir: Path, stats: JobStats) -> JobOutcome:
     """timings.json, then done.json: a finished job's records."""
-    _record(job_dir / TIMINGS, {"seconds": seconds, **summary, "reused": reused})
+    stats.write(job_dir / TIMINGS)
     # Last, and listing every artifact with its size and digest: `--resume` checks them.
-    _record(job_dir / DONE, {
-        "job": spec.object_id, "seconds": seconds, "reused": reused, **summary,
-        **({"cache_warnings": warnings} if warnings else {}),
-        "artifacts": artifacts.list_artifacts(job_dir),
-    })
-    return JobOutcome(JobState.DONE, dict(seconds), tuple(reused))
-
-
-def _record(path: Path, value: dict) -> None:
-    """Write one of the job's records; a folder that cannot take it is one line (`run_job`)."""
-    try:
-        artifacts.write_json(path, value)
-    except OSError as exc:
-        raise cannot_write(exc, f"the job folder {path.parent}") from None
+    write_record(job_dir / DONE, {"job": spec.object_id, **stats.as_json(),
+                                  "artifacts": artifacts.list_artifacts(job_dir)})
+    return JobOutcome(JobState.DONE, dict(stats.seconds), stats.reused)
 
 
 def meshing_params(spec: JobSpec) -> tuple[Params, dict]:
