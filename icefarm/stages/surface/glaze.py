@@ -32,7 +32,7 @@ from ...metaballs.balls import NO_BALLS, Balls, sheet_balls
 from ...params import GlazeParams
 from ...tol import tol
 from ..water import WaterResult
-from .coat import coat_field
+from .coat import CoatOptions, coat_field
 
 # With the glaze on its own coarser lattice, its sheet is at least this many glaze voxels
 # thick (the extra thickness goes inside the object), so marching cubes tears it less.
@@ -255,7 +255,7 @@ def glaze_field(flow_mesh: trimesh.Trimesh, water: WaterResult, glaze: GlazePara
         if face_budget > 0:
             wet_area = float(flow_mesh.area_faces[wet[flow_mesh.faces].sum(axis=1) >= 2].sum())
             voxel = max(voxel, math.sqrt(COAT_FACES_PER_VOXEL_AREA * wet_area / face_budget))
-    return coat_field(flow_mesh, thickness, wet, voxel, glaze.edge, exclude=exclude, name="glaze.voxel_size",
+    return coat_field(flow_mesh, thickness, wet, CoatOptions(voxel, glaze.edge, "glaze.voxel_size"), exclude=exclude,
                       cast=cast)
 
 
