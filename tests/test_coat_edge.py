@@ -52,14 +52,14 @@ def test_a_rivulet_down_a_sharp_edge_gets_a_coat_as_thin_as_its_ice():
     planes of the strips' samples ran on past the edge, and the coat's hidden inner part
     with them: fins and spikes stood 12 mm off this post, and off a fence's picket edges."""
     from icefarm.metaballs import fuse_fields
-    from icefarm.stages.surface.coat import coat_field
+    from icefarm.stages.surface.coat import CoatOptions, coat_field
 
     half = np.array([0.04, 0.04, 0.15])
     post = _strip_post(half, [0.003, 0.0015, 0.0009, 0.0006, 0.0003])
     v = post.vertices
     wet = np.isclose(v[:, 0], half[0]) & (v[:, 1] >= half[1] - 0.0016)
     voxel = 0.004
-    verts, faces = fuse_fields(None, coat_field(post, np.where(wet, 0.0012, 0.0), wet, voxel, edge=0.01))
+    verts, faces = fuse_fields(None, coat_field(post, np.where(wet, 0.0012, 0.0), wet, CoatOptions(voxel, edge=0.01)))
     assert trimesh.Trimesh(verts, faces, process=False).is_watertight
     q = np.abs(verts) - half
     out = np.linalg.norm(np.maximum(q, 0.0), axis=1) + np.minimum(q.max(axis=1), 0.0)

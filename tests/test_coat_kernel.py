@@ -11,7 +11,7 @@ import trimesh
 
 from icefarm.geometry import nearest, point_index
 from icefarm.stages.surface import coat_band
-from icefarm.stages.surface.coat import _Rim, coat_field
+from icefarm.stages.surface.coat import CoatOptions, _Rim, coat_field
 from icefarm.stages.surface.coat_band import Edges, Thickness, _signed
 from icefarm.stages.surface.coat_kernel import BESIDE, PointTree, point_tree
 
@@ -90,7 +90,7 @@ def test_the_band_kernel_gives_numpys_signed_distance(case, exclude, monkeypatch
         return phi
 
     monkeypatch.setattr(coat_band, "band_phi", compare)
-    assert coat_field(mesh, thickness, wet, 0.003, edge=0.01, exclude=sole) is not None
+    assert coat_field(mesh, thickness, wet, CoatOptions(0.003, edge=0.01), exclude=sole) is not None
     assert calls
     for args, phi in calls:
         ref = _reference(*args)

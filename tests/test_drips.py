@@ -17,7 +17,8 @@ from icefarm.geometry import sample_faces
 from icefarm.job.pipeline import JobSpec, Stage, run_job
 from icefarm.mesh import detect_problems, prepare
 from icefarm.stages.drips import DripOptions, drip_region, find_drips
-from icefarm.stages.proxy import ProxyMethod, build_proxy, proxy_reason
+from icefarm.stages.proxy import ProxyMethod, build_proxy
+from icefarm.stages.proxy_checks import proxy_reason
 from icefarm.stages.rims import drip_flux
 from icefarm.stages.trajectories import grow_trajectories, trajectory_options
 from icefarm.stages.water import RainOptions, compute_water

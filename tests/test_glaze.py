@@ -16,14 +16,8 @@ from icefarm.generators import generate
 from icefarm.geometry import inside, ray_caster
 from icefarm.mesh import prepare
 from icefarm.metaballs import KAPPA, SPACING, Balls, fuse_fields, sample_field
-from icefarm.stages.surface.glaze import (
-    GlazeStats,
-    glaze_balls,
-    glaze_field,
-    glaze_thickness,
-    measure_glaze,
-    wet_vertices,
-)
+from icefarm.stages.surface.glaze import CoatSurface, glaze_balls, glaze_field, glaze_thickness, wet_vertices
+from icefarm.stages.surface.glaze_measure import GlazeProbe, GlazeStats, measure_glaze
 from icefarm.stages.water import RainOptions, WaterResult, compute_water
 
 G = np.array([0.0, -1.0, 0.0])
@@ -78,7 +72,7 @@ def test_default_coat_covers_the_wet_surface_evenly(case, request):
     mesh, water, sole = request.getfixturevalue(case)
     v, f = _coat(mesh, water, _glaze(), exclude=sole)
     _closed(v, f)
-    s = measure_glaze(v, f, mesh, water, G, exclude=sole, samples=5000)
+    s = measure_glaze(v, f, CoatSurface(mesh, water, sole), G, GlazeProbe(samples=5000))
     assert isinstance(s, GlazeStats) and s.samples == 5000 and s.wet_area_m2 > 0
     assert s.coverage >= 0.95
     assert s.p90_mm <= 2 * s.p50_mm
@@ -86,13 +80,13 @@ def test_default_coat_covers_the_wet_surface_evenly(case, request):
 
 
 def test_the_glaze_measure_reads_the_same_through_a_tree_of_the_faces_near_its_rays(roof_water, monkeypatch):
-    from icefarm.stages.surface import glaze as glaze_module
+    from icefarm.stages.surface import glaze_measure
 
     mesh, water, sole = roof_water
     v, f = _coat(mesh, water, _glaze(), exclude=sole)
-    whole = measure_glaze(v, f, mesh, water, G, exclude=sole, samples=3000)
-    monkeypatch.setattr(glaze_module, "NEAR_CASTER_FACES", 0)  # big ice's near_caster on this small coat
-    assert measure_glaze(v, f, mesh, water, G, exclude=sole, samples=3000) == whole
+    whole = measure_glaze(v, f, CoatSurface(mesh, water, sole), G, GlazeProbe(samples=3000))
+    monkeypatch.setattr(glaze_measure, "NEAR_CASTER_FACES", 0)  # big ice's near_caster on this small coat
+    assert measure_glaze(v, f, CoatSurface(mesh, water, sole), G, GlazeProbe(samples=3000)) == whole
 
 
 @pytest.mark.parametrize("case", [pytest.param("bunny_water", marks=pytest.mark.slow),  # ../shared/meshes
@@ -102,7 +96,7 @@ def test_lifetime_puts_the_ice_high_up_or_low_down(case, request):
     ratio = {}
     for lt in (0.0, 1.0):
         v, f = _coat(mesh, water, _glaze(lifetime=lt, voxel_size=COARSE), exclude=sole)
-        ratio[lt] = measure_glaze(v, f, mesh, water, G, exclude=sole, samples=2000).top_bottom
+        ratio[lt] = measure_glaze(v, f, CoatSurface(mesh, water, sole), G, GlazeProbe(samples=2000)).top_bottom
     assert ratio[0.0] >= 3  # freezes where it lands: thick up high
     assert ratio[1.0] <= 1 / 3  # runs down first: thick low down
 
@@ -110,8 +104,8 @@ def test_lifetime_puts_the_ice_high_up_or_low_down(case, request):
 def test_lifetime_on_a_sphere_with_water_by_height(surface_kit):
     sphere = trimesh.creation.icosphere(subdivisions=4, radius=0.15)
     water = surface_kit.water(sphere, np.ones(len(sphere.vertices), dtype=bool))
-    low, high = (measure_glaze(*_coat(sphere, water, _glaze(lifetime=lt, voxel_size=COARSE)), sphere, water, G,
-                               samples=4000).top_bottom for lt in (0.0, 1.0))
+    low, high = (measure_glaze(*_coat(sphere, water, _glaze(lifetime=lt, voxel_size=COARSE)),
+                               CoatSurface(sphere, water), G, GlazeProbe(samples=4000)).top_bottom for lt in (0.0, 1.0))
     assert low >= 3 and high <= 1 / 3
 
 
@@ -166,7 +160,7 @@ def test_excluded_vertices_get_no_ice(surface_kit):
     assert not inside(cast, points).any()
     d, _ = cast(points - 1e-4 * normal, normal)
     assert (d > 0.01).all()  # no ice over them, not even a thin one
-    s = measure_glaze(v, f, sphere, water, G, exclude=sole, samples=4000)
+    s = measure_glaze(v, f, CoatSurface(sphere, water, sole), G, GlazeProbe(samples=4000))
     assert s.coverage >= 0.95
 
 
@@ -203,10 +197,10 @@ def test_dry_surface_or_no_ice_measures_as_such(surface_kit):
     n = len(sphere.vertices)
     dry = surface_kit.dry(sphere)
     assert glaze_field(sphere, dry, _glaze(), np.random.default_rng(0)) is None
-    s = measure_glaze(np.zeros((0, 3)), np.zeros((0, 3), int), sphere, dry, G)
+    s = measure_glaze(np.zeros((0, 3)), np.zeros((0, 3), int), CoatSurface(sphere, dry), G)
     assert s.wet_area_m2 == 0 and math.isnan(s.coverage)
     wet = surface_kit.water(sphere, np.ones(n, dtype=bool))
-    s = measure_glaze(np.zeros((0, 3)), np.zeros((0, 3), int), sphere, wet, G, samples=100)
+    s = measure_glaze(np.zeros((0, 3)), np.zeros((0, 3), int), CoatSurface(sphere, wet), G, GlazeProbe(samples=100))
     assert s.coverage == 0 and math.isnan(s.p50_mm)
 
 
@@ -373,8 +367,7 @@ def test_runnels_carve_the_coat_not_the_object(tmp_path):
         r = run_stages(prep, p, 1, until=Stage.SURFACE)
         g = np.asarray(p.gravity)
         wet = r.wet  # the surface the glaze grew on
-        figures[runnels] = measure_glaze(r.ice.vertices, r.ice.faces, wet.mesh, wet.water, g,
-                                         exclude=wet.exclude)
+        figures[runnels] = measure_glaze(r.ice.vertices, r.ice.faces, wet, g)
     assert figures[0.0].relief < 0.08 and figures[0.5].relief > 0.15
     assert figures[0.5].coverage > 0.95
 

@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
-from icefarm.stages.surface import profile_radius
+from icefarm.stages.surface import Profile, profile_radius
 from icefarm.stages.surface.profile import PHYSICAL_EXPONENT, profile_args
 
 TIP = 0.00244  # the default tip radius (m)
@@ -28,11 +30,11 @@ def one_icicle(surface_kit):
 def test_physical_profile_is_tip_plus_k_d_to_the_three_quarters():
     length, t = 0.1, 0.05
     x = np.linspace(0.0, length, 11)
-    r = profile_radius(x, length, TIP, t, 0.0, 628.3, shape="physical")
+    r = profile_radius(x, length, Profile(TIP, t, 0.0, 628.3, shape="physical"))
     d = length - x
     assert np.allclose(r, TIP + t * length**0.25 * d**PHYSICAL_EXPONENT)
     # Both shapes reach tip + t L at the base and the tip radius at the tip.
-    paper = profile_radius(x, length, TIP, t, 0.0, 628.3, shape="paper")
+    paper = profile_radius(x, length, Profile(TIP, t, 0.0, 628.3, shape="paper"))
     assert r[0] == pytest.approx(paper[0]) and r[-1] == pytest.approx(TIP) == paper[-1]
     # A carrot, not a cone: fuller than the cone everywhere between.
     assert np.all(r[1:-1] > paper[1:-1])
@@ -40,8 +42,8 @@ def test_physical_profile_is_tip_plus_k_d_to_the_three_quarters():
 
 def test_impurity_scales_the_ripple_amplitude(surface_kit):
     _, surface = None, surface_kit.groups(surface__impurity=0.5, surface__ripple_amplitude=0.001)[0]
-    assert profile_args(surface)["amplitude"] == pytest.approx(0.0005)
-    assert profile_args(surface_kit.groups(surface__impurity=0.0)[0])["amplitude"] == 0.0
+    assert profile_args(surface).amplitude == pytest.approx(0.0005)
+    assert profile_args(surface_kit.groups(surface__impurity=0.0)[0]).amplitude == 0.0
 
 
 def test_physical_profile_measures_three_quarters_and_paper_a_cone(one_icicle):
@@ -260,8 +262,8 @@ def test_ripples_rise_from_a_smooth_root_and_differ_from_icicle_to_icicle(surfac
     traj = surface_kit.straight(starts, [0.2] * 8, step=0.002)
     x, lengths = arc_lengths(traj.points, traj.branch_offsets)
     branch = np.repeat(np.arange(8), np.diff(traj.branch_offsets))
-    radius = smooth_radius(x, grown_lengths(lengths, traj.cut)[branch], growth=traj.growth(prof["growth"])[branch],
-                           **{k: v for k, v in prof.items() if k != "growth"})
+    radius = smooth_radius(x, grown_lengths(lengths, traj.cut)[branch],
+                           dataclasses.replace(prof, growth=traj.growth(prof.growth)[branch]))
     angle = np.linspace(0.0, 2 * np.pi, 24, endpoint=False)
     ring = np.stack([np.cos(angle), np.zeros_like(angle), np.sin(angle)], axis=1)
     vertices = (traj.points[:, None, :] + radius[:, None, None] * ring[None]).reshape(-1, 3)

@@ -12,7 +12,8 @@ from icefarm import params
 from icefarm.errors import InputError
 from icefarm.job.pipeline import JobSpec, Stage, run_job
 from icefarm.mesh import detect_problems, prepare
-from icefarm.stages.proxy import ProxyMethod, boundary_loops, build_proxy, drop_voids, proxy_reason, snap_to_surface
+from icefarm.stages.proxy import ProxyMethod, build_proxy, drop_voids
+from icefarm.stages.proxy_checks import boundary_loops, proxy_reason, snap_to_surface
 
 SHARED_MESHES = Path(__file__).resolve().parents[1].parent / "shared" / "meshes"
 SIZE_M = 0.3

@@ -42,9 +42,9 @@ def _radius_along(ice, top, length, fractions):
 
 def test_profile_follows_equation_1():
     x = np.array([0.0, 0.02, 0.05, 0.08])
-    r = S.profile_radius(x, 0.08, TIP, 0.012, 0.0, 628.3)
+    r = S.profile_radius(x, 0.08, S.Profile(TIP, 0.012, 0.0, 628.3))
     assert np.allclose(r, TIP + (0.08 - x) * 0.012)
-    rippled = S.profile_radius(x, 0.08, TIP, 0.012, 0.0002, 628.3)
+    rippled = S.profile_radius(x, 0.08, S.Profile(TIP, 0.012, 0.0002, 628.3))
     free = x < 0.08 - S.TIP_CALM * TIP  # the ripple fades out at the tip
     assert np.allclose(rippled[free], r[free] + 0.0002 * np.sin(x[free] * 628.3))
     assert rippled[-1] == pytest.approx(TIP)

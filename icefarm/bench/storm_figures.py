@@ -119,7 +119,7 @@ def ice_along_normals(ice_mesh: trimesh.Trimesh, points: np.ndarray, normals: np
       mesh): as thick as the ray stays in it;
     * otherwise 0.
 
-    The rule of `icefarm.stages.surface.glaze.measure_glaze`, on given points.
+    The rule of `icefarm.stages.surface.glaze_measure.measure_glaze`, on given points.
 
     Parameters
     ----------

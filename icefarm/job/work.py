@@ -246,8 +246,9 @@ def measure(i: JobInputs, r: StageResults) -> IceFigures:
     # The two measures share nothing, and their k-d queries, ray casts and array work
     # release the GIL: side by side they take the longer one's time and a bit.
     with ThreadPoolExecutor(1) as pool:
-        glaze = pool.submit(measure_glaze, ice.vertices, ice.faces, coat.mesh, coat.water, i.gravity,
-                            exclude=_not_glaze(coat.mesh, found, coat.exclude, i.params))
+        glaze = pool.submit(measure_glaze, ice.vertices, ice.faces,
+                            dataclasses.replace(coat, exclude=_not_glaze(coat.mesh, found, coat.exclude, i.params)),
+                            i.gravity)
         icicles = measure_icicles(ice.vertices, ice.faces, axes, i.params.surface)
         return IceFigures(icicles, fringe_figures(ice.vertices, ice.faces, axes, i.gravity), glaze.result())
 

@@ -299,22 +299,8 @@ def _coarse_cells(field: Field, other: Field, lo: np.ndarray, hi: np.ndarray) ->
         # Each block's window of the other's cells; only blocks with a marked cell in it
         # (on the real-size bench, a quarter of the icicles' blocks), by a summed-area table
         # of the grid pooled 4 x 4 x 4 (the whole grid's costs more than the windows it saves) ...
-        w0, w1 = c_lo[:, :, 0], c_hi[:, :, -1] + 1
-        q = 4  # (the uint32 view below needs 4)
-        pooled_shape = -(-shape // q)
-        padded = np.zeros(tuple(pooled_shape * q), dtype=bool)
-        padded[:shape[0], :shape[1], :shape[2]] = cells.reshape(tuple(shape))
-        # (four bools along z read as one uint32: numpy's any over a short axis is slow)
-        pooled = (padded.reshape(-1, q).view(np.uint32).reshape(pooled_shape[0], q, pooled_shape[1], q,
-                                                                pooled_shape[2]) != 0).any(axis=3).any(axis=1)
-        table = np.zeros(tuple(pooled_shape + 1), dtype=np.int32)
-        table[1:, 1:, 1:] = pooled.cumsum(axis=0, dtype=np.int32).cumsum(axis=1).cumsum(axis=2)
-        p0, p1 = w0 // q, -(-w1 // q)
-        held = np.zeros(len(bc), dtype=np.int64)
-        for corner in np.ndindex(2, 2, 2):
-            at = np.where(np.array(corner, dtype=bool), p1, p0)
-            held += (-1 if (3 - sum(corner)) % 2 else 1) * table[at[:, 0], at[:, 1], at[:, 2]]
-        busy = np.flatnonzero(held > 0)
+        w0 = c_lo[:, :, 0]
+        busy = np.flatnonzero(_held(cells, shape, w0, c_hi[:, :, -1] + 1) > 0)
         if len(busy) == 0:
             continue
         blocks, c_lo, c_hi, w0 = blocks[busy], c_lo[busy], c_hi[busy], w0[busy]
@@ -332,6 +318,27 @@ def _coarse_cells(field: Field, other: Field, lo: np.ndarray, hi: np.ndarray) ->
                 np.take_along_axis(part, hi_a[tuple(at)], axis=a + 1)
         mask[blocks] = part
     return Region(mask, tile, grid, first)
+
+
+def _held(cells: np.ndarray, shape: np.ndarray, w0: np.ndarray, w1: np.ndarray) -> np.ndarray:
+    """(k,) int: at least the marked cells of the grid ``cells`` (flat, bool, ``shape``)
+    in each window ``w0`` .. ``w1`` - 1 (k, 3), 0 only where there are none, by a summed-area
+    table of the grid pooled 4 x 4 x 4 (rounded out to whole pooled cells)."""
+    q = 4  # (the uint32 view below needs 4)
+    pooled_shape = -(-shape // q)
+    padded = np.zeros(tuple(pooled_shape * q), dtype=bool)
+    padded[:shape[0], :shape[1], :shape[2]] = cells.reshape(tuple(shape))
+    # (four bools along z read as one uint32: numpy's any over a short axis is slow)
+    pooled = (padded.reshape(-1, q).view(np.uint32).reshape(pooled_shape[0], q, pooled_shape[1], q,
+                                                            pooled_shape[2]) != 0).any(axis=3).any(axis=1)
+    table = np.zeros(tuple(pooled_shape + 1), dtype=np.int32)
+    table[1:, 1:, 1:] = pooled.cumsum(axis=0, dtype=np.int32).cumsum(axis=1).cumsum(axis=2)
+    p0, p1 = w0 // q, -(-w1 // q)
+    held = np.zeros(len(w0), dtype=np.int64)
+    for corner in np.ndindex(2, 2, 2):
+        at = np.where(np.array(corner, dtype=bool), p1, p0)
+        held += (-1 if (3 - sum(corner)) % 2 else 1) * table[at[:, 0], at[:, 1], at[:, 2]]
+    return held
 
 
 def inner_faces(lattice: np.ndarray, faces: np.ndarray, region: Region) -> np.ndarray:

@@ -11,7 +11,7 @@ import numpy as np
 
 from .rims import CAPTURE_POWER, CAPTURE_REACH, CAPTURE_ROUNDS, CAPTURE_SCALE, FUSE_MARGIN, HEAT_SPREAD, NUCLEUS_SPREAD
 from .storm import GROWTH_MAX, WATER_TO_ICE, Constant, precipitation_m
-from .surface.profile import smooth_radius
+from .surface.profile import Profile, smooth_radius
 
 # An icicle's surface freezes this many times the ice a level face's budget would per area
 # (storm.freeze of the precipitation): a thin cylinder loses heat faster than a broad face (a
@@ -208,7 +208,7 @@ class IcicleSizing:
         length = np.asarray(length, dtype=np.float64)
         growth = growth_ratios(length, thickening_m(self.storm, active), self.surface.growth_ratio)
         below = np.asarray(depth, dtype=np.float64)
-        radius = smooth_radius(below, length, self.surface.tip_radius, growth, shape=self.surface.profile)
+        radius = smooth_radius(below, length, Profile(self.surface.tip_radius, growth, shape=self.surface.profile))
         return np.where((below >= 0.0) & (below < length), radius, 0.0)
 
 

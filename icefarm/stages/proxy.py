@@ -29,8 +29,9 @@ apart (`icefarm.stages.parts`), each built as it would be alone. Over the whole 
 30 cm cubes 300 m apart would each be wrapped into a 1.5 m blob that grows 30 icicles, where a
 cube alone grows none.
 
-Drip points found on the proxy are moved back onto the real mesh with `snap_to_surface`,
-so the icicles hang from the object itself.
+Why a mesh needs a proxy (`proxy_reason`) and moving drip points found on the proxy back
+onto the real mesh (`snap_to_surface`, so the icicles hang from the object itself) are
+`icefarm.stages.proxy_checks`.
 """
 
 from __future__ import annotations
@@ -44,16 +45,13 @@ import numpy as np
 import trimesh
 
 from ..errors import InputError
-from ..geometry import closest_point, signed_volume
+from ..geometry import signed_volume
 from ..mesh import MeshProblems, detect_problems
 from ..meshlab import current, meshset
 from ..params import ProxyParams
-from ..tol import tol
 from .parts import group_pieces, piece_boxes
+from .proxy_checks import boundary_loops, is_coarse, only_holes, problem_phrases, proxy_reason, solid_diagonal
 
-# Folds of otherwise clean meshes cross a few faces (cow.obj: 1.4 %, dragon: 0.02 %)
-# without hurting a flow along edges; parts passing through each other cross many more.
-SELF_INTERSECTING_FRACTION = 0.05
 # The wrap has about WRAP_FACE_FACTOR * area / alpha**2 faces (measured 1.3-2.4 on the
 # shared meshes); its time and memory grow with that count (memory: about 1.2 kB a face),
 # so it is held under the face budget (finer would be remeshed away anyway) and
@@ -74,11 +72,6 @@ UNIT_TRIANGLE_AREA = np.sqrt(3.0) / 4.0
 PRE_DECIMATE = 4
 # Remeshing overshoots its area estimate by up to ~15 %: aim below the budget.
 BUDGET_MARGIN = 0.8
-# A mesh whose median edge is longer than this fraction of its diagonal is too coarse to
-# carry the flow (a box-modelled table: 0.45, a 10-sided cylinder: 0.24, an 80-face
-# icosphere: 0.17; the generators at their default detail: 0.02-0.03, the shared scans
-# under 0.025).
-COARSE_EDGE_FRACTION = 0.1
 # A coarse mesh is refined down to its own finest features (this percentile of its edge
 # lengths: a table top's thickness), not finer: Algorithm 1 counts an edge with one wet
 # end at half its height, so splitting a slab's side into rows starves its rim of the
@@ -137,67 +130,6 @@ class ProxyResult:
     method: ProxyMethod
     alpha: float = 0.0
     parts: int = 1
-
-
-def _problem_phrases(problems: MeshProblems) -> list[str]:
-    """What breaks the flow along edges, one phrase per problem found."""
-    phrases = []
-    if problems.components > 1:
-        phrases.append(f"{problems.components} loose components")
-    if problems.boundary_edges > 0:
-        phrases.append(f"{problems.boundary_edges} open boundary edges")
-    if problems.nonmanifold_edges > 0:
-        phrases.append(f"{problems.nonmanifold_edges} non-manifold edges")
-    if problems.self_intersections > SELF_INTERSECTING_FRACTION * problems.faces:
-        phrases.append(f"{problems.self_intersections} self-intersecting faces")
-    return phrases
-
-
-def _coarse(problems: MeshProblems) -> bool:
-    """Too few faces for its size: the median edge is over `COARSE_EDGE_FRACTION` of the diagonal."""
-    return problems.edge_fraction > COARSE_EDGE_FRACTION
-
-
-def proxy_reason(problems: MeshProblems, mode: str, face_budget: int) -> str | None:
-    """Why stages 1-2 need an approximate surface, or None when the mesh itself will do.
-
-    Parameters
-    ----------
-    problems : MeshProblems
-        From `icefarm.mesh.detect_problems` (self-intersections count only when measured,
-        and only above `SELF_INTERSECTING_FRACTION` of the faces).
-    mode : {"auto", "always", "never"}
-        ``proxy.mode``: ``auto`` builds one for problem meshes, ``always`` for every mesh,
-        ``never`` for none.
-    face_budget : int
-        ``proxy.face_budget``: more faces than this is a reason in itself.
-
-    A coarse mesh (`COARSE_EDGE_FRACTION`) is a reason too: its flow runs on a refined copy.
-
-    Returns
-    -------
-    str or None
-        For example ``"6 loose components, 51 non-manifold edges"``.
-    """
-    if mode == "never":
-        return None
-    phrases = _problem_phrases(problems)
-    if problems.faces > face_budget:
-        phrases.append(f"{problems.faces} faces over the budget of {face_budget}")
-    if _coarse(problems):
-        phrases.append(f"coarse: {problems.faces} faces, median edge {problems.edge_fraction:.2f} "
-                       "of the diagonal")
-    if phrases:
-        return ", ".join(phrases)
-    return "proxy.mode is always" if mode == "always" else None
-
-
-def _thickness(vertices: np.ndarray) -> float:
-    """Extent of ``vertices`` ``(n, 3)`` along their least principal axis, in their units."""
-    centred = vertices - vertices.mean(axis=0)
-    _, _, axes = np.linalg.svd(centred, full_matrices=False)
-    along = centred @ axes[-1]
-    return float(along.max() - along.min())
 
 
 def _component_labels(mesh: trimesh.Trimesh) -> np.ndarray:
@@ -298,31 +230,6 @@ def _edge_for_budget(area: float, edge: float, budget: int) -> float:
     return max(edge, float(np.sqrt(area / (UNIT_TRIANGLE_AREA * BUDGET_MARGIN * budget))))
 
 
-def _only_holes(problems: MeshProblems) -> bool:
-    """One manifold piece whose only flaw is open boundaries."""
-    return (problems.boundary_edges > 0 and problems.components == 1 and problems.nonmanifold_edges == 0
-            and problems.self_intersections <= SELF_INTERSECTING_FRACTION * problems.faces)
-
-
-def boundary_loops(mesh: trimesh.Trimesh) -> tuple[np.ndarray, np.ndarray]:
-    """Vertices on open boundaries and the loop each belongs to.
-
-    Returns
-    -------
-    vertices : (b,) int
-        Vertices used by an edge of one face only.
-    loops : (b,) int
-        Loop label of each, ``0 .. n_loops - 1`` (loops touching at a vertex count as one).
-    """
-    edges = mesh.edges_sorted
-    boundary = edges[trimesh.grouping.group_rows(edges, require_count=1)]
-    vertices = np.unique(boundary)
-    if len(vertices) == 0:
-        return vertices, vertices.copy()
-    local = np.searchsorted(vertices, boundary)
-    return vertices, trimesh.graph.connected_component_labels(local, node_count=len(vertices))
-
-
 def _fill_small_holes(mesh: trimesh.Trimesh, diag: float) -> trimesh.Trimesh | None:
     """``mesh`` with its holes filled, or None when a hole is too wide or filling leaves flaws."""
     vertices, loops = boundary_loops(mesh)
@@ -337,20 +244,7 @@ def _fill_small_holes(mesh: trimesh.Trimesh, diag: float) -> trimesh.Trimesh | N
     _run_filter(ms, "meshing_close_holes", maxholesize=int(sizes.max()) + 1, newfaceselected=False,
                 selfintersection=False)
     filled = current(ms)
-    return None if _problem_phrases(detect_problems(filled, self_intersections=True)) else filled
-
-
-def _solid_diagonal(mesh: trimesh.Trimesh) -> float:
-    """Bounding-box diagonal of the faces' vertices, in meters; InputError when the mesh is flat."""
-    used = np.asarray(mesh.vertices, dtype=np.float64)[np.unique(mesh.faces)]
-    diag = float(np.linalg.norm(np.ptp(used, axis=0)))
-    thickness = _thickness(used)
-    if diag <= 0 or thickness <= tol.flat * diag:
-        raise InputError(
-            f"the mesh is flat (thickness {thickness:.3g} m over a {diag:.3g} m diagonal): it has "
-            "no volume to wrap an approximate surface around; set proxy.mode: never to let the "
-            "water run on the mesh as it is")
-    return diag
+    return None if problem_phrases(detect_problems(filled, self_intersections=True)) else filled
 
 
 def build_proxy(mesh: trimesh.Trimesh, proxy: ProxyParams,
@@ -391,7 +285,7 @@ def build_proxy(mesh: trimesh.Trimesh, proxy: ProxyParams,
         raise InputError("the mesh has no faces to build an approximate surface from")
     if not np.isfinite(np.asarray(mesh.vertices, dtype=np.float64)).all():
         raise InputError("the mesh has NaN or infinite vertex coordinates")
-    diag = _solid_diagonal(mesh)
+    diag = solid_diagonal(mesh)
     if problems is None:
         problems = detect_problems(mesh, self_intersections=True)
     parts, count = None, 1
@@ -462,7 +356,7 @@ def _build_parts(mesh: trimesh.Trimesh, parts: np.ndarray, proxy: ProxyParams) -
         # where the lone table's have 104-118).
         centre = part.bounds.mean(axis=0)
         part.apply_translation(-centre)
-        diag = _solid_diagonal(part)
+        diag = solid_diagonal(part)
         least = WRAP_FACE_FACTOR * area / (MAX_ALPHA * diag) ** 2
         budget = int(max(MIN_PART_FACES, np.ceil(least), proxy.face_budget * area / areas.sum()))
         problems = detect_problems(part, self_intersections=True)
@@ -492,20 +386,20 @@ def _build_parts(mesh: trimesh.Trimesh, parts: np.ndarray, proxy: ProxyParams) -
 def _build(mesh: trimesh.Trimesh, proxy: ProxyParams, problems: MeshProblems,
            budget: int, diag: float) -> _Built:
     """The proxy of one part within ``budget`` faces (before the last decimation to it):
-    its lengths are fractions of its own diagonal ``diag`` (`_solid_diagonal`)."""
+    its lengths are fractions of its own diagonal ``diag`` (`solid_diagonal`)."""
     alpha, offset, edge = proxy.alpha, proxy.offset, proxy.edge_length
     notes, alpha_m, out = [], 0.0, None
     force = proxy.mode == "always"
-    if not force and (_only_holes(problems) or not _problem_phrases(problems)) and not _coarse(problems):
+    if not force and (only_holes(problems) or not problem_phrases(problems)) and not is_coarse(problems):
         # one manifold piece, far over the budget (a scan): the hole filling and the careful
         # decimation below run on a rough cut of it
         mesh = _thin_out(mesh, PRE_DECIMATE * budget)
-    if not force and _only_holes(problems):
+    if not force and only_holes(problems):
         out, method = _fill_small_holes(mesh, diag), ProxyMethod.FILL
     # A coarse mesh's flow needs edges no finer than its own features (`FEATURE_PERCENTILE`).
     flow_edge = max(edge * diag, float(np.percentile(mesh.edges_unique_length, FEATURE_PERCENTILE))
-                    if _coarse(problems) else 0.0)
-    if not force and _coarse(problems) and (out is not None or problems.watertight):
+                    if is_coarse(problems) else 0.0)
+    if not force and is_coarse(problems) and (out is not None or problems.watertight):
         # coarse closed pieces (filled, or boxes stacked into a table, crossing or not):
         # refine them; the walks run on each piece, buried faces drip nowhere (`find_drips`)
         edge_m = _edge_for_budget(float(mesh.area), flow_edge, budget)
@@ -513,7 +407,7 @@ def _build(mesh: trimesh.Trimesh, proxy: ProxyParams, problems: MeshProblems,
         if refined is None:
             notes.append("refining broke the surface, it is wrapped instead")
         out, method = refined, ProxyMethod.REFINE
-    if out is None and not force and not _problem_phrases(problems) and problems.faces > budget:
+    if out is None and not force and not problem_phrases(problems) and problems.faces > budget:
         out, method = mesh, ProxyMethod.DECIMATE  # clean, only too detailed
     if out is None:
         area = float(mesh.area)
@@ -540,52 +434,3 @@ def _build(mesh: trimesh.Trimesh, proxy: ProxyParams, problems: MeshProblems,
             out = wrapped
         method = ProxyMethod.WRAP
     return _Built(mesh=out, method=method, alpha=alpha_m, notes=notes)
-
-
-def snap_to_surface(points: np.ndarray, mesh: trimesh.Trimesh,
-                    reference: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Move points to the closest point of ``mesh`` (drip points from the proxy to the object).
-
-    Parameters
-    ----------
-    points : (k, 3) float
-        Points near the surface, in meters.
-    mesh : trimesh.Trimesh
-        The real object, in meters; it need not be watertight or consistently oriented.
-    reference : (k, 3) float, optional
-        Outward normals at ``points`` (the proxy's, which is closed and wound outward).
-
-    Returns
-    -------
-    closest : (k, 3) float
-        Closest points on ``mesh``.
-    normals : (k, 3) float
-        Unit normals of the faces there, turned to agree with ``reference``; without one,
-        towards the side each point came from (outward where the proxy lies outside the
-        object, as a wrap does, even on soups with random winding), and a point on the
-        surface (within `tol.on_surface` of the diagonal) keeps its face's own normal. A
-        decimated proxy lies on both sides of the object: on a 1.1 M-face scan of the bunny,
-        the side a point came from turns 25 of 28 drip normals inwards and their icicles
-        never grow.
-    faces : (k,) int
-        Face holding each closest point.
-    """
-    points = np.asarray(points, dtype=np.float64)
-    if points.ndim != 2 or points.shape[1] != 3:
-        raise ValueError(f"points must be shaped (k, 3), got {points.shape}")
-    if not np.isfinite(points).all():
-        raise ValueError("points must be finite")
-    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
-        raise ValueError("snap_to_surface needs a mesh with faces")
-    if len(points) == 0:
-        return np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, dtype=np.int64)
-    closest, distance, faces = closest_point(mesh, points)
-    normals = np.asarray(mesh.face_normals, dtype=np.float64)[faces]
-    if reference is not None:
-        agree = np.einsum("ij,ij->i", normals, np.asarray(reference, dtype=np.float64).reshape(-1, 3))
-        return np.asarray(closest, dtype=np.float64), np.where((agree < 0)[:, None], -normals, normals), faces
-    facing = np.einsum("ij,ij->i", normals, points - closest)
-    # Below this distance the side is rounding noise: the point is on the surface.
-    on_surface = distance <= tol.on_surface * float(np.linalg.norm(mesh.extents))
-    normals = np.where(((facing < 0) & ~on_surface)[:, None], -normals, normals)
-    return np.asarray(closest, dtype=np.float64), normals, faces

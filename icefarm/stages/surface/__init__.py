@@ -23,13 +23,15 @@ from __future__ import annotations
 from .build import SLIVER, IceInputs, IceResult, build_ice
 from .detail import VIEW_PX, meshing_view, view_surface
 from .fringe import FringeFigures, fringe_figures
-from .glaze import CoatSurface, carry_water, measure_glaze
+from .glaze import CoatSurface, carry_water
+from .glaze_measure import GlazeProbe, measure_glaze
 from .ground_ice import ground_ice_balls
 from .icicles import icicle_balls
 from .measure import measure_icicles
-from .profile import TIP_CALM, profile_args, profile_radius, smooth_radius
+from .profile import TIP_CALM, Profile, profile_args, profile_radius, smooth_radius
 from .ripples import ripple_bands
 
-__all__ = ["SLIVER", "CoatSurface", "FringeFigures", "IceInputs", "IceResult", "fringe_figures", "TIP_CALM",
+__all__ = ["SLIVER", "CoatSurface", "FringeFigures", "GlazeProbe", "IceInputs", "IceResult", "Profile",
+           "fringe_figures", "TIP_CALM",
            "build_ice", "carry_water", "ground_ice_balls", "icicle_balls", "measure_glaze", "measure_icicles",
            "profile_args", "profile_radius", "ripple_bands", "smooth_radius", "VIEW_PX", "meshing_view", "view_surface"]

@@ -323,7 +323,7 @@ def _ripple(surface: SurfaceParams) -> tuple[float, float]:
     """The deepest ripples' amplitude (some icicles' ripples are deeper than the parameter's,
     `ripples.DEPTH_RANGE`) and their wavelength, meters."""
     prof = profile_args(surface)
-    return prof["amplitude"] * DEPTH_RANGE[1], (2 * np.pi / prof["frequency"] if prof["frequency"] > 0 else 0.0)
+    return prof.amplitude * DEPTH_RANGE[1], (2 * np.pi / prof.frequency if prof.frequency > 0 else 0.0)
 
 
 def _coat_reach(flow_mesh: trimesh.Trimesh, water: WaterResult, glaze: GlazeParams, coat, coarse: float,
@@ -403,6 +403,6 @@ def _root_radius(traj: TrajectoryResult, k: int, surface: SurfaceParams) -> np.n
     trunks = np.flatnonzero(np.asarray(traj.branch_parent) < 0)
     trunk_length[np.asarray(traj.branch_icicle)[trunks]] = grown_lengths(lengths[trunks], traj.cut[trunks])
     prof = profile_args(surface)
-    growth = np.full(k, prof.pop("growth"))
+    growth = np.full(k, prof.growth)
     growth[np.asarray(traj.branch_icicle)[trunks]] = traj.growth(surface.growth_ratio)[trunks]
-    return smooth_radius(0.0, trunk_length, growth=growth, **prof)
+    return smooth_radius(0.0, trunk_length, dataclasses.replace(prof, growth=growth))

@@ -35,7 +35,8 @@ import trimesh
 from ...errors import InputError
 from ...geometry import nearest, point_index, ragged_arange, ray_caster
 from ...metaballs.field import Field, block_keys
-from .coat_band import MAX_BAND_POINTS, Edges, Thickness, sample_band
+from .coat_band import MAX_BAND_POINTS, Thickness, sample_band
+from .coat_edges import convex_edges
 from .coat_kernel import PointTree, point_tree
 
 # Depth of the coat's hidden inner face under the surface, in voxels: a coat of any
@@ -51,17 +52,30 @@ SPACING = 2.0
 # Faces that meet at more than this (radians) make a crease: near one, each lattice sample
 # finds its own nearest surface sample; elsewhere those of a tile share one (one plane).
 _CREASE = math.radians(1.0)
-# Convex edges where faces meet at more than this (radians) bound their faces' planes
-# (`coat_band.Edges`): a sample's plane otherwise runs on up to ~0.6 SPACING voxels past
-# such an edge, and the coat with it (fins up to 5 mm out at 4 mm voxels along a fence's
-# picket edges, wet with thin rivulets); under this the plane strays under a third of a
-# voxel off the surface.
-_SHARP = math.radians(15.0)
 
 
-def coat_field(flow_mesh: trimesh.Trimesh, thickness: np.ndarray, wet: np.ndarray, voxel: float,
-               edge: float, exclude: np.ndarray | None = None, name: str = "glaze.voxel_size",
-               cast=None) -> Field | None:
+@dataclass(frozen=True)
+class CoatOptions:
+    """The lattice a coat is sampled on and how it ends (`coat_field`).
+
+    Attributes
+    ----------
+    voxel : float
+        Lattice spacing, in meters.
+    edge : float
+        Past the edge of the wet faces the coat thins linearly to nothing over this
+        distance, in meters (0: it ends in a step).
+    name : str
+        The parameter that set ``voxel``, named in errors.
+    """
+
+    voxel: float
+    edge: float = 0.0
+    name: str = "glaze.voxel_size"
+
+
+def coat_field(flow_mesh: trimesh.Trimesh, thickness: np.ndarray, wet: np.ndarray, options: CoatOptions,
+               exclude: np.ndarray | None = None, cast=None) -> Field | None:
     """The field of a continuous coat of ice ``thickness`` thick over the wet faces.
 
     Parameters
@@ -74,15 +88,10 @@ def coat_field(flow_mesh: trimesh.Trimesh, thickness: np.ndarray, wet: np.ndarra
     wet : (n,) bool
         Wet vertices; a face with at least two wet vertices (and no excluded one) is wet
         and is coated whole.
-    voxel : float
-        Lattice spacing, in meters.
-    edge : float
-        Past the edge of the wet faces the coat thins linearly to nothing over this
-        distance, in meters (0: it ends in a step).
+    options : CoatOptions
+        The lattice spacing, the taper past the wet faces, the parameter named in errors.
     exclude : (n,) bool, optional
         Vertices where no ice may be: faces that touch one get none.
-    name : str
-        The parameter that set ``voxel``, named in errors.
     cast : callable, optional
         An `icefarm.geometry.ray_caster` of ``flow_mesh``, if one is at hand.
 
@@ -114,8 +123,8 @@ def coat_field(flow_mesh: trimesh.Trimesh, thickness: np.ndarray, wet: np.ndarra
     wet_faces = np.flatnonzero(is_wet)
     if len(wet_faces) == 0 or flow_mesh.area_faces[wet_faces].sum() <= 0:
         return None
-    voxel = float(voxel)
-    edge = max(float(edge), 0.0)
+    voxel, name = float(options.voxel), options.name
+    edge = max(float(options.edge), 0.0)
     h = SPACING * voxel
     inner = INNER * voxel
     # Refuse before sampling: the band holds at least this many lattice samples.
@@ -162,7 +171,7 @@ def coat_field(flow_mesh: trimesh.Trimesh, thickness: np.ndarray, wet: np.ndarra
     thick = Thickness(all_t, np.concatenate([slope, np.zeros((len(dpts), 3))]),
                       np.r_[np.fmin(low[face], t_wet), dry], np.r_[np.fmax(high[face], t_wet), dry])
     return sample_band(all_pts, normals, thick, kind[all_face], depth, rim, features, sole, edge, voxel, reach, h,
-                       name, edges=_convex_edges(flow_mesh, all_face, 0.6 * h + voxel))
+                       name, edges=convex_edges(flow_mesh, all_face, 0.6 * h + voxel))
 
 
 def _thickness_range(mesh: trimesh.Trimesh, thickness: np.ndarray, wet: np.ndarray,
@@ -220,103 +229,6 @@ def _inner_depth(mesh, pts, normals, thick, kind, inner, voxel, cast):
     thin = thin[kind[hit[thin]] != 1]
     depth[thin] = np.maximum(np.minimum(inner, 0.45 * (dist[thin] + start)), MIN_SHEET * voxel - thick[thin])
     return depth
-
-
-def _convex_edges(mesh: trimesh.Trimesh, face: np.ndarray, reach: float) -> Edges | None:
-    """The `Edges` of samples on ``face`` (k,): the convex edges sharper than _SHARP of
-    their faces, and of the faces in the same plane (within _SHARP / 3) within ``reach``
-    across such faces (a strip of thin faces along an edge has samples near it on faces
-    that do not touch it), up to 3 a face, its own first. None if there are none.
-
-    Per face, not per sample: on Table 2's dragon (102,516 samples, 6,288 such edges) a
-    k-d tree of points along the edges, queried per sample, is about six times slower."""
-    n_faces = len(mesh.faces)
-    used = np.zeros(n_faces, dtype=bool)
-    used[face] = True
-    adj = mesh.face_adjacency
-    angle = mesh.face_adjacency_angles
-    both = used[adj].all(axis=1)  # lines spread over the sampled faces only
-    # (faces without a normal, of no area, bound nothing)
-    planar = np.linalg.norm(mesh.face_normals, axis=1) > 0.5
-    sharp = np.flatnonzero((angle > _SHARP) & used[adj].any(axis=1) & planar[adj].all(axis=1))
-    # Convex: the far corner of the second face lies under the first one's plane (trimesh's
-    # face_adjacency_convex takes every pair: all 1.4 M of the 3 m house's).
-    edge = mesh.face_adjacency_edges[sharp]
-    second = mesh.faces[adj[sharp, 1]]
-    far = second[(second != edge[:, :1]) & (second != edge[:, 1:])]
-    if len(far) != len(sharp):  # a degenerate face: fall back to trimesh's test
-        convex = mesh.face_adjacency_convex[sharp]
-    else:
-        convex = np.einsum("kd,kd->k", mesh.vertices[far] - mesh.vertices[edge[:, 0]],
-                           mesh.face_normals[adj[sharp, 0]]) < 0
-    sharp = sharp[convex]
-    if len(sharp) == 0:
-        return None
-    f = adj[sharp].ravel()  # one line for each face along each edge
-    ends = np.repeat(mesh.face_adjacency_edges[sharp], 2, axis=0)
-    a = mesh.vertices[ends[:, 0]]
-    inward = np.cross(mesh.face_normals[f], mesh.vertices[ends[:, 1]] - a)
-    inward *= np.where(np.einsum("kd,kd->k", inward, mesh.triangles[f].mean(axis=1) - a) < 0, -1.0, 1.0)[:, None]
-    inward /= np.maximum(np.linalg.norm(inward, axis=1), 1e-300)[:, None]
-    level = np.einsum("kd,kd->k", a, inward)
-    n_across = mesh.face_normals[adj[sharp][:, ::-1].ravel()]  # the other face's, across the edge
-    # The segments of one straight edge (a box's, split by a refinement) are one line: the
-    # same plane, the same side, the same line in it, the same plane across.
-    n_f = mesh.face_normals[f]
-    offset = np.einsum("kd,kd->k", a, n_f)
-    same = np.round(np.c_[inward * 1e4, n_f * 1e4, n_across * 1e4,
-                          np.c_[level, offset] / mesh.scale * 1e5]).astype(np.int64)
-    # rows as single values (as fuse.py welds vertices): unique(axis=0) sorts row by row, 3x slower
-    packed = np.ascontiguousarray(same).view(np.dtype((np.void, same.itemsize * same.shape[1]))).reshape(-1)
-    _, line_of, inverse = np.unique(packed, return_index=True, return_inverse=True)
-    inverse = inverse.reshape(-1)
-    inward, level, normal = inward[line_of], level[line_of], n_f[line_of]
-    across, across_level = n_across[line_of], np.einsum("kd,kd->k", a[line_of], n_across[line_of])
-    n_lines = len(line_of)
-    # Each line spreads ring by ring across the faces of its plane while within reach.
-    flat = adj[(angle < _SHARP / 3) & both]
-    flat = np.concatenate([flat, flat[:, ::-1]])
-    flat = flat[np.argsort(flat[:, 0], kind="stable")]
-    start = np.r_[0, np.cumsum(np.bincount(flat[:, 0], minlength=n_faces))]
-    flat = flat[:, 1]
-    tri = mesh.triangles
-    own = np.unique(f * n_lines + inverse)
-    rec_face, rec_line = [own // n_lines], [own % n_lines]
-    known = own
-    new_face, new_line = rec_face[0], rec_line[0]
-    while len(new_face):
-        count = start[new_face + 1] - start[new_face]
-        nb = flat[ragged_arange(count) + np.repeat(start[new_face], count)]
-        line = np.repeat(new_line, count)
-        record, first = np.unique(nb * n_lines + line, return_index=True)
-        fresh = known[np.minimum(np.searchsorted(known, record), len(known) - 1)] != record
-        nb, line, record = nb[first][fresh], line[first][fresh], record[fresh]
-        # The face lies wholly on the line's side (in a non-convex plane, an L or a gable's
-        # end, the line runs on across the plane), its nearest corner within reach.
-        gap = (np.einsum("kvd,kd->kv", tri[nb], inward[line]) - level[line][:, None]).min(axis=1)
-        ok = (gap >= -1e-9 * mesh.scale) & (gap <= reach)
-        ok &= np.einsum("kd,kd->k", mesh.face_normals[nb], normal[line]) > math.cos(_SHARP / 3)
-        new_face, new_line = nb[ok], line[ok]
-        # two sorted runs: a stable (run-merging) sort is linear; the default re-sorts all
-        # of it on each ring (fandisk has 113)
-        known = np.sort(np.concatenate([known, record[ok]]), kind="stable")
-        rec_face.append(new_face)
-        rec_line.append(new_line)
-    rec_face, rec_line = np.concatenate(rec_face), np.concatenate(rec_line)
-    order = np.argsort(rec_face, kind="stable")  # own lines first, then ring by ring
-    rec_face, rec_line = rec_face[order], rec_line[order]
-    slot = np.arange(len(rec_face)) - np.searchsorted(rec_face, rec_face)
-    keep = slot < 3
-    rec_face, rec_line, slot = rec_face[keep], rec_line[keep], slot[keep]
-    rows = np.unique(rec_face)
-    row_of = np.full(n_faces, -1)
-    row_of[rows] = np.arange(len(rows))
-    w, n = np.zeros((len(rows), 3, 3)), np.zeros((len(rows), 3, 3))
-    lv, nv = np.full((len(rows), 3), -np.inf), np.full((len(rows), 3), -np.inf)
-    r = row_of[rec_face]
-    w[r, slot], lv[r, slot] = inward[rec_line], level[rec_line]
-    n[r, slot], nv[r, slot] = across[rec_line], across_level[rec_line]
-    return Edges(row_of[face], w, lv, n, nv)
 
 
 def _features(mesh: trimesh.Trimesh, faces: np.ndarray, kind: np.ndarray, spacing: float):

@@ -12,7 +12,7 @@ edge drapes up between the trunks (`DRAPE`). Its balls join the icicles' field.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -85,8 +85,8 @@ def curtain_balls(traj: TrajectoryResult, surface: SurfaceParams, gravity) -> Cu
     x_pt, lengths = arc_lengths(traj.points, traj.branch_offsets)
     grown = grown_lengths(lengths, traj.cut)
     prof = profile_args(surface)
-    growth = np.repeat(traj.growth(prof.pop("growth")), np.diff(off))
-    radius = smooth_radius(x_pt, np.repeat(grown, np.diff(off)), growth=growth, **prof)
+    growth = np.repeat(traj.growth(prof.growth), np.diff(off))
+    radius = smooth_radius(x_pt, np.repeat(grown, np.diff(off)), replace(prof, growth=growth))
     bases = pts[off[trunks]]
     pairs = _neighbour_pairs(bases, distance)
     step = surface.voxel_size

@@ -33,19 +33,20 @@ def icicle_balls(traj: TrajectoryResult, surface: SurfaceParams, rng: np.random.
     Balls
     """
     prof = profile_args(surface)
-    tip = prof["tip"]
+    tip = prof.tip
     branches = np.flatnonzero(np.diff(np.asarray(traj.branch_offsets)) > 0)
     if len(branches) == 0:
         return NO_BALLS
     x_pt, all_lengths = arc_lengths(traj.points, traj.branch_offsets)
     grown = grown_lengths(all_lengths[branches], traj.cut[branches])
-    growth = traj.growth(prof.pop("growth"))[branches]  # per branch under a physical storm
+    growth = traj.growth(prof.growth)[branches]  # per branch under a physical storm
     # A cut branch ends on the ground in a foot wider than the tip's drop: its chain stops
     # short by the difference, so the foot rests on the ground instead of sinking into it.
-    foot = smooth_radius(all_lengths[branches], grown, growth=growth, **prof) - tip + FOOT_CLEARANCE * tip
+    per_branch = dataclasses.replace(prof, growth=growth)
+    foot = smooth_radius(all_lengths[branches], grown, per_branch) - tip + FOOT_CLEARANCE * tip
     if traj.branch_growth is not None:  # a storm's stub widens fast above its end: the foot is wider there
         for _ in range(3):
-            foot = smooth_radius(np.maximum(all_lengths[branches] - foot, 0.0), grown, growth=growth, **prof) \
+            foot = smooth_radius(np.maximum(all_lengths[branches] - foot, 0.0), grown, per_branch) \
                 - tip + FOOT_CLEARANCE * tip
     lengths = np.where(traj.cut[branches] > 0, np.maximum(all_lengths[branches] - foot, 0.0), all_lengths[branches])
     nb = len(branches)
@@ -57,7 +58,7 @@ def icicle_balls(traj: TrajectoryResult, surface: SurfaceParams, rng: np.random.
     fstart = np.cumsum(nfine) - nfine
     fj = ragged_arange(nfine)
     fx = fj * (lengths / (nfine - 1))[fb]
-    fr = smooth_radius(fx, grown[fb], growth=growth[fb], **prof)
+    fr = smooth_radius(fx, grown[fb], dataclasses.replace(prof, growth=growth[fb]))
     inv_h = 1.0 / (SPACING * KAPPA * fr)
     du = np.zeros_like(fx)
     du[1:] = 0.5 * (inv_h[1:] + inv_h[:-1]) * np.diff(fx)
@@ -74,7 +75,7 @@ def icicle_balls(traj: TrajectoryResult, surface: SurfaceParams, rng: np.random.
     target = (u[fstart] + gap)[bb] + bk * np.where(nint > 0, u_len / np.maximum(nint, 1), 0.0)[bb]
     bx = np.interp(target, ug, fx)
     bx[bk == nint[bb]] = lengths[bb][bk == nint[bb]]  # the last ball exactly at the tip
-    radius = smooth_radius(bx, grown[bb], growth=growth[bb], **prof)
+    radius = smooth_radius(bx, grown[bb], dataclasses.replace(prof, growth=growth[bb]))
 
     pos, tangent = points_along(traj, x_pt, all_lengths, branches[bb], bx)
 
@@ -144,9 +145,9 @@ def hang_roots(traj: TrajectoryResult, surface: SurfaceParams, shift: np.ndarray
     prof = profile_args(surface)
     x, lengths = arc_lengths(traj.points, off)
     grown = grown_lengths(lengths, traj.cut)
-    growth = traj.growth(prof.pop("growth"))
+    growth = traj.growth(prof.growth)
     owner = np.repeat(np.arange(len(counts)), counts)
-    radius = smooth_radius(x, grown[owner], growth=growth[owner], **prof)
+    radius = smooth_radius(x, grown[owner], dataclasses.replace(prof, growth=growth[owner]))
     move = np.asarray(shift, dtype=np.float64)[np.asarray(traj.branch_icicle)[owner]]
     reach = np.linalg.norm(move, axis=1)
     trunk = np.asarray(traj.branch_parent)[owner] < 0

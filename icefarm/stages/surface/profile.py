@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from ...params import SurfaceParams
@@ -20,18 +22,47 @@ PHYSICAL_EXPONENT = 0.75
 GROUND_THICKENING = 0.5
 
 
-def profile_args(surface: SurfaceParams) -> dict:
-    """The keyword arguments of `profile_radius` from a resolved ``surface`` group.
+@dataclass(frozen=True)
+class Profile:
+    """The smooth profile of an icicle and the ripple on it (`profile_radius`).
+
+    Attributes
+    ----------
+    tip : float
+        Tip radius, meters.
+    growth : float or (k,) float
+        ``t``, m/m: how much the base widens over the length (one value, or one per sample
+        where each branch has its own).
+    amplitude : float
+        Ripple amplitude ``as``, meters.
+    frequency : float
+        Ripple frequency ``fs``, rad/m.
+    shape : {"paper", "physical"}
+        The cone of Equation 1 or the profile of real icicles.
+    min_radius : float, optional
+        Floor for the radius (ripples deeper than the icicle); default ``tip / 4``.
+    """
+
+    tip: float
+    growth: float | np.ndarray
+    amplitude: float = 0.0
+    frequency: float = 0.0
+    shape: str = "paper"
+    min_radius: float | None = None
+
+
+def profile_args(surface: SurfaceParams) -> Profile:
+    """The `Profile` of a resolved ``surface`` group.
 
     The ripple amplitude is ``as * impurity``: ripples need dissolved salts, pure water
     grows smooth icicles (Chen & Morris, New J. Phys. 15, 2013).
     """
-    return {"tip": surface.tip_radius, "growth": surface.growth_ratio,
-            "amplitude": surface.ripple_amplitude * surface.impurity,
-            "frequency": surface.ripple_frequency, "shape": surface.profile}
+    return Profile(tip=surface.tip_radius, growth=surface.growth_ratio,
+                   amplitude=surface.ripple_amplitude * surface.impurity, frequency=surface.ripple_frequency,
+                   shape=surface.profile)
 
 
-def profile_radius(x, length, tip, growth, amplitude, frequency, min_radius=None, *, shape="paper"):
+def profile_radius(x, length, profile: Profile):
     """Icicle radius along its trajectory, in meters.
 
     ``shape="paper"``, Equation 1: ``R(x) = tip + (L - x) t + as sin(x fs)``, a straight
@@ -47,30 +78,29 @@ def profile_radius(x, length, tip, growth, amplitude, frequency, min_radius=None
         Arc length from the branch base (0) towards its tip, in meters.
     length : float or (k,) float
         Branch length L, in meters.
-    tip, growth, amplitude, frequency : float
-        ``tip`` (m), ``t`` (m/m), ``as`` (m), ``fs`` (rad/m).
-    min_radius : float, optional
-        Floor for the radius (ripples deeper than the icicle); default ``tip / 4``.
-    shape : {"paper", "physical"}
+    profile : Profile
+        ``tip`` (m), ``t`` (m/m), ``as`` (m), ``fs`` (rad/m), the shape and the floor.
 
     Returns
     -------
     (k,) float
         Radius in meters.
     """
+    tip = profile.tip
     x = np.asarray(x, dtype=np.float64)
     length = np.asarray(length, dtype=np.float64)
     remaining = np.maximum(length - x, 0.0)
     calm = np.clip(remaining / (TIP_CALM * tip), 0.0, 1.0)
-    r = tip + _widening(remaining, length, growth, shape) + amplitude * np.sin(x * frequency) * calm
-    return np.maximum(r, tip / 4 if min_radius is None else min_radius)
+    r = tip + _widening(remaining, length, profile.growth, profile.shape) \
+        + profile.amplitude * np.sin(x * profile.frequency) * calm
+    return np.maximum(r, tip / 4 if profile.min_radius is None else profile.min_radius)
 
 
-def smooth_radius(x, length, tip, growth, amplitude=0.0, frequency=0.0, min_radius=None, *, shape="paper"):
+def smooth_radius(x, length, profile: Profile):
     """`profile_radius` without its ripple: the radius the ripple rides on (meters)."""
     x = np.asarray(x, dtype=np.float64)
     length = np.asarray(length, dtype=np.float64)
-    return tip + _widening(np.maximum(length - x, 0.0), length, growth, shape)
+    return profile.tip + _widening(np.maximum(length - x, 0.0), length, profile.growth, profile.shape)
 
 
 def ripple(x, length, tip, amplitude, frequency, phase=0.0):

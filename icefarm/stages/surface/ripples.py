@@ -14,13 +14,13 @@ trunk, it runs deep in patches with calm stretches between, and it is quiet near
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from ...geometry import arc_lengths, nearest, point_index, ragged_arange
 from ..trajectories import TrajectoryResult
-from .profile import TIP_CALM, grown_lengths, points_along, smooth_radius
+from .profile import TIP_CALM, Profile, grown_lengths, points_along, smooth_radius
 
 # Vertices farther from a branch's axis than this times its radius there (plus the ripple)
 # belong to something else: a neighbour, the base ice, the glaze.
@@ -41,7 +41,7 @@ SAMPLES_PER_WAVE = 4
 BAND_FLOOR = 0.5
 
 
-def carve_ripples(vertices: np.ndarray, traj: TrajectoryResult, prof: dict,
+def carve_ripples(vertices: np.ndarray, traj: TrajectoryResult, prof: Profile,
                   max_radius: float | None = None) -> np.ndarray:
     """Move the ice mesh's vertices around each branch radially by the profile's ripple.
 
@@ -56,7 +56,7 @@ def carve_ripples(vertices: np.ndarray, traj: TrajectoryResult, prof: dict,
     vertices : (n, 3) float
         Ice mesh vertices, in meters.
     traj : TrajectoryResult
-    prof : dict
+    prof : Profile
         `profile_args` of the surface group (``amplitude`` is ``as * impurity``).
     max_radius : float, optional
         Ripples fade out from 0.8 of this radius to it (meters): where the icicles are
@@ -71,7 +71,7 @@ def carve_ripples(vertices: np.ndarray, traj: TrajectoryResult, prof: dict,
     return carve_ripples_and_bands(vertices, traj, prof, max_radius)[0]
 
 
-def carve_ripples_and_bands(vertices: np.ndarray, traj: TrajectoryResult, prof: dict,
+def carve_ripples_and_bands(vertices: np.ndarray, traj: TrajectoryResult, prof: Profile,
                             max_radius: float | None = None) -> tuple[np.ndarray, np.ndarray | None]:
     """`carve_ripples` and the `ripple_bands` of the carved vertices, from one pass.
 
@@ -92,10 +92,10 @@ def carve_ripples_and_bands(vertices: np.ndarray, traj: TrajectoryResult, prof: 
         return vertices, None
     out = np.array(vertices, dtype=np.float64, copy=True)
     out[waves.near] += (waves.wave / waves.dist)[:, None] * waves.radial
-    return out, _bands(len(vertices), waves, prof["amplitude"])
+    return out, _bands(len(vertices), waves, prof.amplitude)
 
 
-def ripple_bands(vertices: np.ndarray, traj: TrajectoryResult, prof: dict) -> np.ndarray | None:
+def ripple_bands(vertices: np.ndarray, traj: TrajectoryResult, prof: Profile) -> np.ndarray | None:
     """How far under a ripple crest each ice vertex lies, 0 to 1: where impure icicles hold
     their milky inclusions (Ladan & Morris 2022), for the renderer's shimmer.
 
@@ -109,7 +109,7 @@ def ripple_bands(vertices: np.ndarray, traj: TrajectoryResult, prof: dict) -> np
         Ice mesh vertices (ripples carved or not: they move across the axis only), meters.
     traj : TrajectoryResult
         The axes the ripples were carved around.
-    prof : dict
+    prof : Profile
         `profile_args` of the surface group.
 
     Returns
@@ -118,7 +118,7 @@ def ripple_bands(vertices: np.ndarray, traj: TrajectoryResult, prof: dict) -> np
         None where there is no ripple (``amplitude`` 0, no branch).
     """
     waves = _waves(vertices, traj, prof, None)
-    return None if waves is None else _bands(len(vertices), waves, prof["amplitude"])
+    return None if waves is None else _bands(len(vertices), waves, prof.amplitude)
 
 
 def _bands(n: int, waves: _Waves, amplitude: float) -> np.ndarray:
@@ -145,30 +145,29 @@ class _Waves:
     crest: np.ndarray
 
 
-def _waves(vertices: np.ndarray, traj: TrajectoryResult, prof: dict, max_radius: float | None) -> _Waves | None:
+def _waves(vertices: np.ndarray, traj: TrajectoryResult, prof: Profile, max_radius: float | None) -> _Waves | None:
     """`_Waves` of ``vertices`` (n, 3), the fade to ``max_radius`` (`carve_ripples`) in the
     displacement only; None where there is no ripple."""
-    amplitude, frequency, tip = prof["amplitude"], prof["frequency"], prof["tip"]
+    amplitude, frequency, tip = prof.amplitude, prof.frequency, prof.tip
     branches = np.flatnonzero(np.diff(np.asarray(traj.branch_offsets)) > 0)
     if amplitude <= 0 or frequency <= 0 or len(branches) == 0 or len(vertices) == 0:
         return None
     x_pt, lengths = arc_lengths(traj.points, traj.branch_offsets)
     L = lengths[branches]
     grown = grown_lengths(L, traj.cut[branches])
-    prof = dict(prof)
-    growth = traj.growth(prof.pop("growth"))[branches]
+    growth = traj.growth(prof.growth)[branches]
     step = min(2 * np.pi / frequency / SAMPLES_PER_WAVE, tip)
     n = np.ceil(L / step).astype(np.int64) + 1
     owner = np.repeat(np.arange(len(branches)), n)
     k = ragged_arange(n)
     x = k * (L / np.maximum(n - 1, 1))[owner]
     axis, tangent = points_along(traj, x_pt, lengths, branches[owner], x)
-    radius = smooth_radius(x, grown[owner], growth=growth[owner], **prof)
+    radius = smooth_radius(x, grown[owner], replace(prof, growth=growth[owner]))
     # Natural ripples (`_texture`): a wandering wavelength, quiet above the tip, and crests
     # that tilt and fade around the trunk, each branch its own (seeded by its index: no
     # draw from the stage's stream).
     texture = _texture(branches, frequency, np.asarray(traj.branch_icicle)[branches])
-    base = np.maximum(smooth_radius(0.0, grown[owner], growth=growth[owner], **prof), ROOT_FADE * grown[owner])
+    base = np.maximum(smooth_radius(0.0, grown[owner], replace(prof, growth=growth[owner])), ROOT_FADE * grown[owner])
     rise = np.clip(x / base, 0, 1)
     wave_amp = amplitude * texture.depth[owner] * _envelope(x, grown[owner], tip) * rise * rise * (3 - 2 * rise)
     wave_amp *= np.clip((radius - tip) / (RIPPLE_WIDENING * tip), 0, 1)

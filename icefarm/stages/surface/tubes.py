@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -39,14 +40,14 @@ def tube_mesh(traj: TrajectoryResult, surface: SurfaceParams, gravity=(0.0, -1.0
         Outward-wound; each branch's tube is closed (watertight) on its own.
     """
     prof = profile_args(surface)
-    tip = prof["tip"]
+    tip = prof.tip
     x_pt, lengths = arc_lengths(traj.points, traj.branch_offsets)
     branches = np.flatnonzero(np.diff(np.asarray(traj.branch_offsets)) > 0)
     if len(branches) == 0:
         return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64)
     step = tip
-    if prof["amplitude"] > 0 and prof["frequency"] > 0:
-        step = min(step, 2 * math.pi / prof["frequency"] / 6)
+    if prof.amplitude > 0 and prof.frequency > 0:
+        step = min(step, 2 * math.pi / prof.frequency / 6)
     L = lengths[branches]
     n = np.maximum(np.ceil(L / step).astype(np.int64), 1) + 1  # body rings per tube
     rb = np.repeat(np.arange(len(branches)), n)
@@ -54,8 +55,8 @@ def tube_mesh(traj: TrajectoryResult, surface: SurfaceParams, gravity=(0.0, -1.0
     rk = ragged_arange(n)
     xr = rk * (L / (n - 1))[rb]
     centre, _ = points_along(traj, x_pt, lengths, branches[rb], xr)
-    growth = traj.growth(prof.pop("growth"))[branches]
-    radius = profile_radius(xr, grown_lengths(L, traj.cut[branches])[rb], growth=growth[rb], **prof)
+    growth = traj.growth(prof.growth)[branches]
+    radius = profile_radius(xr, grown_lengths(L, traj.cut[branches])[rb], dataclasses.replace(prof, growth=growth[rb]))
     # Tangents by central differences within each tube (one-sided at its ends).
     last = first + n - 1
     ahead = centre[np.minimum(np.arange(len(rb)) + 1, last[rb])]
