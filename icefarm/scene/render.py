@@ -286,9 +286,7 @@ def render_job(job_dir: str | Path, config: RenderConfig, scene: JobScene | Scen
     """
     job_dir = Path(job_dir)
     if isinstance(scene, JobScene):
-        scene = write_scenes(job_dir, scene.object_mesh, scene.ice_mesh, config, scene.gravity, scene.material,
-                             frame_points=scene.frame_points, defer_povray=True, impurity=scene.impurity,
-                             ground_level=scene.ground_level, icicle_axes=scene.icicle_axes)
+        scene = write_scenes(job_dir, scene, config, defer_povray=True)
         if not (povray_files or config.uses_povray):
             scene = dataclasses.replace(scene, povray_writer=None)
     writer = scene.povray_writer if scene is not None else None
