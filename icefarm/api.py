@@ -308,9 +308,7 @@ def write(ice: Ice, folder: str | os.PathLike[str], *, config: str | os.PathLike
     scene = _scene(ice, None)
     folder = _job_folder(ice, folder)
     try:  # as `render_job` writes a job's scene, without rendering it
-        write_scenes(folder, scene.object_mesh, scene.ice_mesh, render_config, scene.gravity, scene.material,
-                     frame_points=scene.frame_points, impurity=scene.impurity, ground_level=scene.ground_level,
-                     icicle_axes=scene.icicle_axes)
+        write_scenes(folder, scene, render_config)
     except OSError as exc:
         raise cannot_write(exc, f"the job folder {folder}") from None
     _finish(ice, folder, {})

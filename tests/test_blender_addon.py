@@ -149,8 +149,9 @@ BLENDER = textwrap.dedent('''
         select(bunny)
         scene.icefarm.settings, scene.icefarm.seed = ARGS["fast"], 5
         os.environ["ICEFARM"] = ARGS["icefarm"]
-        OUT["render_command"] = addon.job_command("icefarm", "in.glb", "out", size_m=2.5, intensity="severe",
-                                                  kind="meltwater", seed=1, placement="hanging", render="lookdev")
+        options = addon.JobOptions(intensity="severe", kind="meltwater", seed=1, placement="hanging",
+                                   render="lookdev")
+        OUT["render_command"] = addon.job_command("icefarm", "in.glb", "out", 2.5, options)
         grow, op = start_modal(addon, [bunny])
         job = grow.jobs[0]
         OUT["command"], OUT["size_m"] = job.command, job.size_m

@@ -12,7 +12,7 @@ from icefarm.scene.config import load_render_config, render_config_from_dict
 from icefarm.scene.denoise import denoise
 from icefarm.scene.images import read_image
 from icefarm.scene.render import render_job
-from icefarm.scene.write import write_scenes
+from icefarm.scene.write import JobScene, write_scenes
 
 
 def _stripes(h=64, w=96):
@@ -59,7 +59,7 @@ def test_denoised_render_is_box_filtered_stratified_and_labelled(tmp_path, box_w
 
     box, ice = box_with_icicles()
     config = tiny_config(denoise="oidn", spp=4, resolution=[64, 48])
-    files = write_scenes(tmp_path, box, ice, config)
+    files = write_scenes(tmp_path, JobScene(box, ice), config)
     sensor = ET.parse(files.xml).getroot().find("sensor")
     assert sensor.find("sampler").get("type") == "multijitter"
     assert sensor.find("film/rfilter").get("type") == "box"
@@ -84,7 +84,7 @@ def test_denoised_render_is_closer_to_many_samples_than_the_noisy_one(tmp_path, 
                           "denoised": dict(spp=8, denoise="oidn")}.items():
         out = tmp_path / name
         config = tiny_config(resolution=size, **changes)
-        render_job(out, config, write_scenes(out, box, ice, config))
+        render_job(out, config, write_scenes(out, JobScene(box, ice), config))
         images[name] = read_image(out / "render.png")[..., :3]
     error = {k: np.mean((images[k] - images["ref"]) ** 2) for k in ("noisy", "denoised")}
     assert error["denoised"] < error["noisy"] / 2

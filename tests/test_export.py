@@ -28,7 +28,7 @@ from icefarm.job.pipeline import JobSpec, run_job
 from icefarm.jobdir import check_done
 from icefarm.scene.config import ABSORPTION_PER_M, render_config_from_dict
 from icefarm.scene.material import material_from_dict
-from icefarm.scene.write import write_scenes
+from icefarm.scene.write import JobScene, write_scenes
 
 PLASTIC = material_from_dict({"type": "plastic", "color": (0.6, 0.1, 0.1), "roughness": 0.09})
 
@@ -363,7 +363,7 @@ def test_z_up_gravity_gives_a_z_up_stage_and_a_y_up_glb(tmp_path):
     ice.invert()  # inward winding: exported wound outwards
     config = render_config_from_dict({"resolution": [40, 30], "spp": 2, "max_depth": 4})
     job = tmp_path / "job"
-    write_scenes(job, box, ice, config, gravity=(0.0, 0.0, -1.0))
+    write_scenes(job, JobScene(box, ice, gravity=(0.0, 0.0, -1.0)), config)
     (job / "params.yaml").write_text(yaml.safe_dump({"water": {"gravity": [0.0, 0.0, -1.0]}}))
     written = write_job_usd(job, material=PLASTIC)
     assert written.up_axis == "Z"

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from icefarm.scene.config import IceLook
+from icefarm.scene.config import IceLook, IceMedium
 
 TINT = IceLook.tint
 IOR = IceLook.ior
@@ -155,9 +155,9 @@ def test_plugin_and_parameters(mi):
     assert it.max_depth == 5 and it.ior == 1.5 and it.tint == pytest.approx((0.9, 0.9, 1.0))
     assert ice_integrator(mi.variant(), max_depth=-1).max_depth > 10**9
     with pytest.raises(ValueError, match="ior"):
-        ice_integrator(mi.variant(), ior=0.5)
+        ice_integrator(mi.variant(), ice=IceLook(ior=0.5))
     with pytest.raises(ValueError, match="tint"):
-        ice_integrator(mi.variant(), tint=(1.2, 1.0, 1.0))
+        ice_integrator(mi.variant(), ice=IceLook(tint=(1.2, 1.0, 1.0)))
 
 
 # ------------------------------------------------------------------ the medium inside the ice
@@ -181,7 +181,7 @@ def test_absorption_follows_beer_lambert_toward_blue_green(mi):
     sigma_a = (1.0, 0.3, 0.2)  # per meter: red goes first, as in real ice
     scene = ball_scene(mi)
     clear = render(mi, scene, ice_integrator(mi.variant(), max_depth=8), 64)
-    tinted = render(mi, scene, ice_integrator(mi.variant(), max_depth=8, sigma_a=sigma_a), 64)
+    tinted = render(mi, scene, ice_integrator(mi.variant(), max_depth=8, medium=IceMedium(sigma_a, 0.0)), 64)
     assert np.isfinite(tinted).all() and (tinted >= 0).all()
     ratio = tinted[CENTRE].mean(axis=(0, 1)) / clear[CENTRE].mean(axis=(0, 1))
     # Straight through the middle: 0.9 m of ice.
@@ -208,11 +208,11 @@ def test_scattering_clouds_the_ice_and_zero_scattering_is_no_medium(mi):
     # A dark world, a sun from behind the camera: clear ice shows the dark behind it,
     # cloudy ice sends sunlight back.
     scene = ball_scene(mi, env=0.02, sun=3.0, sun_dir=[0.2, -0.3, -1.0])
-    absorbing = ice_integrator(mi.variant(), max_depth=8, sigma_a=ABS)
+    absorbing = ice_integrator(mi.variant(), max_depth=8, medium=IceMedium(ABS, 0.0))
     clear = render(mi, scene, absorbing, 64)
-    zero = render(mi, scene, ice_integrator(mi.variant(), max_depth=8, sigma_a=ABS, sigma_s=0.0), 64)
+    zero = render(mi, scene, ice_integrator(mi.variant(), max_depth=8, medium=IceMedium(ABS, 0.0)), 64)
     np.testing.assert_array_equal(zero, clear)  # no scattering is exactly the absorbing medium
-    cloudy = render(mi, scene, ice_integrator(mi.variant(), max_depth=8, sigma_a=ABS, sigma_s=20.0), 64)
+    cloudy = render(mi, scene, ice_integrator(mi.variant(), max_depth=8, medium=IceMedium(ABS, 20.0)), 64)
     assert np.isfinite(cloudy).all()
     c, k = cloudy[CENTRE].mean(axis=(0, 1)), clear[CENTRE].mean(axis=(0, 1))
     assert c.mean() > 2 * k.mean()  # brighter core
@@ -231,7 +231,7 @@ def test_shadow_through_absorbing_ice_is_tinted(mi):
     scene["cube"] = {"type": "cube", "bsdf": ice(),
                      "to_world": mi.ScalarTransform4f().translate([0.6, 0.9, 0]).scale(0.3)}
     plain = render(mi, scene, ice_integrator(mi.variant(), max_depth=8), 64)[SHADOW_PIXELS].mean(axis=(0, 1))
-    tinted = render(mi, scene, ice_integrator(mi.variant(), max_depth=8, sigma_a=ABS),
+    tinted = render(mi, scene, ice_integrator(mi.variant(), max_depth=8, medium=IceMedium(ABS, 0.0)),
                     64)[SHADOW_PIXELS].mean(axis=(0, 1))
     ratio = tinted / plain
     assert np.isfinite(ratio).all()
@@ -242,14 +242,14 @@ def test_shadow_through_absorbing_ice_is_tinted(mi):
 def test_medium_parameters_are_checked(mi):
     from icefarm.scene.integrator import ice_integrator
 
-    it = ice_integrator(mi.variant(), sigma_a=(1, 2, 3), sigma_s=4.0)
+    it = ice_integrator(mi.variant(), medium=IceMedium((1, 2, 3), 4.0))
     assert it.sigma_a == (1.0, 2.0, 3.0) and it.sigma_s == (4.0, 4.0, 4.0)
     assert it.has_medium and it.has_scattering
     assert not ice_integrator(mi.variant()).has_medium
     with pytest.raises(ValueError, match="sigma_a"):
-        ice_integrator(mi.variant(), sigma_a=(-1, 0, 0))
+        ice_integrator(mi.variant(), medium=IceMedium((-1, 0, 0), 0.0))
     with pytest.raises(ValueError, match="sigma_s"):
-        ice_integrator(mi.variant(), sigma_s=float("nan"))
+        ice_integrator(mi.variant(), medium=IceMedium((0.0, 0.0, 0.0), float("nan")))
 
 
 def _register_nan_bsdf(mi):

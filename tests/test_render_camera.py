@@ -8,7 +8,7 @@ import trimesh
 
 from icefarm.scene.camera import frame_view, world_frame
 from icefarm.scene.config import load_render_config, render_config_from_dict
-from icefarm.scene.write import write_scenes
+from icefarm.scene.write import JobScene, write_scenes
 
 
 @pytest.mark.parametrize("gravity", [(0, -1, 0), (0, 0, -1), (1, 0, 0)])
@@ -96,7 +96,7 @@ def test_lookdev_has_an_ice_view_that_frames_the_icicles(tmp_path, dense):
     assert [v.frame for v in lookdev.views] == ["all", "ice"]
     config = render_config_from_dict({"resolution": [160, 120]}, base=lookdev)
     box, ice, cones = dense
-    files = write_scenes(tmp_path, box, ice, config)
+    files = write_scenes(tmp_path, JobScene(box, ice), config)
     full, zoomed = files.cameras
     assert np.allclose(full.origin, zoomed.origin) and zoomed.fov_x < full.fov_x / 2
     seen_full = cone_widths(full, cones, 160, 120)
@@ -118,12 +118,12 @@ def test_ice_view_without_ice_or_icicles_still_renders_a_view(tmp_path, dense):
 
     config = render_config_from_dict({"resolution": [64, 48]}, base=load_render_config("lookdev"))
     box, _, _ = dense
-    files = write_scenes(tmp_path / "bare", box, None, config)
+    files = write_scenes(tmp_path / "bare", JobScene(box, None), config)
     assert len(files.cameras) == 2 and np.allclose(files.cameras[0].origin, files.cameras[1].origin)
     assert [v["icicle_px"] for v in json.loads((tmp_path / "bare" / "views.json").read_text())] == [None, None]
     glaze = box.copy()
     glaze.vertices *= 1.02  # a thin shell: ice, but no icicles
-    files = write_scenes(tmp_path / "glaze", box, glaze, config)
+    files = write_scenes(tmp_path / "glaze", JobScene(box, glaze), config)
     assert files.cameras[1].fov_x < files.cameras[0].fov_x
 
 

@@ -19,7 +19,7 @@ from icefarm.scene.config import render_config_to_dict
 from icefarm.scene.images import read_image
 from icefarm.scene.render import render_job
 from icefarm.scene.variants import find_libllvm
-from icefarm.scene.write import write_scenes
+from icefarm.scene.write import JobScene, write_scenes
 
 ROOT = Path(__file__).resolve().parents[1]
 MITSUBA_CLI = Path(sys.executable).parent / "mitsuba"
@@ -31,7 +31,7 @@ def test_mitsuba_command_line_renders_the_scene(tmp_path, box_with_icicles, tiny
     if not MITSUBA_CLI.is_file():
         pytest.skip(f"no mitsuba command beside {sys.executable}")
     box, ice = box_with_icicles()
-    write_scenes(tmp_path, box, ice, tiny_config(views=["three_quarter", "front"]))
+    write_scenes(tmp_path, JobScene(box, ice), tiny_config(views=["three_quarter", "front"]))
     env = {**os.environ, "DRJIT_LIBLLVM_PATH": str(find_libllvm() or tmp_path / "none.so")}
     for sensor in ("0", "1"):
         out = subprocess.run([str(MITSUBA_CLI), "-m", "scalar_rgb", "-s", sensor,
@@ -50,7 +50,7 @@ def test_povray_renders_the_scene(tmp_path, box_with_icicles, tiny_config, asser
         pytest.skip("povray is not installed (apt-get install povray)")
     box, ice = box_with_icicles()
     config = tiny_config(renderer="povray", resolution=[40, 30])
-    write_scenes(tmp_path, box, ice, config)
+    write_scenes(tmp_path, JobScene(box, ice), config)
     result = render_job(tmp_path, config)
     assert result.variant == "" and result.povray_seconds > 0 and result.seconds == 0
     assert [p.name for p in result.files[:2]] == ["render.exr", "render.png"]
@@ -63,7 +63,7 @@ def test_povray_renders_the_scene(tmp_path, box_with_icicles, tiny_config, asser
 def test_povray_missing_is_a_clear_error(tmp_path, monkeypatch, box_with_icicles, tiny_config):
     box, ice = box_with_icicles()
     config = tiny_config(renderer="both")
-    write_scenes(tmp_path, box, ice, config)
+    write_scenes(tmp_path, JobScene(box, ice), config)
     monkeypatch.setattr(pov.shutil, "which", lambda name: None)
     with pytest.raises(InputError, match="apt-get install povray"):
         render_job(tmp_path, config)
@@ -74,7 +74,7 @@ def test_povray_missing_is_a_clear_error(tmp_path, monkeypatch, box_with_icicles
 def test_render_job_writes_linear_exr_and_srgb_png(tmp_path, box_with_icicles, tiny_config, assert_not_blank):
     box, ice = box_with_icicles()
     config = tiny_config(views=["three_quarter", "below"])
-    files = write_scenes(tmp_path, box, ice, config)
+    files = write_scenes(tmp_path, JobScene(box, ice), config)
     result = render_job(tmp_path, config, files)
     assert result.variant in ("scalar_rgb", "llvm_ad_rgb", "cuda_ad_rgb")
     assert result.integrator == ("volpath" if result.variant == "scalar_rgb" else "icepath")
@@ -95,7 +95,7 @@ def test_a_process_pinned_to_one_core_renders(tmp_path, box_with_icicles, tiny_c
     """Mitsuba reads EXRs (the sky) with Dr.Jit's pool, which waited forever at one thread."""
     box, ice = box_with_icicles()
     config = tiny_config()
-    write_scenes(tmp_path, box, ice, config)
+    write_scenes(tmp_path, JobScene(box, ice), config)
     code = ("import os, sys; os.sched_setaffinity(0, {min(os.sched_getaffinity(0))}); "
             "from icefarm.scene.config import render_config_from_dict; "
             "from icefarm.scene.render import render_job; "
@@ -112,8 +112,8 @@ def test_ice_changes_the_picture_where_it_projects(tmp_path, box_with_icicles, t
     box, ice = box_with_icicles()
     config = tiny_config(resolution=[80, 60], spp=8, denoise="none")
     points = np.vstack([box.vertices, ice.vertices])  # same camera for both pictures
-    with_ice = write_scenes(tmp_path / "ice", box, ice, config, frame_points=points)
-    write_scenes(tmp_path / "bare", box, None, config, frame_points=points)
+    with_ice = write_scenes(tmp_path / "ice", JobScene(box, ice, frame_points=points), config)
+    write_scenes(tmp_path / "bare", JobScene(box, None, frame_points=points), config)
     render_job(tmp_path / "ice", config)
     assert render_job(tmp_path / "bare", config).integrator == "path"  # nothing for icepath to do
     a = read_image(tmp_path / "ice" / "render.exr")
@@ -133,8 +133,8 @@ def test_ice_changes_the_picture_where_it_projects(tmp_path, box_with_icicles, t
 def test_deferred_povray_files_are_whole_when_the_render_returns(tmp_path, box_with_icicles, tiny_config):
     box, ice = box_with_icicles()
     config = tiny_config()
-    sync = write_scenes(tmp_path / "sync", box, ice, config)
-    files = write_scenes(tmp_path / "bg", box, ice, config, defer_povray=True)
+    sync = write_scenes(tmp_path / "sync", JobScene(box, ice), config)
+    files = write_scenes(tmp_path / "bg", JobScene(box, ice), config, defer_povray=True)
     assert sync.povray_writer is None and files.povray_writer is not None
     assert not (tmp_path / "bg" / "scene.pov").exists() and (tmp_path / "bg" / "scene.xml").is_file()
     result = render_job(tmp_path / "bg", config, files)
@@ -156,7 +156,7 @@ def test_a_failed_render_still_leaves_whole_povray_files(tmp_path, monkeypatch, 
         raise RuntimeError("renderer crashed")
 
     monkeypatch.setattr(render_module, "render_mitsuba", broken)
-    files = write_scenes(tmp_path, box, ice, config, defer_povray=True)
+    files = write_scenes(tmp_path, JobScene(box, ice), config, defer_povray=True)
     with pytest.raises(RuntimeError, match="renderer crashed"):
         render_job(tmp_path, config, files)
     assert "Ice_Mesh" in (tmp_path / "scene.pov").read_text()  # written and finished before the error left
@@ -184,8 +184,8 @@ def test_render_in_passes_matches_one_pass(tmp_path, monkeypatch, box_with_icicl
 
     box, ice = box_with_icicles()
     config = tiny_config(spp=32)
-    write_scenes(tmp_path / "one", box, ice, config)
-    write_scenes(tmp_path / "many", box, ice, config)
+    write_scenes(tmp_path / "one", JobScene(box, ice), config)
+    write_scenes(tmp_path / "many", JobScene(box, ice), config)
     render_job(tmp_path / "one", config)
     monkeypatch.setattr(render_module, "PASS_SAMPLES", 48 * 36 * 8)  # four passes of 8 spp
     render_job(tmp_path / "many", config, progress=True)
@@ -203,7 +203,7 @@ def test_rough_ice_renders_finite_and_differs_from_clear_ice(tmp_path, box_with_
     images = {}
     for name, roughness in (("clear", 0.0), ("frosted", 0.3)):
         config = tiny_config(resolution=[64, 48], spp=16, ice={"roughness": roughness})
-        files = write_scenes(tmp_path / name, box, ice, config, frame_points=points)
+        files = write_scenes(tmp_path / name, JobScene(box, ice, frame_points=points), config)
         render_job(tmp_path / name, config)
         images[name] = read_image(tmp_path / name / "render.exr")
         assert_not_blank(images[name])
@@ -237,7 +237,7 @@ def test_impurity_clouds_the_ice_and_impurity_zero_is_clear(tmp_path, box_with_i
     images = {}
     for name, impurity, cfg in (("pure", 0.0, config), ("tap", 0.6, config),
                                 ("unscattering", 0.6, tiny_config(**look, ice={"scattering": 0.0}))):
-        files = write_scenes(tmp_path / name, box, ice, cfg, frame_points=points, impurity=impurity)
+        files = write_scenes(tmp_path / name, JobScene(box, ice, frame_points=points, impurity=impurity), cfg)
         render_job(tmp_path / name, cfg)
         images[name] = read_image(tmp_path / name / "render.exr")
         assert_not_blank(images[name])

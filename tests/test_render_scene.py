@@ -14,13 +14,14 @@ import trimesh
 from icefarm.scene import povray as pov
 from icefarm.scene.config import load_render_config
 from icefarm.scene.images import read_image
+from icefarm.scene.material import material_from_dict
 from icefarm.scene.render import render_job
-from icefarm.scene.write import write_scenes
+from icefarm.scene.write import JobScene, write_scenes
 
 
 def test_scene_files_follow_the_contract(tmp_path, box_with_icicles, tiny_config):
     box, ice = box_with_icicles()
-    files = write_scenes(tmp_path, box, ice, tiny_config())
+    files = write_scenes(tmp_path, JobScene(box, ice), tiny_config())
     for name in ("scene.xml", "scene.pov", "object.ply", "ice.ply", "object.inc", "ice.inc"):
         assert (tmp_path / name).is_file(), name
     root = ET.parse(files.xml).getroot()
@@ -46,19 +47,20 @@ def test_custom_sky_image_is_copied_next_to_the_scene(tmp_path, box_with_icicles
     (tmp_path / "look.yaml").write_text("environment: {sky: studio.exr}\n")  # relative to the YAML
     config = tiny_config(base=load_render_config(tmp_path / "look.yaml"))
     box, ice = box_with_icicles()
-    files = write_scenes(tmp_path / "job", box, ice, config)
+    files = write_scenes(tmp_path / "job", JobScene(box, ice), config)
     assert files.sky == tmp_path / "job" / "sky_studio.exr" and files.sky.is_file()
     assert "sky_studio.exr" in files.xml.read_text()
 
 
 def test_rough_ice_other_ior_and_no_ice(tmp_path, box_with_icicles, tiny_config):
     box, ice = box_with_icicles()
-    files = write_scenes(tmp_path / "a", box, ice, tiny_config(ice={"roughness": 0.1, "ior": 1.5}))
+    files = write_scenes(tmp_path / "a", JobScene(box, ice), tiny_config(ice={"roughness": 0.1, "ior": 1.5}))
     bsdf = ET.parse(files.xml).getroot().find("shape[@id='ice']/bsdf")
     assert bsdf.get("type") == "roughdielectric"
     assert bsdf.find("float[@name='int_ior']").get("value") == "1.5"
     assert bsdf.find("float[@name='alpha']").get("value") == "0.1"
-    files = write_scenes(tmp_path / "b", box, None, tiny_config(), object_material={"type": "metal"})
+    metal = material_from_dict({"type": "metal"})
+    files = write_scenes(tmp_path / "b", JobScene(box, None, material=metal), tiny_config())
     root = ET.parse(files.xml).getroot()
     assert root.find("shape[@id='ice']") is None and files.ice_ply is None
     assert root.find("shape[@id='object']/bsdf/bsdf").get("type") == "roughconductor"
@@ -67,7 +69,7 @@ def test_rough_ice_other_ior_and_no_ice(tmp_path, box_with_icicles, tiny_config)
 def test_inward_ice_gets_flipped_normals(tmp_path, box_with_icicles, tiny_config):
     box, ice = box_with_icicles()
     ice.invert()
-    files = write_scenes(tmp_path, box, ice, tiny_config())
+    files = write_scenes(tmp_path, JobScene(box, ice), tiny_config())
     flag = ET.parse(files.xml).getroot().find("shape[@id='ice']/boolean[@name='flip_normals']")
     assert flag is not None and flag.get("value") == "true"
 
@@ -75,9 +77,9 @@ def test_inward_ice_gets_flipped_normals(tmp_path, box_with_icicles, tiny_config
 def test_ground_level_places_the_ground_plane(tmp_path, box_with_icicles, tiny_config):
     box, ice = box_with_icicles()
     config = tiny_config()
-    default = write_scenes(tmp_path / "default", box, ice, config)
+    default = write_scenes(tmp_path / "default", JobScene(box, ice), config)
     level = 0.0  # the box's underside: the icicles would reach below it
-    files = write_scenes(tmp_path / "level", box, ice, config, ground_level=level)
+    files = write_scenes(tmp_path / "level", JobScene(box, ice, ground_level=level), config)
 
     def ground_height(xml):
         m = np.array([float(x) for x in ET.parse(xml).getroot().find(
@@ -89,7 +91,7 @@ def test_ground_level_places_the_ground_plane(tmp_path, box_with_icicles, tiny_c
     assert all(c.origin[1] > level for c in files.cameras)
     assert f"{level:.9g}" in files.pov.read_text().split("polygon {")[1].split("\n")[0]
     with pytest.raises(ValueError, match="ground_level"):
-        write_scenes(tmp_path / "bad", box, ice, config, ground_level=float("nan"))
+        write_scenes(tmp_path / "bad", JobScene(box, ice, ground_level=float("nan")), config)
 
 
 def test_mesh2_text_holds_the_mesh_in_povray_handedness(tmp_path):
@@ -178,7 +180,7 @@ def test_ice_holds_an_absorbing_medium_that_scatters_with_impurity(tmp_path, box
     config = tiny_config()
     absorption = np.array(config.ice.absorption)
     for impurity in (0.0, 0.6):
-        files = write_scenes(tmp_path / str(impurity), box, ice, config, impurity=impurity)
+        files = write_scenes(tmp_path / str(impurity), JobScene(box, ice, impurity=impurity), config)
         integrator, medium = medium_of(files.xml)
         assert integrator == "volpath" and medium.get("type") == "homogeneous"
         assert medium.get("name") == "interior"
@@ -189,10 +191,10 @@ def test_ice_holds_an_absorbing_medium_that_scatters_with_impurity(tmp_path, box
         np.testing.assert_allclose(sigma_t, absorption + scattering, rtol=1e-6)
         np.testing.assert_allclose(albedo * sigma_t, scattering, atol=1e-6)
     # No absorption and pure water: no medium, the plain path tracer.
-    files = write_scenes(tmp_path / "none", box, ice, tiny_config(ice={"absorption": [0, 0, 0]}))
+    files = write_scenes(tmp_path / "none", JobScene(box, ice), tiny_config(ice={"absorption": [0, 0, 0]}))
     assert medium_of(files.xml) == ("path", None)
     with pytest.raises(ValueError, match="impurity"):
-        write_scenes(tmp_path / "bad", box, ice, config, impurity=1.5)
+        write_scenes(tmp_path / "bad", JobScene(box, ice, impurity=1.5), config)
 
 
 def test_scene_xml_loads_with_the_medium_icepath_gets_from_the_spec(tmp_path, box_with_icicles, tiny_config):
@@ -206,7 +208,7 @@ def test_scene_xml_loads_with_the_medium_icepath_gets_from_the_spec(tmp_path, bo
 
     box, ice = box_with_icicles()
     config = tiny_config()
-    files = write_scenes(tmp_path, box, ice, config, impurity=0.5)
+    files = write_scenes(tmp_path, JobScene(box, ice, impurity=0.5), config)
     medium = ice_medium(files.spec.ice)
     np.testing.assert_allclose(medium.absorption, config.ice.absorption)
     assert medium.scattering == pytest.approx(config.ice.scattering * 0.5)
@@ -222,7 +224,7 @@ def test_scene_xml_loads_with_the_medium_icepath_gets_from_the_spec(tmp_path, bo
 def test_povray_scene_has_the_fade_and_the_cloudy_medium(tmp_path, box_with_icicles, tiny_config, assert_not_blank):
     box, ice = box_with_icicles()
     config = tiny_config(renderer="povray", resolution=[40, 30])
-    files = write_scenes(tmp_path / "clear", box, ice, config, impurity=0.0)
+    files = write_scenes(tmp_path / "clear", JobScene(box, ice, impurity=0.0), config)
     text = files.pov.read_text()
     a = np.array(config.ice.absorption)
     fade = text.split("interior {")[1].split("}")[0]
@@ -231,7 +233,7 @@ def test_povray_scene_has_the_fade_and_the_cloudy_medium(tmp_path, box_with_icic
     # POV-Ray: exp(-(1 - fade_color) d / fade_distance) is Beer-Lambert with these coefficients.
     np.testing.assert_allclose((1 - colour) * a.max(), a, rtol=1e-5)
     assert "media" not in text and "Ice_Mesh hollow" not in text
-    files = write_scenes(tmp_path / "cloudy", box, ice, config, impurity=0.6)
+    files = write_scenes(tmp_path / "cloudy", JobScene(box, ice, impurity=0.6), config)
     text = files.pov.read_text()
     assert "Ice_Mesh hollow" in text and f"scattering {{ 1, rgb {config.ice.scattering * 0.6:.6g} }}" in text
     if shutil.which("povray") is None:

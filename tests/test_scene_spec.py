@@ -15,7 +15,7 @@ import yaml
 from icefarm.scene import mitsuba as mx, povray as pov
 from icefarm.scene.config import ice_medium
 from icefarm.scene.spec import SceneSpec, read_spec
-from icefarm.scene.write import build_spec, read_scene_spec, write_scenes
+from icefarm.scene.write import JobScene, build_spec, read_scene_spec, write_scenes
 
 FLIP = np.array([1.0, 1.0, -1.0])  # POV-Ray's left-handed world
 
@@ -28,7 +28,7 @@ def floats(text):
 def spec(tmp_path, box_with_icicles, tiny_config):
     box, ice = box_with_icicles()
     config = tiny_config(views=["three_quarter", "front"], environment={"exposure": 0.5, "sun_elevation": 30})
-    return build_spec(tmp_path, box, ice, config, impurity=0.3)
+    return build_spec(tmp_path, JobScene(box, ice, impurity=0.3), config)
 
 
 def test_scene_xml_says_what_the_spec_says(spec):
@@ -80,7 +80,7 @@ def test_the_spec_reads_back_as_written_and_writes_the_same_scene(spec, tmp_path
 
 def test_write_scenes_writes_scene_json_and_views_from_the_spec(tmp_path, box_with_icicles, tiny_config):
     box, ice = box_with_icicles()
-    files = write_scenes(tmp_path, box, ice, tiny_config(views=["three_quarter", "ice"]))
+    files = write_scenes(tmp_path, JobScene(box, ice), tiny_config(views=["three_quarter", "ice"]))
     spec = read_spec(tmp_path / "scene.json")
     assert spec.to_json() == files.spec.to_json() and spec.object_file == "object.ply" and spec.ice_file == "ice.ply"
     assert files.xml.read_text() == mx.scene_xml(files.spec)
@@ -95,7 +95,7 @@ def test_a_folder_without_scene_json_reads_from_scene_xml_and_exports(tmp_path, 
     from icefarm.export.gltf import write_glb
 
     box, ice = box_with_icicles()
-    write_scenes(tmp_path, box, ice, tiny_config(views=["three_quarter", "front"]), impurity=0.5)
+    write_scenes(tmp_path, JobScene(box, ice, impurity=0.5), tiny_config(views=["three_quarter", "front"]))
     (tmp_path / "params.yaml").write_text(yaml.safe_dump({"water": {"gravity": [0.0, -1.0, 0.0]}}))
     new = read_scene_spec(tmp_path)
     (tmp_path / "scene.json").unlink()

@@ -15,7 +15,7 @@ from icefarm.jobdir import ICE_BANDS
 from icefarm.scene import mitsuba as mx
 from icefarm.scene.config import render_config_from_dict
 from icefarm.scene.spec import BAND_ALPHA, BAND_ATTRIBUTE, SceneSpec
-from icefarm.scene.write import build_spec, write_scenes
+from icefarm.scene.write import JobScene, build_spec, write_scenes
 from icefarm.stages.surface.profile import profile_args
 from icefarm.stages.surface.ripples import carve_ripples, ripple_bands
 
@@ -90,7 +90,7 @@ def test_scene_blends_frosted_ice_by_the_crests(tmp_path, box_with_icicles, tiny
     box, ice = box_with_icicles()
     ice.vertex_attributes[ICE_BANDS] = np.linspace(0.0, 1.0, len(ice.vertices), dtype=np.float32)
     config = tiny_config()
-    spec = build_spec(tmp_path, box, ice, config, impurity=0.5)
+    spec = build_spec(tmp_path, JobScene(box, ice, impurity=0.5), config)
     assert spec.ice.shimmer == pytest.approx(0.5 * config.ice.shimmer) and spec.ice.shimmer > 0
     bsdf = _ice_bsdf(spec)
     assert bsdf.get("type") == "blendbsdf"
@@ -110,7 +110,7 @@ def test_clear_ice_renders_as_one_dielectric(tmp_path, box_with_icicles, tiny_co
     if case != "no bands":
         ice.vertex_attributes[ICE_BANDS] = np.ones(len(ice.vertices), dtype=np.float32)
     config = tiny_config(ice={"shimmer": 0.0}) if case == "shimmer off" else tiny_config()
-    spec = build_spec(tmp_path, box, ice, config, impurity=0.0 if case == "pure water" else 0.5)
+    spec = build_spec(tmp_path, JobScene(box, ice, impurity=0.0 if case == "pure water" else 0.5), config)
     assert spec.ice.shimmer == 0.0
     assert _ice_bsdf(spec).get("type") == "dielectric"
     # A scene.json written before the shimmer reads as clear.
@@ -137,7 +137,7 @@ def test_the_bands_change_the_rendered_ice(tmp_path, mi, box_with_icicles, tiny_
         if bands is not None:
             ice.vertex_attributes[ICE_BANDS] = np.full(len(ice.vertices), bands, dtype=np.float32)
         out = tmp_path / name
-        render_job(out, config, write_scenes(out, box, ice, config, impurity=1.0))
+        render_job(out, config, write_scenes(out, JobScene(box, ice, impurity=1.0), config))
         pictures[name] = read_image(out / RENDER_EXR)
     assert np.isfinite(pictures["milky"]).all()
     assert np.abs(pictures["milky"] - pictures["clear"]).mean() > 1e-3

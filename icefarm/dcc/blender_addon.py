@@ -56,6 +56,7 @@ import subprocess
 import tempfile
 import threading
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import bpy
@@ -131,7 +132,40 @@ def setting_assignments(text):
     return words
 
 
-def job_command(executable, mesh, out, *, size_m, intensity, kind, seed, placement, settings=(), render=None):
+@dataclass(frozen=True)
+class JobOptions:
+    """What the panel asks of every job: the storm, the seed, the placement, more settings
+    and the render.
+
+    Attributes
+    ----------
+    intensity, kind : str
+        ``storm.intensity`` (`STORM_INTENSITIES`) and ``storm.kind`` (`STORM_KINDS`).
+    seed : int
+    placement : {"ground", "hanging"}
+    settings : tuple of str
+        More ``GROUP.PARAM=VALUE`` for ``--set``; they come last and win.
+    render : str or None
+        A render config (``preview``, ``lookdev``, ``final`` or a YAML path); None: no render.
+    """
+
+    intensity: str
+    kind: str
+    seed: int
+    placement: str
+    settings: tuple = ()
+    render: str | None = None
+
+
+def job_options(settings):
+    """The `JobOptions` of the panel's ``settings`` (``scene.icefarm``); raises `GrowError`
+    for extra settings that are not ``GROUP.PARAM=VALUE``."""
+    return JobOptions(intensity=settings.intensity, kind=settings.kind, seed=settings.seed,
+                      placement=settings.placement, settings=tuple(setting_assignments(settings.settings)),
+                      render=settings.render_config if settings.render else None)
+
+
+def job_command(executable, mesh, out, size_m, options):
     """The ``icefarm run`` command line of one job (a list for `subprocess.Popen`).
 
     Parameters
@@ -140,21 +174,15 @@ def job_command(executable, mesh, out, *, size_m, intensity, kind, seed, placeme
         The icefarm command, the exported object, the job folder.
     size_m : float
         The object's real height in meters (``--size-m``).
-    intensity, kind : str
-        ``storm.intensity`` and ``storm.kind``.
-    seed : int
-    placement : {"ground", "hanging"}
-    settings : sequence of str
-        More ``GROUP.PARAM=VALUE`` for ``--set``; they come last and win.
-    render : str or None
-        A render config (``preview``, ``lookdev``, ``final`` or a YAML path); None: no render.
+    options : JobOptions
+        The storm, seed, placement, more settings and render the panel asks for.
     """
     command = [str(executable), "run", str(mesh), "-o", str(out), "--size-m", repr(float(size_m)),
-               "--seed", str(int(seed)), "--placement", placement,
-               "--set", f"storm.intensity={intensity}", "--set", f"storm.kind={kind}"]
-    for assignment in settings:
+               "--seed", str(int(options.seed)), "--placement", options.placement,
+               "--set", f"storm.intensity={options.intensity}", "--set", f"storm.kind={options.kind}"]
+    for assignment in options.settings:
         command += ["--set", assignment]
-    command += ["--render", render] if render else ["--no-render"]
+    command += ["--render", options.render] if options.render else ["--no-render"]
     return command
 
 
@@ -443,11 +471,9 @@ class Job:
         self.mesh = self.folder / INPUT_FILE
         self.out = Path(bpy.path.abspath(settings.job_folder)) / bpy.path.clean_name(obj.name) \
             if settings.job_folder else self.folder / "job"
-        self.render = settings.render_config if settings.render else None
-        self.command = job_command(executable, self.mesh, self.out, size_m=self.size_m,
-                                   intensity=settings.intensity, kind=settings.kind, seed=settings.seed,
-                                   placement=settings.placement, settings=setting_assignments(settings.settings),
-                                   render=self.render)
+        options = job_options(settings)
+        self.render = options.render
+        self.command = job_command(executable, self.mesh, self.out, self.size_m, options)
         self.process = None
 
     def export(self, context):

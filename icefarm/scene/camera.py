@@ -16,6 +16,9 @@ from scipy.spatial import ConvexHull, QhullError
 
 from ..geometry import world_frame
 
+FRAME_MARGIN = 0.9  # share of the frame the framed points fill: a little air around the scene
+GROUND_CLEARANCE = 0.02  # least height of a camera's eye over the ground, a fraction of the scene's size
+
 
 def along(points: np.ndarray, direction: np.ndarray) -> np.ndarray:
     """``points @ direction`` for ``(n, 3)`` points, written out: measured several times
@@ -83,7 +86,7 @@ def framing_points(points: np.ndarray) -> np.ndarray:
 
 
 def fit(points: np.ndarray, view_dir: np.ndarray, up: np.ndarray, fov_x: float, fov_y: float,
-        margin: float = 0.9) -> tuple[np.ndarray, np.ndarray]:
+        margin: float = FRAME_MARGIN) -> tuple[np.ndarray, np.ndarray]:
     """Tightest camera looking along ``-view_dir`` that shows all ``points`` ``(n, 3)``.
 
     For a fixed direction the distance and the sideways shift of the target that fit every
@@ -115,9 +118,8 @@ def fit(points: np.ndarray, view_dir: np.ndarray, up: np.ndarray, fov_x: float, 
     return target - fwd * dist, target
 
 
-def frame_view(points: np.ndarray, gravity, azimuth: float, elevation: float, aspect: float,
-               fov_y: float = 30.0, ground: float | None = None, clearance: float = 0.02,
-               margin: float = 0.9) -> Camera:
+def frame_view(points: np.ndarray, gravity, azimuth: float, elevation: float, aspect: float, *,
+               fov_y: float = 30.0, ground: float | None = None) -> Camera:
     """A camera at ``azimuth``/``elevation`` framing ``points``, kept above the ground.
 
     Parameters
@@ -133,8 +135,10 @@ def frame_view(points: np.ndarray, gravity, azimuth: float, elevation: float, as
     fov_y : float
         Vertical field of view, degrees.
     ground : float, optional
-        Height (along up) of the ground plane; the camera is raised until its eye is
-        ``clearance`` (a fraction of the scene size) above it.
+        Height (along up) of the ground plane, meters; the camera is raised until its eye
+        is `GROUND_CLEARANCE` of the scene's size above it.
+
+    The points fill `FRAME_MARGIN` of the frame (`fit`).
 
     Returns
     -------
@@ -149,8 +153,8 @@ def frame_view(points: np.ndarray, gravity, azimuth: float, elevation: float, as
     size = float(np.linalg.norm(pts.max(axis=0) - pts.min(axis=0))) or 1.0
     el = float(elevation)
     while True:
-        origin, target = fit(pts, direction(frame, azimuth, el), up, fov_x, fov_y, margin)
-        if ground is None or origin @ up >= ground + clearance * size or el >= 89.0:
+        origin, target = fit(pts, direction(frame, azimuth, el), up, fov_x, fov_y, FRAME_MARGIN)
+        if ground is None or origin @ up >= ground + GROUND_CLEARANCE * size or el >= 89.0:
             break
         el = min(el + 1.0, 89.0)
     dist = float(np.linalg.norm(target - origin))

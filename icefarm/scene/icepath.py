@@ -229,10 +229,17 @@ class IcePathMethods:
         return scatters, distance, weight
 
     def sample(self, scene, sampler, ray_, medium=None, active_=True):
-        """Radiance along camera rays ``ray_``: (spectrum, valid mask, no AOVs)."""
+        """Radiance along camera rays ``ray_``: (spectrum, valid mask, AOVs: the denoiser's
+        features with ``features`` set, else none).
+
+        One symbolic loop over the path's segments, in the phases its ``# ----`` comments
+        name. It is long on purpose, as Mitsuba's own integrators are: each phase reads and
+        masks a dozen of the loop's variables, which helpers would have to pass in and out.
+        """
         import drjit as dr
         import mitsuba as mi
 
+        # ---- the path's state, carried through the loop
         bsdf_ctx = mi.BSDFContext()
         ray = mi.Ray3f(ray_)
         active = mi.Bool(active_)
@@ -277,12 +284,15 @@ class IcePathMethods:
                 else:
                     beta[seg] *= dr.exp(-self._sigma_a * length)
 
+            # ---- what the path meets: a pass-through (ice seen past a diffuse or glossy
+            # bounce) or a real vertex (any other surface, the sky, the ice up to that bounce)
             surface = active & ~scatter
             through = surface & ~specular & ice
             real = surface & ~through
             valid_ray |= (real & (depth == 0) & si.is_valid()) | scatter
             bsdf = si.bsdf(ray)
 
+            # ---- denoiser features
             if dr.hint(self.features, mode="scalar"):
                 # the first diffuse or glossy vertex seen through any mirror or refraction
                 # chain, weighted by what that chain lets through; the sky where it escapes.
@@ -379,6 +389,8 @@ class IcePathMethods:
             vertex_next &= ~rr_active | (sampler.next_1d() < rr_prob)
             depth[(real & si.is_valid()) | scatter] += 1
 
+            # ---- the next segment: straight on through the ice, along the sampled direction,
+            # or from the scattering point
             ray = dr.select(through, si.spawn_ray(ray.d), si.spawn_ray(wo))
             if dr.hint(self.has_scattering, mode="scalar"):
                 ray = dr.select(scatter, mi.Ray3f(scatter_p, wo, ray.time, ray.wavelengths), ray)

@@ -10,9 +10,8 @@ What it samples, and why (transmissive shadows through ice, the medium inside it
 from __future__ import annotations
 
 import functools
-from collections.abc import Sequence
 
-from .config import IceLook
+from .config import IceLook, IceMedium
 from .icepath import FEATURE_CHANNELS, MAX_CROSSINGS, RR_DEPTH, IcePathMethods, rgb_coefficients
 
 __all__ = ["FEATURE_CHANNELS", "MAX_CROSSINGS", "PLUGIN_NAME", "ice_integrator", "integrator_class",
@@ -59,10 +58,8 @@ def integrator_class(variant: str) -> type:
     return cls
 
 
-def ice_integrator(variant: str, max_depth: int = 12, ior: float = IceLook.ior,
-                   tint: Sequence[float] = IceLook.tint, max_crossings: int = MAX_CROSSINGS,
-                   sigma_a: Sequence[float] | float = 0.0, sigma_s: Sequence[float] | float = 0.0,
-                   features: bool = False):
+def ice_integrator(variant: str, max_depth: int = 12, *, ice: IceLook | None = None,
+                   medium: IceMedium | None = None, features: bool = False, max_crossings: int = MAX_CROSSINGS):
     """The ice-aware path tracer for ``variant``, or None on scalar variants.
 
     Render with ``mi.render(scene, sensor=i, spp=spp, integrator=it)``; on None keep the
@@ -75,18 +72,19 @@ def ice_integrator(variant: str, max_depth: int = 12, ior: float = IceLook.ior,
     max_depth : int
         Longest path in scattering vertices, as ``path``'s ``max_depth`` (-1: unbounded);
         ice pass-throughs do not count.
-    ior : float
-        Index of refraction of all ice for the pass-through Fresnel term.
-    tint : (3,) float
-        RGB transmittance per ice crossing, in [0, 1] (the XML's ``specular_transmittance``).
-    max_crossings : int
-        Pass-throughs per path segment and per shadow ray before the light is absorbed.
-    sigma_a, sigma_s : (3,) float or float
-        Absorption and scattering coefficients inside the ice, per scene unit (meter):
-        the ice's ``homogeneous`` medium (`icefarm.scene.config.ice_medium` of the spec's ice).
+    ice : IceLook, optional
+        The ice's look: its ``ior`` (all ice, for the pass-through Fresnel term) and ``tint``
+        (RGB transmittance per crossing in [0, 1], the XML's ``specular_transmittance``) are
+        read. Default `IceLook`'s.
+    medium : IceMedium, optional
+        What fills the ice: absorption (R, G, B) and scattering coefficients per scene unit
+        (meter), as `icefarm.scene.config.ice_medium` gives them for the spec's ice. Default
+        none: clear ice.
     features : bool
         Also write the denoiser's feature buffers (`FEATURE_CHANNELS`): ``mi.render``
         then returns these six channels after the three of RGB.
+    max_crossings : int
+        Pass-throughs per path segment and per shadow ray before the light is absorbed.
 
     Returns
     -------
@@ -105,11 +103,12 @@ def ice_integrator(variant: str, max_depth: int = 12, ior: float = IceLook.ior,
     props = mi.Properties()
     props["max_depth"] = int(max_depth)
     props["rr_depth"] = RR_DEPTH
-    props["ior"] = float(ior)
-    props["tint"] = mi.ScalarColor3f(*(float(t) for t in tint))
+    ice = IceLook() if ice is None else ice
+    props["ior"] = float(ice.ior)
+    props["tint"] = mi.ScalarColor3f(*(float(t) for t in ice.tint))
     props["max_crossings"] = int(max_crossings)
-    props["sigma_a"] = mi.ScalarColor3f(*rgb_coefficients(sigma_a, "sigma_a"))
-    props["sigma_s"] = mi.ScalarColor3f(*rgb_coefficients(sigma_s, "sigma_s"))
+    props["sigma_a"] = mi.ScalarColor3f(*rgb_coefficients(0.0 if medium is None else medium.absorption, "sigma_a"))
+    props["sigma_s"] = mi.ScalarColor3f(*rgb_coefficients(0.0 if medium is None else medium.scattering, "sigma_s"))
     props["features"] = bool(features)
     return cls(props)
 

@@ -21,7 +21,7 @@ from tqdm import tqdm
 from ..errors import InputError
 from ..jobdir import POVRAY_STEM, SCENE_SPEC, SCENE_XML, view_stem
 from . import povray as pov
-from .config import IceLook, RenderConfig
+from .config import RenderConfig
 from .denoise import denoise, denoiser_version
 from .images import png_to_exr, write_exr, write_png
 from .spec import SceneSpec, read_spec
@@ -143,11 +143,8 @@ def render_mitsuba(job_dir: Path, config: RenderConfig, variant: str, spec: Scen
     integrator = None
     if (spec.ice is not None or denoised) and variant.startswith(("llvm_", "cuda_")):
         # without ice icepath is a plain path tracer, that also writes the denoiser's features
-        ice = spec.ice or IceLook()
-        medium = ice_medium(ice) if spec.ice is not None else None
-        integrator = ice_integrator(variant, config.max_depth, ice.ior, ice.tint,
-                                    sigma_a=medium.absorption if medium else 0.0,
-                                    sigma_s=medium.scattering if medium else 0.0, features=denoised)
+        medium = ice_medium(spec.ice) if spec.ice is not None else None
+        integrator = ice_integrator(variant, config.max_depth, ice=spec.ice, medium=medium, features=denoised)
     channels = 3 + (len(FEATURE_CHANNELS) if denoised and integrator is not None else 0)
     passes = sample_passes(config.width * config.height, config.spp, PASS_SAMPLES)
     n_views = len(scene.sensors())
@@ -286,9 +283,7 @@ def render_job(job_dir: str | Path, config: RenderConfig, scene: JobScene | Scen
     """
     job_dir = Path(job_dir)
     if isinstance(scene, JobScene):
-        scene = write_scenes(job_dir, scene.object_mesh, scene.ice_mesh, config, scene.gravity, scene.material,
-                             frame_points=scene.frame_points, defer_povray=True, impurity=scene.impurity,
-                             ground_level=scene.ground_level, icicle_axes=scene.icicle_axes)
+        scene = write_scenes(job_dir, scene, config, defer_povray=True)
         if not (povray_files or config.uses_povray):
             scene = dataclasses.replace(scene, povray_writer=None)
     writer = scene.povray_writer if scene is not None else None

@@ -12,7 +12,7 @@ import shutil
 import tempfile
 import time
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -30,6 +30,7 @@ from .legacy import spec_from_xml
 from .material import Material, material_from_dict
 from .sky import procedural_sky
 from .spec import (
+    Ground,
     Sampling,
     SceneSpec,
     Sky,
@@ -101,32 +102,40 @@ class SceneFiles:
 
 @dataclass(frozen=True)
 class JobScene:
-    """What a job's scene is made of, whatever renders it (`icefarm.scene.render.render_job`).
+    """What a job's scene is made of, whatever writes (`write_scenes`) or renders it
+    (`icefarm.scene.render.render_job`).
 
     Attributes
     ----------
     object_mesh : trimesh.Trimesh
         The object, meters.
     ice_mesh : trimesh.Trimesh or None
-        The ice, meters; None without ice.
+        The ice, meters (watertight); None renders the object alone.
     gravity : (3,) float
+        Gravity direction: "up" is its opposite.
     material : Material
-        The object's, validated.
-    frame_points : (n, 3) float
-        What the cameras frame and the ground lies under (`camera.frame_boxes`).
+        The object's (`material.material_from_dict`); diffuse clay by default.
+    frame_points : (n, 3) float or None
+        What the cameras frame and the ground lies under, meters (`camera.frame_boxes`);
+        None: the object's and the ice's vertices. The same points for every job of a
+        sweep give identical cameras.
     impurity : float
-        The job's ``surface.impurity``.
+        The job's ``surface.impurity`` in [0, 1]: the ice's scattering (its cloudy core)
+        is the config's ``ice.scattering`` times this; 0 gives clear ice.
     ground_level : float or None
-        As `write_scenes` takes it.
+        Height (m, along minus gravity) of the ground plane: the lowest point of an
+        object standing on it. None: just below the lowest framed point.
     icicle_axes : (k, 3) float or None
-        As `write_scenes` takes it.
+        Points along the icicles' axes (meters; the trajectories' points): an ice view
+        frames ice near them, not glaze thicker than its reach (`focus.ice_focus`).
+        None: ice far enough from the object counts as icicles.
     """
 
     object_mesh: trimesh.Trimesh
-    ice_mesh: trimesh.Trimesh | None
-    gravity: np.ndarray
-    material: Material
-    frame_points: np.ndarray
+    ice_mesh: trimesh.Trimesh | None = None
+    gravity: np.ndarray | Sequence[float] = (0.0, -1.0, 0.0)
+    material: Material = field(default_factory=Material)
+    frame_points: np.ndarray | None = None
     impurity: float = 0.0
     ground_level: float | None = None
     icicle_axes: np.ndarray | None = None
@@ -163,48 +172,26 @@ def _procedural_sky_exr(azimuth: float, elevation: float) -> bytes:
         return path.read_bytes()
 
 
-def write_scenes(job_dir: str | Path, object_mesh: trimesh.Trimesh, ice_mesh: trimesh.Trimesh | None,
-                 config: RenderConfig, gravity: Sequence[float] | np.ndarray = (0.0, -1.0, 0.0),
-                 object_material: Material | Mapping | None = None,
-                 frame_points: np.ndarray | None = None,
-                 defer_povray: bool = False, impurity: float = 0.0,
-                 ground_level: float | None = None, icicle_axes: np.ndarray | None = None) -> SceneFiles:
+def write_scenes(job_dir: str | Path, scene: JobScene, config: RenderConfig, *,
+                 defer_povray: bool = False) -> SceneFiles:
     """Write ``object.ply``, ``scene.xml``, ``scene.pov`` (+ includes), the sky,
     ``scene.json`` (the scene for every other writer, `icefarm.scene.spec`) and
     ``views.json`` into ``job_dir``.
 
-    ``ice.ply`` is the pipeline's: it is written from ``ice_mesh`` only when missing.
+    ``ice.ply`` is the pipeline's: it is written from ``scene.ice_mesh`` only when missing.
 
     Parameters
     ----------
     job_dir : path
         The job folder (created if missing).
-    object_mesh : trimesh.Trimesh
-        The object in meters.
-    ice_mesh : trimesh.Trimesh or None
-        The ice in meters (watertight); None renders the object alone.
+    scene : JobScene
+        The object, the ice, gravity, the object's material, what the cameras frame, the
+        ice's impurity, the ground's level and the icicles' axes.
     config : RenderConfig
-    gravity : (3,) float
-        Gravity direction: "up" is its opposite.
-    object_material : Material or mapping, optional
-        ``{type, color, roughness, metal}`` (see `material.material_from_dict`); diffuse clay by default.
-    frame_points : (n, 3) float, optional
-        What the cameras frame and the ground lies under; default the object's and the
-        ice's vertices. Pass the same points to every job of a sweep for identical cameras.
     defer_povray : bool
         Leave the POV-Ray files (``scene.pov``, ``object.inc``, ``ice.inc``: tens of
         megabytes of text for million-face ice) to ``SceneFiles.povray_writer``, which
         `render_job` runs alongside Mitsuba's render. Default: written before returning.
-    impurity : float
-        The job's ``surface.impurity`` in [0, 1]: the ice's scattering (its cloudy core)
-        is the config's ``ice.scattering`` times this; 0 gives clear ice.
-    ground_level : float, optional
-        Height (m, along minus gravity) of the ground plane: the lowest point of an
-        object standing on it. Default: just below the lowest framed point.
-    icicle_axes : (k, 3) float, optional
-        Points along the icicles' axes (meters; the trajectories' points): an ice view
-        frames ice near them, not glaze thicker than its reach (`focus.ice_focus`).
-        Default: ice far enough from the object counts as icicles.
 
     ``views.json`` lists each view: ``index``, ``name``, ``frame`` (``all`` or ``ice``),
     ``stem`` (its image files' stem) and ``icicle_px``, the width in pixels of the
@@ -219,85 +206,44 @@ def write_scenes(job_dir: str | Path, object_mesh: trimesh.Trimesh, ice_mesh: tr
     InputError
         A bad material.
     ValueError
-        Empty meshes, a zero gravity, an impurity outside [0, 1] or a ground level that
-        is not finite.
+        Empty meshes, a zero gravity, an impurity outside [0, 1], frame points that are not
+        finite or a ground level that is not finite.
     """
     start = time.perf_counter()
-    spec = build_spec(job_dir, object_mesh, ice_mesh, config, gravity, object_material, frame_points=frame_points,
-                      impurity=impurity, ground_level=ground_level, icicle_axes=icicle_axes)
-    return write_spec_files(job_dir, spec, object_mesh, ice_mesh, defer_povray=defer_povray, start=start)
+    spec = build_spec(job_dir, scene, config)
+    return write_spec_files(job_dir, spec, scene.object_mesh, scene.ice_mesh, defer_povray=defer_povray, start=start)
 
 
-def build_spec(job_dir: str | Path, object_mesh: trimesh.Trimesh, ice_mesh: trimesh.Trimesh | None,
-               config: RenderConfig, gravity: Sequence[float] = (0.0, -1.0, 0.0),
-               object_material: Material | Mapping | None = None, *, frame_points: np.ndarray | None = None,
-               impurity: float = 0.0, ground_level: float | None = None,
-               icicle_axes: np.ndarray | None = None) -> SceneSpec:
+def build_spec(job_dir: str | Path, scene: JobScene, config: RenderConfig) -> SceneSpec:
     """The `SceneSpec` of a job's scene, arguments as `write_scenes` takes them: the cameras
-    framed on ``frame_points``, the ground under them, the sun and sky from the config's
-    environment, the ice's look from its ``ice`` and the job's ``impurity``.
+    framed on ``scene.frame_points``, the ground under them, the sun and sky from the
+    config's environment, the ice's look from its ``ice`` and the job's ``impurity``.
 
     The sky's image is written into ``job_dir`` (created if missing) when it is not there
     yet: the spec names it. Nothing else is written.
     """
-    ice = ice_at_impurity(config.ice, impurity) if ice_mesh is not None else None
-    if ground_level is not None and not np.isfinite(ground_level):
-        raise ValueError(f"ground_level must be finite, got {ground_level!r}")
+    object_mesh, ice_mesh, gravity = scene.object_mesh, scene.ice_mesh, scene.gravity
+    ice = ice_at_impurity(config.ice, scene.impurity) if ice_mesh is not None else None
+    if scene.ground_level is not None and not np.isfinite(scene.ground_level):
+        raise ValueError(f"ground_level must be finite, got {scene.ground_level!r}")
     job_dir = Path(job_dir)
     job_dir.mkdir(parents=True, exist_ok=True)
     _check_mesh(object_mesh, "object_mesh")
     if ice_mesh is not None:
         _check_mesh(ice_mesh, "ice_mesh")
-    material = material_from_dict(object_material)
+    material = material_from_dict(scene.material)
     frame = cam.world_frame(gravity)
-    up = frame[1]
     env = config.environment
     sky = _sky_file(job_dir, env)
 
     # Cameras framed on object + ice, the ground under both.
-    if frame_points is not None:
-        points = np.asarray(frame_points, dtype=np.float64).reshape(-1, 3)
-        if len(points) == 0 or not np.isfinite(points).all():
-            raise ValueError("frame_points must be finite (n, 3) points, n > 0")
-    elif ice_mesh is None:
-        points = np.asarray(object_mesh.vertices)
-    else:
-        points = np.vstack([object_mesh.vertices, ice_mesh.vertices])
-    points = cam.framing_points(points)  # the hull's vertices frame the same, much faster
-    heights = points @ up
-    lo, hi = points.min(axis=0), points.max(axis=0)
-    size = float(np.linalg.norm(hi - lo))
-    centre = (lo + hi) / 2
-    ground = None
-    if env.ground != "none":
-        level = heights.min() - 1e-4 * size if ground_level is None else float(ground_level)
-        ground_centre = centre + (level - centre @ up) * up
-        ground = square_ground(ground_centre, 15.0 * size, size / 6, frame, env.ground,
-                               GROUND_CHECKER if env.ground == "checker" else (GROUND_PLAIN,))
-    ground_height = None if ground is None else float(ground.centre @ up)
+    points = cam.framing_points(_frame_points(scene))  # the hull's vertices frame the same, much faster
+    ground = _ground(points, frame, env.ground, scene.ground_level)
+    ground_height = None if ground is None else float(ground.centre @ frame[1])
     cameras = [cam.frame_view(points, gravity, v.azimuth, v.elevation, config.width / config.height,
                               fov_y=config.fov, ground=ground_height)
                for v in config.views]
-
-    # Views of the ice: the same camera turned and zoomed onto the densest icicles.
-    focus = None
-    if ice_mesh is not None and any(v.frame == "ice" for v in config.views):
-        focus = ice_focus(ice_mesh.vertices, ice_mesh.faces, surface_points(object_mesh), frame, size,
-                          axes=icicle_axes)
-        cast = ray_caster(object_mesh)  # what hides icicles from a view
-    icicle_px: list[float | None] = [None] * len(cameras)
-    if focus is not None:
-        for i, v in enumerate(config.views):
-            if v.frame == "ice":
-                cameras[i] = zoom_on_ice(cameras[i], focus, config.width, config.height, cast)
-        if focus.diameter:
-            # an ice view at the icicles it aims at (its target lies at their depth); others
-            # at the middle of all the icicles
-            spot = np.median(focus.points, axis=0)
-            icicle_px = [round(focus.diameter / pixel_size(c, c.target if v.frame == "ice" else spot,
-                                                           config.width), 2)
-                         for c, v in zip(cameras, config.views)]
-    cameras = tuple(cameras)
+    cameras, icicle_px = _ice_views(scene, config, frame, cameras, _diagonal(points))
 
     # Inward winding would make refraction run inside out.
     ice_flip = ice_mesh is not None and geo.winds_inward(ice_mesh.vertices, ice_mesh.faces)
@@ -312,6 +258,64 @@ def build_spec(job_dir: str | Path, object_mesh: trimesh.Trimesh, ice_mesh: trim
         ice=None if ice is None else replace(ice, shimmer=_shimmer(ice_mesh, ice.shimmer)),
         ice_file=None if ice is None else jd.ICE, ice_flip=bool(ice_flip),
         exposure=env.exposure, sampling=Sampling(config.spp, config.max_depth, config.denoise))
+
+
+def _frame_points(scene: JobScene) -> np.ndarray:
+    """``scene.frame_points``, checked, or by default the object's and the ice's vertices."""
+    if scene.frame_points is not None:
+        points = np.asarray(scene.frame_points, dtype=np.float64).reshape(-1, 3)
+        if len(points) == 0 or not np.isfinite(points).all():
+            raise ValueError("frame_points must be finite (n, 3) points, n > 0")
+        return points
+    if scene.ice_mesh is None:
+        return np.asarray(scene.object_mesh.vertices)
+    return np.vstack([scene.object_mesh.vertices, scene.ice_mesh.vertices])
+
+
+def _diagonal(points: np.ndarray) -> float:
+    """The diagonal of the box of ``points``, meters: the scene's size."""
+    return float(np.linalg.norm(points.max(axis=0) - points.min(axis=0)))
+
+
+def _ground(points: np.ndarray, frame: np.ndarray, pattern: str, level: float | None) -> Ground | None:
+    """The ground square under the framed ``points`` (hull vertices, meters) at height ``level``
+    along up (None: just below the lowest point), with the environment's ``pattern``; None for
+    ``"none"``."""
+    if pattern == "none":
+        return None
+    up = frame[1]
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    size = _diagonal(points)
+    centre = (lo + hi) / 2
+    level = (points @ up).min() - 1e-4 * size if level is None else float(level)
+    ground_centre = centre + (level - centre @ up) * up
+    return square_ground(ground_centre, 15.0 * size, size / 6, frame, pattern,
+                         GROUND_CHECKER if pattern == "checker" else (GROUND_PLAIN,))
+
+
+def _ice_views(scene: JobScene, config: RenderConfig, frame: np.ndarray, cameras: list[cam.Camera],
+               size: float) -> tuple[tuple[cam.Camera, ...], list[float | None]]:
+    """The views of the ice (the same camera turned and zoomed onto the densest icicles), and
+    per view how wide those icicles are in pixels (None where not measured)."""
+    ice_mesh, object_mesh = scene.ice_mesh, scene.object_mesh
+    icicle_px: list[float | None] = [None] * len(cameras)
+    if ice_mesh is None or not any(v.frame == "ice" for v in config.views):
+        return tuple(cameras), icicle_px
+    focus = ice_focus(ice_mesh.vertices, ice_mesh.faces, surface_points(object_mesh), frame, size,
+                      axes=scene.icicle_axes)
+    if focus is None:
+        return tuple(cameras), icicle_px
+    cast = ray_caster(object_mesh)  # what hides icicles from a view
+    for i, v in enumerate(config.views):
+        if v.frame == "ice":
+            cameras[i] = zoom_on_ice(cameras[i], focus, config.width, config.height, cast)
+    if focus.diameter:
+        # an ice view at the icicles it aims at (its target lies at their depth); others
+        # at the middle of all the icicles
+        spot = np.median(focus.points, axis=0)
+        icicle_px = [round(focus.diameter / pixel_size(c, c.target if v.frame == "ice" else spot, config.width), 2)
+                     for c, v in zip(cameras, config.views)]
+    return tuple(cameras), icicle_px
 
 
 def _shimmer(ice_mesh: trimesh.Trimesh, shimmer: float) -> float:
