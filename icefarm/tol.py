@@ -57,7 +57,7 @@ class Tolerances:
     ray_past_m: float = 1e-6
     """A ray measuring a coat is cast again from this far past the face where it entered."""
     parity_step_m: float = 1e-7
-    """Counting crossings (`icefarm.geometry.inside`), each ray is cast again from this far
+    """Counting crossings (`icefarm.spatial.inside`), each ray is cast again from this far
     past every hit."""
 
     # Plain numbers.

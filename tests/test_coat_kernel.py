@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from icefarm.geometry import nearest, point_index
+from icefarm.spatial import nearest, point_index
 from icefarm.stages.surface import coat_band
 from icefarm.stages.surface.coat import CoatOptions, _Rim, coat_field
 from icefarm.stages.surface.coat_band import Edges, Thickness, _signed
@@ -129,7 +129,7 @@ def _reference_phi(tree, samples, points, normals, thick: Thickness, kind, rim, 
                    seg=None, wall=None, taper_end=0.0, edges: Edges | None = None):
     """``phi`` (meters, positive inside the coat) at ``points`` (see `sample_band`), from
     their nearest ``samples`` (indices ``near``, -1 for none; queried in ``tree``, their
-    `icefarm.geometry.point_index`, when not given).
+    `icefarm.spatial.point_index`, when not given).
 
     The points of a dry sample lie past the rim: the coat there tapers with the distance
     to the nearest rim segment, found per point or given (``seg``, -1: none near; the

@@ -147,7 +147,7 @@ def test_a_street_sign_in_the_default_breeze_glazes_its_windward_face_and_drips_
 
 
 def test_no_icicle_hangs_glued_to_a_leg_under_its_rim():
-    from icefarm.geometry import ray_caster
+    from icefarm.spatial import ray_caster
     from icefarm.stages.drips import side_room
 
     seat = trimesh.creation.box([1.0, 0.04, 0.4])

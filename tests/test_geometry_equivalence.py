@@ -6,9 +6,10 @@ import numpy as np
 import pytest
 import trimesh
 
-from icefarm import geometry
-from icefarm.geometry import arc_lengths, closest_point, face_cross, ragged_arange, sample_faces, signed_volume
+from icefarm import geometry, spatial
+from icefarm.geometry import arc_lengths, face_cross, ragged_arange, sample_faces, signed_volume
 from icefarm.scene.geometry import smooth_normals
+from icefarm.spatial import closest_point
 
 
 @pytest.fixture
@@ -84,7 +85,7 @@ def _brute_distance(mesh, points):
 @pytest.mark.parametrize("fallback", [False, True])
 def test_closest_point_is_exact_and_never_farther_than_trimeshs(lumpy, monkeypatch, fallback):
     if fallback:  # the R-tree path, taken when the candidate ball grows too large
-        monkeypatch.setattr(geometry, "CLOSEST_CANDIDATES_MAX", 1)
+        monkeypatch.setattr(spatial, "CLOSEST_CANDIDATES_MAX", 1)
     # One huge triangle among small ones: the ball must still find every nearest face.
     big = trimesh.Trimesh([[-3, -3, 2], [3, -3, 2], [0, 3, 2]], [[0, 1, 2]])
     mesh = trimesh.util.concatenate([lumpy, big])
@@ -139,7 +140,7 @@ def test_arc_lengths_are_each_polylines_own():
 def test_nearest_is_scipys_nearest_neighbour():
     from scipy.spatial import cKDTree
 
-    from icefarm.geometry import nearest, point_index
+    from icefarm.spatial import nearest, point_index
 
     rng = np.random.default_rng(3)
     points = rng.random((5000, 3))
@@ -175,8 +176,8 @@ def test_near_caster_hits_what_the_whole_tree_hits():
     axis = np.arange(0, 2 * n, 7)
     directions[axis] = np.eye(3)[rng.integers(0, 3, len(axis))] * rng.choice([-1.0, 1.0], (len(axis), 1))
     directions /= np.linalg.norm(directions, axis=1, keepdims=True)
-    want_d, want_f = geometry.ray_caster(mesh)(origins, directions)
-    got_d, got_f = geometry.near_caster(mesh.vertices, mesh.faces, 0.02)(origins, directions)
+    want_d, want_f = spatial.ray_caster(mesh)(origins, directions)
+    got_d, got_f = spatial.near_caster(mesh.vertices, mesh.faces, 0.02)(origins, directions)
     np.testing.assert_array_equal(got_f, want_f)
     np.testing.assert_array_equal(got_d, want_d)
     assert 0.2 < np.isfinite(want_d).mean() < 0.9  # hits and misses both tried
@@ -184,7 +185,7 @@ def test_near_caster_hits_what_the_whole_tree_hits():
 
 
 def test_near_caster_misses_where_no_face_comes_near(sphere):
-    cast = geometry.near_caster(sphere.vertices, sphere.faces, 0.01)
+    cast = spatial.near_caster(sphere.vertices, sphere.faces, 0.01)
     # outside the box; through a corner of the box, past the sphere (no face near); a hit
     distance, face = cast(np.array([[1.0, 1.0, 1.0], [0.14, 0.14, -1.0], [0.0, 0.0, 0.0]]),
                           np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, 0.0, 1.0]]))
@@ -192,5 +193,5 @@ def test_near_caster_misses_where_no_face_comes_near(sphere):
     assert distance[2] == pytest.approx(0.15, abs=0.01) and face[2] >= 0
     distance, face = cast(np.array([[0.14, 0.14, -1.0]]), np.array([[0.0, 0.0, 1.0]]))  # alone: no face at all
     assert np.isinf(distance[0]) and face[0] == -1
-    empty = geometry.near_caster(np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64), 0.01)
+    empty = spatial.near_caster(np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64), 0.01)
     assert np.isinf(empty(np.zeros((2, 3)), np.eye(3)[:2])[0]).all()

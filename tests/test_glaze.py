@@ -13,9 +13,9 @@ from scipy.spatial import cKDTree
 
 from icefarm import params
 from icefarm.generators import generate
-from icefarm.geometry import inside, ray_caster
 from icefarm.mesh import prepare
 from icefarm.metaballs import KAPPA, SPACING, Balls, fuse_fields, sample_field
+from icefarm.spatial import inside, ray_caster
 from icefarm.stages.surface.glaze import CoatSurface, glaze_balls, glaze_field, glaze_thickness, wet_vertices
 from icefarm.stages.surface.glaze_measure import GlazeProbe, GlazeStats, measure_glaze
 from icefarm.stages.water import RainOptions, WaterResult, compute_water
@@ -307,7 +307,7 @@ def test_water_carried_from_a_wrap_skips_faces_buried_in_the_object():
     of each that lie inside the other too, and a coat there would come out through the
     other's walls. Those faces get none: no wet face of the carried surface lies wholly inside
     the other box, while those wholly in the open stay wet."""
-    from icefarm.geometry import inside, ray_caster
+    from icefarm.spatial import inside, ray_caster
     from icefarm.stages.surface.glaze import carry_water
 
     a = trimesh.creation.box(extents=(0.2, 0.06, 0.06))

@@ -11,8 +11,8 @@ import trimesh
 
 from icefarm import metaballs as M, params
 from icefarm.errors import InputError
-from icefarm.geometry import ray_caster
 from icefarm.job.pipeline import JobSpec, Stage, run_job
+from icefarm.spatial import ray_caster
 from icefarm.stages import surface as S
 from icefarm.stages.drips import DripResult
 from icefarm.stages.landing import LandingOptions, find_landings

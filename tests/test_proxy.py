@@ -427,7 +427,7 @@ def test_glaze_over_a_wrap_hugs_the_object_itself(tmp_path):
     (`glaze.carry_water`; its own test shows the coat's inner face at the object, not the
     wrap): through a job's surface stage on the boxes, the object's sky-facing tops lie under
     ice, none left bare by the carrying."""
-    from icefarm.geometry import inside, ray_caster
+    from icefarm.spatial import inside, ray_caster
 
     path = tmp_path / "boxes.stl"
     box_soup().export(path)

@@ -6,7 +6,7 @@ import pytest
 import trimesh
 
 from icefarm import params
-from icefarm.geometry import ray_caster
+from icefarm.spatial import ray_caster
 from icefarm.stages.rain import FALL_SPEED, open_sky, rain_vector
 from icefarm.stages.storm import StormOptions, precipitation_m, refine, storm_water
 

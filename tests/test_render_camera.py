@@ -248,9 +248,9 @@ def test_the_ice_view_frames_icicles_the_object_does_not_hide():
     """A car's densest icicles hung behind its front wheel, and the ice view framed the wheel.
     Rays cast against the object tell hidden icicles from seen ones: a wall in front of the
     denser of two clusters sends the view to the other, and none of its icicles is hidden."""
-    from icefarm.geometry import ray_caster
     from icefarm.scene.camera import Camera
     from icefarm.scene.focus import IceFocus, visible, zoom_on_ice
+    from icefarm.spatial import ray_caster
 
     width, height = 160, 120
     full = Camera(origin=np.array([0.0, 0.0, 2.0]), target=np.zeros(3), up=np.array([0.0, 1.0, 0.0]),

@@ -8,9 +8,9 @@ import pytest
 import trimesh
 
 from icefarm import params
-from icefarm.geometry import ray_caster
 from icefarm.job import Stage, run_stages
 from icefarm.mesh import prepare
+from icefarm.spatial import ray_caster
 from icefarm.stages.icicle_size import grow_icicles, growth_ratios, icicle_volume, thickening_m
 from icefarm.stages.rain import open_sky
 from icefarm.stages.storm import WATER_TO_ICE, StormOptions, precipitation_m, refine, storm_water

@@ -21,7 +21,8 @@ from dataclasses import dataclass
 import numpy as np
 import trimesh
 
-from ..geometry import ray_caster, sample_faces, unit
+from ..geometry import sample_faces, unit
+from ..spatial import ray_caster
 from ..stages.trajectories import TrajectoryResult
 from ..stages.trajectory_stats import measure_trajectories
 from ..tol import tol
@@ -82,7 +83,7 @@ def rain_reached_points(mesh: trimesh.Trimesh, gravity, count: int, rng: np.rand
         Cosine of the steepest tilt from horizontal that counts as facing up (0.3: up to
         about 73 degrees).
     cast : callable, optional
-        An `icefarm.geometry.ray_caster` of ``mesh``, if one is at hand.
+        An `icefarm.spatial.ray_caster` of ``mesh``, if one is at hand.
 
     Returns
     -------
@@ -132,7 +133,7 @@ def ice_along_normals(ice_mesh: trimesh.Trimesh, points: np.ndarray, normals: np
     reach : float
         Meters above the surface within which ice must start.
     cast : callable, optional
-        An `icefarm.geometry.ray_caster` of ``ice_mesh``, if one is at hand.
+        An `icefarm.spatial.ray_caster` of ``ice_mesh``, if one is at hand.
 
     Returns
     -------

@@ -14,9 +14,9 @@ from typing import Any
 import numpy as np
 import trimesh
 
-from ..geometry import ray_caster
 from ..mesh import PreparedMesh
 from ..params import Params
+from ..spatial import ray_caster
 from ..stages import DripResult, TrajectoryResult, WaterResult
 
 

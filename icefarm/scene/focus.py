@@ -233,7 +233,7 @@ def ice_focus(ice_vertices: np.ndarray, ice_faces: np.ndarray, object_points: np
 
 def visible(camera: Camera, points: np.ndarray, cast, tolerance: float) -> np.ndarray:
     """Which ``points`` (k, 3) the object does not hide from ``camera``: a ray from the
-    camera to each, cast against the object (``cast``, an `icefarm.geometry.ray_caster` of
+    camera to each, cast against the object (``cast``, an `icefarm.spatial.ray_caster` of
     it), hits nothing nearer than the point less ``tolerance`` (m).
 
     Rays, not a z-buffer of splatted surface points, whose empty cells hide nothing: the big

@@ -21,7 +21,7 @@ import trimesh
 from .. import jobdir as jd
 from ..artifacts import write_mesh
 from ..errors import InputError
-from ..geometry import ray_caster
+from ..spatial import ray_caster
 from . import camera as cam, geometry as geo, mitsuba as mx, povray as pov
 from .config import GROUND_CHECKER, GROUND_PLAIN, RenderConfig, ice_at_impurity
 from .focus import ice_focus, pixel_size, surface_points, zoom_on_ice

@@ -17,7 +17,8 @@ import trimesh
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from ..geometry import ray_caster, unit
+from ..geometry import unit
+from ..spatial import ray_caster
 from ..tol import tol
 
 
@@ -152,7 +153,7 @@ def overflow_heights(mesh: trimesh.Trimesh, supply: np.ndarray, gravity: np.ndar
     supply : (n,) bool
     gravity : (3,) float
     caster : callable, optional
-        A `icefarm.geometry.ray_caster` of ``mesh`` to reuse.
+        A `icefarm.spatial.ray_caster` of ``mesh`` to reuse.
 
     Returns
     -------

@@ -21,7 +21,8 @@ from typing import Any
 import numpy as np
 import trimesh
 
-from ..geometry import inside, perpendicular_basis, ray_caster, sample_faces, unit
+from ..geometry import perpendicular_basis, sample_faces, unit
+from ..spatial import inside, ray_caster
 from ..tol import tol
 from .rims import (
     FUSE_MARGIN,
@@ -158,7 +159,7 @@ MAX_DRY_PASSES = 4
 
 def free_fall(cast, points: np.ndarray, normals: np.ndarray, gravity, floor: float | None = None) -> np.ndarray:
     """``(k,)`` meters a drop falls from each of ``points`` (k, 3) before it lands: on the
-    surface that ``cast`` (a `icefarm.geometry.ray_caster`) sees straight below, lifted a
+    surface that ``cast`` (a `icefarm.spatial.ray_caster`) sees straight below, lifted a
     tenth of a millimetre along ``normals`` (k, 3) off its own face, or on the ground at
     height ``floor`` along -gravity (inf without either)."""
     g = unit(np.asarray(gravity, dtype=np.float64))
@@ -174,7 +175,7 @@ def side_room(cast, face_normals: np.ndarray, points: np.ndarray, gravity, depth
               clearance=ROOM) -> np.ndarray:
     """``(k,) bool``: each of ``points`` (k, 3) has ``clearance`` meters of room around it
     ``depth`` meters below it: level rays from there in `ROOM_RAYS` directions hit nothing
-    of the object (``cast``, a `icefarm.geometry.ray_caster` of a mesh whose
+    of the object (``cast``, a `icefarm.spatial.ray_caster` of a mesh whose
     ``face_normals`` (f, 3) these are) within ``clearance``. A drip
     point beside a leg or a wall under its rim has none: its icicle would hang glued to
     the leg (its water runs down the leg instead). A ray that starts inside the object (it
@@ -342,7 +343,7 @@ def find_drips(mesh: trimesh.Trimesh, water: np.ndarray, gravity, options: DripO
         How many points, where and how far apart.
     rng : numpy.random.Generator
     caster : callable, optional
-        A `icefarm.geometry.ray_caster` of ``mesh`` to reuse.
+        A `icefarm.spatial.ray_caster` of ``mesh`` to reuse.
     storm : DripStorm, optional
         A physical storm's shed water and icicle sizing.
     """

@@ -105,7 +105,7 @@ def find_landings(traj: TrajectoryResult, drip_water: np.ndarray, gravity, optio
     options : LandingOptions
         The share that runs off, the merge distance and the ground's height.
     cast : callable, optional
-        `icefarm.geometry.ray_caster` of the object; None: the object is not looked at.
+        `icefarm.spatial.ray_caster` of the object; None: the object is not looked at.
     face_normals : (f, 3) float, optional
         The object's face normals (for the normal at a landing point); needed with ``cast``.
 

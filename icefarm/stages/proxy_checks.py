@@ -14,8 +14,8 @@ import numpy as np
 import trimesh
 
 from ..errors import InputError
-from ..geometry import closest_point
 from ..mesh import MeshProblems
+from ..spatial import closest_point
 from ..tol import tol
 
 # Folds of otherwise clean meshes cross a few faces (cow.obj: 1.4 %, dragon: 0.02 %)

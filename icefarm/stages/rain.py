@@ -39,7 +39,7 @@ def rain_vector(gravity, wind) -> np.ndarray:
 def open_sky(mesh: trimesh.Trimesh, rain, cast) -> np.ndarray:
     """``(n,) bool``: a ray from each vertex (lifted a hair along its normal) back up the
     ``rain`` (`rain_vector`, or the gravity for still air) leaves the object. ``cast`` is a
-    `icefarm.geometry.ray_caster` of ``mesh``."""
+    `icefarm.spatial.ray_caster` of ``mesh``."""
     back = -unit(np.asarray(rain, dtype=np.float64).reshape(3))
     eps = tol.hair * float(np.linalg.norm(mesh.extents))
     lifted = mesh.vertices + eps * mesh.vertex_normals + eps * back

@@ -227,7 +227,7 @@ def accrete(mesh: trimesh.Trimesh, gravity, sky: np.ndarray, low: np.ndarray, op
         `icefarm.stages.rain.rain_vector`: freezing rain slanted by the wind lands on the
         faces that turn towards it; None: along gravity.
     cast : callable, optional
-        A `icefarm.geometry.ray_caster` of ``mesh`` to reuse (``overflow`` only).
+        A `icefarm.spatial.ray_caster` of ``mesh`` to reuse (``overflow`` only).
 
     Returns
     -------
@@ -335,7 +335,7 @@ def storm_water(mesh: trimesh.Trimesh, gravity, options: StormOptions, *, cast,
     options : StormOptions
         The resolved ``storm`` group, the glaze's lifetime, the drip limit and what pools do.
     cast : callable
-        A `icefarm.geometry.ray_caster` of ``mesh``.
+        A `icefarm.spatial.ray_caster` of ``mesh``.
     source : trimesh.Trimesh, optional
         ``water.source``: the storm falls only from this surface (a vertex must also see it
         straight up); None: the whole sky.
@@ -353,7 +353,7 @@ def storm_water(mesh: trimesh.Trimesh, gravity, options: StormOptions, *, cast,
     rain = rain_vector(g, storm.wind) if storm.kind == StormKind.FREEZING_RAIN.value else g
     sky = open_sky(mesh, rain, cast)
     if source is not None and sky.any():
-        from ..geometry import ray_caster
+        from ..spatial import ray_caster
 
         under = np.flatnonzero(sky)
         back = -unit(rain)

@@ -180,7 +180,7 @@ def grow_trajectories(mesh: trimesh.Trimesh, positions: np.ndarray, normals: np.
     options : TrajectoryOptions
         The L-system's angles, steps and limits, and gravity.
     caster : callable, optional
-        A `icefarm.geometry.ray_caster` of ``mesh`` to reuse (stage 1 may have built one).
+        A `icefarm.spatial.ray_caster` of ``mesh`` to reuse (stage 1 may have built one).
     """
     o = options
     positions = np.asarray(positions, dtype=np.float64).reshape(-1, 3)

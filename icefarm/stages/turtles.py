@@ -11,7 +11,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..geometry import perpendicular_basis, ray_caster, unit
+from ..geometry import perpendicular_basis, unit
+from ..spatial import ray_caster
 from ..tol import tol
 
 BRANCH_ANGLE = 30.0  # degrees: p1'' leaves the trunk at 30 degrees, then turns back parallel

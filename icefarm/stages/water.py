@@ -9,7 +9,8 @@ import numpy as np
 import trimesh
 from scipy.spatial import cKDTree
 
-from ..geometry import chain_sums, perpendicular_basis, ray_caster, sample_faces, unit
+from ..geometry import chain_sums, perpendicular_basis, sample_faces, unit
+from ..spatial import ray_caster
 from ..tol import tol
 from .basins import overflow_heights
 
@@ -77,7 +78,7 @@ def water_supply(mesh: trimesh.Trimesh, gravity: np.ndarray, rays: int, influenc
     lies within ``influence_radius`` of a first hit, faces against gravity and sees the sky
     straight up (nothing of the object above it) joins the supply.
 
-    ``caster`` is a `icefarm.geometry.ray_caster` of ``mesh`` to reuse, if one exists.
+    ``caster`` is a `icefarm.spatial.ray_caster` of ``mesh`` to reuse, if one exists.
 
     Returns
     -------
@@ -194,7 +195,7 @@ def compute_water(mesh: trimesh.Trimesh, gravity, rain: RainOptions, rng: np.ran
     source : trimesh.Trimesh, optional
         Source surface ss; by default a rectangle above the object (`rain_source`).
     caster : callable, optional
-        A `icefarm.geometry.ray_caster` of ``mesh``, shared with later stages.
+        A `icefarm.spatial.ray_caster` of ``mesh``, shared with later stages.
     """
     g = unit(gravity)
     if not np.any(g):

@@ -8,9 +8,10 @@ import numpy as np
 import trimesh
 from scipy.spatial import cKDTree
 
-from ...geometry import ragged_arange, random_barycentric, ray_caster
+from ...geometry import ragged_arange, random_barycentric
 from ...metaballs.balls import LEVEL, NO_BALLS, Balls
 from ...params import SurfaceParams
+from ...spatial import ray_caster
 from ...tol import tol
 from ..drips import DripResult
 
@@ -50,7 +51,7 @@ def base_balls(object_mesh: trimesh.Trimesh, drips: DripResult, surface: Surface
     ``BASE_SINK`` of their radius into the object along its face normal, and are held to
     ``BASE_THICKNESS`` times the object's thickness under them (`object_thickness`: a
     ray cast against the normal and, with ``gravity``, the height of the part there; ``cast``
-    is an `icefarm.geometry.ray_caster` of ``object_mesh``, made here when not given), so a
+    is an `icefarm.spatial.ray_caster` of ``object_mesh``, made here when not given), so a
     base is never thicker than the rim it sits on.
     """
     eb, nmb, kb = surface.base_extent, surface.base_balls, surface.base_scale

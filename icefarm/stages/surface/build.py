@@ -12,10 +12,11 @@ from dataclasses import dataclass
 import numpy as np
 import trimesh
 
-from ...geometry import arc_lengths, ray_caster
+from ...geometry import arc_lengths
 from ...metaballs import Balls, concat_balls, face_estimate, fuse_fields, march_blocks, sample_field
 from ...metaballs.clean import clean_slivers, sliver_candidates
 from ...params import GlazeParams, SurfaceParams
+from ...spatial import ray_caster
 from ..drips import DripResult
 from ..trajectories import TrajectoryResult
 from ..water import WaterResult
@@ -110,7 +111,7 @@ class IceInputs:
         More metaballs for the icicles' field, in meters. None (or no curtain) leaves the
         mesh exactly as without them.
     cast : callable, optional
-        A ray caster of ``flow_mesh`` to reuse (`icefarm.geometry.ray_caster`).
+        A ray caster of ``flow_mesh`` to reuse (`icefarm.spatial.ray_caster`).
     """
 
     object_mesh: trimesh.Trimesh

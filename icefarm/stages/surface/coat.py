@@ -33,8 +33,9 @@ import numpy as np
 import trimesh
 
 from ...errors import InputError
-from ...geometry import nearest, point_index, ragged_arange, ray_caster
+from ...geometry import ragged_arange
 from ...metaballs.field import Field, block_keys
+from ...spatial import nearest, point_index, ray_caster
 from .coat_band import MAX_BAND_POINTS, Thickness, sample_band
 from .coat_edges import convex_edges
 from .coat_kernel import PointTree, point_tree
@@ -93,7 +94,7 @@ def coat_field(flow_mesh: trimesh.Trimesh, thickness: np.ndarray, wet: np.ndarra
     exclude : (n,) bool, optional
         Vertices where no ice may be: faces that touch one get none.
     cast : callable, optional
-        An `icefarm.geometry.ray_caster` of ``flow_mesh``, if one is at hand.
+        An `icefarm.spatial.ray_caster` of ``flow_mesh``, if one is at hand.
 
     Returns
     -------

@@ -22,9 +22,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...errors import InputError
-from ...geometry import nearest
 from ...metaballs.field import BLOCK, CUTOFF, Field, block_keys
 from ...metaballs.march import MARCH_POWER
+from ...spatial import nearest
 from .coat_kernel import band_phi, point_tree
 
 # Signed distance (in voxels) over which the stored field goes from the level to twice

@@ -64,7 +64,7 @@ class PointTree:
     source: np.ndarray  # the points as given (n, 3)
 
     def nearest(self, points: np.ndarray, upper: float = np.inf) -> tuple[np.ndarray, np.ndarray]:
-        """As `icefarm.geometry.nearest`: distance and row of the nearest point closer than
+        """As `icefarm.spatial.nearest`: distance and row of the nearest point closer than
         ``upper`` to each of ``points`` (k, 3) (inf and -1 for none)."""
         q = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
         return _nearest_many(q, float(upper), *self.arrays())

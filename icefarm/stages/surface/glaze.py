@@ -26,10 +26,11 @@ from dataclasses import dataclass
 import numpy as np
 import trimesh
 
-from ...geometry import nearest, point_index, random_barycentric, ray_caster
+from ...geometry import random_barycentric
 from ...metaballs import Field, sample_field
 from ...metaballs.balls import NO_BALLS, Balls, sheet_balls
 from ...params import GlazeParams
+from ...spatial import nearest, point_index, ray_caster
 from ...tol import tol
 from ..water import WaterResult
 from .coat import CoatOptions, coat_field
@@ -225,7 +226,7 @@ def glaze_field(flow_mesh: trimesh.Trimesh, water: WaterResult, glaze: GlazePara
         Flow-mesh vertices where no glaze may be (the sole an object stands on): no ice
         touches them.
     cast : callable, optional
-        An `icefarm.geometry.ray_caster` of ``flow_mesh``, if one is at hand (the coat
+        An `icefarm.spatial.ray_caster` of ``flow_mesh``, if one is at hand (the coat
         casts a ray under each of its surface samples to find thin walls).
     face_budget : float
         Under a physical storm, the coat's lattice coarsens so that its mesh holds about

@@ -13,7 +13,8 @@ from dataclasses import dataclass
 import numpy as np
 import trimesh
 
-from ...geometry import near_caster, ray_caster, sample_faces, unit
+from ...geometry import sample_faces, unit
+from ...spatial import near_caster, ray_caster
 from ...tol import tol
 from .glaze import CoatSurface, wet_vertices
 
@@ -113,7 +114,7 @@ def measure_glaze(ice_vertices: np.ndarray, ice_faces: np.ndarray, surface: Coat
     probe : GlazeProbe
         How many points, how far above them ice counts, the seed of their draw.
     cast : callable, optional
-        An `icefarm.geometry.ray_caster` of the ice mesh, if one is at hand (building one
+        An `icefarm.spatial.ray_caster` of the ice mesh, if one is at hand (building one
         takes time in proportion to the ice's faces).
 
     Returns

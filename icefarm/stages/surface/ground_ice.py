@@ -87,7 +87,7 @@ def ground_ice_balls(landing: LandingResult, ground_ice: GroundIceParams,
     rng : numpy.random.Generator
         The stalagmites' noise (``surface.noise``).
     cast : callable, optional
-        `icefarm.geometry.ray_caster` of the object: mounds follow its surface.
+        `icefarm.spatial.ray_caster` of the object: mounds follow its surface.
     floor : float, optional
         Height of the ground plane along -gravity; None: no ground.
 

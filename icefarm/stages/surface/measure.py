@@ -8,8 +8,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ...geometry import arc_lengths, face_all, nearest, point_index, ragged_arange
+from ...geometry import arc_lengths, face_all, ragged_arange
 from ...params import SurfaceParams
+from ...spatial import nearest, point_index
 from ..trajectories import TrajectoryResult
 from ..trajectory_stats import SHAPE_MIN_LENGTH
 from .profile import grown_lengths, points_along
@@ -290,7 +291,7 @@ def _band_amplitude(residual: np.ndarray, step: float, fs: float) -> tuple[float
 def _slab_radius(axis, tangent, vertices, index, faces, trunk, x, step, thickness, slack):
     """Radius of the ice around each axis point (k, 3): the median distance from the axis of
     the ice in a slab ``thickness`` thick across it, within ``slack`` (and a margin) of the
-    nearest vertex's distance (``index``: `icefarm.geometry.point_index` of ``vertices``);
+    nearest vertex's distance (``index``: `icefarm.spatial.point_index` of ``vertices``);
     the nearest vertex's distance where the slab is empty.
 
     The ice in a slab is its vertices and the points where the mesh's edges (``faces``
@@ -393,7 +394,7 @@ def _power_fit(d: np.ndarray, y: np.ndarray) -> tuple[float, float]:
 def _tip_radius(points, directions, vertices, index):
     """Per tip point (p, 3) with its unit growth direction: the median distance to the mesh
     vertices (which lie on the iso-surface) ahead of the tip and within 1.5 times the
-    nearest one (``index``: `icefarm.geometry.point_index` of ``vertices``), i.e. the radius
+    nearest one (``index``: `icefarm.spatial.point_index` of ``vertices``), i.e. the radius
     of the drop that closes the icicle."""
     d_near, _ = nearest(index, points)
     out = np.full(len(points), np.nan)

@@ -18,7 +18,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ...geometry import arc_lengths, nearest, point_index, ragged_arange
+from ...geometry import arc_lengths, ragged_arange
+from ...spatial import nearest, point_index
 from ..trajectories import TrajectoryResult
 from .profile import TIP_CALM, Profile, grown_lengths, points_along, smooth_radius
 

@@ -15,8 +15,9 @@ import numpy as np
 import scipy.sparse
 import trimesh
 
-from ...geometry import face_any, nearest, point_index
+from ...geometry import face_any
 from ...metaballs import Field, values_at
+from ...spatial import nearest, point_index
 
 # Taubin's lambda|mu pair (Taubin 1995), run by trimesh.smoothing.filter_taubin: a
 # low-pass filter on the mesh that keeps its volume.
