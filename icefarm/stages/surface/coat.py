@@ -36,7 +36,7 @@ from ...errors import InputError
 from ...geometry import ragged_arange
 from ...metaballs.field import Field, block_keys
 from ...spatial import nearest, point_index, ray_caster
-from .coat_band import MAX_BAND_POINTS, Thickness, sample_band
+from .coat_band import MAX_BAND_POINTS, BandLattice, BandSamples, Thickness, sample_band
 from .coat_edges import convex_edges
 from .coat_kernel import PointTree, point_tree
 
@@ -171,8 +171,9 @@ def coat_field(flow_mesh: trimesh.Trimesh, thickness: np.ndarray, wet: np.ndarra
     low, high = _thickness_range(flow_mesh, thickness, wet, wet_faces)
     thick = Thickness(all_t, np.concatenate([slope, np.zeros((len(dpts), 3))]),
                       np.r_[np.fmin(low[face], t_wet), dry], np.r_[np.fmax(high[face], t_wet), dry])
-    return sample_band(all_pts, normals, thick, kind[all_face], depth, rim, features, sole, edge, voxel, reach, h,
-                       name, edges=convex_edges(flow_mesh, all_face, 0.6 * h + voxel))
+    samples = BandSamples(all_pts, normals, kind[all_face], thick, depth,
+                          edges=convex_edges(flow_mesh, all_face, 0.6 * h + voxel))
+    return sample_band(samples, BandLattice(voxel, reach, h, edge=edge, name=name), rim, features, sole)
 
 
 def _thickness_range(mesh: trimesh.Trimesh, thickness: np.ndarray, wet: np.ndarray,

@@ -79,37 +79,162 @@ class Edges:
     across_level: np.ndarray
 
 
-def sample_band(pts, normals, thick: Thickness, kind, depth, rim, features, sole, edge, voxel, reach, h,
-                name, edges: Edges | None = None) -> Field | None:
+@dataclass(frozen=True)
+class BandSamples:
+    """The surface samples a coat's band is measured from (`sample_band`).
+
+    Attributes
+    ----------
+    points : (k, 3) float
+        On the wet faces and the faces around them, in meters.
+    normals : (k, 3) float
+        Outward unit normal of each sample's face.
+    kind : (k,) int
+        1 wet, 0 dry, -1 excluded.
+    thickness : Thickness
+        The coat's thickness at the samples, in meters (0 at dry and excluded ones).
+    depth : (k,) float
+        How deep under each sample the coat's inner face lies, in meters.
+    edges : Edges, optional
+        The sharp convex edges that bound the samples' planes.
+    """
+
+    points: np.ndarray
+    normals: np.ndarray
+    kind: np.ndarray
+    thickness: Thickness
+    depth: np.ndarray
+    edges: Edges | None = None
+
+
+@dataclass(frozen=True)
+class BandLattice:
+    """The lattice a coat's band is sampled on (`sample_band`).
+
+    Attributes
+    ----------
+    voxel : float
+        Lattice spacing, in meters.
+    reach : float
+        No coat farther than this from a wet sample, in meters.
+    spacing : float
+        Spacing of the surface samples, in meters: a lateral offset of up to 0.6 of it from
+        the nearest sample counts as on its plane.
+    edge : float
+        Past the rim the coat thins linearly to nothing over this distance, in meters (>= 0).
+    name : str
+        The parameter that set ``voxel``, named in errors.
+    """
+
+    voxel: float
+    reach: float
+    spacing: float
+    edge: float = 0.0
+    name: str = "glaze.voxel_size"
+
+
+@dataclass(frozen=True)
+class _Tiles:
+    """The finest tiles of the band (`_refine`), ``_TILE`` lattice samples on an edge.
+
+    Attributes
+    ----------
+    tiles : (m, 3) int64
+        Tiles within a voxel of the coat, in tiles from the lattice's origin.
+    nearest : (m,) int64
+        Each tile's centre's nearest surface sample (-1: none within reach).
+    shared : (m,) bool
+        Tiles whose samples all share that nearest sample.
+    seg : (m,) int64
+        The rim segment nearest to a shared dry tile's centre (-1: none, or not one).
+    solid : (s, 3) int64
+        Tiles all of whose samples lie more than a voxel inside the coat.
+    """
+
+    tiles: np.ndarray
+    nearest: np.ndarray
+    shared: np.ndarray
+    seg: np.ndarray
+    solid: np.ndarray
+
+
+def sample_band(samples: BandSamples, lattice: BandLattice, rim, features, sole: np.ndarray) -> Field | None:
     """The coat's field on the lattice tiles near the wet samples.
 
-    ``kind`` per sample: 1 wet, 0 dry, -1 excluded. Each lattice sample takes its nearest
-    surface sample ``s`` (normal ``n``): ``sd = (p - s) . n``, its lateral offset beyond
-    the sample spacing ``l``, the signed distance ``D = sign(sd) sqrt(sd^2 + l^2)`` and
-    ``phi = min(T - D, D + depth)`` (positive inside); T is the thickness of a wet ``s``
-    carried to the foot ``p - sd n`` (along its slope, within its range: `Thickness`) and,
-    past the rim, that of the
-    nearest rim point times ``1 - d / edge`` (d: distance from the foot to the rim). No
-    coat where ``s`` is excluded, lies past the taper or farther than ``reach``. Between wet
-    and excluded samples (and the excluded vertices ``sole``) the coat ends in a wall at
-    their bisector, ``phi = (dB - dW) / 2``. With ``edges``, the lateral offset counts from
-    a sharp convex edge of ``s``'s face too, and D is at least the height over the plane
-    across that edge (a convex solid's signed distance is the largest of its planes'):
-    beyond the edge the face's plane is not the surface. The lattice samples are evaluated
-    by `icefarm.stages.surface.coat_kernel.band_phi`.
+    Each lattice sample takes its nearest surface sample ``s`` (normal ``n``):
+    ``sd = (p - s) . n``, its lateral offset beyond the sample spacing ``l``, the signed
+    distance ``D = sign(sd) sqrt(sd^2 + l^2)`` and ``phi = min(T - D, D + depth)``
+    (positive inside); T is the thickness of a wet ``s`` carried to the foot ``p - sd n``
+    (along its slope, within its range: `Thickness`) and, past the rim, that of the nearest
+    rim point times ``1 - d / edge`` (d: distance from the foot to the rim). No coat where
+    ``s`` is excluded, lies past the taper or farther than ``reach``. Between wet and
+    excluded samples (and the excluded vertices ``sole``) the coat ends in a wall at their
+    bisector, ``phi = (dB - dW) / 2``. With ``edges``, the lateral offset counts from a sharp
+    convex edge of ``s``'s face too, and D is at least the height over the plane across that
+    edge (a convex solid's signed distance is the largest of its planes'): beyond the edge
+    the face's plane is not the surface. The lattice samples are evaluated by
+    `icefarm.stages.surface.coat_kernel.band_phi`.
+
+    Parameters
+    ----------
+    samples : BandSamples
+        The surface samples, with their kind, thickness, depth and sharp edges.
+    lattice : BandLattice
+        The lattice's spacing, the reach and taper of the coat, the parameter named in errors.
+    rim : optional
+        The edges between the wet faces and the dry ones (``coat._Rim``: segments with
+        their thickness, and a tree of points along them); None: no taper.
+    features : optional
+        A `icefarm.geometry.point_index` of points along creases and changes of kind;
+        None: there are none.
+    sole : (v, 3) float
+        Excluded vertices, in meters: the coat ends in a wall between them and wet samples.
+
+    Returns
+    -------
+    Field or None
+        Level 1, inside where the value is above it; None where no tile is near the coat.
+
+    Raises
+    ------
+    InputError
+        A voxel so fine that the band would hold more than ``MAX_BAND_POINTS`` lattice
+        samples, or its field need more than ``_MAX_FIELD_BYTES``.
     """
-    wet = kind == 1
-    blocked = np.concatenate([pts[kind == -1], sole])
-    inner, inner_lo = float(depth.max()), float(depth.min())
+    voxel, reach, pts = lattice.voxel, lattice.reach, samples.points
+    blocked = np.concatenate([pts[samples.kind == -1], sole])
     pad = BLOCK * voxel + reach  # the lattice's first block stays empty (see _halo_blocks)
     # Off the round coordinates by a fraction of a voxel: faces of boxes and prisms then
     # never lie on lattice planes (samples exactly on the iso-surface).
     origin = (np.floor((pts.min(axis=0) - pad) / (BLOCK * voxel)) - _SHIFT) * (BLOCK * voxel)
-    # Coarse tiles within reach of a wet sample, each with bounds on the coat's thickness
-    # within reach of it (dry and excluded samples count as 0) ...
+    coarse = _coarse_tiles(samples, lattice, origin)
+    threads = os.cpu_count() or 1
+    with ThreadPoolExecutor(threads) as pool:  # the kernels run without the GIL
+        walls = pool.submit(_wall_args, pts, samples.kind == 1, blocked, reach)
+        tree = point_tree(pts)
+        band = _refine(pool, threads, tree, samples, lattice, origin, coarse, rim, features)
+        npoints = len(band.tiles) * _TILE**3
+        if npoints > MAX_BAND_POINTS or npoints * 4 > _MAX_FIELD_BYTES:
+            raise InputError(
+                f"{lattice.name} = {voxel:g} m is too fine for this much glaze ({npoints} lattice samples "
+                f"near the coat, at most {MAX_BAND_POINTS}); raise {lattice.name}")
+        thick = samples.thickness
+        args = (pts, samples.normals, np.asarray(samples.kind, dtype=np.int64), thick.value, thick.slope, thick.low,
+                thick.high, np.asarray(samples.depth, dtype=np.float64), tree.arrays(), *_edge_args(samples.edges),
+                *_rim_args(rim, lattice.edge), *walls.result())
+        values = _evaluate(pool, threads, band, lattice, origin, args)
+    return _pack(band, values, origin, lattice)
+
+
+def _coarse_tiles(samples: BandSamples, lattice: BandLattice, origin: np.ndarray):
+    """The coarsest tiles (``_TILE * 2^_LEVELS`` lattice samples on an edge) within reach of
+    a wet sample, each with bounds on the coat's thickness within reach of it (dry and
+    excluded samples count as 0): tiles (m, 3) int64, least and greatest thickness (m,)
+    in meters."""
+    voxel, wet, thick = lattice.voxel, samples.kind == 1, samples.thickness
     size = _TILE * 2 ** _LEVELS
-    k = int(math.ceil(reach / (size * voxel)))
-    keys = block_keys(np.floor((pts - origin) / (size * voxel)).astype(np.int64))
+    k = int(math.ceil(lattice.reach / (size * voxel)))
+    keys = block_keys(np.floor((samples.points - origin) / (size * voxel)).astype(np.int64))
     keys, t_lo, t_hi, has_wet = _reduce(keys, np.where(wet, thick.low, 0.0), np.where(wet, thick.high, 0.0), wet)
     for shift in (42, 21, 0):  # separable dilation by k tiles, one axis at a time
         step = np.arange(-k, k + 1) << shift
@@ -118,90 +243,109 @@ def sample_band(pts, normals, thick: Thickness, kind, depth, rim, features, sole
     keys, t_lo, t_hi = keys[has_wet], t_lo[has_wet], t_hi[has_wet]
     if len(keys) * size**3 > 8 * MAX_BAND_POINTS:
         raise InputError(
-            f"{name} = {voxel:g} m is too fine for this much glaze ({len(keys) * size**3} lattice "
-            f"samples within reach of the coat); raise {name}")
+            f"{lattice.name} = {voxel:g} m is too fine for this much glaze ({len(keys) * size**3} lattice "
+            f"samples within reach of the coat); raise {lattice.name}")
     tiles = np.stack([keys >> 42, (keys >> 21) & (2**21 - 1), keys & (2**21 - 1)], axis=1)
-    # ... then, level by level down to _TILE, tiles are dropped where their centre says
-    # none of their samples is within a voxel of the coat, kept whole where it says all
-    # are more than a voxel inside it, and split in eight otherwise.
-    threads = os.cpu_count() or 1
-    with ThreadPoolExecutor(threads) as pool:  # the kernels run without the GIL
-        walls = pool.submit(_wall_args, pts, wet, blocked, reach)
-        tree = point_tree(pts)
-        children = np.stack(np.meshgrid(*[np.arange(2)] * 3, indexing="ij"), axis=-1).reshape(-1, 3)
-        solid = []
-        seed = None
-        while True:
-            half = 0.5 * math.sqrt(3) * (size - 1) * voxel
-            centre = origin + (tiles * size + 0.5 * (size - 1)) * voxel
-            # Below the coarsest level, a parent's nearest sample bounds its eight children's.
-            dist, idx = tree.nearest(centre, reach + half) if seed is None else \
-                _in_tiles(pool, threads, tree, centre, seed, reach + half)
-            d_c = np.full(len(centre), np.inf)
-            found = idx >= 0
-            d_c[found] = _signed(centre[found] - pts[idx[found]], normals[idx[found]], dist[found], 0.6 * h)[0]
-            near = half + voxel
-            inside = (d_c > near - inner_lo) & (d_c < t_lo - near)
-            if edges is not None:  # the centre's plane may not hold past a sharp edge: no solid tile
-                inside[found] &= edges.row[idx[found]] < 0
-            keep = (d_c > -(inner + near)) & (d_c < t_hi + near) & ~inside
-            if inside.any():
-                n_sub = size // _TILE
-                sub = np.stack(np.meshgrid(*[np.arange(n_sub)] * 3, indexing="ij"), axis=-1).reshape(-1, 3)
-                solid.append((tiles[inside][:, None, :] * n_sub + sub[None]).reshape(-1, 3))
-            tiles, t_lo, t_hi = tiles[keep], t_lo[keep], t_hi[keep]
-            if size == _TILE:
-                near_sample = idx[keep]
-                # A tile's samples share its centre's nearest surface sample where no crease or
-                # change of kind comes near enough to give any of them another (their nearest
-                # lies within dist + 2 half of the centre).
-                shared = found[keep].copy()
-                if features is not None and shared.any():
-                    bound = dist[keep][shared] + 2.0 * half + h
-                    d_f, _ = nearest(features, centre[keep][shared], bound.max())
-                    shared[shared] = d_f > bound
-                # Shared dry tiles share the rim segment nearest to their centre too.
-                rim_seg = None
-                dry = shared & (kind[np.maximum(near_sample, 0)] == 0)
-                if rim is not None and dry.any():
-                    rim_seg = np.full(len(tiles), -1)
-                    c, j = centre[keep][dry], near_sample[dry]
-                    foot = c - np.einsum("kd,kd->k", c - pts[j], normals[j])[:, None] * normals[j]
-                    rim_seg[dry] = rim.query(foot, edge + 2.0 * half)
-                break
-            size //= 2
-            seed = idx[keep]
-            tiles = (2 * tiles[:, None, :] + children[None]).reshape(-1, 3)
-            t_lo, t_hi = np.repeat(t_lo, 8), np.repeat(t_hi, 8)
-        npoints = len(tiles) * _TILE**3
-        if npoints > MAX_BAND_POINTS or npoints * 4 > _MAX_FIELD_BYTES:
-            raise InputError(
-                f"{name} = {voxel:g} m is too fine for this much glaze ({npoints} lattice samples "
-                f"near the coat, at most {MAX_BAND_POINTS}); raise {name}")
-        o = np.arange(_TILE)
-        local = np.stack(np.meshgrid(o, o, o, indexing="ij"), axis=-1).reshape(-1, 3)
-        values = np.empty(npoints, dtype=np.float32)
-        per = _TILE**3
-        segs = rim_seg if rim_seg is not None else np.full(len(tiles), -1, dtype=np.int64)
-        args = (pts, normals, np.asarray(kind, dtype=np.int64), thick.value, thick.slope, thick.low, thick.high,
-                np.asarray(depth, dtype=np.float64), tree.arrays(), *_edge_args(edges), *_rim_args(rim, edge),
-                *walls.result())
+    return tiles, t_lo, t_hi
 
-        def evaluate(lo: int, hi: int) -> None:
-            p = origin + (tiles[lo:hi, None, :] * _TILE + local[None]).reshape(-1, 3) * voxel
-            # Where the surface is flat around a tile, its samples share the centre's nearest
-            # surface sample (the same plane: the same distance); elsewhere each finds its own.
-            a, b = lo * per, hi * per
-            phi = band_phi(p, per, near_sample[lo:hi], shared[lo:hi], segs[lo:hi], reach, 0.6 * h,
-                           0.6 * h + half, TAPER_END * voxel, *args)
-            values[a:b] = _encode(phi, voxel)
 
-        chunk = max(1, min(_CHUNK_POINTS // per, -(-len(tiles) // threads)))
-        list(pool.map(lambda lo: evaluate(lo, min(lo + chunk, len(tiles))), range(0, len(tiles), chunk)))
-    if solid:  # more than a voxel inside: any value above the level marches the same
-        solid = np.concatenate(solid)
-        tiles = np.concatenate([tiles, solid])
-        values = np.r_[values, np.full(len(solid) * _TILE**3, _encode(np.array([voxel]), voxel)[0])]
+def _refine(pool, threads, tree, samples: BandSamples, lattice: BandLattice, origin, coarse, rim, features) -> _Tiles:
+    """Level by level from the ``coarse`` tiles (`_coarse_tiles`) down to ``_TILE``, tiles
+    are dropped where their centre says none of their samples is within a voxel of the
+    coat, kept whole where it says all are more than a voxel inside it, and split in eight
+    otherwise."""
+    voxel, reach, h = lattice.voxel, lattice.reach, lattice.spacing
+    pts, normals, edges = samples.points, samples.normals, samples.edges
+    inner, inner_lo = float(samples.depth.max()), float(samples.depth.min())
+    tiles, t_lo, t_hi = coarse
+    size = _TILE * 2 ** _LEVELS
+    children = np.stack(np.meshgrid(*[np.arange(2)] * 3, indexing="ij"), axis=-1).reshape(-1, 3)
+    solid = []
+    seed = None
+    while True:
+        half = 0.5 * math.sqrt(3) * (size - 1) * voxel
+        centre = origin + (tiles * size + 0.5 * (size - 1)) * voxel
+        # Below the coarsest level, a parent's nearest sample bounds its eight children's.
+        dist, idx = tree.nearest(centre, reach + half) if seed is None else \
+            _in_tiles(pool, threads, tree, centre, seed, reach + half)
+        d_c = np.full(len(centre), np.inf)
+        found = idx >= 0
+        d_c[found] = _signed(centre[found] - pts[idx[found]], normals[idx[found]], dist[found], 0.6 * h)[0]
+        near = half + voxel
+        inside = (d_c > near - inner_lo) & (d_c < t_lo - near)
+        if edges is not None:  # the centre's plane may not hold past a sharp edge: no solid tile
+            inside[found] &= edges.row[idx[found]] < 0
+        keep = (d_c > -(inner + near)) & (d_c < t_hi + near) & ~inside
+        if inside.any():
+            n_sub = size // _TILE
+            sub = np.stack(np.meshgrid(*[np.arange(n_sub)] * 3, indexing="ij"), axis=-1).reshape(-1, 3)
+            solid.append((tiles[inside][:, None, :] * n_sub + sub[None]).reshape(-1, 3))
+        tiles, t_lo, t_hi = tiles[keep], t_lo[keep], t_hi[keep]
+        if size == _TILE:
+            break
+        size //= 2
+        seed = idx[keep]
+        tiles = (2 * tiles[:, None, :] + children[None]).reshape(-1, 3)
+        t_lo, t_hi = np.repeat(t_lo, 8), np.repeat(t_hi, 8)
+    shared, seg = _share(samples, lattice, centre[keep], dist[keep], idx[keep], rim, features)
+    return _Tiles(tiles, idx[keep], shared, seg,
+                  np.concatenate(solid) if solid else np.zeros((0, 3), dtype=tiles.dtype))
+
+
+def _share(samples: BandSamples, lattice: BandLattice, centre, dist, idx, rim, features):
+    """Which of the finest tiles (``centre`` (m, 3), its nearest surface sample ``idx``
+    (-1: none) at ``dist``, meters) share that sample, and the rim segment that shared dry
+    tiles share (-1: none)."""
+    half = 0.5 * math.sqrt(3) * (_TILE - 1) * lattice.voxel
+    h = lattice.spacing
+    # A tile's samples share its centre's nearest surface sample where no crease or change
+    # of kind comes near enough to give any of them another (their nearest lies within
+    # dist + 2 half of the centre).
+    shared = idx >= 0
+    if features is not None and shared.any():
+        bound = dist[shared] + 2.0 * half + h
+        d_f, _ = nearest(features, centre[shared], bound.max())
+        shared[shared] = d_f > bound
+    # Shared dry tiles share the rim segment nearest to their centre too.
+    seg = np.full(len(centre), -1, dtype=np.int64)
+    dry = shared & (samples.kind[np.maximum(idx, 0)] == 0)
+    if rim is not None and dry.any():
+        pts, normals = samples.points, samples.normals
+        c, j = centre[dry], idx[dry]
+        foot = c - np.einsum("kd,kd->k", c - pts[j], normals[j])[:, None] * normals[j]
+        seg[dry] = rim.query(foot, lattice.edge + 2.0 * half)
+    return shared, seg
+
+
+def _evaluate(pool, threads, band: _Tiles, lattice: BandLattice, origin, args) -> np.ndarray:
+    """The field's values (float32, ``_TILE^3`` per tile in tile order) of ``band``'s tiles:
+    `band_phi` with the surface's ``args``, in chunks on ``pool``."""
+    voxel, h, tiles = lattice.voxel, lattice.spacing, band.tiles
+    half = 0.5 * math.sqrt(3) * (_TILE - 1) * voxel
+    o = np.arange(_TILE)
+    local = np.stack(np.meshgrid(o, o, o, indexing="ij"), axis=-1).reshape(-1, 3)
+    per = _TILE**3
+    values = np.empty(len(tiles) * per, dtype=np.float32)
+
+    def evaluate(lo: int, hi: int) -> None:
+        p = origin + (tiles[lo:hi, None, :] * _TILE + local[None]).reshape(-1, 3) * voxel
+        # Where the surface is flat around a tile, its samples share the centre's nearest
+        # surface sample (the same plane: the same distance); elsewhere each finds its own.
+        phi = band_phi(p, per, band.nearest[lo:hi], band.shared[lo:hi], band.seg[lo:hi], lattice.reach, 0.6 * h,
+                       0.6 * h + half, TAPER_END * voxel, *args)
+        values[lo * per:hi * per] = _encode(phi, voxel)
+
+    chunk = max(1, min(_CHUNK_POINTS // per, -(-len(tiles) // threads)))
+    list(pool.map(lambda lo: evaluate(lo, min(lo + chunk, len(tiles))), range(0, len(tiles), chunk)))
+    return values
+
+
+def _pack(band: _Tiles, values: np.ndarray, origin: np.ndarray, lattice: BandLattice) -> Field | None:
+    """The tiles' ``values`` (`_evaluate`) and the solid tiles as a `Field` (None: no tiles)."""
+    voxel, tiles = lattice.voxel, band.tiles
+    if len(band.solid):  # more than a voxel inside: any value above the level marches the same
+        tiles = np.concatenate([tiles, band.solid])
+        values = np.r_[values, np.full(len(band.solid) * _TILE**3, _encode(np.array([voxel]), voxel)[0])]
     if len(tiles) == 0:
         return None
     # Tiles into blocks (block_keys order); absent tiles of a block stay 0 (outside).
@@ -211,12 +355,14 @@ def sample_band(pts, normals, thick: Thickness, kind, depth, rim, features, sole
     ukeys, first, inverse = np.unique(keys, return_index=True, return_inverse=True)
     if len(ukeys) * BLOCK**3 * 4 > _MAX_FIELD_BYTES:
         raise InputError(
-            f"{name} = {voxel:g} m is too fine for this much glaze: its field needs "
-            f"{len(ukeys) * BLOCK**3 * 4 / 2**30:.1f} GiB (at most {_MAX_FIELD_BYTES / 2**30:.0f}); raise {name}")
+            f"{lattice.name} = {voxel:g} m is too fine for this much glaze: its field needs "
+            f"{len(ukeys) * BLOCK**3 * 4 / 2**30:.1f} GiB (at most {_MAX_FIELD_BYTES / 2**30:.0f}); "
+            f"raise {lattice.name}")
     blocks = bc[first]
     out = np.zeros((len(ukeys), BLOCK, BLOCK, BLOCK), dtype=np.float32)
     t_in = tiles - bc * per
     vals = values.reshape(len(tiles), _TILE, _TILE, _TILE)
+    o = np.arange(_TILE)
     ix = t_in[:, 0, None] * _TILE + o[None, :]
     iy = t_in[:, 1, None] * _TILE + o[None, :]
     iz = t_in[:, 2, None] * _TILE + o[None, :]
