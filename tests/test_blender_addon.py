@@ -1,5 +1,5 @@
-"""The Blender add-on (icefarm/dcc/blender_addon.py) in the real Blender 5.0 (``bpy`` in
-.venv-blender), each test a Blender process running icefarm as the add-on does.
+"""The Blender add-on (the package icefarm/dcc/blender_addon/) in the real Blender 5.0 (``bpy``
+in .venv-blender), each test a Blender process running icefarm as the add-on does.
 
 What runs for real: installing and enabling the add-on, the export to GLB, the ``icefarm
 run`` command line it builds, the job in its own process, reading its progress lines, the
@@ -23,7 +23,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 BLENDER_PYTHON = ROOT / ".venv-blender" / "bin" / "python"
-ADDON = ROOT / "icefarm" / "dcc" / "blender_addon.py"
+ADDON = ROOT / "icefarm" / "dcc" / "blender_addon"  # the package's folder
 ICEFARM = Path(sys.executable).parent / "icefarm"
 BUNNY = ROOT.parent / "shared" / "meshes" / "stanford-bunny.obj"
 # Jobs in seconds: few icicles, a coarse ice lattice
@@ -45,8 +45,9 @@ BLENDER = textwrap.dedent('''
     OUT = {}
 
     def load_addon():
-        """The add-on from its file, registered, as Blender's add-on folder would load it."""
-        spec = importlib.util.spec_from_file_location("blender_addon", ARGS["addon"])
+        """The add-on package from its folder, registered, as Blender's add-on folder would load it."""
+        spec = importlib.util.spec_from_file_location("blender_addon", os.path.join(ARGS["addon"], "__init__.py"),
+                                                      submodule_search_locations=[ARGS["addon"]])
         addon = sys.modules[spec.name] = importlib.util.module_from_spec(spec)
         spec.loader.exec_module(addon)
         addon.register()
@@ -91,7 +92,7 @@ BLENDER = textwrap.dedent('''
         """A stand-in for the running modal operator: ``modal`` and ``_stop`` as the class
         has them, with a timer and the reports collected."""
         def __init__(self, addon):
-            cls = addon.ICEFARM_OT_grow
+            cls = addon.ui.ICEFARM_OT_grow
             self.modal = lambda context, event: cls.modal(self, context, event)
             self._stop = lambda context, grow: cls._stop(self, context, grow)
             self._finish = lambda grow: cls._finish(self, grow)
@@ -103,17 +104,18 @@ BLENDER = textwrap.dedent('''
     def start_modal(addon, objects):
         """What invoke does, less its modal handler: the Grow, the panel's state."""
         select(*objects)
-        grow = addon.ICEFARM_OT_grow._start(None, bpy.context)  # icefarm from ICEFARM, the panel's settings
-        addon._ACTIVE.append(grow)
+        grow = addon.ui.ICEFARM_OT_grow._start(None, bpy.context)  # icefarm from ICEFARM, the panel's settings
+        addon.ui._ACTIVE.append(grow)
         state = bpy.context.window_manager.icefarm
         state.running, state.cancel = True, False
         return grow, Operator(addon)
 
     def install(path, module):
-        """The add-on installed from ``path`` (a .py or a zip) and enabled, as Install from Disk does."""
+        """The add-on installed from ``path`` (its zip) and enabled, as Install from Disk does."""
         bpy.ops.preferences.addon_install(filepath=path, overwrite=True)
         bpy.ops.preferences.addon_enable(module=module)
         OUT["installed_in"] = sys.modules[module].__file__
+        OUT["submodules"] = {name: sys.modules[name].__file__ for name in sys.modules if name.startswith(module + ".")}
         return sys.modules[module]
 
     def mode_install_and_grow():
@@ -137,6 +139,10 @@ BLENDER = textwrap.dedent('''
 
     def mode_bunny_modal_and_cancel():
         addon = load_addon()
+        path = os.environ["PATH"]
+        os.environ["PATH"] = ""  # no ICEFARM, no icefarm on the PATH: the .venv beside the repository
+        OUT["found_without_path"] = addon.command.find_executable()
+        os.environ["PATH"] = path
         bpy.ops.wm.read_factory_settings(use_empty=True)
         scene = bpy.context.scene
         bpy.ops.wm.obj_import(filepath=ARGS["bunny"])  # Y up to Blender's Z up
@@ -149,9 +155,9 @@ BLENDER = textwrap.dedent('''
         select(bunny)
         scene.icefarm.settings, scene.icefarm.seed = ARGS["fast"], 5
         os.environ["ICEFARM"] = ARGS["icefarm"]
-        options = addon.JobOptions(intensity="severe", kind="meltwater", seed=1, placement="hanging",
+        options = addon.command.JobOptions(intensity="severe", kind="meltwater", seed=1, placement="hanging",
                                    render="lookdev")
-        OUT["render_command"] = addon.job_command("icefarm", "in.glb", "out", 2.5, options)
+        OUT["render_command"] = addon.command.job_command("icefarm", "in.glb", "out", 2.5, options)
         grow, op = start_modal(addon, [bunny])
         job = grow.jobs[0]
         OUT["command"], OUT["size_m"] = job.command, job.size_m
@@ -200,7 +206,7 @@ BLENDER = textwrap.dedent('''
             OUT["group_left"] = False
         OUT["returncode"] = process.process.returncode
         OUT["before"], OUT["after"] = before, contents()
-        OUT["active"] = len(addon._ACTIVE)
+        OUT["active"] = len(addon.ui._ACTIVE)
 
     class Layout:
         """Records what a panel draws; ``prop`` checks its property exists."""
@@ -227,17 +233,17 @@ BLENDER = textwrap.dedent('''
 
     def mode_bad_input():
         bpy.ops.wm.read_factory_settings(use_empty=True)
-        addon = install(ARGS["addon"], "blender_addon")
+        addon = install(ARGS["zip"], "icefarm_blender")
         scene = bpy.context.scene
         bpy.ops.mesh.primitive_cube_add(size=1.0)
         cube = bpy.context.active_object
-        OUT["panel"] = draw(addon, addon.ICEFARM_PT_grow)
+        OUT["panel"] = draw(addon, addon.ui.ICEFARM_PT_grow)
         bpy.context.window_manager.icefarm.running, bpy.context.window_manager.icefarm.progress = True, 0.25
         bpy.context.window_manager.icefarm.status = "Cube (1/1): surface"
-        OUT["panel_running"] = draw(addon, addon.ICEFARM_PT_grow)
+        OUT["panel_running"] = draw(addon, addon.ui.ICEFARM_PT_grow)
         bpy.context.window_manager.icefarm.running = False
         os.environ["ICEFARM"] = ARGS["icefarm"]
-        OUT["preferences"] = draw(addon, addon.IcefarmPreferences, owner="")
+        OUT["preferences"] = draw(addon, addon.ui.IcefarmPreferences, owner="")
         bpy.ops.object.camera_add()
         camera = bpy.context.active_object
         points = bpy.data.meshes.new("points")
@@ -286,8 +292,10 @@ def test_the_addon_installs_and_grows_glass_ice_on_a_cube_in_a_centimetre_scene(
     addon_zip = write_blender_addon(tmp_path / "dist" / "icefarm_blender.zip")
     out, stdout = run_blender(tmp_path, "install_and_grow", zip=str(addon_zip))
     assert out["result"] == ["FINISHED"]
-    assert out["installed_in"] == str(tmp_path / "blender-user" / "scripts" / "addons" / "icefarm_blender"
-                                      / "__init__.py")
+    installed = tmp_path / "blender-user" / "scripts" / "addons" / "icefarm_blender"
+    assert out["installed_in"] == str(installed / "__init__.py")
+    assert out["submodules"] == {f"icefarm_blender.{name}": str(installed / f"{name}.py")
+                                 for name in ("command", "grow", "process", "scene", "ui")}
     ice = out["ice"]
     assert ice["name"] == "Cube ice" and ice["parent"] == "Cube" and ice["parent_inverse_identity"]
     assert ice["transmission"] == 1.0 and ice["ior"] == pytest.approx(1.31) and ice["material"] == "icefarm ice"
@@ -312,11 +320,15 @@ def test_the_modal_operator_grows_icicles_on_a_bunny_and_cancel_stops_icefarm(tm
     """The modal operator's step, driven by TIMER events, runs the job with the settings the
     panel holds (icefarm found through ICEFARM), shows its progress, and brings the icicles
     back onto the bunny, moved meanwhile; its Cancel button stops a running job, process and children, and
-    nothing of it comes back."""
+    nothing of it comes back. The add-on is the package loaded from the repository's folder
+    here: with no ICEFARM and nothing on the PATH it finds the repository's .venv."""
     wrapper = tmp_path / "icefarm-from-env"  # named by ICEFARM: the command runs it, not the venv's
     wrapper.write_text(f'#!/bin/sh\nexec "{ICEFARM}" "$@"\n')
     wrapper.chmod(0o755)
     out, _ = run_blender(tmp_path, "bunny_modal_and_cancel", timeout=150, bunny=str(BUNNY), icefarm=str(wrapper))
+    venv = ROOT / ".venv" / "bin" / "icefarm"
+    if venv.is_file():  # the add-on loaded from the repository finds the .venv beside it
+        assert out["found_without_path"] == str(venv)
     command = out["command"]
     assert command[:2] == [str(wrapper), "run"] and command[command.index("-o") + 1].startswith(str(tmp_path))
     assert float(command[command.index("--size-m") + 1]) == pytest.approx(0.3, rel=1e-4)
@@ -351,12 +363,15 @@ def test_the_modal_operator_grows_icicles_on_a_bunny_and_cancel_stops_icefarm(tm
 def test_bad_input_reports_one_error_and_makes_nothing(tmp_path):
     """Nothing selected, a camera, a mesh with no faces, an icefarm that fails, one that is
     not there, and icefarm refusing a setting: one ERROR line each, nothing added to the
-    file, no temporary folder left. The add-on is installed from its .py file here."""
+    file, no temporary folder left. The add-on is installed from its zip here too."""
+    from icefarm.dcc.addon_zip import write_blender_addon
+
     failing = tmp_path / "failing-icefarm"
     failing.write_text("#!/bin/sh\necho 'prepare ...'\necho 'warning: a warning first' >&2\n"
                        "echo 'error: the storm blew the mesh away' >&2\nexit 1\n")
     failing.chmod(0o755)
-    out, _ = run_blender(tmp_path, "bad_input", failing=str(failing), missing=str(tmp_path / "no-icefarm"))
+    out, _ = run_blender(tmp_path, "bad_input", failing=str(failing), missing=str(tmp_path / "no-icefarm"),
+                         zip=str(write_blender_addon(tmp_path / "dist" / "icefarm_blender.zip")))
     assert Path(out["installed_in"]).is_relative_to(tmp_path / "blender-user")
     expected = {"nothing selected": "select one or more mesh objects",
                 "a camera": "Camera is a camera, not a mesh",

@@ -280,6 +280,9 @@ def test_dcc_blender_addon_writes_the_zip_blender_installs(tmp_path):
     result = run("dcc", "blender-addon", "-o", tmp_path / "addons" / "icefarm.zip")
     assert result.exit_code == 0, result.output
     with zipfile.ZipFile(tmp_path / "addons" / "icefarm.zip") as archive:
-        assert archive.namelist() == ["icefarm_blender/__init__.py"]
+        names = archive.namelist()
         source = archive.read("icefarm_blender/__init__.py").decode()
+    # the package's top folder renamed icefarm_blender, every module of it, nothing else
+    assert names == ["icefarm_blender/__init__.py", "icefarm_blender/command.py", "icefarm_blender/grow.py",
+                     "icefarm_blender/process.py", "icefarm_blender/scene.py", "icefarm_blender/ui.py"]
     assert "bl_info" in source and "def register" in source
