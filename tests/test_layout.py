@@ -241,3 +241,55 @@ def test_each_package_face_lists_the_names_the_rest_of_icefarm_imports_from_it()
         assert all(getattr(module, name) is not None for name in module.__all__), package
         missing = imported_from(PACKAGE_DIR, package) - set(module.__all__)
         assert not missing, f"icefarm.{package}.__all__ lacks {sorted(missing)}"
+
+
+# ------------------------------------------------------------------ the shape of the code
+MAX_PARAMS = 7
+MAX_BODY_LINES = 80
+MAX_MODULE_LINES = 500
+# What still exceeds the limits, each with why: the list may only shrink.
+SHAPE_EXCEPTIONS = {
+    # numba-compiled kernel: its arguments are the arrays it reads, no record crosses njit
+    "icefarm/stages/surface/coat_kernel.py:band_phi": "compiled kernel",
+    # a renderer's sample, split by phase comments as Mitsuba's integrators are
+    "icefarm/scene/icepath.py:sample": "renderer's sample",
+    # the Python API's keyword arguments are `icefarm run`'s options, as a click command's are
+    "icefarm/api.py:grow": "the API's options",
+    "icefarm/job/spec.py:job_spec": "the API's options",
+}
+
+
+def _shapes(package_dir: Path):
+    """``(module lines, {path:function: (parameters, body lines)})`` of the package's code;
+    parameters count a public function's own (not ``self``), click commands left out."""
+    modules, functions = {}, {}
+    for path in sorted(package_dir.rglob("*.py")):
+        name = str(path.relative_to(package_dir.parent))
+        modules[name] = len(path.read_text().splitlines())
+        for node in ast.walk(source_tree(path)):
+            if not isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                continue
+            a = node.args
+            count = len(a.posonlyargs) + len(a.args) + len(a.kwonlyargs)
+            count -= bool(a.args and a.args[0].arg in ("self", "cls"))
+            body = node.body
+            if body and isinstance(body[0], ast.Expr) and isinstance(body[0].value, ast.Constant):
+                body = body[1:]  # the docstring
+            lines = node.end_lineno - body[0].lineno + 1 if body else 0
+            click = any("command" in ast.unparse(d) or "option" in ast.unparse(d) for d in node.decorator_list)
+            public = not node.name.startswith("_") and not click
+            functions[f"{name}:{node.name}"] = (count if public else 0, lines)
+    return modules, functions
+
+
+def test_functions_take_few_parameters_and_stay_short_and_modules_hold_one_topic():
+    modules, functions = _shapes(PACKAGE_DIR)
+    assert len(functions) > 500  # the package was read
+    many = [f"{k} takes {n}" for k, (n, _) in functions.items() if n > MAX_PARAMS and k not in SHAPE_EXCEPTIONS]
+    long = [f"{k} runs {n} lines" for k, (_, n) in functions.items()
+            if n > MAX_BODY_LINES and k not in SHAPE_EXCEPTIONS]
+    big = [f"{k} has {n} lines" for k, n in modules.items() if n > MAX_MODULE_LINES and k not in SHAPE_EXCEPTIONS]
+    assert not (many or long or big), "\n".join(many + long + big)
+    stale = [k for k in SHAPE_EXCEPTIONS if k.split(":")[0] not in modules
+             or (":" in k and k not in functions)]
+    assert not stale, f"exceptions for code that is gone: {stale}"

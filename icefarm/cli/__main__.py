@@ -1,0 +1,5 @@
+"""``python -m icefarm.cli``: the ``icefarm`` command."""
+
+from .main import main
+
+main()
