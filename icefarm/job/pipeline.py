@@ -151,12 +151,12 @@ class _Run:
     progress: bool = False
     steps: StepProgress = field(default_factory=lambda: step_progress(ProgressMode.OFF))
 
-    def timed(self, stage: str, work: Callable[[], Any]) -> Any:
+    def timed(self, stage: str, work: Callable[[], Any], own_bars: bool = False) -> Any:
+        """Run and time step ``stage``; ``own_bars``: the work draws its own progress bars
+        (the render's samples, the growth frames), so no step line is drawn over them."""
         self.stage = stage
         start = time.perf_counter()
-        # the render and the growth frames draw their own bars on a terminal
-        own_bar = self.progress and stage in ("render", "growth")
-        with (contextlib.nullcontext() if own_bar else self.steps.step(stage)):
+        with (contextlib.nullcontext() if own_bars and self.progress else self.steps.step(stage)):
             value = work()
         self.seconds[stage] = round(time.perf_counter() - start, 6)
         # What fails before the next step starts (glue, imports, a config read) is not this
@@ -322,7 +322,7 @@ def _run_stages(spec: JobSpec, job_dir: Path, run: _Run, cache: StageCache, unti
         except InputError as exc:  # an asset icefarm reads but USD cannot open: the job stands
             stats["ice_layer_skipped"] = str(exc)
     if p.growth.frames and until is None:  # growth/: stages 1-3 as they are, stage 4 per frame
-        stats.update(run.timed("growth", lambda: _growth(spec, job_dir, run, inputs, r)))
+        stats.update(run.timed("growth", lambda: _growth(spec, job_dir, run, inputs, r), own_bars=True))
     return stats
 
 

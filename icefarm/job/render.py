@@ -16,7 +16,7 @@ import trimesh
 
 from ..placement import ground_height
 
-Timed = Callable[[str, Callable[[], Any]], Any]  # timed(step, work): runs and times one step
+Timed = Callable[..., Any]  # timed(step, work, own_bars=False): runs and times one step
 
 
 def return_freed_memory() -> None:
@@ -50,7 +50,7 @@ def render_step(spec, job_dir: Path, obj: trimesh.Trimesh, ice_mesh: trimesh.Tri
     icicle_axes : (p, 3) float or None
         The trajectories' points, which frame the ice view.
     timed : callable
-        ``timed(step, work)``: the job's timer (the steps ``render`` and ``usd``).
+        ``timed(step, work, own_bars=False)``: the job's timer (the steps ``render`` and ``usd``).
     progress : bool
         Bars over the render's samples.
     """
@@ -69,7 +69,7 @@ def render_step(spec, job_dir: Path, obj: trimesh.Trimesh, ice_mesh: trimesh.Tri
     material = scene.material
     # POV-Ray files written meanwhile
     return_freed_memory()
-    result = timed("render", lambda: render_job(job_dir, config, scene, progress=progress))
+    result = timed("render", lambda: render_job(job_dir, config, scene, progress=progress), own_bars=True)
     stats: dict[str, Any] = {}
     if result.scene.ground_height is not None:  # 0 for a grounded object; a hanging one floats
         gap = (ground_height(obj.vertices, gravity) - result.scene.ground_height) * 1000
