@@ -258,13 +258,15 @@ PARAMS: tuple[Param, ...] = (
        "edge of a marching-cubes voxel; must resolve the tip radius", low=0.0, low_open=True),
     _p("surface", "face_budget", "-", "faces", _I, 3_000_000,
        "storm.mode physical: the ice mesh holds about this many faces at most (for lookdev's 480x360 "
-       "view: a smaller render config, preview, scales it by its share of the pixels); past it the "
+       "view and its ice view; a render config that shows less scales it down: preview, 320x240 of "
+       "the whole object, to 7 %); past it the "
        "marching-cubes voxels of the icicles (never past the tip radius) and of the glaze coat "
        "grow (a 3 m house's icicles at 1 mm were 27 M faces); 0: off. The relative mode keeps "
        "the voxel sizes (Table 2's polygon counts)", low=0),
     _p("surface", "error_px", "-", "px", _F, 0.15,
        "storm.mode physical: how far the icicles' mesh may lie off their exact surface, in pixels of "
-       "a 480-pixel view framing the object (or of the render config's view, where smaller); "
+       "a 480-pixel view framing the object (preview: 2.5 times more, as large as lookdev's ice view "
+       "shows it); "
        "where that allows and one lattice would not hold "
        "surface.face_budget, their thick parts are meshed on a lattice 3 times coarser than their "
        "tips, without ripples (a 3 m house: 7.8 M faces to under 3 M); 0: one lattice", low=0.0),

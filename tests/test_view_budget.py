@@ -8,19 +8,27 @@ from icefarm import params
 from icefarm.export import meshed_coarser
 from icefarm.job.pipeline import JobSpec, Stage, run_job
 from icefarm.scene.config import load_render_config
-from icefarm.stages.surface.detail import VIEW_PX, VIEW_PX_HIGH, view_surface
+from icefarm.scene.focus import MIN_ZOOM
+from icefarm.stages.surface.detail import ICE_ZOOM, VIEW_PX, VIEW_PX_HIGH, meshing_view, view_surface
 
 
-def test_a_smaller_view_scales_the_budgets_and_lookdev_keeps_them():
+def test_a_view_showing_less_than_lookdev_scales_the_budgets_and_lookdev_keeps_them():
     s = params.resolve({}).surface
-    small = view_surface(s, (320, 240))
-    assert small.face_budget == round(s.face_budget * 320 * 240 / (VIEW_PX * VIEW_PX_HIGH))
-    assert small.error_px == pytest.approx(s.error_px * VIEW_PX / 320)  # the same pixels, of the smaller view
-    # lookdev, a larger view, a close-up on the ice and no render keep the budgets as set
-    for resolution, close_up in (((480, 360), False), ((1920, 1080), False), ((320, 240), True), (None, False)):
-        assert view_surface(s, resolution, close_up) is s
+    # preview: 320 x 240, the whole object only (an ice view zooms ICE_ZOOM times or more)
+    share = 320 * 240 / (VIEW_PX * VIEW_PX_HIGH) / ICE_ZOOM ** 2
+    small = view_surface(s, meshing_view((320, 240)))
+    assert small.face_budget == round(s.face_budget * share)
+    assert small.error_px == pytest.approx(s.error_px / share ** 0.5)
+    # the same size with an ice view shows the mesh ICE_ZOOM times larger
+    close = view_surface(s, meshing_view((320, 240), ice_view=True))
+    assert close.face_budget == round(s.face_budget * 320 * 240 / (VIEW_PX * VIEW_PX_HIGH))
+    # lookdev, larger views (final's full HD, no ice view) and no render keep the budgets as set
+    for resolution, ice_view in (((480, 360), True), ((1920, 1080), False), ((1920, 1080), True), (None, False)):
+        assert view_surface(s, meshing_view(resolution, ice_view)) is s
+    assert ICE_ZOOM == MIN_ZOOM  # the scene's ice views zoom at least that much
     off = params.resolve({"surface.face_budget": 0, "surface.error_px": 0}).surface
-    assert view_surface(off, (320, 240)).face_budget == 0 and view_surface(off, (320, 240)).error_px == 0
+    off_small = view_surface(off, meshing_view((320, 240)))
+    assert off_small.face_budget == 0 and off_small.error_px == 0
 
 
 def test_a_preview_job_meshes_fewer_faces_records_its_view_and_lookdev_says_so(tmp_path, ball, sweep_kit):
@@ -34,7 +42,9 @@ def test_a_preview_job_meshes_fewer_faces_records_its_view_and_lookdev_says_so(t
         assert outcome.status == "done", outcome.error
         t = json.loads((tmp_path / name / "timings.json").read_text())
         faces[name], views[name] = t["ice_faces"], t["mesh_view_px"]
-        assert t["mesh_error_px"] == pytest.approx(p.surface.error_px)  # in the pixels of its own view
+        assert t["mesh_ice_view"] is (name == "none")  # no render: lookdev's, ice view included
+        # in the pixels of its own view: a preview shows it as large as lookdev's ice view does
+        assert t["mesh_error_px"] == pytest.approx(p.surface.error_px * (ICE_ZOOM if name == "preview" else 1))
         # params.yaml keeps the budget as set, whatever the view
         assert f"face_budget: {p.surface.face_budget}" in (tmp_path / name / "params.yaml").read_text()
     assert views == {"preview": [320, 240], "none": [VIEW_PX, VIEW_PX_HIGH]}

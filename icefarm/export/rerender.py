@@ -49,14 +49,18 @@ def meshed_coarser(job_dir: Path, config) -> str | None:
     mesh holds up (or it recorded no view)."""
     from ..stages.surface import meshing_view
 
-    meshed = read_job(job_dir).stats.get("mesh_view_px")
-    if not meshed:
+    stats = read_job(job_dir).stats
+    meshed_px = stats.get("mesh_view_px")
+    if not meshed_px:
         return None
+    meshed = meshing_view(meshed_px, stats.get("mesh_ice_view", True))
     needed = meshing_view(config.resolution, any(v.frame == "ice" for v in config.views))
-    if needed[0] * needed[1] <= meshed[0] * meshed[1]:
+    if needed.share <= meshed.share:
         return None
-    return (f"this job's ice was meshed for a {meshed[0]}x{meshed[1]} view (its render config); "
-            f"{config.name} shows it as in a {needed[0]}x{needed[1]} one: facets and beaded tips may show. "
+    meshed_as = f"{meshed.width}x{meshed.height}" + ("" if meshed.ice_view else " whole-object")
+    needed_as = f"{needed.width}x{needed.height}" + (" with an ice view" if needed.ice_view else "")
+    return (f"this job's ice was meshed for a {meshed_as} view (its render config); "
+            f"{config.name} shows it in a {needed_as} one: facets and beaded tips may show. "
             f"For the full detail, run the job again with --render {config.name} (icefarm run; in a sweep, "
             f"render: {config.name} in the manifest; with its --cache, stages 1-3 are reused)")
 

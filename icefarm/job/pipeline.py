@@ -265,22 +265,22 @@ def _finished(spec: JobSpec, job_dir: Path, stats: JobStats) -> JobOutcome:
 
 def meshing_params(spec: JobSpec) -> tuple[Params, dict]:
     """The parameters stage 4 meshes with, for how the job will be seen, and the figures
-    that record it: a render config smaller than lookdev's scales ``surface.face_budget``
-    and ``surface.error_px`` to its view (`icefarm.stages.surface.detail.view_surface`); a
-    job without a render meshes for lookdev. ``params.yaml`` keeps the values as set."""
+    that record it: a render config that shows less than lookdev's (smaller, or without an
+    ice view) scales ``surface.face_budget`` and ``surface.error_px`` to its view
+    (`icefarm.stages.surface.detail.view_surface`); a job without a render meshes for lookdev. ``params.yaml`` keeps the values as set."""
     from ..stages.surface import VIEW_PX, meshing_view, view_surface
 
     p = spec.params
-    resolution, close_up = None, False
+    view = meshing_view(None)
     if spec.render is not None:
         from ..scene.config import load_render_config
 
         config = load_render_config(spec.render)
-        resolution, close_up = config.resolution, any(v.frame == "ice" for v in config.views)
-    surface = view_surface(p.surface, resolution, close_up)
-    view = meshing_view(resolution, close_up)
-    stats = {"mesh_view_px": list(view), "mesh_face_budget": surface.face_budget,
-             "mesh_error_px": round(surface.error_px * view[0] / VIEW_PX, 6)}
+        view = meshing_view(config.resolution, any(v.frame == "ice" for v in config.views))
+    surface = view_surface(p.surface, view)
+    stats = {"mesh_view_px": [view.width, view.height], "mesh_ice_view": view.ice_view,
+             "mesh_face_budget": surface.face_budget,
+             "mesh_error_px": round(surface.error_px * view.width / VIEW_PX, 6)}
     return replace(p, surface=surface), stats
 
 

@@ -10,10 +10,11 @@ h therefore stays within ``h / 8`` of its exact surface. So the icicles' balls a
 where they overlap.
 
 The budget is a distance on screen: ``surface.error_px``, in pixels of a view `VIEW_PX`
-pixels wide framing the object's bounding box. A job rendered smaller than lookdev's
-`VIEW_PX` x `VIEW_PX_HIGH` (a preview) counts it in pixels of its own view and its
-``surface.face_budget`` by its share of lookdev's pixels (`view_surface`): faces on screen
-per pixel stay what lookdev meshes. The coarse lattice is used only where
+pixels wide framing the object's bounding box. Both budgets are set for lookdev
+(`VIEW_PX` x `VIEW_PX_HIGH` with an ice view, which zooms `ICE_ZOOM` times or more onto the
+icicles). A job whose views show less (a preview: 320 x 240, the whole object only) meshes
+so that its picture shows faces and error the size lookdev's ice view shows them
+(`view_surface`). The coarse lattice is used only where
 that allows it (``8 error >= COARSE * fine voxel``) and where ripples are below the
 error or still resolved (`RIPPLE_SAMPLES` samples per wavelength): a 0.3 m bunny keeps one
 lattice; the 3 m house (pixel 11 mm) meshes its icicles' thick parts at 3 times the tip's
@@ -24,6 +25,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -37,6 +39,9 @@ COARSE = 3.0
 # The view the error and face budgets are set for (lookdev's), pixels.
 VIEW_PX = 480
 VIEW_PX_HIGH = 360
+# An ice view is at least this much closer than a view of the whole object of its size
+# (`icefarm.scene.focus.MIN_ZOOM`).
+ICE_ZOOM = 2.5
 # Least lattice samples per ripple wavelength on the coarse lattice, when the ripples are
 # deeper than the error budget.
 RIPPLE_SAMPLES = 4
@@ -70,30 +75,54 @@ def coarse_voxel(fine_voxel: float, extent: float, error_px: float, ripple_ampli
     return voxel if voxel >= COARSE * fine_voxel * (1 - tol.slack) else None
 
 
-def meshing_view(resolution: tuple[int, int] | None, close_up: bool = False) -> tuple[int, int]:
-    """The view (width, height pixels) a job's budgets are counted for: its render's
-    ``resolution`` where that is smaller than lookdev's, else lookdev's (larger views, a
-    view framing the ice (``close_up``: a zoom on the icicles shows their mesh a few times
-    larger) and no render (None) keep the budgets as set)."""
-    if resolution is None or close_up:
-        return VIEW_PX, VIEW_PX_HIGH
-    width, height = (int(v) for v in resolution)
-    if width * height >= VIEW_PX * VIEW_PX_HIGH:
-        return VIEW_PX, VIEW_PX_HIGH
-    return width, height
+@dataclass(frozen=True)
+class MeshingView:
+    """The view a job's ice is meshed for: its render config's size, and whether it has an
+    ice view (lookdev's budgets are set for lookdev's ice view, a zoom on the icicles).
 
-
-def view_surface(surface, resolution: tuple[int, int] | None, close_up: bool = False):
-    """``surface`` (the resolved ``surface`` group) with its budgets for the `meshing_view`
-    of ``resolution`` and ``close_up``: ``face_budget`` times its share of lookdev's pixels,
-    ``error_px`` counted in its pixels. ``error_px`` 0 and ``face_budget`` 0 (off) stay 0.
+    Attributes
+    ----------
+    width, height : int
+        Pixels.
+    ice_view : bool
+        One of its views frames the ice (and shows the mesh `ICE_ZOOM` or more times larger
+        than a view of the whole object of that size).
     """
-    width, height = meshing_view(resolution, close_up)
-    if (width, height) == (VIEW_PX, VIEW_PX_HIGH):
+
+    width: int
+    height: int
+    ice_view: bool
+
+    @property
+    def share(self) -> float:
+        """Share of lookdev's detail this view shows, at most 1: its pixels over lookdev's,
+        over `ICE_ZOOM` squared without an ice view."""
+        pixels = self.width * self.height / (1.0 if self.ice_view else ICE_ZOOM ** 2)
+        return min(1.0, pixels / (VIEW_PX * VIEW_PX_HIGH))
+
+
+def meshing_view(resolution: tuple[int, int] | None, ice_view: bool = False) -> MeshingView:
+    """The view a render config of ``resolution`` (width, height pixels) shows the ice in,
+    with an ice view or not; no render (None) is meshed for lookdev's."""
+    if resolution is None:
+        return MeshingView(VIEW_PX, VIEW_PX_HIGH, True)
+    width, height = (int(v) for v in resolution)
+    return MeshingView(width, height, bool(ice_view))
+
+
+def view_surface(surface, view: MeshingView):
+    """``surface`` (the resolved ``surface`` group) with its budgets for ``view``: a view
+    showing less detail than lookdev's (`MeshingView.share` under 1) scales ``face_budget``
+    by its share and ``error_px`` (pixels of a `VIEW_PX` wide view of the whole object) by
+    the inverse square root, so that its picture shows the mesh's faces and error the size
+    lookdev's ice view shows them. ``error_px`` 0 and ``face_budget`` 0 (off) stay 0; other
+    views keep the budgets as set.
+    """
+    share = view.share
+    if share >= 1.0:
         return surface
-    share = width * height / (VIEW_PX * VIEW_PX_HIGH)
     return dataclasses.replace(surface, face_budget=int(round(surface.face_budget * share)),
-                               error_px=surface.error_px * VIEW_PX / width)
+                               error_px=surface.error_px / math.sqrt(share))
 
 
 def split_balls(balls: Balls, voxel: float, surface_points: np.ndarray, clearance: float,
