@@ -243,3 +243,27 @@ def test_dry_drip_points_grow_no_icicle(wet_umbrella):
     wet = find_drips(mesh, water, G, options, np.random.default_rng(3))
     assert 0 < len(wet.positions) < len(every.positions)
     assert (wet.water >= threshold).all()
+
+
+def _spaced_reference(points, spacing, count):
+    """Dart throwing compared with every kept point: what `spaced`'s compiled grid must give."""
+    kept: list[int] = []
+    for i, p in enumerate(points):
+        if len(kept) == count:
+            break
+        if not kept or (((points[kept] - p) ** 2).sum(axis=1) >= spacing**2).all():
+            kept.append(i)
+    return np.asarray(kept, dtype=np.int64)
+
+
+@pytest.mark.parametrize("spacing, count", [(0.05, 10_000), (0.2, 40), (0.013, 10_000), (0.5, 1)])
+def test_dart_throwing_keeps_the_first_points_far_enough_apart(spacing, count):
+    from icefarm.stages.dart_throwing import spaced
+
+    rng = np.random.default_rng(5)
+    # a thin slab over negative and positive cells, with points exactly on cell planes
+    points = rng.uniform(-1, 1, (3000, 3)) * np.array([1.0, 0.02, 1.0])
+    points[:200] = np.round(points[:200] / spacing) * spacing
+    got = spaced(points, spacing, count)
+    np.testing.assert_array_equal(got, _spaced_reference(points, spacing, count))
+    assert len(got) <= count and (len(got) < 2 or pdist(points[got]).min() >= spacing)

@@ -42,7 +42,8 @@ def test_steps_come_in_order_and_stop_where_asked(tmp_path):
     result = run_graph(JobInputs(prepared, p), until=Stage.DRIPS,
                        step=lambda s, key, work: seen.append(s.name) or work(),
                        on_step=lambda s, r: files.append((s.name, r.drips is not None)))
-    assert seen == ["water", "drips"] and files == [("flow", False), ("water", False), ("drips", True)]
+    assert seen == ["refine", "water", "drips"]  # a physical storm refines its flow surface
+    assert files == [("flow", False), ("refine", False), ("water", False), ("drips", True)]
     assert result.trajectories is None and result.flow is result.mesh
 
 
@@ -52,7 +53,7 @@ def test_a_proxy_run_hangs_its_icicles_from_the_object(tmp_path):
     seen = []
     result = run_stages(prepared, p, 0, until=Stage.TRAJECTORIES,
                         step=lambda s, key, work: seen.append(s.name) or work())
-    assert seen[:2] == ["proxy", "water"] and result.flow is not result.mesh and result.proxy_reason
+    assert seen[:3] == ["proxy", "refine", "water"] and result.flow is not result.mesh and result.proxy_reason
     distance = np.abs(trimesh.proximity.signed_distance(result.mesh, result.drips.positions))
     assert distance.max() < 1e-6
 
@@ -62,7 +63,7 @@ def test_the_benchmark_times_the_jobs_chain(tmp_path):
     p = params.resolve(SMALL)
     runs = stage_timings(str(path), 0.3, p, repeat=1, surface=True)
     bare = run_stages(prepare(str(path), 0.3, p.water.gravity), p, 0)
-    assert set(runs.seconds) == {"water", "drips", "trajectories", "surface"}
+    assert set(runs.seconds) == {"refine", "water", "drips", "trajectories", "surface"}
     assert runs.icicles == len(bare.drips.positions) and runs.ice_faces == len(bare.ice.faces)
 
 

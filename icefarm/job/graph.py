@@ -36,6 +36,7 @@ class When(enum.Enum):
     PROBLEM_MESH = "problem mesh"  # the mesh needs an approximate surface (`JobInputs.proxy_reason`)
     GROUND_ICE = "ground ice"  # ``ground_ice.mode`` is not none
     MEASURING = "measuring"  # the caller asked for figures (a job does, a benchmark does not)
+    REFINING = "refining"  # a physical storm with ``storm.flow_edge`` set
 
 
 @dataclass(frozen=True)
@@ -90,9 +91,10 @@ class Step:
 STEPS: tuple[Step, ...] = (
     Step("proxy", Stage.WATER, work.proxy, "proxy", reads=("proxy",), inputs=(Input.MESH,),
          when=When.PROBLEM_MESH, write=figures.write_proxy, figures=figures.proxy_figures),
-    Step("flow", Stage.WATER, work.flow, "flow", after=("proxy",), reads=("storm.mode", "storm.flow_edge"),
-         inputs=(Input.MESH,), cached=False, timed=False),
-    Step("water", Stage.WATER, work.water, "water", after=("flow",), reads=("water",),
+    Step("flow", Stage.WATER, work.flow, "flow", after=("proxy",), inputs=(Input.MESH,), cached=False, timed=False),
+    Step("refine", Stage.WATER, work.refine_flow, "flow", after=("flow",), reads=("storm.mode", "storm.flow_edge"),
+         when=When.REFINING),
+    Step("water", Stage.WATER, work.water, "water", after=("flow", "refine"), reads=("water",),
          physical_reads=("storm", "glaze.lifetime", "drips.drip_limit"), inputs=(Input.SEED, Input.OVERRIDE),
          write=figures.write_water, figures=figures.water_figures),
     Step("drips", Stage.DRIPS, work.drips, "drips", after=("water",), reads=("drips", "trajectories.length_scale"),
@@ -140,6 +142,8 @@ def runs(s: Step, inputs: JobInputs, measuring: bool) -> bool:
         return inputs.params.ground_ice.mode != "none"
     if s.when is When.MEASURING:
         return measuring
+    if s.when is When.REFINING:
+        return inputs.physical and inputs.params.storm.flow_edge > 0
     return True
 
 

@@ -267,7 +267,8 @@ def meshing_params(spec: JobSpec) -> tuple[Params, dict]:
     """The parameters stage 4 meshes with, for how the job will be seen, and the figures
     that record it: a render config that shows less than lookdev's (smaller, or without an
     ice view) scales ``surface.face_budget`` and ``surface.error_px`` to its view
-    (`icefarm.stages.surface.detail.view_surface`); a job without a render meshes for lookdev. ``params.yaml`` keeps the values as set."""
+    (`icefarm.stages.surface.detail.view_surface`); a job without a render meshes for lookdev.
+    ``params.yaml`` keeps the values as set."""
     from ..stages.surface import VIEW_PX, meshing_view, view_surface
 
     p = spec.params

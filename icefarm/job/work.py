@@ -64,13 +64,16 @@ def proxy(i: JobInputs, r: StageResults) -> Any:
 
 
 def flow(i: JobInputs, r: StageResults) -> trimesh.Trimesh:
-    """The surface the water runs on: large flat faces (box-modelled assets) carry no water
-    from their middle to their rims, so a physical storm refines them."""
-    mesh = i.mesh if r.proxy is None else r.proxy.mesh
-    storm = i.params.storm
-    if i.physical and storm.flow_edge > 0 and mesh.edges_unique_length.max() > storm.flow_edge:
-        return refine(mesh, storm.flow_edge)
-    return mesh
+    """The surface the water runs on: the object, or its proxy."""
+    return i.mesh if r.proxy is None else r.proxy.mesh
+
+
+def refine_flow(i: JobInputs, r: StageResults) -> trimesh.Trimesh:
+    """The flow surface with no edge over ``storm.flow_edge``: large flat faces (box-modelled
+    assets) carry no water from their middle to their rims, so a physical storm refines them."""
+    if r.flow.edges_unique_length.max() > i.params.storm.flow_edge:
+        return refine(r.flow, i.params.storm.flow_edge)
+    return r.flow
 
 
 def water(i: JobInputs, r: StageResults) -> WaterResult:

@@ -24,6 +24,7 @@ import trimesh
 from ..geometry import perpendicular_basis, sample_faces, unit
 from ..spatial import inside, ray_caster
 from ..tol import tol
+from .dart_throwing import spaced
 from .rims import (
     FUSE_MARGIN,
     HEAT_SPREAD,
@@ -193,42 +194,6 @@ def side_room(cast, face_normals: np.ndarray, points: np.ndarray, gravity, depth
         hit[hit] = face_normals[face[hit]] @ direction < 0  # met from outside
         room &= ~hit
     return room
-
-
-def _spaced(points: np.ndarray, spacing: float, count: int) -> np.ndarray:
-    """Indices of the first points, in order, that lie ``spacing`` or more from every one kept
-    before them (dart throwing), at most ``count``.
-
-    Kept points are binned in cells ``spacing`` wide, so each candidate is compared with the
-    few kept in the 27 cells around it: linear in the candidates (50,000 along a long rim),
-    where comparing with every kept point grew with their product."""
-    if spacing <= 0:
-        return np.arange(min(count, len(points)))
-    points = np.asarray(points, dtype=np.float64)
-    cells = np.floor(points / spacing).astype(np.int64).tolist()
-    coords = points.tolist()
-    grid: dict[tuple, list] = {}
-    chosen: list[int] = []
-    limit = spacing * spacing
-    around = [(a, b, c) for a in (-1, 0, 1) for b in (-1, 0, 1) for c in (-1, 0, 1)]
-    for i, (cell, p) in enumerate(zip(cells, coords)):
-        if len(chosen) == count:
-            break
-        x, y, z = p
-        cx, cy, cz = cell
-        close = False
-        for a, b, c in around:
-            for q in grid.get((cx + a, cy + b, cz + c), ()):
-                if (q[0] - x) ** 2 + (q[1] - y) ** 2 + (q[2] - z) ** 2 < limit:
-                    close = True
-                    break
-            if close:
-                break
-        if close:
-            continue
-        grid.setdefault((cx, cy, cz), []).append(p)
-        chosen.append(i)
-    return np.asarray(chosen, dtype=np.int64)
 
 
 def _rim_pool(mesh, flux, region, gravity, spacing, count) -> int:
@@ -417,7 +382,7 @@ def _drawn_points(mesh, gravity, o: DripOptions, region, flux, pool, rng, caster
         if physical:  # a physical storm's fringe; the relative mode keeps the paper's points
             room[room] = side_room(caster, mesh.face_normals, points[room], gravity, 0.5 * o.min_fall)
         face, bary, points = face[room], bary[room], points[room]
-    keep = _spaced(points, o.spacing, o.count)
+    keep = spaced(points, o.spacing, o.count)
     return mesh.faces[face[keep]], bary[keep], face[keep]
 
 
@@ -431,7 +396,7 @@ def _transition_drips(mesh, water, gravity, o: DripOptions, excluded, pool, rng,
         room = free_fall(caster, at, np.einsum("ij,ijk->ik", bary, mesh.vertex_normals[corners]),
                          gravity, o.floor) >= o.min_fall
         corners, bary = corners[room], bary[room]
-    keep = _spaced(np.einsum("ij,ijk->ik", bary, mesh.vertices[corners]), o.spacing, o.count)
+    keep = spaced(np.einsum("ij,ijk->ik", bary, mesh.vertices[corners]), o.spacing, o.count)
     corners, bary = corners[keep], bary[keep]
     return corners, bary, mesh.vertex_faces[corners[:, 0], 0]
 

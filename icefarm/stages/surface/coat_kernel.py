@@ -20,8 +20,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numba
 import numpy as np
+
+from ...compiled import compiled
 
 # Points per leaf of a `PointTree`: consecutive in the tree's order.
 LEAF = 8
@@ -34,20 +35,6 @@ BESIDE = 3.0
 _STACK = 128  # a tree of 2^60 leaves is never built
 _GATHER = 4096  # leaves gathered around a tile at most (`_tile_nearest`)
 _EXTENT_SAMPLES = 64  # points that pick the axis a node splits across (`_split`)
-
-
-def _compiled(**options):
-    """``numba.njit`` without the GIL, cached where numba finds a folder it may write (the
-    package's `__pycache__`, the user's cache folder, ``NUMBA_CACHE_DIR``); where it finds
-    none, compiled anew in each process instead of failing at import."""
-
-    def compile(function):
-        try:
-            return numba.njit(cache=True, nogil=True, **options)(function)
-        except RuntimeError:  # "cannot cache function ...: no locator available"
-            return numba.njit(nogil=True, **options)(function)
-
-    return compile
 
 
 @dataclass(frozen=True)
@@ -104,7 +91,7 @@ def point_tree(points: np.ndarray) -> PointTree | None:
     return PointTree(sorted_points, order, lo, hi, leaves, points)
 
 
-@_compiled()
+@compiled()
 def _boxes(points, leaves):
     """The boxes (lo, hi: (2 leaves, 3)) of the leaves of `LEAF` consecutive ``points``
     and of the nodes above them; empty leaves' are inside out (inf, -inf)."""
@@ -122,7 +109,7 @@ def _boxes(points, leaves):
     return lo, hi
 
 
-@_compiled()
+@compiled()
 def _split(points, leaves):
     """The order of ``points`` (n, 3) that puts node k's points (its leaves ``l0 .. l1``) in
     rows ``l0 LEAF .. l1 LEAF``, its first child's (the first half of its leaves) on the low
@@ -152,7 +139,7 @@ def _split(points, leaves):
     return order
 
 
-@_compiled()
+@compiled()
 def _select(work, order, start, end, kth, axis):
     """Reorder rows ``start:end`` of ``work`` (and ``order`` with them) so that none before
     row ``kth`` lies above, along ``axis``, any from it on (quickselect, Hoare's partition
@@ -181,7 +168,7 @@ def _select(work, order, start, end, kth, axis):
             break
 
 
-@_compiled(inline="always")
+@compiled(inline="always")
 def _box2(lo, hi, k, x, y, z):
     """Squared distance from (x, y, z) to node ``k``'s box."""
     dx = max(lo[k, 0] - x, 0.0, x - hi[k, 0])
@@ -190,7 +177,7 @@ def _box2(lo, hi, k, x, y, z):
     return dx * dx + dy * dy + dz * dz
 
 
-@_compiled(inline="always")
+@compiled(inline="always")
 def _scan_leaf(points, index, leaves, k, x, y, z, best2, best):
     """The nearest of leaf node ``k``'s points to (x, y, z) if closer than sqrt(``best2``):
     its squared distance and row (else ``best2``, ``best``)."""
@@ -206,7 +193,7 @@ def _scan_leaf(points, index, leaves, k, x, y, z, best2, best):
     return best2, best
 
 
-@_compiled()
+@compiled()
 def _nearest(x, y, z, best2, best, stack, points, index, lo, hi, leaves):
     """The nearest point to (x, y, z) closer than sqrt(``best2``) (``best``: a row known that
     close, or -1): its squared distance and row (``best2``, ``best`` when none is closer)."""
@@ -240,7 +227,7 @@ def _nearest(x, y, z, best2, best, stack, points, index, lo, hi, leaves):
     return best2, best
 
 
-@_compiled()
+@compiled()
 def _nearest_many(q, upper, points, index, lo, hi, leaves):
     dist = np.full(len(q), np.inf)
     row = np.full(len(q), -1, dtype=np.int64)
@@ -254,7 +241,7 @@ def _nearest_many(q, upper, points, index, lo, hi, leaves):
     return dist, row
 
 
-@_compiled()
+@compiled()
 def _tile_nearest(points, seed, shared, per, reach, samples, tree):
     """Nearest ``samples`` row (-1: none within ``reach``) and squared distance of each of
     ``points`` (k, 3), in tiles of ``per`` whose points lie around their mean; ``seed`` and
@@ -334,7 +321,7 @@ def _tile_nearest(points, seed, shared, per, reach, samples, tree):
     return near, dist2
 
 
-@_compiled(inline="always")
+@compiled(inline="always")
 def _bound(row, inward, level, across, across_level, i, x, y, z):
     """For a point (x, y, z) near sample ``i``: how far it lies past the sharp edges of
     its face along the sample's plane (meters, 0 where it does not or the face has none:
@@ -352,7 +339,7 @@ def _bound(row, inward, level, across, across_level, i, x, y, z):
     return max(off, 0.0), up
 
 
-@_compiled(inline="always")
+@compiled(inline="always")
 def _signed(vx, vy, vz, nx, ny, nz, dist, tol, past):
     """`icefarm.stages.surface.coat_band._signed` at one point: (d, sd, extra)."""
     sd = vx * nx + vy * ny + vz * nz
@@ -362,7 +349,7 @@ def _signed(vx, vy, vz, nx, ny, nz, dist, tol, past):
     return s * np.sqrt(sd * sd + extra * extra), sd, extra
 
 
-@_compiled()
+@compiled()
 def band_phi(points, per, seed, shared, seg, reach, tol, tol_shared, taper_end,
              samples, normals, kind, t_value, t_slope, t_low, t_high, depth, tree,
              has_edges, e_row, e_inward, e_level, e_across, e_across_level,
