@@ -49,7 +49,7 @@ def test_the_kernels_compile_where_no_cache_folder_may_be_written(monkeypatch):
     cache and refuses ``cache=True``; the kernels compile in each process instead."""
     import numba
 
-    from icefarm.stages.surface.coat_kernel import _compiled
+    from icefarm.compiled import compiled
 
     real = numba.njit
 
@@ -59,7 +59,7 @@ def test_the_kernels_compile_where_no_cache_folder_may_be_written(monkeypatch):
         return real(*args, **options)
 
     monkeypatch.setattr(numba, "njit", refuse)
-    assert _compiled()(lambda x: 2 * x)(21) == 42
+    assert compiled()(lambda x: 2 * x)(21) == 42
 
 
 def _post():
