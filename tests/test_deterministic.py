@@ -108,7 +108,7 @@ def twice(tmp_path_factory, sweep_kit):
         summary = run_sweep(root / "m.yaml", root / run, SweepOptions(workers=2))
         assert summary.ok and summary.done == 2
         runs.append(scan_sweep(summary.sweep_dir).job_dirs)
-    return SimpleNamespace(runs=runs, mesh=ball)
+    return SimpleNamespace(runs=runs, mesh=ball, render=render)
 
 
 @pytest.mark.slow  # starts two worker processes per sweep and renders
@@ -132,8 +132,9 @@ def test_icefarm_run_builds_the_ice_a_sweep_worker_built(twice, tmp_path, sweep_
     job = twice.runs[0][0]
     entry = next(j for j in yaml.safe_load((job.parents[2] / MANIFEST).read_text())["jobs"] if j["id"] == job.name)
     sets = [f"--set={k}={v}" for k, v in {**flatten(quick(sweep_kit)), **entry["values"]}.items()]
+    # meshed for the sweep's render config, as the worker meshed it
     result = CliRunner().invoke(main, ["run", str(twice.mesh), "--size-m", "0.3", "--seed",
-                                       str(entry["seed"]), "--until", "surface", "--no-render", "-o",
-                                       str(tmp_path / "direct"), *sets])
+                                       str(entry["seed"]), "--until", "surface", "--render", str(twice.render),
+                                       "-o", str(tmp_path / "direct"), *sets])
     assert result.exit_code == 0, result.output
     assert_same_bytes(job, tmp_path / "direct", (ICE,))

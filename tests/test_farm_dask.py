@@ -100,7 +100,7 @@ def test_dask_without_a_scheduler_starts_a_local_cluster(tmp_path, write_manifes
     path = write_manifest(grid={"drips.count": [2, 3]}, name="d", seed=2)
     summary = run_sweep(path, tmp_path / "out", SweepOptions(backend="dask", workers=2, until="drips"))
     assert summary.ok and summary.done == 2 and summary.workers == 2
-    assert summary.jobs[1].reused == ("water",)
+    assert summary.jobs[1].reused == ("refine", "water")
 
 
 @contextlib.contextmanager

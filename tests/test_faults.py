@@ -164,7 +164,7 @@ def test_a_damaged_cache_entry_is_recomputed_with_a_warning(tmp_path, ball):
     first = run_job(job(tmp_path, ball), tmp_path / "a", cache, until=Stage.TRAJECTORIES)
     assert first.status == "done" and first.reused == ()
     entries = sorted(cache.glob("*/*.npz"))
-    assert {e.parent.name for e in entries} == {"water", "drips", "trajectories"}
+    assert {e.parent.name for e in entries} == {"refine", "water", "drips", "trajectories"}
     assert all(e.read_bytes().startswith(b"icefarm-cache 2 ") for e in entries)
     damaged = next(e for e in entries if e.parent.name == "drips")
     data = bytearray(damaged.read_bytes())
@@ -173,13 +173,13 @@ def test_a_damaged_cache_entry_is_recomputed_with_a_warning(tmp_path, ball):
     with pytest.warns(CacheWarning, match="drips.*damaged.*recomputed"):
         second = run_job(job(tmp_path, ball, **{"trajectories.curve_angle": 20}), tmp_path / "b", cache,
                          until=Stage.TRAJECTORIES)
-    assert second.status == "done" and set(second.reused) == {"water"}
+    assert second.status == "done" and set(second.reused) == {"refine", "water"}
     assert (tmp_path / "a" / "drips.json").read_text() == (tmp_path / "b" / "drips.json").read_text()
     assert "damaged" in json.loads((tmp_path / "b" / "done.json").read_text())["cache_warnings"][0]
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # the entry was written again, intact
         third = run_job(job(tmp_path, ball), tmp_path / "c", cache, until=Stage.TRAJECTORIES)
-    assert set(third.reused) == {"water", "drips", "trajectories"}
+    assert set(third.reused) == {"refine", "water", "drips", "trajectories"}
 
 
 def test_cache_entries_of_other_code_are_not_read(tmp_path, ball, monkeypatch):
@@ -201,7 +201,7 @@ def test_a_sweep_caches_only_what_another_job_can_reuse(tmp_path, write_manifest
     assert set(json.loads((cache / "policy.json").read_text())["private"]) == {"trajectories", "landing", "surface"}
     assert list((cache / "water").glob("*.npz")) and list((cache / "drips").glob("*.npz"))
     assert not list(cache.glob("trajectories/*.npz")), "no other job reads a job's own trajectories"
-    assert all(set(r.reused) == {"water", "drips"} for r in summary.jobs[1:])
+    assert all(set(r.reused) == {"refine", "water", "drips"} for r in summary.jobs[1:])
 
 
 # --------------------------------------------------------------------------- resume checks
