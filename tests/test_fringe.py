@@ -190,3 +190,20 @@ def test_the_icicles_the_cold_limits_are_not_all_one_length():
     assert varied[2] == pytest.approx(alike[2])
     short = np.full(5, 1e-6)  # icicles their water limits keep their length
     assert np.allclose(sizing.length(short, np.ones(5), exposure), sizing.length(short, np.ones(5)))
+
+
+def test_the_faces_a_level_cuts_near_a_point_are_those_a_tree_over_every_face_finds():
+    from scipy.spatial import cKDTree
+
+    from icefarm.stages.surface.fringe import _cut_near
+
+    mesh = trimesh.creation.icosphere(5, radius=0.1)
+    v, f = mesh.vertices, mesh.faces
+    h = v[f, 2]
+    low, high = h.min(axis=1), h.max(axis=1)
+    tree = cKDTree(v[f].mean(axis=1))
+    for level, centre, reach in ((0.0, (0.1, 0, 0), 0.03), (0.05, (0, 0.08, 0.05), 0.05), (-0.099, (0, 0, -0.1), 0.02)):
+        expected = np.asarray(tree.query_ball_point(centre, reach), dtype=np.int64)
+        expected = expected[(low[expected] <= level) & (high[expected] >= level)]
+        got = _cut_near(f, v, np.flatnonzero(low <= level), high, level, np.array(centre), reach)
+        assert len(expected) and np.array_equal(np.sort(got), np.sort(expected))

@@ -122,6 +122,24 @@ def _enclosing(segments: np.ndarray, piece: np.ndarray, pieces: int, point: np.n
     return np.bincount(piece[crossing], minlength=pieces) % 2 == 1
 
 
+def _half_point(points: np.ndarray, x: np.ndarray, offsets: np.ndarray, branch: int) -> np.ndarray:
+    """(3,) the point of ``branch``'s axis at half its length (``x``: arc lengths)."""
+    start, stop = offsets[branch], offsets[branch + 1]
+    return np.array([np.interp(0.5 * x[stop - 1], x[start:stop], points[start:stop, k]) for k in range(3)])
+
+
+def _cut_near(faces: np.ndarray, vertices: np.ndarray, candidates: np.ndarray, high: np.ndarray, level: float,
+              centre: np.ndarray, reach: float) -> np.ndarray:
+    """The ``candidates`` (faces whose lowest point is at most ``level``) that reach up to
+    ``level`` and whose centroid lies within ``reach`` of ``centre`` (3,)."""
+    near = candidates[high[candidates] >= level]
+    f = faces[near]
+    d2 = np.zeros(len(near))
+    for k in range(3):
+        d2 += ((vertices[f[:, 0], k] + vertices[f[:, 1], k] + vertices[f[:, 2], k]) / 3.0 - centre[k]) ** 2
+    return near[d2 <= reach * reach]
+
+
 def hangs_free(vertices: np.ndarray, faces: np.ndarray, traj: TrajectoryResult, gravity,
                min_length: float = FREE_MIN_LENGTH, window: float = WINDOW,
                max_cut: int = MAX_CUT) -> tuple[np.ndarray, np.ndarray]:
@@ -161,19 +179,22 @@ def hangs_free(vertices: np.ndarray, faces: np.ndarray, traj: TrajectoryResult, 
     seg_tree = cKDTree(0.5 * (seg_a + seg_b))
     u, v = perpendicular_basis(g)
     height = vertices @ -g
-    face_height = height[faces]
-    low, high = face_height.min(axis=1), face_height.max(axis=1)
-    face_tree = cKDTree(vertices[faces].mean(axis=1))
+    # The faces a level cuts, from faces sorted by their lowest point: no tree over the
+    # mesh's faces (the 1.5 m car's 2.3 M: 1.6 s to build).
+    h0, h1, h2 = (height[faces[:, k]] for k in range(3))
+    low, high = np.minimum(np.minimum(h0, h1), h2), np.maximum(np.maximum(h0, h1), h2)
+    by_low = np.argsort(low, kind="stable")
+    low_sorted, tallest = low[by_low], float((high - low).max())
     face_reach = window + float(np.sqrt(((vertices[faces[:, 0]] - vertices[faces[:, 1]]) ** 2).sum(axis=1)).max())
     free = np.zeros(len(long), dtype=bool)
     for n, trunk in enumerate(long):
-        start, stop = offsets[trunk], offsets[trunk + 1]
-        half = 0.5 * x[stop - 1]
-        centre = np.array([np.interp(half, x[start:stop], points[start:stop, k]) for k in range(3)])
+        half = 0.5 * x[offsets[trunk + 1] - 1]
+        centre = _half_point(points, x, offsets, trunk)
         level = float(centre @ -g)
         own_window = max(window, WINDOW_PER_LENGTH * 2.0 * half)
-        near = np.asarray(face_tree.query_ball_point(centre, face_reach - window + own_window), dtype=np.int64)
-        near = near[(low[near] <= level) & (high[near] >= level)]
+        near = _cut_near(faces, vertices, by_low[np.searchsorted(low_sorted, level - tallest):
+                                                    np.searchsorted(low_sorted, level, side="right")],
+                         high, level, centre, face_reach - window + own_window)
         if len(near) == 0:
             continue
         used, local = np.unique(faces[near], return_inverse=True)
