@@ -278,3 +278,15 @@ def test_the_ice_view_frames_icicles_the_object_does_not_hide():
     px = cam.project(sparse, width, height)
     framed = (px[:, 0] >= 0) & (px[:, 0] < width) & (px[:, 1] >= 0) & (px[:, 1] < height)
     assert framed.any() and visible(cam, sparse[framed], cast, 0.01).all()
+
+
+def test_the_sections_grid_is_dilated_as_ndimage_dilates_it():
+    from scipy import ndimage
+
+    from icefarm.scene.focus import dilated
+
+    rng = np.random.default_rng(2)
+    for shape in ((200, 300), (1, 5), (5, 1), (1, 1)):
+        grid = rng.random(shape) < 0.05
+        grid[0, -1] = True  # a corner: the border stays outside
+        assert np.array_equal(dilated(grid), ndimage.binary_dilation(grid, np.ones((3, 3), bool)))

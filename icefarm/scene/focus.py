@@ -108,6 +108,19 @@ def in_slabs(heights: np.ndarray, levels: np.ndarray, thickness: float) -> np.nd
     return np.where(np.abs(heights - levels[k]) <= 0.5 * thickness, k, -1)
 
 
+def dilated(grid: np.ndarray) -> np.ndarray:
+    """``grid`` (h, w) bool dilated by a 3 x 3 square: ``ndimage.binary_dilation(grid,
+    np.ones((3, 3), bool))``, as shifted ORs along each axis (a 2000 x 2000 grid: 8 ms against
+    76 ms; the test compares them)."""
+    rows = grid.copy()
+    rows[1:] |= grid[:-1]
+    rows[:-1] |= grid[1:]
+    out = rows.copy()
+    out[:, 1:] |= rows[:, :-1]
+    out[:, :-1] |= rows[:, 1:]
+    return out
+
+
 def section_diameters(points: np.ndarray, slab: np.ndarray, frame: np.ndarray,
                       spacing: float) -> tuple[np.ndarray, np.ndarray]:
     """Widths (m) and centres of the icicles' horizontal sections.
@@ -144,7 +157,7 @@ def section_diameters(points: np.ndarray, slab: np.ndarray, frame: np.ndarray,
             continue
         grid = np.zeros(shape, dtype=bool)
         grid[ij[:, 0], ij[:, 1]] = True
-        labels, _ = ndimage.label(ndimage.binary_dilation(grid, np.ones((3, 3), bool)))
+        labels, _ = ndimage.label(dilated(grid))
         lab = labels[ij[:, 0], ij[:, 1]]
         order = np.argsort(lab, kind="stable")
         lab, xy, q = lab[order], xy[order], q[order]
