@@ -185,3 +185,20 @@ def test_renders_run_on_the_gpu_worker_and_stages_on_the_other(tmp_path, write_m
         timings = json.loads((r.job_dir / "timings.json").read_text())
         assert (r.job_dir / "render.png").is_file() and (r.job_dir / "done.json").is_file()
         assert {"surface", "render", "usd"} <= set(timings["seconds"]) and "render_pending" not in timings
+
+
+def test_dask_workers_that_ran_pymeshlab_exit_cleanly(tmp_path):
+    # a box-modelled asset: refining its flow surface runs pymeshlab in a task's thread
+    import yaml
+
+    manifest = tmp_path / "m.yaml"
+    objects = [{"id": "shelter", "mesh": "generator:shelter"}]
+    manifest.write_text(yaml.safe_dump({"name": "m", "seed": 1, "objects": objects, "sweep": {
+        "method": "grid", "parameters": {"storm.intensity": {"values": ["light"]}}}}))
+    result = subprocess.run([sys.executable, "-m", "icefarm.cli", "sweep", str(manifest), "-o", str(tmp_path / "out"),
+                             "--backend", "dask", "--workers", "1", "--until", "water"],
+                            capture_output=True, text=True, timeout=600)
+    assert result.returncode == 0, result.stderr
+    assert "1 done" in result.stdout
+    # glibc's words when a worker aborted on exit with its heap corrupted
+    assert "malloc" not in result.stderr and "corrupted" not in result.stderr, result.stderr

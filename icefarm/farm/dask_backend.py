@@ -68,7 +68,8 @@ def _worker_plugin():
     Under Dask's defaults a job runs markedly slower than in the local pool (`icefarm bench
     farm --backend local --backend dask`; docs/sweeps.md): its profiler samples each running
     task's stack 100 times a second, holding the GIL, and its heap settings (`_reuse_heap`)
-    fault large arrays in again and again.
+    fault large arrays in again and again. It also loads pymeshlab in the worker's main
+    thread, without which the worker aborts as it exits.
     """
     from distributed.diagnostics.plugin import WorkerPlugin
 
@@ -81,6 +82,10 @@ def _worker_plugin():
                 if callback is not None:
                     callback.stop()
             _reuse_heap()
+            # pymeshlab (Qt) first loaded in a task's thread corrupts glibc's heap as the
+            # worker exits ("malloc_consolidate(): unaligned fastbin chunk detected", SIGABRT);
+            # loaded here, in the worker's main thread, it exits cleanly.
+            import pymeshlab  # noqa: F401
 
     return JobWorker()
 
