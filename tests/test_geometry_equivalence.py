@@ -195,3 +195,16 @@ def test_near_caster_misses_where_no_face_comes_near(sphere):
     assert np.isinf(distance[0]) and face[0] == -1
     empty = spatial.near_caster(np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64), 0.01)
     assert np.isinf(empty(np.zeros((2, 3)), np.eye(3)[:2])[0]).all()
+
+
+def test_the_field_filled_on_every_core_is_the_field_filled_on_one(monkeypatch):
+    from icefarm.metaballs import Balls, sample_field
+
+    rng = np.random.default_rng(4)
+    n = 400
+    balls = Balls(rng.uniform(-0.05, 0.05, (n, 3)), rng.uniform(0.002, 0.006, n), np.ones(n))
+    several = sample_field(balls, 0.001)
+    monkeypatch.setattr("icefarm.metaballs.field.os.cpu_count", lambda: 1)
+    one = sample_field(balls, 0.001)
+    assert len(several.blocks) > 20
+    assert np.array_equal(several.blocks, one.blocks) and np.array_equal(several.values, one.values)

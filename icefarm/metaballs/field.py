@@ -11,6 +11,8 @@ disagree on a shared sample and the mesh closes across seams.
 
 from __future__ import annotations
 
+import os
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -238,18 +240,26 @@ def _block_fields(g, starts, counts, block):
     shape = nseg * (_SEGMENT + 1) + segs  # sorts by (segments, segment length)
     by_count = np.argsort(shape, kind="stable")
     sorted_shape = shape[by_count]
+    batches = []
     i = 0
     while i < len(by_count):
-        seg = int(segs[by_count[i]])
-        pad = int(nseg[by_count[i]]) * seg
         j = int(np.searchsorted(sorted_shape, sorted_shape[i], side="right"))
-        j = min(j, i + max(1, _FIELD_BATCH // (block * block * pad)))
-        blk = by_count[i:j]
+        j = min(j, i + max(1, _FIELD_BATCH // (block * block * int(nseg[by_count[i]] * segs[by_count[i]]))))
+        batches.append(by_count[i:j])
+        i = j
+
+    def fill(blk: np.ndarray) -> None:
+        seg = int(segs[blk[0]])
+        pad = int(nseg[blk[0]]) * seg
         lane = np.arange(pad)
         idx = np.where(lane < counts[blk, None], starts[blk, None] + lane, dummy).reshape(-1, seg)
         gx, gy, gz = (gi[:, idx].transpose(1, 0, 2) for gi in g)  # (blocks * segments, B, seg)
         xy = (gx[:, :, None, :] * gy[:, None, :, :]).reshape(len(idx), block * block, seg)
         f = np.matmul(xy, gz.transpose(0, 2, 1)).reshape(len(blk), pad // seg, -1)
         flat_out[blk] = f[:, 0] if pad == seg else f.sum(axis=1)
-        i = j
+
+    # NumPy leaves the GIL in the gathers, products and matrix products: batches (each
+    # writing its own blocks) fill on every core.
+    with ThreadPoolExecutor(max(1, min(os.cpu_count() or 1, len(batches)))) as pool:
+        list(pool.map(fill, batches))
     return out
