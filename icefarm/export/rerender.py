@@ -57,10 +57,11 @@ def meshed_coarser(job_dir: Path, config) -> str | None:
     needed = meshing_view(config.resolution, any(v.frame == "ice" for v in config.views))
     if needed.share <= meshed.share:
         return None
-    meshed_as = f"{meshed.width}x{meshed.height}" + ("" if meshed.ice_view else " whole-object")
-    needed_as = f"{needed.width}x{needed.height}" + (" with an ice view" if needed.ice_view else "")
-    return (f"this job's ice was meshed for a {meshed_as} view (its render config); "
-            f"{config.name} shows it in a {needed_as} one: facets and beaded tips may show. "
+    def view(v) -> str:
+        return f"a {v.width}x{v.height} view " + ("with an ice view" if v.ice_view else "of the whole object")
+
+    return (f"this job's ice was meshed for {view(meshed)} (its render config); "
+            f"{config.name} shows it in {view(needed)}: facets and beaded tips may show. "
             f"For the full detail, run the job again with --render {config.name} (icefarm run; in a sweep, "
             f"render: {config.name} in the manifest; with its --cache, stages 1-3 are reused)")
 
