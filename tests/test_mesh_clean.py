@@ -62,7 +62,7 @@ def test_a_needle_is_flipped_away_and_the_mesh_stays_closed():
     assert _heights(vertices, faces).min() > 1e-6
 
 
-@pytest.mark.parametrize("seed", [0, 2, 4])
+@pytest.mark.parametrize("seed", [0, 4, 5])  # unions where the clean-up collapses a vertex
 def test_slivers_are_found_where_the_union_cut_and_cleaned_as_everywhere(seed):
     from icefarm import metaballs as M
     from icefarm.metaballs.clean import _flat, clean_slivers, flip_needles, sliver_candidates

@@ -9,7 +9,8 @@ from .balls import KAPPA, LEVEL, NO_BALLS, SPACING, TIP_WEIGHT, Balls, concat_ba
 from .clean import clean_slivers, collapse_slivers, flip_needles, sliver_candidates
 from .field import BLOCK, CUTOFF, Field, block_keys, sample_field, values_at
 from .fuse import fuse_fields, union_meshes
-from .march import MARCH_POWER, face_estimate, march_blocks, polygonize
+from .march import face_estimate, march_blocks, polygonize
+from .march_kernel import MARCH_POWER
 
 __all__ = ["BLOCK", "CUTOFF", "KAPPA", "LEVEL", "MARCH_POWER", "NO_BALLS", "SPACING", "TIP_WEIGHT", "Balls",
            "Field", "block_keys", "clean_slivers", "collapse_slivers", "concat_balls", "face_estimate",

@@ -2,26 +2,11 @@
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
-from skimage.measure import marching_cubes
 
-from .balls import KAPPA, LEVEL, Balls
-from .field import BLOCK, CUTOFF, block_keys, sample_field
-
-# Marching cubes runs on field**MARCH_POWER (see polygonize).
-MARCH_POWER = KAPPA**2 / 2
-# Field samples closer than this (relative) to the level are pushed off it, so no
-# marching-cubes vertex lands on a grid corner (which would make zero-area faces).
-_NUDGE = 1e-3
-# Floats in one batch of halo blocks for marching cubes: about 100 blocks, whose volume,
-# mask and the marching's own buffers stay in cache. Table 2's dragon coat (736 blocks)
-# marches 12-17 % faster than in batches of 4,000,000 (medians; 125,000 and 250,000 no
-# better). Vertices inside a cell (a few of Lewiner's cases) are placed in
-# single precision from the packed volume's origin, so they move by up to 8e-6 voxels
-# with the batch: 267 of the coat's 590,478 faces.
-_MARCH_BATCH = 500_000
+from .balls import LEVEL, Balls
+from .field import BLOCK, block_keys, sample_field
+from .march_kernel import march_slotted
 
 
 def polygonize(balls: Balls, voxel: float, level: float = LEVEL, block: int = BLOCK,
@@ -32,8 +17,8 @@ def polygonize(balls: Balls, voxel: float, level: float = LEVEL, block: int = BL
     blocks that some ball reaches (each ball cut off where it falls below
     ``CUTOFF * level``), every sample exactly once, and is zero elsewhere. Each block whose
     cells the surface crosses gets its upper neighbours' first sample planes as a halo and
-    goes, packed side by side with the cells between blocks masked out, through one
-    marching-cubes call per batch; vertices on block seams are welded by lattice edge.
+    is marched on its own (`icefarm.metaballs.march_kernel`, batches of blocks on every
+    core); vertices on block seams are welded by lattice edge.
 
     Parameters
     ----------
@@ -84,18 +69,10 @@ def march_blocks(values: np.ndarray, blocks: np.ndarray, level: float):
     faces : (m, 3) int64
         Welded across block seams, without degenerate faces.
     """
-    block = values.shape[1]
-    verts, faces, seams, nverts = [], [], [], 0
-    if len(values):
-        for fields, where in _halo_blocks(values, blocks, level):
-            v, f, seam = _march_packed(_march_domain(fields, level), where, level**MARCH_POWER, block)
-            verts.append(v)
-            faces.append(f + nverts)
-            seams.append(seam)
-            nverts += len(v)
-    if not verts:
+    if len(values) == 0:
         return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64)
-    return _weld_lattice(np.concatenate(verts), np.concatenate(faces), block, np.concatenate(seams))
+    slots, marched = _halo_slots(values, blocks, level)
+    return _weld_lattice(*march_slotted(values, slots, marched, level))
 
 
 def face_estimate(field) -> int:
@@ -123,42 +100,24 @@ def face_estimate(field) -> int:
     return 2 * crossed
 
 
-def _march_domain(fields, level):
-    """``fields ** MARCH_POWER`` in place, pushed at least ``_NUDGE`` (relative) off the level.
-
-    Marching cubes interpolates linearly along cell edges; F^p with p = KAPPA^2 / 2 has its
-    inflection at the surface of a chain, so there it is nearly exact. The nudge keeps every
-    vertex off the grid corners (no zero-area faces) and, being a function of the one
-    value each sample has, cannot make two blocks disagree on a shared sample.
-    """
-    np.maximum(fields, np.float32(CUTOFF * level), out=fields)
-    np.log(fields, out=fields)
-    fields *= np.float32(MARCH_POWER)
-    np.exp(fields, out=fields)
-    t_level = np.float32(level**MARCH_POWER)
-    nudge = np.float32(_NUDGE * level**MARCH_POWER)
-    near = np.abs(fields - t_level) < nudge
-    fields[near] = np.where(fields[near] < t_level, t_level - nudge, t_level + nudge)
-    return fields
-
-
-def _halo_blocks(own, blocks, level):
-    """Blocks of ``(B+1)^3`` samples (own samples plus the first planes of the upper
-    neighbours, zero where a neighbour has no field) that the level crosses, in batches.
+def _halo_slots(own, blocks, level):
+    """The blocks to march and, per block, the rows of ``own`` that hold it and its upper
+    neighbours (their first sample planes are its halo; -1 where there is no field).
 
     A block without field of its own is marched too where an upper neighbour's first samples
     rise above the level (balls only a voxel or two wide reach the level next to the edge
     of their cut-off box).
 
-    Yields
-    ------
-    fields : (k, B+1, B+1, B+1) float32
-    blocks : (k, 3) int
+    Returns
+    -------
+    slots : (k, 8) int64
+        Column ``dx + 2 dy + 4 dz``: the neighbour at that offset (column 0: the block).
+    marched : (k, 3) int64
         Block coordinates.
     """
-    n, b = len(own), own.shape[1]
+    n = len(own)
     keys = block_keys(blocks)  # sorted: blocks come from _ball_block_pairs
-    offsets = ((1, 0, 0), (0, 1, 0), (0, 0, 1), (1, 1, 0), (1, 0, 1), (0, 1, 1), (1, 1, 1))
+    offsets = [(o & 1, o >> 1 & 1, o >> 2 & 1) for o in range(1, 8)]
     # A lower neighbour (face, edge or corner) without field still has cells to march where
     # our first plane, line or corner sample along its offset rises above the level.
     lower = []
@@ -171,102 +130,30 @@ def _halo_blocks(own, blocks, level):
     if len(extra):
         extra = np.unique(extra, axis=0)
         extra = extra[~np.isin(block_keys(extra), keys)]
-    cand = np.concatenate([blocks, extra]) if len(extra) else blocks
-    slot_self = np.r_[np.arange(n), np.full(len(cand) - n, -1)]
-
-    def slot(offset):
-        k = block_keys(cand + offset)
+    marched = np.concatenate([blocks, extra]).astype(np.int64) if len(extra) else np.asarray(blocks, np.int64)
+    slots = np.empty((len(marched), 8), dtype=np.int64)
+    slots[:, 0] = np.r_[np.arange(n), np.full(len(marched) - n, -1)]
+    for o, off in enumerate(offsets, start=1):
+        k = block_keys(marched + np.array(off))
         i = np.minimum(np.searchsorted(keys, k), n - 1)
-        return np.where(keys[i] == k, i, -1)
-
-    parts = [((0, 0, 0), slot_self)] + [(off, slot(np.array(off))) for off in offsets]
-    batch = max(1, _MARCH_BATCH // (b + 1) ** 3)
-    for i in range(0, len(cand), batch):
-        sl = slice(i, i + batch)
-        halo = np.zeros((len(cand[sl]), b + 1, b + 1, b + 1), np.float32)
-        for off, s in parts:
-            rows = np.flatnonzero(s[sl] >= 0)
-            if len(rows) == 0:
-                continue
-            # Along each offset axis the neighbour gives its first plane to our last one.
-            target = tuple(b if o else slice(0, b) for o in off)
-            source = tuple(0 if o else slice(0, b) for o in off)
-            halo[(rows,) + target] = own[(s[sl][rows],) + source]
-        flat = halo.reshape(len(halo), -1)
-        cross = (flat.max(axis=1) > level) & (flat.min(axis=1) < level)
-        if cross.any():
-            yield halo[cross], cand[sl][cross]
+        slots[:, o] = np.where(keys[i] == k, i, -1)
+    return slots, marched
 
 
-def _march_packed(fields: np.ndarray, blocks: np.ndarray, level: float, block: int):
-    """Marching cubes over halo blocks packed into one volume: lattice-coordinate vertices,
-    faces, and whether each vertex lies on a seam plane (a block-local coordinate 0 or B)."""
-    n = len(fields)
-    n1 = block + 1
-    px = int(math.ceil(n ** (1 / 3)))
-    py = int(math.ceil(math.sqrt(n / px)))
-    pz = int(math.ceil(n / (px * py)))
-    pad = px * py * pz - n
-    if pad:
-        fields = np.concatenate([fields, np.zeros((pad, n1, n1, n1), dtype=np.float32)])
-    vol = fields.reshape(px, py, pz, n1, n1, n1).transpose(0, 3, 1, 4, 2, 5).reshape(px * n1, py * n1, pz * n1)
-    # Cells between two packed blocks must not march; skimage's mask[i] governs the cell
-    # from sample i - 1 to i, so mask out each block's first sample plane.
-    mx, my, mz = ((np.arange(p * n1) % n1) != 0 for p in (px, py, pz))
-    mask = mx[:, None, None] & my[None, :, None] & mz[None, None, :]
-    v, f, _, _ = marching_cubes(vol, level=level, mask=mask, gradient_direction="ascent")
-    v = v.astype(np.float64)
-    base = np.floor(v)
-    cell = np.minimum(np.floor(v / n1).astype(np.int64), np.array([px, py, pz]) - 1)
-    # Vertices on lattice edges again, in float64 from the edge's two samples and rounded
-    # from block-local coordinates: an edge then gets the same bits whatever batch or
-    # packing marched it (`fuse_fields` welds on them).
-    frac = v - base
-    # (column by column: numpy's reductions over rows of three are several times slower)
-    moved = frac != 0
-    edge = np.flatnonzero((moved[:, 0].view(np.uint8) + moved[:, 1] + moved[:, 2]) == 1)
-    axis = np.where(moved[edge, 0], 0, np.where(moved[edge, 1], 1, 2))
-    i0 = base[edge].astype(np.int64)
-    i1 = i0.copy()
-    i1[np.arange(len(edge)), axis] += 1
-    g0 = vol[i0[:, 0], i0[:, 1], i0[:, 2]].astype(np.float64)
-    g1 = vol[i1[:, 0], i1[:, 1], i1[:, 2]].astype(np.float64)
-    frac[edge, axis] = np.clip((level - g0) / np.where(g1 != g0, g1 - g0, 1.0), 0.0, 1.0)
-    # local = v - cell * n1, exactly (v = base + frac, and the difference is small)
-    local = (base - cell * n1) + frac
-    which = (cell[:, 0] * py + cell[:, 1]) * pz + cell[:, 2]
-    seam = np.zeros(len(local), dtype=bool)
-    for k in range(3):
-        seam |= (local[:, k] == 0) | (local[:, k] == block)
-    return blocks[which] * block + local, f.astype(np.int64), seam
+def _weld_lattice(lattice: np.ndarray, faces: np.ndarray, edge: np.ndarray):
+    """Merge the copies of vertices on block seams.
 
-
-def _weld_lattice(lattice: np.ndarray, faces: np.ndarray, block: int, on_seam: np.ndarray):
-    """Merge the copies of vertices on block seams; drop degenerate faces.
-
-    A marching-cubes vertex lies on a lattice edge (one fractional coordinate) or, for some
-    of Lewiner's cases, inside a cell. Only edges in a seam plane (a coordinate that is a
-    multiple of ``block``: ``on_seam`` (n,) bool) are marched by more than one block; their
-    copies share the edge's key.
+    Only edges in a seam plane are marched by more than one block; their copies share the
+    edge's number (``edge`` (n,) int64, -1 off the seams). A face's three vertices lie on
+    three edges of its cell, so no face becomes degenerate.
     """
-    seam = np.flatnonzero(on_seam)
-    if len(seam):
-        index = np.arange(len(lattice))
-        bs = np.floor(lattice[seam])
-        fs = lattice[seam] - bs
-        bs = bs.astype(np.int64)
-        nfrac = (fs > 0).sum(axis=1)
-        key = (block_keys(bs - bs.min(axis=0)) << 2) | np.where(nfrac == 1, np.argmax(fs, axis=1), 3)
-        key = np.where(nfrac >= 2, -1 - np.arange(len(key)), key)
-        _, first, inverse = np.unique(key, return_index=True, return_inverse=True)
-        index[seam] = seam[first][inverse.reshape(-1)]
-        faces = index[faces]
-    ok = (faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 0] != faces[:, 2])
-    if not ok.all():
-        faces = faces[ok]
-    used = np.zeros(len(lattice), dtype=bool)
-    used[faces] = True
-    if used.all():
+    seam = np.flatnonzero(edge >= 0)
+    if len(seam) == 0:
         return lattice, faces
-    remap = np.cumsum(used) - 1
-    return lattice[used], remap[faces]
+    _, first, inverse = np.unique(edge[seam], return_index=True, return_inverse=True)
+    keep = np.ones(len(lattice), dtype=bool)
+    keep[seam] = False
+    keep[seam[first]] = True
+    index = np.cumsum(keep) - 1
+    index[seam] = index[seam[first]][inverse.reshape(-1)]
+    return lattice[keep], index[faces]

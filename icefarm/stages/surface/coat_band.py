@@ -6,7 +6,7 @@ kept where its centre's distance says the coat may come within a voxel of it; wh
 crease or change of wet/dry/excluded comes near, the samples of a tile share their
 centre's nearest surface sample (one plane: the same distance, exactly). The result has
 the block layout of `icefarm.metaballs.Field` and is stored so that marching cubes,
-which interpolates ``value ** MARCH_POWER`` linearly (`icefarm.metaballs.march._march_domain`),
+which interpolates ``value ** MARCH_POWER`` linearly (`icefarm.metaballs.march_kernel`),
 interpolates the signed distance itself: the iso-surface lies where the distance says,
 to a fraction of a voxel, and fuses with the icicles' field through
 `icefarm.metaballs.fuse_fields`.
@@ -23,7 +23,7 @@ import numpy as np
 
 from ...errors import InputError
 from ...metaballs.field import BLOCK, CUTOFF, Field, block_keys
-from ...metaballs.march import MARCH_POWER
+from ...metaballs.march_kernel import MARCH_POWER
 from ...spatial import nearest
 from .coat_kernel import band_phi, point_tree
 
