@@ -63,6 +63,12 @@ def test_the_region_holds_every_cell_the_other_surface_meets(fine, coarse, max_t
         # ... and it is tighter than the distance margin it replaces.
         near = union_region.near_region(field, other.origin + lattice * other.voxel, union_region.margin(field, other))
         assert region.mask.sum() * region.tile**3 < near.mask.sum() * near.tile**3
+        # The field's own faces inside it: those whose cell has its 8 samples held.
+        own, own_faces = march_blocks(field.values, field.blocks, field.level)
+        inner = union_region.inner_faces(own, own_faces, region)
+        cells = np.floor(own[own_faces].min(axis=1)).astype(np.int64)
+        expect = np.all([region.holds(cells + np.array(step)) for step in np.ndindex(2, 2, 2)], axis=0)
+        assert 0 < inner.sum() < len(inner) and np.array_equal(inner, expect)
 
 
 def test_fusing_on_the_surface_region_gives_the_margins_union(monkeypatch):

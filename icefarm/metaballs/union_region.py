@@ -20,7 +20,7 @@ from functools import cached_property
 import numpy as np
 from scipy import ndimage
 
-from ..geometry import face_all
+from ..compiled import compiled
 from .field import Field, block_grid
 
 # Most tiles (or cells of the other lattice) in a dense grid built to find a region.
@@ -52,8 +52,7 @@ class Region:
 
     @cached_property
     def busy_blocks(self) -> np.ndarray:
-        """(k,) bool: the blocks with a tile in the region (`holds` asks it nine times per
-        `inner_faces`: on the 3 m house's tips, 3,319 blocks of 4,096 tiles each)."""
+        """(k,) bool: the blocks with a tile in the region (the blocks `restrict` keeps)."""
         return self.mask.reshape(len(self.mask), -1).any(axis=1)
 
     def holds(self, samples: np.ndarray) -> np.ndarray:
@@ -342,33 +341,53 @@ def _held(cells: np.ndarray, shape: np.ndarray, w0: np.ndarray, w1: np.ndarray) 
 
 
 def inner_faces(lattice: np.ndarray, faces: np.ndarray, region: Region) -> np.ndarray:
-    """Faces whose marching-cubes cell has all 8 samples in ``region``: marching the
-    restricted field gives them bit for bit.
+    """Faces whose marching-cubes cell has all 8 samples in ``region`` (or in no block of
+    the field: zero either way): marching the restricted field gives them bit for bit.
 
     A face's cell is the floor of its vertices' least coordinates, the same for all faces
-    of a cell, so a cell's faces (and the vertex some cells add inside) never split between
-    the two sides of the seam. NaN lattice coordinates (a vertex of no marching of this
-    field) put a face out of every region.
+    of a cell, so a cell's faces never split between the two sides of the seam. NaN lattice
+    coordinates (a vertex of no marching of this field) put a face out of every region.
+    Compiled: the face's cell and its 8 samples' tiles in one pass (on Table 2's dragon,
+    0.15 s per run of NumPy's gathers, sample by sample, before).
     """
-    finite = np.isfinite(lattice).all(axis=1)
-    corner = np.floor(np.where(finite[:, None], lattice, 0.0)).astype(np.int64)
-    # A vertex lies on an edge of its face's cell, so its floor is one of the cell's samples:
-    # only faces whose three vertices' floors lie in the region can be inner.
-    held = finite.copy()
-    held[finite] = region.holds(corner[finite])
+    per = region.mask.shape[1]
     inner = np.zeros(len(faces), dtype=bool)
-    maybe = np.flatnonzero(face_all(held, faces))
-    f = faces[maybe]
-    cell = np.minimum(np.minimum(corner[f[:, 0]], corner[f[:, 1]]), corner[f[:, 2]])
-    ok = np.ones(len(f), dtype=bool)
-    tile = region.tile
-    across = cell % tile == tile - 1  # per axis: the cell's samples reach the next tile
-    for step in np.ndindex(2, 2, 2):  # the tiles the cell's 8 samples lie in
-        s = np.array(step, dtype=bool)
-        rows = np.flatnonzero(ok & across[:, s].all(axis=1))
-        ok[rows] = region.holds(cell[rows] + np.array(step))
-    inner[maybe] = ok
+    _inner(np.ascontiguousarray(lattice, dtype=np.float64), np.ascontiguousarray(faces, dtype=np.int64),
+           region.mask.reshape(len(region.mask), -1), np.ascontiguousarray(region.index, dtype=np.int64),
+           np.asarray(region.first, dtype=np.int64), _log2(per * region.tile), _log2(region.tile), per, inner)
     return inner
+
+
+@compiled()
+def _inner(lattice, faces, mask, index, first, block_shift, tile_shift, per, inner):
+    block = 1 << block_shift
+    for f in range(faces.shape[0]):
+        cell = np.empty(3, dtype=np.int64)
+        finite = True
+        for a in range(3):
+            low = np.inf
+            for s in range(3):
+                value = lattice[faces[f, s], a]
+                finite &= np.isfinite(value)
+                low = min(low, value)
+            cell[a] = np.int64(np.floor(low)) if finite else 0
+        if not finite:
+            continue
+        held = True
+        for c in range(8):
+            x, y, z = cell[0] + (c & 1), cell[1] + (c >> 1 & 1), cell[2] + (c >> 2 & 1)
+            # the block (off the grid: its border, which has none) and, in it, the tile
+            i = index[min(max((x >> block_shift) - first[0], 0), index.shape[0] - 1),
+                      min(max((y >> block_shift) - first[1], 0), index.shape[1] - 1),
+                      min(max((z >> block_shift) - first[2], 0), index.shape[2] - 1)]
+            if i < 0:
+                continue
+            t = (((x & (block - 1)) >> tile_shift) * per + ((y & (block - 1)) >> tile_shift)) * per \
+                + ((z & (block - 1)) >> tile_shift)
+            if not mask[i, t]:
+                held = False
+                break
+        inner[f] = held
 
 
 def restrict(field: Field, region: Region):
