@@ -276,6 +276,23 @@ def test_ripples_rise_from_a_smooth_root_and_differ_from_icicle_to_icicle(surfac
     assert np.median(middle) * 1000 > 0.2  # a crest's mean displacement: 2/pi of its depth
 
 
+def test_ripples_carved_in_chunks_on_every_core_equal_one_pass(surface_kit, monkeypatch):
+    from icefarm.stages.surface import ripples
+
+    surface, _ = surface_kit.groups()
+    prof = profile_args(surface)
+    traj = surface_kit.straight(np.array([[0.0, 0.0, 0.0], [0.05, 0.0, 0.0], [0.1, 0.0, 0.0]]), [0.2] * 3,
+                                step=0.002)
+    rng = np.random.default_rng(0)
+    vertices = traj.points[rng.integers(0, len(traj.points), 3000)] + rng.normal(0.0, 0.004, (3000, 3))
+    one_pass = ripples.carve_ripples_and_bands(vertices, traj, prof)
+    monkeypatch.setattr(ripples, "_CHUNK", 10)
+    monkeypatch.setattr(ripples.os, "cpu_count", lambda: 3)
+    chunked = ripples.carve_ripples_and_bands(vertices, traj, prof)
+    assert not np.array_equal(one_pass[0], vertices)
+    assert np.array_equal(one_pass[0], chunked[0]) and np.array_equal(one_pass[1], chunked[1])
+
+
 def test_ripple_texture_reads_the_surface_between_coarse_rings_of_vertices():
     """A tube rippled 0.7 mm every 1 cm, meshed in rings of vertices 2 mm apart (a 2 mm
     lattice's spacing: the eaves scene's). Half the 0.6 mm slabs hold no vertex; the radius

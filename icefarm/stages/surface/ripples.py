@@ -14,6 +14,8 @@ trunk, it runs deep in patches with calm stretches between, and it is quiet near
 
 from __future__ import annotations
 
+import os
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -187,36 +189,81 @@ def _waves(vertices: np.ndarray, traj: TrajectoryResult, prof: Profile, max_radi
     for k in range(3):  # column by column: numpy reduces rows of three several times slower
         within &= (vertices[:, k] >= lo[k]) & (vertices[:, k] <= hi[k])
     candidates = np.flatnonzero(within)
-    _, i = nearest(point_index(axis[rippled]), vertices[candidates], reach)
+    phase, rate = _wandering_phase(x, owner, frequency, texture)
+    samples = _Samples(point_index(axis[rippled]), rippled, reach, amplitude, axis, tangent, *_frames(tangent), x,
+                       owner, L, radius, wave_amp, carved, phase, rate, texture,
+                       _forks(branches, L, 2 * np.pi / frequency))
+    # Each vertex's ripple is its own: chunks of them on every core (NumPy and the k-d
+    # tree leave the GIL), joined in order, give the same arrays as one pass.
+    threads = os.cpu_count() or 1
+    chunks = np.array_split(candidates, threads) if len(candidates) >= _CHUNK * threads else [candidates]
+    with ThreadPoolExecutor(len(chunks)) as pool:
+        parts = list(pool.map(lambda c: _vertex_waves(vertices, c, samples), chunks))
+    return _Waves(*(np.concatenate(arrays) for arrays in zip(*(vars(part).values() for part in parts))))
+
+
+# Vertices a thread takes at least (`_waves`): fewer go in one pass.
+_CHUNK = 20_000
+
+
+@dataclass(frozen=True)
+class _Samples:
+    """The axis samples of `_waves` and what the ripple is there: the k-d tree of the
+    ``rippled`` ones and how far from them (``reach``, m) a vertex may lie; per sample its
+    point, tangent and frame, arc length ``x``, branch (``owner``), radius, wave amplitude
+    (``carved``: faded where the mesh is coarse), phase and wavenumber; per branch its
+    length, texture and forks."""
+
+    tree: object
+    rippled: np.ndarray
+    reach: float
+    amplitude: float
+    axis: np.ndarray
+    tangent: np.ndarray
+    e1: np.ndarray
+    e2: np.ndarray
+    x: np.ndarray
+    owner: np.ndarray
+    lengths: np.ndarray
+    radius: np.ndarray
+    wave_amp: np.ndarray
+    carved: np.ndarray
+    phase: np.ndarray
+    rate: np.ndarray
+    texture: _Texture
+    forks: _Forks
+
+
+def _vertex_waves(vertices: np.ndarray, candidates: np.ndarray, s: _Samples) -> _Waves:
+    """`_Waves` of the ``candidates`` (indices into ``vertices`` (n, 3)) near an axis."""
+    _, i = nearest(s.tree, vertices[candidates], s.reach)
     found = i >= 0
-    near, i = candidates[found], rippled[i[found]]
-    t_i = tangent[i]  # gathered once: the gathers of (k, 3) rows are most of the cost here
-    rel = vertices[near] - axis[i]
+    near, i = candidates[found], s.rippled[i[found]]
+    t_i = s.tangent[i]  # gathered once: the gathers of (k, 3) rows are most of the cost here
+    rel = vertices[near] - s.axis[i]
     along = np.einsum("ij,ij->i", rel, t_i)
     radial = rel - along[:, None] * t_i
     dist = np.linalg.norm(radial, axis=1)
-    own = (dist <= REACH * radius[i] + amplitude) & (dist > 1e-9)
+    own = (dist <= REACH * s.radius[i] + s.amplitude) & (dist > 1e-9)
     i, radial, dist, along = i[own], radial[own], dist[own], along[own]
-    b = owner[i]
+    b = s.owner[i]
+    texture = s.texture
     # cos and sin of each vertex's angle around the axis, in its sample's frame
-    e1, e2 = _frames(tangent)
-    cos_t = np.einsum("ij,ij->i", radial, e1[i]) / dist
-    sin_t = np.einsum("ij,ij->i", radial, e2[i]) / dist
-    x_i = x[i]
-    xv = np.clip(x_i + along, 0.0, L[b])  # the vertex's own arc length along its branch
-    # the phase at the vertex: its sample's, carried on along the axis by the local wavenumber
-    phase, rate = _wandering_phase(x, owner, frequency, texture)
+    cos_t = np.einsum("ij,ij->i", radial, s.e1[i]) / dist
+    sin_t = np.einsum("ij,ij->i", radial, s.e2[i]) / dist
+    x_i = s.x[i]
+    xv = np.clip(x_i + along, 0.0, s.lengths[b])  # the vertex's own arc length along its branch
     # per branch, then gathered: the same numbers as per vertex, a fraction of the work
     tilt = cos_t * np.cos(texture.tilt_at)[b] + sin_t * np.sin(texture.tilt_at)[b]  # cos(theta - tilt_at)
-    forks = _forks(branches, L, 2 * np.pi / frequency)
-    shift, core = _fork_shift(forks, b, xv, dist * cos_t, dist * sin_t)
-    crest = np.sin(phase[i] + rate[i] * (xv - x_i) + texture.tilt[b] * tilt + shift)
+    shift, core = _fork_shift(s.forks, b, xv, dist * cos_t, dist * sin_t)
+    # the phase at the vertex: its sample's, carried on along the axis by the local wavenumber
+    crest = np.sin(s.phase[i] + s.rate[i] * (xv - x_i) + texture.tilt[b] * tilt + shift)
     # crests fade and break around the circumference: an amplitude that drifts with angle
     # and with height, never below FADE_FLOOR of the full one
     swirl = texture.break_phase[b] + xv * texture.break_rate[b]
     fade = 0.5 * (1 + 2 * sin_t * cos_t * np.cos(swirl) + (cos_t**2 - sin_t**2) * np.sin(swirl))
     depth = (FADE_FLOOR + (1 - FADE_FLOOR) * fade) * core * _patches(texture, b, xv, cos_t, sin_t)
-    return _Waves(near[own], carved[i] * crest * depth, radial, dist, wave_amp[i] * depth, crest)
+    return _Waves(near[own], s.carved[i] * crest * depth, radial, dist, s.wave_amp[i] * depth, crest)
 
 
 # Natural ripples (Chen & Morris 2013; photographs of eaves icicles): the wavelength
