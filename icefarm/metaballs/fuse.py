@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
+
 import numpy as np
 
 from ..geometry import face_any, face_count
@@ -88,20 +90,12 @@ def _local_union(a, b, with_lattice: bool = True):
         The lattice coordinates of ``a``'s vertices on ``a``'s lattice, NaN for the others;
         None unless ``with_lattice`` (only a later union with a third field reads them).
     """
-    sides = []
-    for (field, verts, lattice, faces), (other, other_verts, other_lattice, _) in ((a, b), (b, a)):
-        # The other's vertices of no marching of its field lie away from this surface (the
-        # contract above): the union runs near those of its marching only.
-        marched = np.isfinite(other_lattice).all(axis=1)
-        region = surface_region(field, other, other_lattice[marched]) if marched.any() else \
-            near_region(field, other_verts, margin(field, other))
-        if region is None:
-            return None
-        inner = inner_faces(lattice, faces, region)
-        values, blocks = restrict(field, region)
-        r_lattice, r_faces = march_blocks(values, blocks, field.level)
-        r_inner = inner_faces(r_lattice, r_faces, region)
-        sides.append((field, verts, faces, inner, field.origin + r_lattice * field.voxel, r_faces, r_inner))
+    # The two sides are independent: both at once (the regions' NumPy work, the compiled
+    # marching and face tests leave the GIL).
+    with ThreadPoolExecutor(2) as pool:
+        sides = list(pool.map(lambda pair: _side(*pair), ((a, b), (b, a))))
+    if any(side is None for side in sides):
+        return None
     # The whole mesh's faces in cells that reach out of the region lie off the other
     # surface: each lies wholly inside the other solid (the union covers it: dropped) or
     # wholly outside (kept as it is).
@@ -149,6 +143,26 @@ def _local_union(a, b, with_lattice: bool = True):
     lattice = np.full((len(verts), 3), np.nan)
     lattice[:na] = a[2]
     return verts[used], (np.cumsum(used) - 1)[faces], lattice[used]
+
+
+def _side(part, other_part):
+    """One side of `_local_union`: ``(field, vertices, faces, inner, restricted vertices,
+    restricted faces, restricted inner)`` of ``part`` against ``other_part``; None where
+    the region's grids would be too big."""
+    field, verts, lattice, faces = part
+    other, other_verts, other_lattice, _ = other_part
+    # The other's vertices of no marching of its field lie away from this surface (the
+    # contract above): the union runs near those of its marching only.
+    marched = np.isfinite(other_lattice).all(axis=1)
+    region = surface_region(field, other, other_lattice[marched]) if marched.any() else \
+        near_region(field, other_verts, margin(field, other))
+    if region is None:
+        return None
+    inner = inner_faces(lattice, faces, region)
+    values, blocks = restrict(field, region)
+    r_lattice, r_faces = march_blocks(values, blocks, field.level)
+    r_inner = inner_faces(r_lattice, r_faces, region)
+    return field, verts, faces, inner, field.origin + r_lattice * field.voxel, r_faces, r_inner
 
 
 def _used(faces: np.ndarray, n: int) -> np.ndarray:

@@ -81,8 +81,9 @@ def face_estimate(field) -> int:
     two faces per vertex, and marching cubes puts one vertex on each crossed edge), those
     across block seams included (an absent block is outside).
 
-    Exact but for the few faces marching drops as degenerate (the real-size bench's
-    icicles at 2.3 mm: 944,200 counted, 943,126 marched), in a twentieth of its time.
+    A closed mesh has exactly ``2 V - 2 chi`` faces, so this is off by twice the surface's
+    Euler characteristic (600 random balls: 841,604 counted, 841,844 marched), in a
+    fraction of the marching's time.
     """
     inside = field.values > field.level
     if len(inside) == 0:
