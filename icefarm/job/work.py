@@ -246,14 +246,15 @@ def measure(i: JobInputs, r: StageResults) -> IceFigures:
     ice, coat, found = r.ice, r.wet, r.drips
     assert r.trajectories is not None and found is not None
     axes = ice.axes if ice.axes is not None else r.trajectories
-    # The two measures share nothing, and their k-d queries, ray casts and array work
-    # release the GIL: side by side they take the longer one's time and a bit.
-    with ThreadPoolExecutor(1) as pool:
+    # The three measures share nothing, and their k-d queries, ray casts and array work
+    # release the GIL: side by side they take about the longest one's time.
+    with ThreadPoolExecutor(2) as pool:
         glaze = pool.submit(measure_glaze, ice.vertices, ice.faces,
                             dataclasses.replace(coat, exclude=_not_glaze(coat.mesh, found, coat.exclude, i.params)),
                             i.gravity)
+        fringe = pool.submit(fringe_figures, ice.vertices, ice.faces, axes, i.gravity)
         icicles = measure_icicles(ice.vertices, ice.faces, axes, i.params.surface)
-        return IceFigures(icicles, fringe_figures(ice.vertices, ice.faces, axes, i.gravity), glaze.result())
+        return IceFigures(icicles, fringe.result(), glaze.result())
 
 
 def _not_glaze(mesh: trimesh.Trimesh, found: DripResult, sole: np.ndarray | None, p: Params) -> np.ndarray:
