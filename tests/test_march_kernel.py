@@ -66,3 +66,12 @@ def test_vertices_and_area_match_scikit_image():
     theirs = trimesh.Trimesh(v, f, process=False)
     assert ours.is_watertight and ours.area == pytest.approx(theirs.area, rel=2e-3)
     assert ours.volume == pytest.approx(theirs.volume, rel=2e-3)
+
+
+def test_blocks_too_far_apart_to_number_their_edges_are_refused_not_wrapped():
+    values = np.full((2, 16, 16, 16), 2.0 * LEVEL, dtype=np.float32)
+    far = np.array([[1, 1, 1], [2**19, 2**19, 2**19]])
+    with pytest.raises(ValueError, match="span too many samples"):
+        march_blocks(values, far, LEVEL)
+    lattice, faces = march_blocks(values[:1], far[:1], LEVEL)  # one of them alone: a closed box
+    assert trimesh.Trimesh(lattice, faces, process=False).is_watertight

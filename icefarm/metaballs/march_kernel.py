@@ -78,6 +78,9 @@ def march_slotted(values: np.ndarray, slots: np.ndarray, blocks: np.ndarray, lev
         # seam edges are numbered from the lowest sample of the marched blocks
         lo = blocks.min(axis=0) * b if k else np.zeros(3, np.int64)
         span = (blocks.max(axis=0) + 1) * b + 1 - lo if k else np.ones(3, np.int64)
+        if int(span[0]) * int(span[1]) * int(span[2]) * 3 >= 2**63:
+            raise ValueError(f"blocks {blocks.min(axis=0)} to {blocks.max(axis=0)} span too many samples to number "
+                             "their seam edges in int64")
         grid = np.array([lo[0], lo[1], lo[2], span[1], span[2]], dtype=np.int64)
         edges = EDGES.astype(np.int64)
         list(pool.map(lambda s: _fill(values, slots[s], blocks[s], float(level), codes[s], starts[s],
