@@ -14,6 +14,8 @@ import numpy as np
 from ..geometry import perpendicular_basis, unit
 from ..spatial import ray_caster
 from ..tol import tol
+from ..triangle_tree import TriangleTree, triangle_tree
+from .slide_kernel import DRIPS, ENDS, slide_paths
 
 BRANCH_ANGLE = 30.0  # degrees: p1'' leaves the trunk at 30 degrees, then turns back parallel
 
@@ -74,6 +76,9 @@ class _Grower:
         self.lift = max(self.eps, 0.25 * step)
         self.points: list[list[np.ndarray]] = []
         self.caster = caster or ray_caster(mesh)
+        self.normals = np.ascontiguousarray(mesh.face_normals, dtype=np.float64)
+        self.closed = bool(mesh.is_watertight)
+        self.tree: TriangleTree | None = None  # for the slides, built at the first
 
     def bend(self, t: _Turtles, rows: np.ndarray, degrees: float) -> None:
         """``+(c)``: yaw H by ``degrees`` towards L, or towards the wind, saturating at max_tilt.
@@ -191,16 +196,17 @@ class _Grower:
 
     def facing(self, face: np.ndarray, towards: np.ndarray) -> np.ndarray:
         """Unit normals ``(k, 3)`` of ``face``, turned to the side ``towards`` points from."""
-        normal = self.mesh.face_normals[face]
-        if not self.mesh.is_watertight:  # open meshes have no outside: face where we came from
+        normal = self.normals[face]
+        if not self.closed:  # open meshes have no outside: face where we came from
             normal = np.where((np.einsum("ij,ij->i", normal, towards) > 0)[:, None], -normal, normal)
         return normal
 
     def slide(self, t: _Turtles, rows: np.ndarray, hits: np.ndarray, face: np.ndarray) -> None:
         """Follow the surface along gravity from ``hits`` until the drip criterion holds (4.3.1).
 
-        All sliding turtles move together: each step goes down the tangent plane, then a ray
-        back along the normal puts the point on the surface again. A point whose surface falls
+        Each turtle slides to its end in one compiled loop (`slide_kernel.slide_paths`): each
+        step goes down the tangent plane, then a ray back along the normal puts the point on
+        the surface again. A point whose surface falls
         away beneath it drips from there; one that stops descending (a floor, a pocket) ends.
         Every recorded point lies below the one before it: water never runs up.
         """
@@ -212,47 +218,14 @@ class _Grower:
         pos[rises] = t.pos[rows[rises]]
         self.record(t, rows[~rises], pos[~rises])
         limit = int(4 * np.linalg.norm(self.mesh.extents) / self.step) + 1
-        sliding = np.ones(len(rows), dtype=bool)
-        for _ in range(limit):
-            done = normal @ self.g >= self.cos_dl
-            along = self.g - (normal @ self.g)[:, None] * normal
-            stuck = ~done & (np.linalg.norm(along, axis=1) < 1e-3)
-            t.alive[rows[stuck & sliding]] = False
-            self.release(t, rows[done & sliding], pos[done & sliding])
-            sliding &= ~done & ~stuck
-            if not sliding.any():
-                return
-            k = np.flatnonzero(sliding)
-            target = pos[k] + self.step * unit(along[k])
-            back, below = self.cast(target, -normal[k])
-            fell_off = back > self.step + self.lift
-            on = ~fell_off
-            new_normal = normal[k].copy()
-            if on.any():
-                new_normal[on] = self.facing(below[on], -normal[k][on])
-            surface = target - np.where(fell_off, 0.0, back)[:, None] * normal[k]
-            moved = np.where(on[:, None], surface + self.lift * new_normal, target)
-            # The chord to the new point must not cut through the object: where it would,
-            # the slide stops short of that wall and follows it next.
-            chord = moved - pos[k]
-            span = np.linalg.norm(chord, axis=1)
-            reach, wall = self.cast(pos[k], unit(chord))
-            cut = reach < span + self.eps
-            if cut.any():
-                moved[cut] = pos[k][cut] + np.maximum(reach[cut] - self.lift, 0.0)[:, None] * unit(chord[cut])
-                new_normal[cut] = self.facing(wall[cut], chord[cut])
-                fell_off &= ~cut
-            # Water only runs downhill: a step that does not descend means it pools here.
-            stalled = (moved - pos[k]) @ self.g < 0.05 * self.step
-            t.alive[rows[k[stalled]]] = False
-            sliding[k[stalled]] = False
-            pos[k] = moved
-            normal[k] = new_normal
-            self.record(t, rows[k[~stalled]], pos[k[~stalled]])
-            fell_off &= ~stalled
-            self.release(t, rows[k[fell_off]], pos[k[fell_off]])
-            sliding[k[fell_off]] = False
-        t.alive[rows[sliding]] = False
+        if self.tree is None:
+            self.tree = triangle_tree(self.mesh.vertices, self.mesh.faces)
+        walk = (self.g, float(self.cos_dl), float(self.step), float(self.lift), float(self.eps), limit)
+        points, owner, end, outcome = slide_paths(np.ascontiguousarray(pos), np.ascontiguousarray(normal), walk,
+                                                  self.normals, self.closed, self.tree.arrays())
+        self.record(t, rows[owner], points)
+        t.alive[rows[outcome == ENDS]] = False
+        self.release(t, rows[outcome == DRIPS], end[outcome == DRIPS])
 
     def record(self, t: _Turtles, rows: np.ndarray, pos: np.ndarray) -> None:
         for r, p in zip(rows, pos):

@@ -23,6 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...compiled import compiled
+from ...median_split import median_order, tree_boxes
 
 # Points per leaf of a `PointTree`: consecutive in the tree's order.
 LEAF = 8
@@ -34,7 +35,6 @@ LEAF = 8
 BESIDE = 3.0
 _STACK = 128  # a tree of 2^60 leaves is never built
 _GATHER = 4096  # leaves gathered around a tile at most (`_tile_nearest`)
-_EXTENT_SAMPLES = 64  # points that pick the axis a node splits across (`_split`)
 
 
 @dataclass(frozen=True)
@@ -75,7 +75,7 @@ def point_tree(points: np.ndarray) -> PointTree | None:
     """A `PointTree` of ``points`` (n, 3) in meters; None for none.
 
     A k-d tree in the layout of a complete binary tree: each node's points split at its
-    middle leaf across their widest extent (`_split`, compiled), then the boxes, level by
+    middle leaf across their widest extent (`icefarm.median_split.median_order`), then the boxes, level by
     level. (Morton order instead makes leaves of eight of the dragon's coat samples 8 mm
     across, median, where they lie 1.2 mm apart: 1.6 us a query.)
     """
@@ -85,87 +85,10 @@ def point_tree(points: np.ndarray) -> PointTree | None:
         return None
     count = -(-n // LEAF)
     leaves = 1 << max(int(count - 1).bit_length(), 0)
-    order = _split(points, leaves)
+    order = median_order(points, leaves, LEAF)
     sorted_points = points[order]
-    lo, hi = _boxes(sorted_points, leaves)
+    lo, hi = tree_boxes(sorted_points[:, None, :], leaves, LEAF)
     return PointTree(sorted_points, order, lo, hi, leaves, points)
-
-
-@compiled()
-def _boxes(points, leaves):
-    """The boxes (lo, hi: (2 leaves, 3)) of the leaves of `LEAF` consecutive ``points``
-    and of the nodes above them; empty leaves' are inside out (inf, -inf)."""
-    lo = np.full((2 * leaves, 3), np.inf)
-    hi = np.full((2 * leaves, 3), -np.inf)
-    for j in range(len(points)):
-        k = leaves + j // LEAF
-        for a in range(3):
-            lo[k, a] = min(lo[k, a], points[j, a])
-            hi[k, a] = max(hi[k, a], points[j, a])
-    for k in range(leaves - 1, 0, -1):
-        for a in range(3):
-            lo[k, a] = min(lo[2 * k, a], lo[2 * k + 1, a])
-            hi[k, a] = max(hi[2 * k, a], hi[2 * k + 1, a])
-    return lo, hi
-
-
-@compiled()
-def _split(points, leaves):
-    """The order of ``points`` (n, 3) that puts node k's points (its leaves ``l0 .. l1``) in
-    rows ``l0 LEAF .. l1 LEAF``, its first child's (the first half of its leaves) on the low
-    side of its widest axis. The points move with their rows (sequential reads)."""
-    n = len(points)
-    work = points.copy()
-    order = np.arange(n)
-    width = leaves
-    while width > 1:
-        half = width // 2
-        for first in range(0, leaves, width):
-            start, mid, end = min(first * LEAF, n), min((first + half) * LEAF, n), min((first + width) * LEAF, n)
-            if mid <= start or mid >= end:
-                continue
-            # the widest extent, of at most _EXTENT_SAMPLES of the points
-            stride = max(1, (end - start) // _EXTENT_SAMPLES)
-            axis, widest = 0, -1.0
-            for a in range(3):
-                low, high = np.inf, -np.inf
-                for j in range(start, end, stride):
-                    low = min(low, work[j, a])
-                    high = max(high, work[j, a])
-                if high - low > widest:
-                    axis, widest = a, high - low
-            _select(work, order, start, end, mid, axis)
-        width = half
-    return order
-
-
-@compiled()
-def _select(work, order, start, end, kth, axis):
-    """Reorder rows ``start:end`` of ``work`` (and ``order`` with them) so that none before
-    row ``kth`` lies above, along ``axis``, any from it on (quickselect, Hoare's partition
-    about a median of three)."""
-    lo, hi = start, end - 1
-    while lo < hi:
-        a, b, c = work[lo, axis], work[(lo + hi) // 2, axis], work[hi, axis]
-        pivot = max(min(a, b), min(max(a, b), c))
-        i, j = lo, hi
-        while i <= j:
-            while work[i, axis] < pivot:
-                i += 1
-            while work[j, axis] > pivot:
-                j -= 1
-            if i <= j:
-                for d in range(3):
-                    work[i, d], work[j, d] = work[j, d], work[i, d]
-                order[i], order[j] = order[j], order[i]
-                i += 1
-                j -= 1
-        if kth <= j:
-            hi = j
-        elif kth >= i:
-            lo = i
-        else:
-            break
 
 
 @compiled(inline="always")
