@@ -190,7 +190,7 @@ def test_the_face_count_of_two_lattices_is_what_marching_them_makes():
 def test_the_coarse_lattice_only_when_one_lattice_cannot_hold_the_face_budget():
     """The coarse lattice carries no ripple, so it is kept for assets whose ice one lattice
     cannot hold. The 3.5 m street lamp at the defaults had its thick parts at 3 mm, ripples
-    0.2 mm (texture); one lattice holds it in 1.1 M faces, rippled. Squeezed to a 200 k face
+    0.2 mm (texture); one lattice holds it in 1.1 M faces, rippled. Squeezed to a 150 k face
     budget, it still splits."""
     from icefarm import params
     from icefarm.generators import generate
@@ -199,7 +199,7 @@ def test_the_coarse_lattice_only_when_one_lattice_cannot_hold_the_face_budget():
     from icefarm.stages.surface.measure import measure_icicles
 
     prep = prepare(generate("lamp"), 3.5)
-    for face_budget, split in ((3_000_000, False), (200_000, True)):
+    for face_budget, split in ((3_000_000, False), (150_000, True)):
         p = params.resolve({"surface": {"face_budget": face_budget}})
         ice = run_stages(prep, p, 0).ice
         texture = measure_icicles(ice.vertices, ice.faces, ice.axes, p.surface).ripple_texture

@@ -45,6 +45,7 @@ from scipy.sparse.linalg import cg
 from scipy.spatial import cKDTree
 
 from ..geometry import unit
+from ..midpoint import split_long_edges
 from ..params import StormParams
 from .basins import spill_over, spill_routes
 from .rain import FALL_SPEED, facing_rain, open_sky, rain_vector
@@ -375,25 +376,16 @@ FACES_PER_EDGE_AREA = 3.5
 
 def refine(mesh: trimesh.Trimesh, max_edge: float) -> trimesh.Trimesh:
     """``mesh`` with every edge longer than ``max_edge`` meters split at its midpoint, until
-    none is: the same surface exactly, conforming (no T-junctions), so it stays watertight.
-    The threshold grows so that the result holds about `FLOW_FACES` faces at most.
-
-    pymeshlab's midpoint subdivision with a length threshold; trimesh's
-    ``subdivide_to_size`` splits faces one by one and leaves T-junctions (open seams)."""
-    import pymeshlab
-
-    from ..meshlab import current, meshset
-
+    none is: the same surface exactly, conforming (no T-junctions), so it stays watertight
+    (`icefarm.midpoint.split_long_edges`). The threshold grows so that the result holds about
+    `FLOW_FACES` faces at most."""
     max_edge = max(max_edge, math.sqrt(FACES_PER_EDGE_AREA * float(mesh.area) / FLOW_FACES))
-    longest = float(mesh.edges_unique_length.max())
-    if longest <= max_edge:
+    if float(mesh.edges_unique_length.max(initial=0.0)) <= max_edge:
         return mesh
-    ms = meshset(mesh)
-    ms.meshing_surface_subdivision_midpoint(iterations=min(20, int(math.ceil(math.log2(longest / max_edge))) + 2),
-                                            threshold=pymeshlab.PureValue(max_edge))
-    out = current(ms)
-    out.merge_vertices()
-    return out
+    welded = mesh.copy()  # seams of the same vertex twice are split on both sides alike
+    welded.merge_vertices()
+    vertices, faces = split_long_edges(welded.vertices, welded.faces, max_edge)
+    return trimesh.Trimesh(vertices, faces, process=False)
 
 
 def drip_rim_length(mesh: trimesh.Trimesh, region: np.ndarray, gravity, drip_limit: float) -> float:
