@@ -60,3 +60,12 @@ def test_refine_welds_a_seam_first():
     split = trimesh.Trimesh(box.vertices[box.faces].reshape(-1, 3), np.arange(36).reshape(-1, 3), process=False)
     out = refine(split, 0.3)
     assert out.is_watertight and out.edges_unique_length.max() <= 0.3
+
+
+def test_refine_refuses_edges_of_three_faces_as_pymeshlab_did():
+    box = trimesh.creation.box((1.0, 1.0, 1.0))
+    fin = trimesh.Trimesh(np.r_[box.vertices, [[0.5, 0.5, 2.0]]], np.r_[box.faces, [[4, 5, 8]]], process=False)
+    shared = np.bincount(fin.edges_unique_inverse).max()
+    assert shared == 3
+    with pytest.raises(ValueError, match="at most two faces"):
+        refine(fin, 0.3)

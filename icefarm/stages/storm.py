@@ -378,12 +378,21 @@ def refine(mesh: trimesh.Trimesh, max_edge: float) -> trimesh.Trimesh:
     """``mesh`` with every edge longer than ``max_edge`` meters split at its midpoint, until
     none is: the same surface exactly, conforming (no T-junctions), so it stays watertight
     (`icefarm.midpoint.split_long_edges`). The threshold grows so that the result holds about
-    `FLOW_FACES` faces at most."""
+    `FLOW_FACES` faces at most.
+
+    Raises
+    ------
+    ValueError
+        An edge shared by more than two faces (pymeshlab's subdivision, which this replaced,
+        refused those too: the glaze then carries its water on the object as it is).
+    """
     max_edge = max(max_edge, math.sqrt(FACES_PER_EDGE_AREA * float(mesh.area) / FLOW_FACES))
     if float(mesh.edges_unique_length.max(initial=0.0)) <= max_edge:
         return mesh
     welded = mesh.copy()  # seams of the same vertex twice are split on both sides alike
     welded.merge_vertices()
+    if len(welded.faces) and np.bincount(welded.edges_unique_inverse).max() > 2:
+        raise ValueError("midpoint refinement needs a mesh whose edges join at most two faces")
     vertices, faces = split_long_edges(welded.vertices, welded.faces, max_edge)
     return trimesh.Trimesh(vertices, faces, process=False)
 

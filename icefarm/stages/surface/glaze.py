@@ -127,13 +127,11 @@ def carry_water(object_mesh: trimesh.Trimesh, flow_mesh: trimesh.Trimesh, water:
     -------
     CoatSurface
     """
-    import pymeshlab
-
     from ..storm import refine
 
     try:
         mesh = refine(object_mesh, CARRY_EDGE * float(np.median(flow_mesh.edges_unique_length)))
-    except pymeshlab.PyMeshLabException:  # subdivision needs a 2-manifold: the object as it is
+    except ValueError:  # subdivision needs a 2-manifold: the object as it is
         mesh = object_mesh
     vertices = np.asarray(mesh.vertices)
     index = point_index(flow_mesh.vertices)
