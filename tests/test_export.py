@@ -144,6 +144,43 @@ def usd(job, tmp_path_factory):
     return read_usd(job / "scene.usda", tmp_path_factory.mktemp("usd"))
 
 
+def _tiny_job(root: Path):
+    trimesh.creation.icosphere(subdivisions=3, radius=0.15).export(root / "sphere.ply")
+    config = root / "tiny.yaml"
+    config.write_text("resolution: [32, 24]\nspp: 1\nmax_depth: 4\nviews: [three_quarter]\n")
+    p = params.resolve({"water.rays": 1000, "drips.count": 4, "drips.drip_limit": 80})
+    return JobSpec("sphere", str(root / "sphere.ply"), 0.3, p, seed=1, render=str(config))
+
+
+@pytest.mark.slow  # two rendered jobs
+def test_the_usd_export_runs_beside_the_render_and_fails_its_own_step(tmp_path, monkeypatch):
+    import threading
+
+    import icefarm.export.usd as usd_module
+
+    threads = []
+    real = usd_module.write_job_usd
+
+    def watched(*args, **kwargs):
+        threads.append(threading.current_thread())
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(usd_module, "write_job_usd", watched)
+    outcome = run_job(_tiny_job(tmp_path), tmp_path / "job")
+    assert outcome.status == "done", outcome.error
+    assert len(threads) == 1 and threads[0] is not threading.main_thread()  # the render's writer thread
+    timings = json.loads((tmp_path / "job" / "timings.json").read_text())
+    assert timings["usd_write_seconds"] > 0 and "usd" in timings["seconds"]
+
+    def broken(*args, **kwargs):
+        raise OSError("the disk is full")
+
+    monkeypatch.setattr(usd_module, "write_job_usd", broken)
+    failed = run_job(_tiny_job(tmp_path), tmp_path / "failed")
+    assert failed.status == "failed" and failed.failed_stage == "usd" and "the disk is full" in (failed.error or "")
+    assert (tmp_path / "failed" / "render.png").is_file() and not (tmp_path / "failed" / "done.json").exists()
+
+
 def test_up_axis_follows_gravity_to_the_nearest_of_y_and_z():
     assert up_axis((0, -1, 0)) == "Y" and up_axis((0, 0, -1)) == "Z"
     assert up_axis((0.2, -0.9, 0.3)) == "Y" and up_axis((0.3, 0.2, -0.9)) == "Z"

@@ -171,11 +171,15 @@ class JobRuns:
         usd) to its seconds, one per run.
     total : tuple of float
         Each job's wall-clock seconds, all steps and the writing between them.
+    usd_write : tuple of float
+        Each job's USD export, written in the render's writer thread while Mitsuba renders
+        (its ``usd`` step is what was left to wait for after the render); empty without a render.
     """
 
     ice_faces: int
     steps: dict
     total: tuple
+    usd_write: tuple = ()
 
 
 def job_timings(mesh: str, size_m: float | None, p: Params, render_config: str | None, repeat: int,
@@ -189,7 +193,7 @@ def job_timings(mesh: str, size_m: float | None, p: Params, render_config: str |
         mesh = str(Path(mesh).resolve())
     spec = JobSpec(object_id=Path(mesh).stem, mesh=mesh, size_m=size_m, params=p, seed=seed, render=render_config)
     steps: dict[str, list[float]] = {}
-    total, faces = [], 0
+    total, usd_write, faces = [], [], 0
     with tempfile.TemporaryDirectory(prefix="icefarm-bench-") as tmp:
         for run in range(repeat):
             job_dir = Path(tmp) / f"job{run}"
@@ -200,11 +204,15 @@ def job_timings(mesh: str, size_m: float | None, p: Params, render_config: str |
                 raise RuntimeError(f"benchmark job failed in stage {outcome.failed_stage}: {outcome.error}")
             for step, seconds in outcome.seconds.items():
                 steps.setdefault(step, []).append(float(seconds))
-            faces = int(read_job(job_dir).stats.get("ice_faces", 0))
+            stats = read_job(job_dir).stats
+            faces = int(stats.get("ice_faces", 0))
+            if "usd_write_seconds" in stats:
+                usd_write.append(float(stats["usd_write_seconds"]))
             shutil.rmtree(job_dir)
             if on_run is not None:
                 on_run()
-    return JobRuns(ice_faces=faces, steps={k: tuple(v) for k, v in steps.items()}, total=tuple(total))
+    return JobRuns(ice_faces=faces, steps={k: tuple(v) for k, v in steps.items()}, total=tuple(total),
+                   usd_write=tuple(usd_write))
 
 
 def peak_memory_gb() -> float:

@@ -1,5 +1,5 @@
 """A job's render step: its object and ice as a scene, rendered with its render config, and
-the USD scene for DCCs.
+the USD scene for DCCs, written while Mitsuba renders.
 
 `icefarm.job.pipeline.run_job` runs it after the surface stage; on a farm whose renders go to
 GPU workers, `icefarm.job.pipeline.finish_render` runs it on its own from the job's files.
@@ -7,7 +7,11 @@ GPU workers, `icefarm.job.pipeline.finish_render` runs it on its own from the jo
 
 from __future__ import annotations
 
+import dataclasses
+import functools
+import time
 from collections.abc import Callable
+from concurrent.futures import Future
 from pathlib import Path
 from typing import Any
 
@@ -54,9 +58,10 @@ def render_step(spec, job_dir: Path, obj: trimesh.Trimesh, ice_mesh: trimesh.Tri
     progress : bool
         Bars over the render's samples.
     """
+    from ..export.usd import write_job_usd
     from ..scene.config import load_render_config
     from ..scene.render import render_job
-    from ..scene.write import job_scene
+    from ..scene.write import job_scene, write_scenes
 
     gravity = spec.params.gravity
 
@@ -67,9 +72,21 @@ def render_step(spec, job_dir: Path, obj: trimesh.Trimesh, ice_mesh: trimesh.Tri
                       # (stage 4's, with roots hung under the rims, would move the ice view)
                       icicle_axes=icicle_axes)
     material = scene.material
-    # POV-Ray files written meanwhile
+    exported: list[tuple[Future, dict]] = []
+
+    def render():
+        files = write_scenes(job_dir, scene, config, defer_povray=True)
+        # The USD export needs the written scene, not its images: it runs after the POV-Ray
+        # files in the thread `render_job` writes them in while Mitsuba renders.
+        future, export, took = _beside(functools.partial(write_job_usd, job_dir, material=material,
+                                                         ice_mesh=ice_mesh, ice_normals=files.ice_normals))
+        exported.append((future, took))
+        writer = _then(files.povray_writer, export)
+        return render_job(job_dir, config, dataclasses.replace(files, povray_writer=writer), progress=progress)
+
     return_freed_memory()
-    result = timed("render", lambda: render_job(job_dir, config, scene, progress=progress), own_bars=True)
+    result = timed("render", render, own_bars=True)
+    future, took = exported[0]
     stats: dict[str, Any] = {}
     if result.scene.ground_height is not None:  # 0 for a grounded object; a hanging one floats
         gap = (ground_height(obj.vertices, gravity) - result.scene.ground_height) * 1000
@@ -81,11 +98,36 @@ def render_step(spec, job_dir: Path, obj: trimesh.Trimesh, ice_mesh: trimesh.Tri
                  denoise_seconds=round(result.denoise_seconds, 3),
                  scene_write_seconds=result.write_seconds, scene_load_seconds=result.load_seconds,
                  scene_wait_seconds=result.wait_seconds,
-                 povray_write_cpu_seconds=result.povray_write_cpu_seconds)
-    from ..export.usd import write_job_usd
-
+                 povray_write_cpu_seconds=max(result.povray_write_cpu_seconds - took.get("cpu", 0.0), 0.0))
     # scene.usda (object.usdc, ice.usdc) for DCCs: the render's cameras, sun, sky, materials; the
-    # ice's normals those the scene was written with.
-    timed("usd", lambda: write_job_usd(job_dir, material=material, ice_mesh=ice_mesh,
-                                       ice_normals=result.scene.ice_normals))
+    # ice's normals those the scene was written with. Its step: what the export raised, if anything
+    # (the render waited for its writer thread).
+    timed("usd", lambda: future.result(timeout=0))
+    stats["usd_write_seconds"] = round(took.get("seconds", 0.0), 3)
     return stats
+
+
+def _beside(work: Callable[[], Any]) -> tuple[Future, Callable[[], None], dict]:
+    """``work`` to be run by another thread: the future of its result (or exception), the
+    function that runs it there, and the wall and CPU seconds it took (once run)."""
+    future: Future = Future()
+    took: dict[str, float] = {}
+
+    def run() -> None:
+        start, cpu = time.perf_counter(), time.thread_time()
+        try:
+            future.set_result(work())
+        except Exception as exc:  # raised in the caller's thread by future.result()
+            future.set_exception(exc)
+        took.update(seconds=time.perf_counter() - start, cpu=time.thread_time() - cpu)
+
+    return future, run, took
+
+
+def _then(first: Callable[[], Any] | None, second: Callable[[], Any]) -> Callable[[], None]:
+    def both() -> None:
+        if first is not None:
+            first()
+        second()
+
+    return both

@@ -57,7 +57,8 @@ class RenderResult:
     load_seconds : float
         Loading scene.xml (meshes, BVH).
     wait_seconds : float
-        Waiting after the render for POV-Ray files written in the background.
+        Waiting after the render for what was written in the background (the POV-Ray files;
+        in a job, the USD export after them).
     povray_write_cpu_seconds : float
         CPU time of that background writer (0 when nothing was deferred): on a machine
         whose cores the render keeps busy, it slows the render by about as much.
