@@ -4,7 +4,7 @@ ray or two per step of their own (the trajectory stage's slides, `icefarm.stages
 Embree (`icefarm.spatial.ray_caster`) casts big batches fast, but each call from Python
 costs about 18 us, and a slide takes two casts per step of a few rays each. Here a cast is
 a function call inside the compiled loop: on Table 2's row f (the 0.2 m bunny, 11 k faces,
-200 icicles) the slides take 5 ms a run instead of 46 ms. Distances are in float64 (Embree's
+200 icicles) the slides take 11-15 ms a run instead of 63-73 ms. Distances are in float64 (Embree's
 are float32): they agree to 1e-6 of the mesh's size (tests/test_triangle_tree.py).
 """
 
@@ -18,7 +18,7 @@ from .compiled import compiled
 from .median_split import median_order, tree_boxes
 
 LEAF = 4  # triangles per leaf
-_STACK = 128  # a tree of 2^60 leaves is never built
+STACK_SIZE = 128  # for `first_hit`: a tree of 2^60 leaves is never built
 _HUGE = 1e300  # the inverse of a direction's zero component
 
 
@@ -85,7 +85,7 @@ def _enter(lo, hi, k, o, inv, best):
 def first_hit(o, d, stack, tree):
     """Distance along ``d`` (3,) from ``o`` (3,) to the first triangle of ``tree``
     (`TriangleTree.arrays`) hit (t > 0), and its face (inf and -1 for none); ``stack``: a
-    scratch (`_STACK`,) int64 array.
+    scratch (`STACK_SIZE`,) int64 array.
 
     Moller-Trumbore's test on each triangle of the leaves whose boxes the ray enters, nearer
     child first.
@@ -148,7 +148,7 @@ def first_hit(o, d, stack, tree):
 def _cast_many(o, d, tree):
     dist = np.full(len(o), np.inf)
     face = np.full(len(o), -1, dtype=np.int64)
-    stack = np.empty(_STACK, dtype=np.int64)
+    stack = np.empty(STACK_SIZE, dtype=np.int64)
     for m in range(len(o)):
         dist[m], face[m] = first_hit(o[m], d[m], stack, tree)
     return dist, face
