@@ -154,31 +154,41 @@ def _tiny_job(root: Path):
 
 @pytest.mark.slow  # two rendered jobs
 def test_the_usd_export_runs_beside_the_render_and_fails_its_own_step(tmp_path, monkeypatch):
+    import ast
     import threading
 
     import icefarm.export.usd as usd_module
 
-    threads = []
-    real = usd_module.write_job_usd
+    threads, parsers = [], set()
+    real, real_parse = usd_module.write_usd, ast.parse
 
     def watched(*args, **kwargs):
         threads.append(threading.current_thread())
         return real(*args, **kwargs)
 
-    monkeypatch.setattr(usd_module, "write_job_usd", watched)
+    def parse(*args, **kwargs):
+        parsers.add(threading.current_thread())
+        return real_parse(*args, **kwargs)
+
+    monkeypatch.setattr(usd_module, "write_usd", watched)
+    # Python 3.11's ast.parse fails when two threads parse at once (CPython gh-106905): only the
+    # job's own thread may parse, though the PLY reader and Mitsuba's integrators both do.
+    monkeypatch.setattr(ast, "parse", parse)
     outcome = run_job(_tiny_job(tmp_path), tmp_path / "job")
     assert outcome.status == "done", outcome.error
     assert len(threads) == 1 and threads[0] is not threading.main_thread()  # the render's writer thread
+    assert parsers == {threading.main_thread()}
     timings = json.loads((tmp_path / "job" / "timings.json").read_text())
     assert timings["usd_write_seconds"] > 0 and "usd" in timings["seconds"]
 
     def broken(*args, **kwargs):
         raise OSError("the disk is full")
 
-    monkeypatch.setattr(usd_module, "write_job_usd", broken)
-    failed = run_job(_tiny_job(tmp_path), tmp_path / "failed")
-    assert failed.status == "failed" and failed.failed_stage == "usd" and "the disk is full" in (failed.error or "")
-    assert (tmp_path / "failed" / "render.png").is_file() and not (tmp_path / "failed" / "done.json").exists()
+    for name in ("write_usd", "read_usd_inputs"):  # the writing fails, or the reading
+        monkeypatch.setattr(usd_module, name, broken)
+        failed = run_job(_tiny_job(tmp_path), tmp_path / name)
+        assert failed.status == "failed" and failed.failed_stage == "usd" and "the disk is full" in (failed.error or "")
+        assert (tmp_path / name / "render.png").is_file() and not (tmp_path / name / "done.json").exists()
 
 
 def test_up_axis_follows_gravity_to_the_nearest_of_y_and_z():

@@ -20,5 +20,5 @@ __getattr__, __dir__, __all__ = _lazy.attach(__name__, submod_attrs={
     "growth_usd": ["write_growth_usd"],
     "ice_layer": ["IceLayer", "write_ice_layer"],
     "rerender": ["RENDER_FILES", "estimate_seconds", "meshed_coarser", "render_again"],
-    "usd": ["write_job_usd", "write_usdz"],
+    "usd": ["UsdInputs", "read_usd_inputs", "write_job_usd", "write_usd", "write_usdz"],
 })

@@ -19,7 +19,7 @@ from ..errors import InputError
 from ..jobdir import ICE, OBJECT, WATER
 from ..scene import smooth_normals
 
-__all__ = ["Surface", "ice_surface", "object_surface", "read_ice", "require", "water_at"]
+__all__ = ["Flow", "Surface", "ice_surface", "object_surface", "read_flow", "read_ice", "require", "water_at"]
 
 
 def require(job_dir: Path, *names: str) -> None:
@@ -88,9 +88,30 @@ def read_ice(job_dir: str | Path, flip: bool) -> Surface:
     return ice_surface(mesh.vertices, mesh.faces, flip)
 
 
-def water_at(job_dir: str | Path, points: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-    """Stage 1's ``water`` (float) and ``supply`` (bool) at ``points`` ``(n, 3)``, or None
-    without ``water.ply``.
+@dataclass(frozen=True)
+class Flow:
+    """``water.ply``: stage 1's flow mesh's ``vertices`` ``(n, 3)`` (m), with its ``water``
+    ``(n,)`` float and ``supply`` ``(n,)`` bool per vertex."""
+
+    vertices: np.ndarray
+    water: np.ndarray
+    supply: np.ndarray
+
+
+def read_flow(job_dir: str | Path) -> Flow | None:
+    """The job's `Flow` (``water.ply``), or None without one."""
+    from ..artifacts import read_water_ply
+
+    path = Path(job_dir) / WATER
+    if not path.is_file():
+        return None
+    flow = trimesh.load(path, process=False)
+    supply, water = read_water_ply(path, len(flow.vertices))
+    return Flow(np.asarray(flow.vertices), water, supply)
+
+
+def water_at(flow: Flow, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Stage 1's ``water`` (float) and ``supply`` (bool) at ``points`` ``(n, 3)``.
 
     ``water.ply`` holds them per vertex of the *flow* mesh: the object itself, or a proxy
     (alpha wrap, remesh) with other vertices. Each point takes the values of the nearest
@@ -100,13 +121,5 @@ def water_at(job_dir: str | Path, points: np.ndarray) -> tuple[np.ndarray, np.nd
     """
     from scipy.spatial import cKDTree
 
-    from ..artifacts import read_water_ply
-
-    path = Path(job_dir) / WATER
-    if not path.is_file():
-        return None
-    flow = trimesh.load(path, process=False)
-    supply, water = read_water_ply(path, len(flow.vertices))
-    nearest = cKDTree(np.asarray(flow.vertices)).query(np.asarray(points, dtype=np.float64))[1]
-    return water[nearest], supply[nearest]
-
+    nearest = cKDTree(flow.vertices).query(np.asarray(points, dtype=np.float64))[1]
+    return flow.water[nearest], flow.supply[nearest]

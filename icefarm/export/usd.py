@@ -13,6 +13,7 @@ a job's ``timings.json`` reports its ``usd`` step.
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import time
 import uuid
@@ -30,7 +31,7 @@ from ..errors import InputError
 from ..jobdir import ICE, ICE_BANDS, ICE_USDC, OBJECT, OBJECT_USDC, PARAMS, SCENE_USDA, SCENE_XML
 from ..scene import IceLook, Material, SceneSpec, read_scene_spec
 from .looks import TINT_DISTANCE_M, ice_color, pbr, perceptual_roughness, sun_light
-from .meshes import Surface, ice_surface, object_surface, require, water_at
+from .meshes import Flow, Surface, ice_surface, object_surface, read_flow, require, water_at
 
 SCENE_FILE, OBJECT_FILE, ICE_FILE = SCENE_USDA, OBJECT_USDC, ICE_USDC  # (`icefarm.jobdir`)
 # Film back of the cameras: 36 mm wide (full frame), in USD's tenths of a scene unit. Only
@@ -78,10 +79,39 @@ def up_axis(gravity) -> str:
     return "Z" if g[2] > g[1] else "Y"
 
 
-def write_job_usd(job_dir: str | Path, *, material: Material | None = None,
-                  ice_mesh: trimesh.Trimesh | None = None, out_dir: str | Path | None = None,
-                  ice_normals: np.ndarray | None = None) -> UsdScene:
-    """Write ``scene.usda``, ``object.usdc`` and ``ice.usdc`` for a job that rendered.
+@dataclass(frozen=True)
+class UsdInputs:
+    """What a job's USD export reads from its folder (`read_usd_inputs`), for `write_usd`.
+
+    Attributes
+    ----------
+    job_dir : Path
+    spec : SceneSpec
+        The scene as rendered: cameras, lights, materials, gravity.
+    object_surface : Surface
+        ``object.ply`` split along its creases, with normals.
+    flow : Flow or None
+        ``water.ply``: stage 1's water, shading the object by wetness; None without one.
+    ice : trimesh.Trimesh or None
+        ``ice.ply``; None for a scene without ice.
+    """
+
+    job_dir: Path
+    spec: SceneSpec
+    object_surface: Surface
+    flow: Flow | None
+    ice: trimesh.Trimesh | None
+
+
+def read_usd_inputs(job_dir: str | Path, *, material: Material | None = None,
+                    ice_mesh: trimesh.Trimesh | None = None) -> UsdInputs:
+    """Read what `write_usd` needs from a job that rendered.
+
+    Kept apart from the writing so that a job can read in its own thread and write in another
+    while Mitsuba renders: on Python 3.11, `ast.parse` in two threads at once can fail with
+    ``SystemError: AST constructor recursion depth mismatch`` (CPython gh-106905), and both
+    sides parse: trimesh's PLY reader (through NumPy's dtype strings) and Mitsuba's integrators
+    (``dr.syntax``). `pxr` writing parses nothing.
 
     Parameters
     ----------
@@ -92,33 +122,41 @@ def write_job_usd(job_dir: str | Path, *, material: Material | None = None,
         The object's material; default ``done.json``'s.
     ice_mesh : trimesh.Trimesh, optional
         The ice already in memory (the pipeline's): saves reading ``ice.ply`` again.
-    out_dir : path, optional
-        Where to write; default ``job_dir``. Elsewhere, the sky is named by its absolute path.
-    ice_normals : (n, 3) float, optional
-        The ice's vertex normals as the scene's writer computed them
-        (`icefarm.scene.SceneFiles.ice_normals`), if at hand: `ice_surface` computes them otherwise.
-
-    Returns
-    -------
-    UsdScene
 
     Raises
     ------
     InputError
         Not a job that rendered (a file missing).
     """
-    start = time.perf_counter()
     job_dir = Path(job_dir)
-    out_dir = job_dir if out_dir is None else Path(out_dir)
     require(job_dir, ICE, OBJECT, SCENE_XML, PARAMS)
     spec = read_scene_spec(job_dir, material)
+    ice = None if spec.ice is None else read_ice_mesh(job_dir / ICE) if ice_mesh is None else ice_mesh
+    return UsdInputs(job_dir, spec, object_surface(job_dir), read_flow(job_dir), ice)
+
+
+def write_usd(inputs: UsdInputs, out_dir: str | Path | None = None, ice_normals: np.ndarray | None = None) -> UsdScene:
+    """Write ``scene.usda``, ``object.usdc`` and ``ice.usdc`` from a job's `UsdInputs`.
+
+    Parameters
+    ----------
+    inputs : UsdInputs
+    out_dir : path, optional
+        Where to write; default the job's folder. Elsewhere, the sky is named by its absolute path.
+    ice_normals : (n, 3) float, optional
+        The ice's vertex normals as the scene's writer computed them
+        (`icefarm.scene.SceneFiles.ice_normals`), if at hand: `ice_surface` computes them otherwise.
+    """
+    start = time.perf_counter()
+    job_dir, spec = inputs.job_dir, inputs.spec
+    out_dir = job_dir if out_dir is None else Path(out_dir)
     axis = up_axis(spec.gravity)
-    obj = object_surface(job_dir)
     layers = [out_dir / OBJECT_FILE]
-    _write_mesh_layer(layers[0], "Object", obj, axis, _object_primvars(job_dir, obj), double_sided=True)
-    if spec.ice is not None:
-        mesh = read_ice_mesh(job_dir / ICE) if ice_mesh is None else ice_mesh
-        layers.append(write_ice_mesh(out_dir / ICE_FILE, mesh, flip=spec.ice_flip, axis=axis, normals=ice_normals))
+    obj = inputs.object_surface
+    _write_mesh_layer(layers[0], "Object", obj, axis, _object_primvars(inputs.flow, obj), double_sided=True)
+    if inputs.ice is not None:
+        layers.append(write_ice_mesh(out_dir / ICE_FILE, inputs.ice, flip=spec.ice_flip, axis=axis,
+                                     normals=ice_normals))
     else:  # no ice: no layer of an earlier run's ice beside the scene
         (out_dir / ICE_FILE).unlink(missing_ok=True)
     sky_file = job_dir / spec.sky.file
@@ -126,6 +164,23 @@ def write_job_usd(job_dir: str | Path, *, material: Material | None = None,
     with authored(out_dir / SCENE_FILE) as stage:
         _scene(stage, spec, axis, sky, has_ice=len(layers) > 1)
     return UsdScene(out_dir / SCENE_FILE, tuple(layers), axis, time.perf_counter() - start)
+
+
+def write_job_usd(job_dir: str | Path, *, material: Material | None = None,
+                  ice_mesh: trimesh.Trimesh | None = None, out_dir: str | Path | None = None,
+                  ice_normals: np.ndarray | None = None) -> UsdScene:
+    """Write ``scene.usda``, ``object.usdc`` and ``ice.usdc`` for a job that rendered:
+    `read_usd_inputs` (``material``, ``ice_mesh``), then `write_usd` (``out_dir``,
+    ``ice_normals``); its ``seconds`` count both.
+
+    Raises
+    ------
+    InputError
+        Not a job that rendered (a file missing).
+    """
+    start = time.perf_counter()
+    written = write_usd(read_usd_inputs(job_dir, material=material, ice_mesh=ice_mesh), out_dir, ice_normals)
+    return dataclasses.replace(written, seconds=time.perf_counter() - start)
 
 
 def write_ice_mesh(path: str | Path, mesh: trimesh.Trimesh, *, flip: bool, axis: str,
@@ -222,13 +277,12 @@ def _write_mesh_layer(path: Path, name: str, surface: Surface, axis: str, primva
             api.CreatePrimvar(key, type_name, UsdGeom.Tokens.vertex).Set(array)
 
 
-def _object_primvars(job_dir: Path, obj: Surface) -> dict:
+def _object_primvars(flow: Flow | None, obj: Surface) -> dict:
     """Stage 1's ``water`` (float) and ``supply`` (int, 0 or 1) per object vertex, to shade
     by wetness; nothing for a job without ``water.ply``."""
-    found = water_at(job_dir, obj.vertices)
-    if found is None:
+    if flow is None:
         return {}
-    water, supply = found
+    water, supply = water_at(flow, obj.vertices)
     return {"water": (water.astype(np.float32), Sdf.ValueTypeNames.FloatArray),
             "supply": (supply.astype(np.int32), Sdf.ValueTypeNames.IntArray)}
 

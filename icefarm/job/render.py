@@ -58,7 +58,7 @@ def render_step(spec, job_dir: Path, obj: trimesh.Trimesh, ice_mesh: trimesh.Tri
     progress : bool
         Bars over the render's samples.
     """
-    from ..export.usd import write_job_usd
+    from ..export.usd import read_usd_inputs, write_usd
     from ..scene.config import load_render_config
     from ..scene.render import render_job
     from ..scene.write import job_scene, write_scenes
@@ -76,10 +76,12 @@ def render_step(spec, job_dir: Path, obj: trimesh.Trimesh, ice_mesh: trimesh.Tri
 
     def render():
         files = write_scenes(job_dir, scene, config, defer_povray=True)
-        # The USD export needs the written scene, not its images: it runs after the POV-Ray
-        # files in the thread `render_job` writes them in while Mitsuba renders.
-        future, export, took = _beside(functools.partial(write_job_usd, job_dir, material=material,
-                                                         ice_mesh=ice_mesh, ice_normals=files.ice_normals))
+        # The USD export needs the written scene, not its images: it is read here and written
+        # after the POV-Ray files in the thread `render_job` writes them in while Mitsuba renders
+        # (the reading parses, which must not happen in two threads at once: `read_usd_inputs`).
+        future, export, took = _beside(functools.partial(read_usd_inputs, job_dir, material=material,
+                                                         ice_mesh=ice_mesh),
+                                       functools.partial(write_usd, ice_normals=files.ice_normals))
         exported.append((future, took))
         writer = _then(files.povray_writer, export)
         return render_job(job_dir, config, dataclasses.replace(files, povray_writer=writer), progress=progress)
@@ -107,17 +109,25 @@ def render_step(spec, job_dir: Path, obj: trimesh.Trimesh, ice_mesh: trimesh.Tri
     return stats
 
 
-def _beside(work: Callable[[], Any]) -> tuple[Future, Callable[[], None], dict]:
-    """``work`` to be run by another thread: the future of its result (or exception), the
-    function that runs it there, and the wall and CPU seconds it took (once run)."""
+def _beside(read: Callable[[], Any], write: Callable[[Any], Any]) -> tuple[Future, Callable[[], None], dict]:
+    """``read()`` now, in the caller's thread, and ``write(read())`` later in another: the
+    future of its result (or of the exception either raised), the function that writes there,
+    and the wall and CPU seconds the writing took (once run)."""
     future: Future = Future()
     took: dict[str, float] = {}
+    inputs = None
+    try:
+        inputs = read()
+    except Exception as exc:  # raised in the caller's thread by future.result(), at its own step
+        future.set_exception(exc)
 
     def run() -> None:
+        if future.done():
+            return
         start, cpu = time.perf_counter(), time.thread_time()
         try:
-            future.set_result(work())
-        except Exception as exc:  # raised in the caller's thread by future.result()
+            future.set_result(write(inputs))
+        except Exception as exc:
             future.set_exception(exc)
         took.update(seconds=time.perf_counter() - start, cpu=time.thread_time() - cpu)
 
