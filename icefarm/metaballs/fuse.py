@@ -6,8 +6,9 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
-from ..geometry import face_any, face_count
+from ..geometry import face_any
 from .field import Field, values_at
+from .fuse_kernel import INNER, OUTER, compacted, kept_outside, vertex_sides, welded
 from .march import march_blocks
 from .union_region import inner_faces, margin, near_region, restrict, surface_region
 
@@ -99,50 +100,52 @@ def _local_union(a, b, with_lattice: bool = True):
     # The whole mesh's faces in cells that reach out of the region lie off the other
     # surface: each lies wholly inside the other solid (the union covers it: dropped) or
     # wholly outside (kept as it is).
-    outside = []
+    outside, seam = [], []
+    offset = 0
     for (_, verts, faces, inner, *_), other in zip(sides, (sides[1][0], sides[0][0])):
-        out = faces[~inner]
-        used = _used(out, len(verts))
-        covered = np.zeros(len(verts), dtype=bool)
-        covered[used] = _inside(other, verts[used])
-        count = face_count(covered, out)
-        if ((count > 0) & (count < 3)).any():
+        use = vertex_sides(faces, inner, len(verts))
+        covered = np.zeros(len(verts), dtype=np.uint8)
+        out = (use & OUTER) != 0
+        covered[out] = _inside(other, verts[out])
+        kept, split = kept_outside(faces, inner, covered)
+        if split:
             return None
-        outside.append(out[count == 0])
+        outside.append(kept)
+        seam.append(np.flatnonzero(use == INNER | OUTER) + offset)
+        offset += len(verts)
     u_verts, u_faces, source, origin = _manifold_union([(s[4], s[5]) for s in sides])
     keep = np.zeros(len(u_faces), dtype=bool)
     for i, side in enumerate(sides):
         mine = source == i
         keep[mine] = side[6][origin[mine]]
-    nu = len(u_verts)
-    u_edge = np.flatnonzero(_used(u_faces[keep], nu) & _used(u_faces[~keep], nu))  # where caps were cut off
+    u_use = vertex_sides(u_faces, keep, len(u_verts))
     u_faces = u_faces[keep]
 
-    # One vertex list: side a, side b, the union; the seams weld on exact positions.
-    (_, va, fa, ia, *_), (_, vb, fb, ib, *_) = sides
+    # One vertex list: side a, side b, the union; the seams weld on exact positions (where
+    # the caps were cut off the union, too).
+    (_, va, *_), (_, vb, *_) = sides
     na, nb = len(va), len(vb)
-    seam = [np.flatnonzero(_used(f[i], len(v)) & _used(f[~i], len(v))) + off
-            for v, f, i, off in ((va, fa, ia, 0), (vb, fb, ib, na))]
-    cand = np.concatenate(seam + [u_edge + na + nb])
+    cand = np.concatenate(seam + [np.flatnonzero(u_use == INNER | OUTER) + na + nb])
     verts = np.concatenate([va, vb, u_verts])
     _, first, inverse = np.unique(np.ascontiguousarray(verts[cand]).view(np.dtype((np.void, 24))).reshape(-1),
                                   return_index=True, return_inverse=True)
     index = np.arange(len(verts))
     index[cand] = cand[first][inverse.reshape(-1)]
-    faces = index[np.concatenate([outside[0], outside[1] + na, u_faces + na + nb])]
-    if ((faces[:, 0] == faces[:, 1]) | (faces[:, 1] == faces[:, 2]) | (faces[:, 0] == faces[:, 2])).any():
+    parts = tuple(np.ascontiguousarray(f, dtype=np.int64) for f in (outside[0], outside[1], u_faces))
+    faces, degenerate = welded(parts, np.array([0, na, na + nb]), index)
+    if degenerate:
         return None
     # Away from the seams each part is closed already (the marched meshes and the union).
     touched = np.zeros(len(verts), dtype=bool)
     touched[index[cand]] = True
     if not _closed_around(faces, touched):
         return None
-    used = _used(faces, len(verts))
+    faces, used = compacted(faces, len(verts))
     if not with_lattice:
-        return verts[used], (np.cumsum(used) - 1)[faces], None
+        return verts[used], faces, None
     lattice = np.full((len(verts), 3), np.nan)
     lattice[:na] = a[2]
-    return verts[used], (np.cumsum(used) - 1)[faces], lattice[used]
+    return verts[used], faces, lattice[used]
 
 
 def _side(part, other_part):
@@ -163,13 +166,6 @@ def _side(part, other_part):
     r_lattice, r_faces = march_blocks(values, blocks, field.level)
     r_inner = inner_faces(r_lattice, r_faces, region)
     return field, verts, faces, inner, field.origin + r_lattice * field.voxel, r_faces, r_inner
-
-
-def _used(faces: np.ndarray, n: int) -> np.ndarray:
-    """(n,) bool: the vertices that ``faces`` use."""
-    used = np.zeros(n, dtype=bool)
-    used[faces] = True
-    return used
 
 
 def _inside(field: Field, points: np.ndarray) -> np.ndarray:
