@@ -58,8 +58,11 @@ def ray_caster(mesh: trimesh.Trimesh, centre: np.ndarray | None = None):
     Returns
     -------
     cast : callable
-        ``cast(origins (k, 3), directions (k, 3) unit) -> (distance (k,), face (k,))``:
-        distance to the first hit in meters (inf for a miss) and its face (-1).
+        ``cast(origins (k, 3), directions (k, 3) unit, far=inf) -> (distance (k,), face (k,))``:
+        distance to the first hit within ``far`` in meters (inf for a miss) and its face (-1).
+        A finite ``far`` stops Embree's search there: the coat's 388 k rays into the car's
+        436 k faces, which only ask whether a wall is thinner than twice the coat's depth,
+        take 0.07-0.11 s instead of 0.24-0.45 s (three runs).
     """
     from embreex import rtcore_scene
     from embreex.mesh_construction import TriangleMesh
@@ -73,13 +76,19 @@ def ray_caster(mesh: trimesh.Trimesh, centre: np.ndarray | None = None):
     TriangleMesh(scene=scene, vertices=(vertices - centre).astype(np.float32),
                  indices=np.asarray(mesh.faces, dtype=np.int32))
 
-    def cast(origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def cast(origins: np.ndarray, directions: np.ndarray, far: float = np.inf) -> tuple[np.ndarray, np.ndarray]:
         if len(origins) == 0:
             return np.zeros(0), np.zeros(0, dtype=np.int64)
+        # (single precision: one step past far, so that no hit at far is lost)
+        dists = None if not np.isfinite(far) else \
+            np.full(len(origins), np.nextafter(np.float32(far), np.float32(np.inf)), dtype=np.float32)
         hit = scene.run((np.asarray(origins) - centre).astype(np.float32),
-                        np.asarray(directions, dtype=np.float32), output=1)
+                        np.asarray(directions, dtype=np.float32), dists=dists, output=1)
         face = hit["primID"].astype(np.int64)
         distance = np.where(face >= 0, hit["tfar"].astype(np.float64), np.inf)
+        if dists is not None:
+            face[distance > far] = -1
+            distance[distance > far] = np.inf
         return distance, face
 
     return cast
@@ -129,13 +138,13 @@ def near_caster(vertices: np.ndarray, faces: np.ndarray, reach: float):
     Returns
     -------
     cast : callable
-        ``cast(origins (k, 3), directions (k, 3) unit) -> (distance (k,), face (k,))``:
-        distance to the first hit in meters (inf for a miss) and its face (-1).
+        As `ray_caster`'s: ``cast(origins, directions, far=inf) -> (distance, face)``.
     """
     vertices = np.asarray(vertices, dtype=np.float64)
     faces = np.asarray(faces, dtype=np.int64)
     if len(faces) == 0:
-        return lambda origins, directions: (np.full(len(origins), np.inf), np.full(len(origins), -1, dtype=np.int64))
+        return lambda origins, directions, far=np.inf: (np.full(len(origins), np.inf),
+                                                        np.full(len(origins), -1, dtype=np.int64))
     low, high = vertices.min(axis=0), vertices.max(axis=0)
     centre = 0.5 * (low + high)  # the whole mesh's frame: the same single-precision hits
     v32 = vertices.astype(np.float32)  # edge lengths need no more: half the memory traffic
@@ -149,7 +158,8 @@ def near_caster(vertices: np.ndarray, faces: np.ndarray, reach: float):
     bound = float(size.max()) + 0.5 * step
     size = (size + 0.5 * step) * (1 + 1e-9)
 
-    def cast(origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def cast(origins: np.ndarray, directions: np.ndarray, far: float = np.inf) -> tuple[np.ndarray, np.ndarray]:
+        limit = float(far)
         origins = np.asarray(origins, dtype=np.float64).reshape(-1, 3)
         directions = np.asarray(directions, dtype=np.float64).reshape(-1, 3)
         distance = np.full(len(origins), np.inf)
@@ -162,7 +172,7 @@ def near_caster(vertices: np.ndarray, faces: np.ndarray, reach: float):
         t0 = np.where(flat, np.where(inside, -np.inf, np.inf), t0)
         t1 = np.where(flat, np.inf, t1)
         enter = np.maximum(np.minimum(t0, t1).max(axis=1), 0.0)
-        leave = np.maximum(t0, t1).min(axis=1)
+        leave = np.minimum(np.maximum(t0, t1).min(axis=1), limit)
         todo = np.flatnonzero(leave >= enter)
         far = max(float(reach), step)
         while len(todo):
@@ -191,6 +201,8 @@ def near_caster(vertices: np.ndarray, faces: np.ndarray, reach: float):
             face[todo[hit]] = near[f[hit]]
             todo = todo[~done]
             far = np.inf  # the few rays left: all the way out of the box
+        beyond = distance > limit
+        distance[beyond], face[beyond] = np.inf, -1
         return distance, face
 
     return cast

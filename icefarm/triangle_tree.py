@@ -37,12 +37,15 @@ class TriangleTree:
     hi: np.ndarray
     leaves: int
 
-    def cast(self, origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def cast(self, origins: np.ndarray, directions: np.ndarray, far: float = np.inf) -> tuple[np.ndarray, np.ndarray]:
         """As `icefarm.spatial.ray_caster`'s ``cast``: distance (k,) along each unit
-        direction to the first hit (inf for none) and its face (-1)."""
+        direction to the first hit within ``far`` (inf for none) and its face (-1)."""
         o = np.ascontiguousarray(origins, dtype=np.float64).reshape(-1, 3)
         d = np.ascontiguousarray(directions, dtype=np.float64).reshape(-1, 3)
-        return _cast_many(o, d, self.arrays())
+        distance, face = _cast_many(o, d, self.arrays())
+        beyond = distance > far
+        distance[beyond], face[beyond] = np.inf, -1
+        return distance, face
 
     def arrays(self):
         """The tree as the compiled functions take it (`first_hit`'s ``tree``)."""

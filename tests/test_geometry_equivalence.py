@@ -184,6 +184,27 @@ def test_near_caster_hits_what_the_whole_tree_hits():
     assert (want_d[np.isfinite(want_d)] > 0.1).sum() > 20  # and hits past the first round
 
 
+def test_every_caster_cut_at_far_hits_what_it_hits_unbounded_within_far():
+    from icefarm.triangle_tree import triangle_tree
+
+    rng = np.random.default_rng(5)
+    mesh = trimesh.util.concatenate([trimesh.creation.icosphere(subdivisions=3, radius=0.15),
+                                     trimesh.creation.box(extents=(0.6, 0.6, 0.05)).apply_translation([0, 0, -0.3])])
+    origins = rng.uniform(-0.4, 0.4, (400, 3))
+    directions = rng.normal(size=(400, 3))
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    for cast in (spatial.ray_caster(mesh), spatial.near_caster(mesh.vertices, mesh.faces, 0.02),
+                 triangle_tree(mesh.vertices, mesh.faces).cast):
+        whole_d, whole_f = cast(origins, directions)
+        far = float(np.median(whole_d[np.isfinite(whole_d)]))
+        d, f = cast(origins, directions, far=far)
+        within = whole_d <= far
+        assert 20 < within.sum() < np.isfinite(whole_d).sum()  # hits both sides of far
+        np.testing.assert_array_equal(f[within], whole_f[within])
+        np.testing.assert_array_equal(d[within], whole_d[within])
+        assert np.isinf(d[~within]).all() and (f[~within] == -1).all()
+
+
 def test_near_caster_misses_where_no_face_comes_near(sphere):
     cast = spatial.near_caster(sphere.vertices, sphere.faces, 0.01)
     # outside the box; through a corner of the box, past the sphere (no face near); a hit

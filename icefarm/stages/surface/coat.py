@@ -227,7 +227,9 @@ def _inner_depth(mesh, pts, normals, thick, kind, inner, voxel, cast):
     if cast is None:
         cast = ray_caster(mesh)
     start = 0.05 * voxel
-    dist, hit = cast(pts - start * normals, -normals)
+    # Only a wall thinner than twice ``inner`` matters: the rays need look no farther (a
+    # hundredth more, for single precision).
+    dist, hit = cast(pts - start * normals, -normals, far=1.01 * max(2.0 * inner - start, 0.0))
     depth = np.full(len(pts), inner)
     thin = np.flatnonzero(np.isfinite(dist) & (dist + start < 2.0 * inner))
     thin = thin[kind[hit[thin]] != 1]
