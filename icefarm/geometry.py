@@ -206,6 +206,24 @@ def chain_sums(parent: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.n
     return acc, ptr
 
 
+def stable_order(keys: np.ndarray) -> np.ndarray:
+    """``np.argsort(keys, kind="stable")`` for integer ``keys`` ``(n,)``, faster.
+
+    NumPy's stable sort of int64 is a merge sort: 0.20-0.23 s on 1.3 M random keys (a car's
+    face adjacency, both ways), against 0.06 s for its quicksort of ``key * n + position``,
+    unique keys whose order is the stable one. Keys whose products would not fit in int64
+    (or are negative) get the merge sort.
+    """
+    keys = np.asarray(keys)
+    n = len(keys)
+    if n == 0 or not np.issubdtype(keys.dtype, np.integer):
+        return np.argsort(keys, kind="stable")
+    low, high = int(keys.min()), int(keys.max())
+    if low < 0 or (high + 1) * n >= 2**62:
+        return np.argsort(keys, kind="stable")
+    return np.argsort(keys.astype(np.int64) * n + np.arange(n, dtype=np.int64))
+
+
 def ragged_arange(counts: np.ndarray, dtype=np.int64) -> np.ndarray:
     """Each element's index within its group, for groups laid end to end.
 

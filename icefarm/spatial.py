@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import trimesh
 
-from .geometry import ragged_arange, unit
+from .geometry import ragged_arange, stable_order, unit
 from .tol import tol
 
 
@@ -255,7 +255,7 @@ def closest_point(mesh: trimesh.Trimesh, points: np.ndarray) -> tuple[np.ndarray
     nearest, _ = tree.query(points)
     balls = tree.query_ball_point(points, nearest + longest * (1 + 1e-9) + 1e-12)
     # Faces of each vertex, as CSR: faces_of[start[v]:start[v + 1]].
-    order = np.argsort(faces.ravel(), kind="stable")
+    order = stable_order(faces.ravel())
     faces_of = order // 3
     start = np.searchsorted(faces.ravel()[order], np.arange(len(vertices) + 1))
     near = np.concatenate([np.asarray(b, dtype=np.int64) for b in balls])

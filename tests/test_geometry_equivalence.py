@@ -229,3 +229,13 @@ def test_the_field_filled_on_every_core_is_the_field_filled_on_one(monkeypatch):
     one = sample_field(balls, 0.001)
     assert len(several.blocks) > 20
     assert np.array_equal(several.blocks, one.blocks) and np.array_equal(several.values, one.values)
+
+
+def test_stable_order_is_numpys_stable_argsort():
+    from icefarm.geometry import stable_order
+
+    rng = np.random.default_rng(7)
+    for keys in (rng.integers(0, 50, 10_000), rng.integers(0, 10**6, 5_000).astype(np.int32),
+                 rng.integers(-5, 5, 1_000), np.array([2**61, 1, 2**61, 0]), np.zeros(0, dtype=np.int64),
+                 np.array([3, 1, 2, 1, 3])):
+        np.testing.assert_array_equal(stable_order(keys), np.argsort(keys, kind="stable"))

@@ -9,6 +9,7 @@ import trimesh
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
 
+from ..geometry import stable_order
 from ..tol import tol
 
 # The film goes to each lower neighbour in proportion to the slope towards it raised to
@@ -72,7 +73,7 @@ def film_routes(mesh: trimesh.Trimesh, g: np.ndarray, cos_up: np.ndarray, area: 
             src, dst = np.r_[src, reach], np.r_[dst, pred[reach]]
             slope, run = np.r_[slope, np.ones(len(reach))], np.r_[run, hop]
             flat_distance = np.where(np.isfinite(distance), distance, 0.0)
-    by_src = np.argsort(src, kind="stable")
+    by_src = stable_order(src)
     src, target, slope, run = src[by_src], dst[by_src], slope[by_src], run[by_src]
     start = np.searchsorted(src, np.arange(n + 1))
     weight = slope ** FLOW_CONVERGENCE

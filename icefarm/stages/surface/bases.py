@@ -8,7 +8,7 @@ import numpy as np
 import trimesh
 from scipy.spatial import cKDTree
 
-from ...geometry import ragged_arange, random_barycentric
+from ...geometry import ragged_arange, random_barycentric, stable_order
 from ...metaballs.balls import LEVEL, NO_BALLS, Balls
 from ...params import SurfaceParams
 from ...spatial import ray_caster
@@ -143,7 +143,7 @@ def _grow_from_drips(drip, face, drip_face, mesh):
     frontier = at[seeded]
     reached[frontier] = True
     adj = mesh.face_adjacency
-    order = np.argsort(np.r_[adj[:, 0], adj[:, 1]], kind="stable")
+    order = stable_order(np.r_[adj[:, 0], adj[:, 1]])
     nbr = np.r_[adj[:, 1], adj[:, 0]][order]
     nbr_start = np.searchsorted(np.r_[adj[:, 0], adj[:, 1]][order], np.arange(n_faces + 1))
     while len(frontier):

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 import trimesh
 
-from ...geometry import ragged_arange
+from ...geometry import ragged_arange, stable_order
 from .coat_band import Edges
 
 # Convex edges where faces meet at more than this (radians) bound their faces' planes
@@ -40,7 +40,7 @@ def convex_edges(mesh: trimesh.Trimesh, face: np.ndarray, reach: float) -> Edges
         return None
     lines = _edge_lines(mesh, sharp)
     rec_face, rec_line = _spread_lines(mesh, used, lines, reach)
-    order = np.argsort(rec_face, kind="stable")  # own lines first, then ring by ring
+    order = stable_order(rec_face)  # own lines first, then ring by ring
     rec_face, rec_line = rec_face[order], rec_line[order]
     slot = np.arange(len(rec_face)) - np.searchsorted(rec_face, rec_face)
     keep = slot < 3
@@ -126,7 +126,7 @@ def _spread_lines(mesh: trimesh.Trimesh, used: np.ndarray, lines: _Lines,
     both = used[adj].all(axis=1)  # lines spread over the sampled faces only
     flat = adj[(angle < _SHARP / 3) & both]
     flat = np.concatenate([flat, flat[:, ::-1]])
-    flat = flat[np.argsort(flat[:, 0], kind="stable")]
+    flat = flat[stable_order(flat[:, 0])]
     start = np.r_[0, np.cumsum(np.bincount(flat[:, 0], minlength=n_faces))]
     flat = flat[:, 1]
     tri = mesh.triangles
