@@ -8,11 +8,12 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ...geometry import arc_lengths, face_all, ragged_arange
+from ...geometry import arc_lengths, ragged_arange
 from ...params import SurfaceParams
 from ...spatial import nearest, point_index
 from ..trajectories import TrajectoryResult
 from ..trajectory_stats import SHAPE_MIN_LENGTH
+from .crossings_kernel import edge_crossings
 from .profile import grown_lengths, points_along
 
 # Radius samples along a trunk: from TAPER_AT of its length below its base to FIT_END; the
@@ -358,24 +359,10 @@ def _crossings(vert, sample, along, radial, n_vertices, faces, trunk, x, step):
     s[vert] = x[sample] + along
     r[vert] = radial
     t[vert] = trunk[sample]
-    inside = t >= 0
-    faces = faces[face_all(inside, faces)]
-    a, b = faces.ravel(), np.roll(faces, -1, axis=1).ravel()
-    # An edge shared by two faces runs once each way: keep the way up the trunk.
-    up = (t[a] == t[b]) & (s[a] < s[b])
-    a, b = a[up], b[up]
     first = np.searchsorted(trunk, np.arange(int(trunk.max()) + 1))
     points = np.bincount(trunk, minlength=len(first))
-    start = first[t[a]]
-    x0 = x[start]
-    lo = np.maximum(np.floor((s[a] - x0) / step).astype(np.int64) + 1, 0)
-    hi = np.minimum(np.floor((s[b] - x0) / step).astype(np.int64), points[t[a]] - 1)
-    count = np.maximum(hi - lo + 1, 0)
-    edge = np.repeat(np.arange(len(a)), count)
-    j = lo[edge] + ragged_arange(count)
-    sa, sb, ra, rb = s[a][edge], s[b][edge], r[a][edge], r[b][edge]
-    w = (x0[edge] + j * step - sa) / (sb - sa)
-    return start[edge] + j, ra + w * (rb - ra)
+    return edge_crossings(np.ascontiguousarray(faces, dtype=np.int64), (s, r, t), (first, points),
+                          (np.asarray(x, dtype=np.float64), float(step)))
 
 
 def _power_fit(d: np.ndarray, y: np.ndarray) -> tuple[float, float]:
