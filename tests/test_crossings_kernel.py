@@ -4,22 +4,16 @@ import numpy as np
 import trimesh
 
 from icefarm.geometry import face_all, ragged_arange
-from icefarm.stages.surface.measure import _crossings
+from icefarm.stages.surface.measure import _crossings, _on_trunks, _trunk_starts
 
 
 def _numpy_crossings(vert, sample, along, radial, n_vertices, faces, trunk, x, step):
-    s = np.full(n_vertices, np.nan)
-    r = np.full(n_vertices, np.nan)
-    t = np.full(n_vertices, -1, dtype=np.int64)
-    s[vert] = x[sample] + along
-    r[vert] = radial
-    t[vert] = trunk[sample]
+    s, r, t = _on_trunks(vert, sample, along, radial, n_vertices, trunk, x)
     faces = faces[face_all(t >= 0, faces)]
     a, b = faces.ravel(), np.roll(faces, -1, axis=1).ravel()
     up = (t[a] == t[b]) & (s[a] < s[b])
     a, b = a[up], b[up]
-    first = np.searchsorted(trunk, np.arange(int(trunk.max()) + 1))
-    points = np.bincount(trunk, minlength=len(first))
+    first, points = _trunk_starts(trunk)
     start = first[t[a]]
     x0 = x[start]
     lo = np.maximum(np.floor((s[a] - x0) / step).astype(np.int64) + 1, 0)
