@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -95,43 +96,27 @@ def _local_union(a, b, with_lattice: bool = True):
     # marching and face tests leave the GIL).
     with ThreadPoolExecutor(2) as pool:
         sides = list(pool.map(lambda pair: _side(*pair), ((a, b), (b, a))))
-    if any(side is None for side in sides):
+    if any(side is None for side in sides):  # too big a region, or a face half inside the other solid
         return None
-    # The whole mesh's faces in cells that reach out of the region lie off the other
-    # surface: each lies wholly inside the other solid (the union covers it: dropped) or
-    # wholly outside (kept as it is).
-    outside, seam = [], []
-    offset = 0
-    for (_, verts, faces, inner, *_), other in zip(sides, (sides[1][0], sides[0][0])):
-        use = vertex_sides(faces, inner, len(verts))
-        covered = np.zeros(len(verts), dtype=np.uint8)
-        out = (use & OUTER) != 0
-        covered[out] = _inside(other, verts[out])
-        kept, split = kept_outside(faces, inner, covered)
-        if split:
-            return None
-        outside.append(kept)
-        seam.append(np.flatnonzero(use == INNER | OUTER) + offset)
-        offset += len(verts)
-    u_verts, u_faces, source, origin = _manifold_union([(s[4], s[5]) for s in sides])
+    u_verts, u_faces, source, origin = _manifold_union([(s.r_verts, s.r_faces) for s in sides])
     keep = np.zeros(len(u_faces), dtype=bool)
     for i, side in enumerate(sides):
         mine = source == i
-        keep[mine] = side[6][origin[mine]]
+        keep[mine] = side.r_inner[origin[mine]]
     u_use = vertex_sides(u_faces, keep, len(u_verts))
     u_faces = u_faces[keep]
 
     # One vertex list: side a, side b, the union; the seams weld on exact positions (where
     # the caps were cut off the union, too).
-    (_, va, *_), (_, vb, *_) = sides
+    va, vb = sides[0].verts, sides[1].verts
     na, nb = len(va), len(vb)
-    cand = np.concatenate(seam + [np.flatnonzero(u_use == INNER | OUTER) + na + nb])
+    cand = np.concatenate([sides[0].seam, sides[1].seam + na, np.flatnonzero(u_use == INNER | OUTER) + na + nb])
     verts = np.concatenate([va, vb, u_verts])
     _, first, inverse = np.unique(np.ascontiguousarray(verts[cand]).view(np.dtype((np.void, 24))).reshape(-1),
                                   return_index=True, return_inverse=True)
     index = np.arange(len(verts))
     index[cand] = cand[first][inverse.reshape(-1)]
-    parts = tuple(np.ascontiguousarray(f, dtype=np.int64) for f in (outside[0], outside[1], u_faces))
+    parts = tuple(np.ascontiguousarray(f, dtype=np.int64) for f in (sides[0].kept, sides[1].kept, u_faces))
     faces, degenerate = welded(parts, np.array([0, na, na + nb]), index)
     if degenerate:
         return None
@@ -148,10 +133,35 @@ def _local_union(a, b, with_lattice: bool = True):
     return verts[used], faces, lattice[used]
 
 
-def _side(part, other_part):
-    """One side of `_local_union`: ``(field, vertices, faces, inner, restricted vertices,
-    restricted faces, restricted inner)`` of ``part`` against ``other_part``; None where
-    the region's grids would be too big."""
+@dataclass(frozen=True)
+class _Side:
+    """One mesh's side of `_local_union`.
+
+    Attributes
+    ----------
+    verts : (n, 3) float64
+        The whole mesh's vertices, meters.
+    kept : (k, 3) int64
+        Its faces out of the union's region that lie outside the other solid.
+    seam : (s,) int64
+        Its vertices shared by faces in the region and out of it.
+    r_verts, r_faces : arrays
+        The mesh marched again on the region alone (closed with caps out of the other's reach).
+    r_inner : (f,) bool
+        Which of ``r_faces`` lie in the region (the others are caps).
+    """
+
+    verts: np.ndarray
+    kept: np.ndarray
+    seam: np.ndarray
+    r_verts: np.ndarray
+    r_faces: np.ndarray
+    r_inner: np.ndarray
+
+
+def _side(part, other_part) -> _Side | None:
+    """`_local_union`'s work on ``part`` against ``other_part``; None where the region's
+    grids would be too big or a face out of the region lies partly inside the other solid."""
     field, verts, lattice, faces = part
     other, other_verts, other_lattice, _ = other_part
     # The other's vertices of no marching of its field lie away from this surface (the
@@ -162,10 +172,21 @@ def _side(part, other_part):
     if region is None:
         return None
     inner = inner_faces(lattice, faces, region)
+    # The whole mesh's faces in cells that reach out of the region lie off the other
+    # surface: each lies wholly inside the other solid (the union covers it: dropped) or
+    # wholly outside (kept as it is).
+    use = vertex_sides(faces, inner, len(verts))
+    covered = np.zeros(len(verts), dtype=np.uint8)
+    out = (use & OUTER) != 0
+    covered[out] = _inside(other, verts[out])
+    kept, split = kept_outside(faces, inner, covered)
+    if split:
+        return None
     values, blocks = restrict(field, region)
     r_lattice, r_faces = march_blocks(values, blocks, field.level)
     r_inner = inner_faces(r_lattice, r_faces, region)
-    return field, verts, faces, inner, field.origin + r_lattice * field.voxel, r_faces, r_inner
+    return _Side(verts, kept, np.flatnonzero(use == INNER | OUTER), field.origin + r_lattice * field.voxel, r_faces,
+                 r_inner)
 
 
 def _inside(field: Field, points: np.ndarray) -> np.ndarray:

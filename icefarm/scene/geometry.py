@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -9,6 +10,7 @@ import trimesh
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
+from ..compiled import compiled
 from ..geometry import face_cross, signed_volume, unit
 
 
@@ -47,30 +49,49 @@ def smooth_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     Each face adds its unit normal weighted by its angle at the vertex (Thuermer and
     Wuethrich 1998): the normals Mitsuba computes for a mesh loaded without them, so a
     POV-Ray scene shades like the Mitsuba one. Those of trimesh's ``mesh.vertex_normals``
-    (`trimesh.geometry.weighted_vertex_normals`), without its arccos and sparse matrix:
-    1.3M faces 0.45 s vs trimesh 1.70 s (1.23 s from arrays, face normals and angles included).
+    (`trimesh.geometry.weighted_vertex_normals`), in one compiled pass over the faces
+    (`_angle_weighted_sums`): the lookdev car's 2.3 M faces in 0.23 s, against 0.65 s for
+    the same sums in NumPy (angles by ``arctan2``, ``bincount`` per corner); trimesh's took
+    1.70 s for 1.3 M faces.
 
     Parameters
     ----------
     vertices : (n, 3) float
     faces : (m, 3) int
     """
-    coords = np.ascontiguousarray(np.asarray(vertices, dtype=np.float64).T)  # (3, n): faster gathers
-    corner_ids = np.ascontiguousarray(np.asarray(faces).T)  # (3, m)
-    corners = [coords[:, ids] for ids in corner_ids]  # (3, m) each
-    edges = [corners[(k + 1) % 3] - corners[k] for k in range(3)]  # edge k leaves corner k
-    a, b = edges[0], -edges[2]
-    cross = np.stack([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
-    twice_area = np.sqrt(np.einsum("ij,ij->j", cross, cross))
-    n = len(coords[0])
-    summed = np.zeros((3, n))
-    for k in range(3):
+    coords = np.ascontiguousarray(vertices, dtype=np.float64)
+    summed = np.zeros((len(coords), 3))
+    _angle_weighted_sums(coords, np.ascontiguousarray(faces, dtype=np.int64), summed)
+    return unit(summed)
+
+
+@compiled()
+def _angle_weighted_sums(vertices, faces, out):
+    """Add to ``out`` (n, 3) each face's normal times twice its area over its angle at each
+    corner: its unit normal weighted by that angle."""
+    for f in range(len(faces)):
+        a, b, c = faces[f, 0], faces[f, 1], faces[f, 2]
+        ax, ay, az = vertices[a, 0], vertices[a, 1], vertices[a, 2]
+        bx, by, bz = vertices[b, 0], vertices[b, 1], vertices[b, 2]
+        cx, cy, cz = vertices[c, 0], vertices[c, 1], vertices[c, 2]
+        # edge k leaves corner k
+        e0x, e0y, e0z = bx - ax, by - ay, bz - az
+        e1x, e1y, e1z = cx - bx, cy - by, cz - bz
+        e2x, e2y, e2z = ax - cx, ay - cy, az - cz
+        nx = e2y * e0z - e2z * e0y
+        ny = e2z * e0x - e2x * e0z
+        nz = e2x * e0y - e2y * e0x
+        twice = math.sqrt(nx * nx + ny * ny + nz * nz)
+        if twice == 0.0:
+            continue
         # |edge k x edge k-1| is twice the area at every corner: the angle needs no arccos
-        angle = np.arctan2(twice_area, -np.einsum("ij,ij->j", edges[k], edges[k - 1]))
-        weight = np.divide(angle, twice_area, out=np.zeros_like(angle), where=twice_area > 0)
-        for axis in range(3):
-            summed[axis] += np.bincount(corner_ids[k], weights=cross[axis] * weight, minlength=n)
-    return unit(summed.T)
+        w0 = math.atan2(twice, -(e0x * e2x + e0y * e2y + e0z * e2z)) / twice
+        w1 = math.atan2(twice, -(e1x * e0x + e1y * e0y + e1z * e0z)) / twice
+        w2 = math.atan2(twice, -(e2x * e1x + e2y * e1y + e2z * e1z)) / twice
+        for v, w in ((a, w0), (b, w1), (c, w2)):
+            out[v, 0] += nx * w
+            out[v, 1] += ny * w
+            out[v, 2] += nz * w
 
 
 def crease_split(mesh: trimesh.Trimesh, angle: float = 30.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
