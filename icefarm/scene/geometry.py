@@ -30,7 +30,7 @@ def winds_inward(vertices: np.ndarray, faces: np.ndarray) -> bool:
     vertices = np.asarray(vertices, dtype=np.float64)
     faces = np.asarray(faces)
     extreme = int(np.argmax(vertices[:, 0]))
-    ring = faces[(faces == extreme).any(axis=1)]
+    ring = faces[np.flatnonzero(faces.reshape(-1) == extreme) // 3]
     normal_x = face_cross(vertices, ring)[:, 0].sum() if len(ring) else 0.0
     scale = np.ptp(vertices, axis=0).max() ** 2
     if abs(normal_x) > 1e-12 * scale:
