@@ -44,6 +44,19 @@ def test_the_tree_finds_what_pykdtree_finds():
     assert point_tree(np.zeros((0, 3))) is None
 
 
+def test_any_within_says_what_the_nearest_distance_says():
+    rng = np.random.default_rng(5)
+    points = rng.random((5000, 3)) * [1.0, 0.02, 1.0]  # a thin slab, as points along creases lie
+    queries = np.r_[points[:2000] + 0.02 * rng.normal(size=(2000, 3)), rng.random((1000, 3)) * 1.4 - 0.2]
+    radii = rng.random(len(queries)) * 0.03
+    d_ref, _ = nearest(point_index(points), queries)
+    radii[:50] = d_ref[:50]  # exactly at the nearest distance: within
+    found = point_tree(points).any_within(queries, radii)
+    assert np.array_equal(found, d_ref <= radii)
+    assert 0.1 < found.mean() < 0.9
+    assert not point_tree(points).any_within(np.zeros((0, 3)), np.zeros(0)).size
+
+
 def test_the_kernels_compile_where_no_cache_folder_may_be_written(monkeypatch):
     """A read-only install on a node whose home is read-only too: numba finds nowhere to
     cache and refuses ``cache=True``; the kernels compile in each process instead."""

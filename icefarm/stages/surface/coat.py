@@ -256,7 +256,7 @@ def _features(mesh: trimesh.Trimesh, faces: np.ndarray, kind: np.ndarray, spacin
     count = np.maximum(np.ceil(np.linalg.norm(b - a, axis=1) / spacing), 1).astype(np.int64)
     which = np.repeat(np.arange(len(edges)), count + 1)
     u = ragged_arange(count + 1) / count[which]
-    return point_index(a[which] + u[:, None] * (b - a)[which])
+    return point_tree(a[which] + u[:, None] * (b - a)[which])
 
 
 @dataclass(frozen=True)

@@ -24,7 +24,6 @@ import numpy as np
 from ...errors import InputError
 from ...metaballs.field import BLOCK, CUTOFF, Field, block_keys
 from ...metaballs.march_kernel import MARCH_POWER
-from ...spatial import nearest
 from .coat_kernel import band_phi, point_tree
 
 # Signed distance (in voxels) over which the stored field goes from the level to twice
@@ -184,9 +183,9 @@ def sample_band(samples: BandSamples, lattice: BandLattice, rim, features, sole:
     rim : optional
         The edges between the wet faces and the dry ones (``coat._Rim``: segments with
         their thickness, and a tree of points along them); None: no taper.
-    features : optional
-        A `icefarm.geometry.point_index` of points along creases and changes of kind;
-        None: there are none.
+    features : PointTree, optional
+        Points along creases and changes of kind (`coat_kernel.point_tree`); None: there
+        are none.
     sole : (v, 3) float
         Excluded vertices, in meters: the coat ends in a wall between them and wet samples.
 
@@ -303,9 +302,7 @@ def _share(samples: BandSamples, lattice: BandLattice, centre, dist, idx, rim, f
     # dist + 2 half of the centre).
     shared = idx >= 0
     if features is not None and shared.any():
-        bound = dist[shared] + 2.0 * half + h
-        d_f, _ = nearest(features, centre[shared], bound.max())
-        shared[shared] = d_f > bound
+        shared[shared] = ~features.any_within(centre[shared], dist[shared] + 2.0 * half + h)
     # Shared dry tiles share the rim segment nearest to their centre too.
     seg = np.full(len(centre), -1, dtype=np.int64)
     dry = shared & (samples.kind[np.maximum(idx, 0)] == 0)

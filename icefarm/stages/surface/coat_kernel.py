@@ -67,6 +67,13 @@ class PointTree:
                                 self.arrays())
         return np.where(row >= 0, np.sqrt(d2), np.inf), row
 
+    def any_within(self, points: np.ndarray, radii: np.ndarray) -> np.ndarray:
+        """``(k,) bool``: whether a point of the tree lies within ``radii`` (k,) of each of
+        ``points`` (k, 3), its distance computed as `nearest` computes it. Stops at the first
+        one found, where `nearest` would go on to the nearest."""
+        q = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
+        return _any_within_many(q, np.ascontiguousarray(radii, dtype=np.float64).reshape(-1), *self.arrays())
+
     def arrays(self):
         return self.points, self.index, self.lo, self.hi, self.leaves
 
@@ -148,6 +155,37 @@ def _nearest(x, y, z, best2, best, stack, points, index, lo, hi, leaves):
                     top += 1
                     stack[top] = a + 1
     return best2, best
+
+
+@compiled()
+def _any_within_many(q, radii, points, index, lo, hi, leaves):
+    out = np.zeros(len(q), dtype=np.bool_)
+    stack = np.empty(_STACK, dtype=np.int64)
+    for m in range(len(q)):
+        x, y, z, r = q[m, 0], q[m, 1], q[m, 2], radii[m]
+        prune = r * r * (1.0 + 1e-9)  # the boxes' bound, with room for the rounding of sqrt(d2) <= r
+        top = 0
+        stack[0] = 1
+        while top >= 0 and not out[m]:
+            k = stack[top]
+            top -= 1
+            if _box2(lo, hi, k, x, y, z) > prune:
+                continue
+            if k >= leaves:
+                start = (k - leaves) * LEAF
+                for j in range(start, min(start + LEAF, len(points))):
+                    dx = points[j, 0] - x
+                    dy = points[j, 1] - y
+                    dz = points[j, 2] - z
+                    if np.sqrt(dx * dx + dy * dy + dz * dz) <= r:
+                        out[m] = True
+                        break
+            else:
+                top += 1
+                stack[top] = 2 * k + 1
+                top += 1
+                stack[top] = 2 * k
+    return out
 
 
 @compiled()
