@@ -128,6 +128,18 @@ def test_bench_job_times_every_step_of_whole_jobs(sphere_file):
     assert result.exit_code != 0 and "--size-m" in result.output
 
 
+def test_bench_job_runs_the_seed_it_is_given(sphere_file, monkeypatch):
+    from icefarm.bench import timings
+
+    seeds = []
+    real = timings.job_timings
+    monkeypatch.setattr(timings, "job_timings", lambda *a, **k: seeds.append(k["seed"]) or real(*a, **k))
+    result = run("bench", "job", sphere_file, "--size-m", 0.3, "--render", "none", "--repeat", 1, "--seed", 5,
+                 "--set", "drips.count=4", "--set", "water.rays=2000", "--set", "glaze.mode=none")
+    assert result.exit_code == 0, result.output
+    assert seeds == [5] and "seed 5, 1 job (median, min)" in result.output
+
+
 def test_bench_sweep_runs_a_manifest_from_nothing_each_time(write_manifest):
     path = write_manifest(grid={"drips.count": [2, 3]}, name="b", seed=2)
     result = run("bench", "sweep", path, "--repeat", 2, "--workers", 1)

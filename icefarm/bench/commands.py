@@ -143,9 +143,12 @@ def bench_render(mesh, size_m, drips, render, repeat, assignments):
                    "or glTF files keep their own size without it).")
 @click.option("--render", "render", default="lookdev", show_default=True, metavar="CONFIG",
               help="Render config: a name in render_configs/ or a YAML path; none for no render.")
+@click.option("--seed", type=int, default=0, show_default=True,
+              help="The job's random seed, as `icefarm run --seed` takes it: it decides where the icicles hang, "
+                   "so what the ice view frames and how long the render takes.")
 @repeat_option(3, "Jobs run; medians are printed.")
 @SET
-def bench_job(mesh, size_m, render, repeat, assignments):
+def bench_job(mesh, size_m, render, seed, repeat, assignments):
     """Median seconds of each step of a whole job on MESH, as `icefarm run` runs it.
 
     Every run starts from nothing (no stage cache): the object's preparation, the four
@@ -166,9 +169,11 @@ def bench_job(mesh, size_m, render, repeat, assignments):
         raise InputError(f"{why}: pass the object's real height in meters with --size-m")
     p = params.resolve(with_asset_gravity(mesh, params.parse_assignments(assignments)))
     with tqdm(total=repeat, desc="jobs", unit="job", leave=False) as bar:
-        runs = job_timings(mesh, size_m, p, None if render == "none" else render, repeat, on_run=bar.update)
+        runs = job_timings(mesh, size_m, p, None if render == "none" else render, repeat, seed=seed,
+                           on_run=bar.update)
     med = statistics.median
-    click.echo(f"{mesh}: {runs.ice_faces:,} ice faces, render {render}, {repeat} jobs (median, min)")
+    jobs = f"{repeat} job" + ("s" if repeat != 1 else "")
+    click.echo(f"{mesh}: {runs.ice_faces:,} ice faces, render {render}, seed {seed}, {jobs} (median, min)")
     for step, seconds in runs.steps.items():
         click.echo(f"  {step:<13} {med(seconds):8.3f} s  {min(seconds):8.3f} s")
     if runs.usd_write:
