@@ -6,6 +6,9 @@ from __future__ import annotations
 import numpy as np
 import trimesh
 
+# `stable_order` counts keys into slots when they span at most this many times their number.
+COUNTING_SPAN = 4
+
 
 def unit(vectors: np.ndarray) -> np.ndarray:
     """Vectors ``(..., 3)`` scaled to unit length (zero vectors stay zero)."""
@@ -62,6 +65,23 @@ def face_cross(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return np.column_stack([a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1],
                             a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2],
                             a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]])
+
+
+def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``np.cross`` of rows ``(k, 3)``, written out: the same numbers (each component the
+    same two products and difference), in half its time on 400 k rows (9 against 21 ms)."""
+    a, b = np.asarray(a), np.asarray(b)
+    return np.column_stack([a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1],
+                            a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2],
+                            a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]])
+
+
+def squared_lengths(vectors: np.ndarray) -> np.ndarray:
+    """``(x^2 + y^2) + z^2`` of rows ``(..., 3)``: what ``np.linalg.norm(v, axis=-1) ** 2``
+    sums, in that order (so their square roots are its norms), without its reduction over
+    an axis of three, which takes most of its time."""
+    v = np.asarray(vectors)
+    return v[..., 0] * v[..., 0] + v[..., 1] * v[..., 1] + v[..., 2] * v[..., 2]
 
 
 def face_any(mask: np.ndarray, faces: np.ndarray) -> np.ndarray:
@@ -210,15 +230,21 @@ def stable_order(keys: np.ndarray) -> np.ndarray:
     """``np.argsort(keys, kind="stable")`` for integer ``keys`` ``(n,)``, faster.
 
     NumPy's stable sort of int64 is a merge sort: 0.20-0.23 s on 1.3 M random keys (a car's
-    face adjacency, both ways), against 0.06 s for its quicksort of ``key * n + position``,
-    unique keys whose order is the stable one. Keys whose products would not fit in int64
-    (or are negative) get the merge sort.
+    face adjacency, both ways). Keys from a range at most `COUNTING_SPAN` times their number
+    (face or vertex indices, as every caller's are) take a compiled counting sort
+    (`icefarm.counting_sort`); others a quicksort of ``key * n + position``, unique keys
+    whose order is the stable one (0.06 s there); keys whose products would not fit in int64
+    the merge sort.
     """
     keys = np.asarray(keys)
     n = len(keys)
     if n == 0 or not np.issubdtype(keys.dtype, np.integer):
         return np.argsort(keys, kind="stable")
     low, high = int(keys.min()), int(keys.max())
+    if high - low < COUNTING_SPAN * n:
+        from .counting_sort import counting_order
+
+        return counting_order(np.ascontiguousarray(keys, dtype=np.int64), low, high - low + 1)
     if low < 0 or (high + 1) * n >= 2**62:
         return np.argsort(keys, kind="stable")
     return np.argsort(keys.astype(np.int64) * n + np.arange(n, dtype=np.int64))

@@ -235,7 +235,8 @@ def test_stable_order_is_numpys_stable_argsort():
     from icefarm.geometry import stable_order
 
     rng = np.random.default_rng(7)
-    for keys in (rng.integers(0, 50, 10_000), rng.integers(0, 10**6, 5_000).astype(np.int32),
-                 rng.integers(-5, 5, 1_000), np.array([2**61, 1, 2**61, 0]), np.zeros(0, dtype=np.int64),
-                 np.array([3, 1, 2, 1, 3])):
+    # counted (keys from a small range, negative ones too), quicksorted, merge-sorted
+    for keys in (rng.integers(0, 50, 10_000), rng.integers(-5, 5, 1_000), rng.integers(7, 7 + 4 * 3_000, 3_000),
+                 rng.integers(0, 10**6, 5_000).astype(np.int32), rng.integers(0, 20_000, 4_000).astype(np.uint32),
+                 np.array([2**61, 1, 2**61, 0]), np.zeros(0, dtype=np.int64), np.array([3, 1, 2, 1, 3])):
         np.testing.assert_array_equal(stable_order(keys), np.argsort(keys, kind="stable"))

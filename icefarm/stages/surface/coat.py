@@ -33,7 +33,7 @@ import numpy as np
 import trimesh
 
 from ...errors import InputError
-from ...geometry import ragged_arange
+from ...geometry import cross, ragged_arange, squared_lengths
 from ...metaballs.field import Field, block_keys
 from ...spatial import nearest, point_index, ray_caster
 from .coat_band import MAX_BAND_POINTS, BandLattice, BandSamples, Thickness, sample_band
@@ -207,15 +207,16 @@ def _thickness_slope(mesh: trimesh.Trimesh, thickness: np.ndarray, wet: np.ndarr
     which the sun picks out as a hammered-glass glitter on the car's windscreen.
     """
     faces = np.asarray(mesh.faces)[at]
-    tri = np.asarray(mesh.vertices)[faces]
-    e1, e2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
-    n = np.cross(e1, e2)
+    vertices = np.asarray(mesh.vertices)
+    v0 = vertices[faces[:, 0]]
+    e1, e2 = vertices[faces[:, 1]] - v0, vertices[faces[:, 2]] - v0
+    n = cross(e1, e2)
     nn = np.einsum("fd,fd->f", n, n)
-    t = thickness[faces]
-    full = wet[faces].all(axis=1) & (nn > 0)
+    full = np.flatnonzero(wet[faces].all(axis=1) & (nn > 0))
+    e1, e2, n, t = e1[full], e2[full], n[full], thickness[faces[full]]
     grad = np.zeros((len(mesh.faces), 3))
-    grad[at[full]] = ((t[full, 1] - t[full, 0])[:, None] * np.cross(e2[full], n[full])
-                      + (t[full, 2] - t[full, 0])[:, None] * np.cross(n[full], e1[full])) / nn[full, None]
+    grad[at[full]] = ((t[:, 1] - t[:, 0])[:, None] * cross(e2, n) + (t[:, 2] - t[:, 0])[:, None] * cross(n, e1)) \
+        / nn[full, None]
     return grad
 
 
@@ -322,7 +323,8 @@ def surface_samples(mesh: trimesh.Trimesh, faces: np.ndarray, spacing: float):
     if len(faces) == 0:
         return np.zeros((0, 3)), np.zeros(0, dtype=np.int64), np.zeros((0, 3))
     tri = mesh.triangles[faces]
-    longest = np.linalg.norm(tri - np.roll(tri, 1, axis=1), axis=2).max(axis=1)
+    a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
+    longest = np.sqrt(np.maximum(np.maximum(squared_lengths(a - c), squared_lengths(b - a)), squared_lengths(c - b)))
     area = mesh.area_faces[faces]
     m = np.maximum(np.maximum(np.ceil(np.sqrt(2.0 * area) / spacing), np.ceil(0.5 * longest / spacing)), 1)
     m = m.astype(np.int64)
@@ -363,7 +365,7 @@ def _faces_near(mesh: trimesh.Trimesh, wet_faces: np.ndarray, wet_points: np.nda
         return cand
     tri = np.asarray(mesh.vertices)[np.asarray(mesh.faces)[cand]]
     centroid = tri.mean(axis=1)
-    radius = np.linalg.norm(tri - centroid[:, None, :], axis=2).max(axis=1)
+    radius = np.sqrt(squared_lengths(tri - centroid[:, None, :]).max(axis=1))
     # Coarse points of the wet region (one per distance-sized cell) bound the search.
     cell = max(distance, 1e-9)
     key = block_keys(np.floor((wet_points - wet_points.min(axis=0)) / cell).astype(np.int64))
