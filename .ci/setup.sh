@@ -50,4 +50,13 @@ fi
 if ! .venv-blender/bin/python -c "import bpy" 2>/dev/null; then
   .venv-blender/bin/python -m pip install -q "bpy==5.0.*" || echo "setup: bpy could not be installed: the Blender import test is skipped"
 fi
+# One small job without a render compiles icefarm's kernels (numba caches them beside the
+# package): about 30 s on 2 cores, once, so that the first job a newcomer runs takes seconds.
+warm=$(mktemp -d)
+if .venv/bin/icefarm run generator:sign --no-render -o "$warm/job" >/dev/null 2>"$warm/err"; then
+  echo "setup: kernels compiled"
+else
+  echo "setup: compiling the kernels failed (the first job compiles them instead):"; tail -n 3 "$warm/err"
+fi
+rm -rf "$warm"
 echo "setup: ready (.venv/bin/icefarm)"
