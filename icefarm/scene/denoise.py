@@ -9,14 +9,16 @@ refracted detail keeps its edges too.
 OIDN wants every pixel's own samples: a denoised render is box-filtered
 (``scene.xml``'s ``rfilter``), and the denoised image then gets the Gaussian pixel
 filter Mitsuba gives other renders (`PIXEL_FILTER_SIGMA`), so both look equally sharp.
-The albedo is noisy where the path chose between reflection and refraction, so it is
-denoised first (OIDN's prefiltering); the normal goes in as it is, and the main filter
-is told its guides are noisy (``cleanAux`` off: the clean-guide network costs 2.4 times
-as long for no gain here).
+The albedo is noisy where the path chose between reflection and refraction, so the
+filter is told its guides are noisy (``cleanAux`` off), and they go in as they are:
+denoising the albedo first (OIDN's prefiltering) cost as much as the denoising itself
+(0.62 against 0.65 s a 480 x 360 view on 2 cores) for 0.07-0.19 dB (the 0.3 m bunny and
+the 1.5 m car, both views, three seeds each, against 512 and 256 spp); the clean-guide
+network costs 2.4 times as long for no gain here.
 
-Measured on the 0.3 m bunny at lookdev, 16 spp, against 512 spp undenoised: PSNR 42.9 dB
-(main view) and 39.8 dB (ice view), against 43.1 and 38.6 dB at 96 spp without
-denoising (`icefarm bench render` reports the denoiser's seconds per view).
+Measured on the 0.3 m bunny at lookdev, 16 spp, against 512 spp undenoised: PSNR 43.6 dB
+(main view) and 41.4 dB (ice view), against 38.4 and 35.2 dB undenoised (`icefarm bench
+render` reports the denoiser's seconds per view).
 """
 
 from __future__ import annotations
@@ -66,10 +68,10 @@ def _denoise(rgb, albedo, normal) -> np.ndarray:
 
     images = {"color": np.maximum(_f32(rgb), 0.0)}
     if albedo is not None:
-        images["albedo"] = _run("albedo", {"albedo": np.clip(_f32(albedo), 0.0, 1.0)}, quality="fast")
+        images["albedo"] = np.clip(_f32(albedo), 0.0, 1.0)
     if normal is not None:
         images["normal"] = np.clip(_f32(normal), -1.0, 1.0)
-    out = _run("color", images, hdr=True)
+    out = _run(images, hdr=True)
     return gaussian_filter(out, (PIXEL_FILTER_SIGMA, PIXEL_FILTER_SIGMA, 0.0), truncate=4.0)
 
 
@@ -79,33 +81,31 @@ def _f32(a) -> np.ndarray:
 
 @functools.cache
 def _filters():
-    """One OIDN device and its ``RT`` filters by role, per process: a filter's first commit
-    builds its network, the slow part; later commits with new images of the same size are cheap."""
+    """One OIDN device and its ``RT`` filter, per process: a filter's first commit builds its
+    network, the slow part; later commits with new images of the same size are cheap."""
     import pyoidn
 
     device = pyoidn.Device()
     device.commit()
-    return device, {role: pyoidn.Filter(device, pyoidn.OIDN_FILTER_TYPE_RT)
-                    for role in ("color", "albedo")}
+    return device, pyoidn.Filter(device, pyoidn.OIDN_FILTER_TYPE_RT)
 
 
-def _run(role: str, images: dict[str, np.ndarray], quality: str = "high", **flags: bool) -> np.ndarray:
-    """Run the ``role`` filter over ``images`` (``color``, ``albedo``, ``normal``: one of
-    them alone prefilters it) and return its output."""
+def _run(images: dict[str, np.ndarray], **flags: bool) -> np.ndarray:
+    """Run the filter over ``images`` (``color``, with ``albedo`` and ``normal`` where given)
+    and return its output."""
     import pyoidn
 
-    device, filters = _filters()
-    flt = filters[role]
-    out = np.empty_like(next(iter(images.values())))
+    device, flt = _filters()
+    out = np.empty_like(images["color"])
     for name in ("color", "albedo", "normal"):
         if name in images:
             flt.set_image(name, images[name], pyoidn.OIDN_FORMAT_FLOAT3)
-        elif role == "color":
+        else:
             flt.unset_image(name)
     flt.set_image(pyoidn.OIDN_IMAGE_OUTPUT, out, pyoidn.OIDN_FORMAT_FLOAT3)
     for name, value in flags.items():
         flt.set_bool(name, value)
-    flt.set_quality(pyoidn.OIDN_QUALITY_FAST if quality == "fast" else pyoidn.OIDN_QUALITY_HIGH)
+    flt.set_quality(pyoidn.OIDN_QUALITY_HIGH)
     flt.commit()
     flt.execute()
     error = device.get_error()
