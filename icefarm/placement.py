@@ -66,9 +66,11 @@ def stop_at_ground(traj: TrajectoryResult, gravity, floor: float, margin: float)
     for b in range(len(off) - 1):
         branch, h = pts[off[b]:off[b + 1]], height[off[b]:off[b + 1]]
         low = np.flatnonzero(h < limit)
-        if len(branch) == 0 or len(low) == 0:
+        if len(branch) == 0 or len(low) == 0:  # untouched: no cut (its length less itself is 0)
             kept.append(branch)
-        elif low[0] == 0:  # a branch of an icicle already cut: nothing of it is left
+            counts.append(len(branch))
+            continue
+        if low[0] == 0:  # a branch of an icicle already cut: nothing of it is left
             kept.append(branch[:0])
         else:
             i = low[0]
