@@ -9,7 +9,9 @@ only for paths that have seen nothing but specular events since the camera (so t
 camera still sees refraction and reflection); after the first non-delta bounce every
 ice surface is a straight pass-through weighted by its Fresnel transmittance, for the
 path itself and for next-event shadow rays alike. This drops caustics, which is what the
-eye expects from clear ice anyway.
+eye expects from clear ice anyway. A shadow ray is cast only where the light it could bring
+is not 0 (the BSDF's value toward the emitter sample), which spares most of them at smooth
+ice and at surfaces lit from behind.
 
 What fills the ice (the ``homogeneous`` medium of ``scene.xml``: absorption and, for ice
 grown from impure water, scattering) is handled as ``volpath`` does, with the same
