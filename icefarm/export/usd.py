@@ -190,8 +190,25 @@ def write_ice_mesh(path: str | Path, mesh: trimesh.Trimesh, *, flip: bool, axis:
     ``crest`` primvar; ``axis`` the stage's up axis (`up_axis`), ``normals`` as `ice_surface`
     takes them. `write_job_usd` and `icefarm.export.ice_layer` reference it. Returns ``path``."""
     path = Path(path)
-    _write_mesh_layer(path, "Ice", ice_surface(mesh.vertices, mesh.faces, flip, normals), axis, _ice_primvars(mesh))
+    surface = ice_surface(mesh.vertices, mesh.faces, flip, normals)
+    surface = dataclasses.replace(surface, faces=surface.faces[crate_order(len(surface.faces))])
+    _write_mesh_layer(path, "Ice", surface, axis, _ice_primvars(mesh))
     return path
+
+
+def crate_order(count: int) -> np.ndarray:
+    """The order ``ice.usdc`` lists the ice's ``count`` faces in: a fixed shuffle.
+
+    The crate writer compresses ``faceVertexIndices`` by their differences, and on marching
+    cubes' order, where neighbouring faces share nearby vertices, its count of those
+    differences slows down badly, holding the GIL all the while (the render waits for it):
+    saving the 2.5 m shelter's 2.3 M lookdev faces took 10.7 s in that order and 0.66 s
+    shuffled, the 1.5 m car's 1.58 s and 0.65 s. Runs of 4 to 256 faces kept in order were as
+    slow as none shuffled (4.9-12 s), and renumbering the points by first use took 7.6 s.
+    Shuffled indices compress less: the shelter's file grows from 19 to 30 MB. The same
+    permutation for the same count, so the same ice gives the same file.
+    """
+    return np.random.default_rng(0).permutation(count)
 
 
 def write_usdz(job_dir: str | Path, out: str | Path) -> Path:
