@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import trimesh
 
-from .geometry import ragged_arange, stable_order, unit
+from .geometry import ragged_arange, stable_order, unit, within_box
 from .tol import tol
 
 
@@ -184,8 +184,7 @@ def near_caster(vertices: np.ndarray, faces: np.ndarray, reach: float):
                 ray = np.repeat(todo, count)
                 t = np.minimum(enter[ray] + ragged_arange(count) * step, np.repeat(end, count))
                 samples = origins[ray] + t[:, None] * directions[ray]
-                box = np.flatnonzero(((vertices >= samples.min(axis=0) - bound)
-                                      & (vertices <= samples.max(axis=0) + bound)).all(axis=1))
+                box = np.flatnonzero(within_box(vertices, samples.min(axis=0) - bound, samples.max(axis=0) + bound))
                 gap = np.full(len(vertices), np.inf)
                 gap[box] = nearest(point_index(samples), vertices[box], bound * (1 + 1e-9))[0]
                 near = np.flatnonzero(np.isfinite(gap[faces[:, 0]]))  # a cheap first cut

@@ -37,6 +37,15 @@ def test_face_any_all_count_are_numpys_reductions(share):
     assert not np.shares_memory(geometry.face_any(mask, faces), mask)
 
 
+def test_within_box_is_numpys_reduction_over_rows():
+    points = np.random.default_rng(3).normal(size=(5000, 3))
+    points[:10] = [[0.5, -0.25, 1.0]] * 10  # on the box's faces: inside
+    lo, hi = np.array([-0.5, -0.25, -1.0]), np.array([0.5, 0.75, 1.0])
+    box = geometry.within_box(points, lo, hi)
+    assert np.array_equal(box, ((points >= lo) & (points <= hi)).all(axis=1)) and box[:10].all()
+    assert 0 < box.mean() < 1
+
+
 def test_signed_volume_is_trimesh_volume(lumpy):
     assert signed_volume(lumpy.vertices, lumpy.faces) == pytest.approx(lumpy.volume, rel=1e-12)
     inverted = lumpy.copy()

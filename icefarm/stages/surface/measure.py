@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ...geometry import arc_lengths, ragged_arange
+from ...geometry import arc_lengths, ragged_arange, within_box
 from ...params import SurfaceParams
 from ...spatial import nearest, point_index
 from ..trajectories import TrajectoryResult
@@ -312,7 +312,7 @@ def _slab_radius(axis, tangent, vertices, index, faces, trunk, x, step, thicknes
     near = nearest(index, axis)[0]
     reach = near + slack + thickness
     bound = float(reach.max())
-    box = ((vertices >= axis.min(axis=0) - bound) & (vertices <= axis.max(axis=0) + bound)).all(axis=1)
+    box = within_box(vertices, axis.min(axis=0) - bound, axis.max(axis=0) + bound)
     candidates = np.flatnonzero(box)
     dist, k = nearest(point_index(axis), vertices[candidates], bound)
     found = (k >= 0) & (dist <= reach[np.maximum(k, 0)])
