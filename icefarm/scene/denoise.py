@@ -16,9 +16,9 @@ denoising the albedo first (OIDN's prefiltering) cost as much as the denoising i
 the 1.5 m car, both views, three seeds each, against 512 and 256 spp); the clean-guide
 network costs 2.4 times as long for no gain here.
 
-Measured on the 0.3 m bunny at lookdev, 16 spp, against 512 spp undenoised: PSNR 43.6 dB
-(main view) and 41.4 dB (ice view), against 38.4 and 35.2 dB undenoised (`icefarm bench
-render` reports the denoiser's seconds per view).
+Measured on the 0.3 m bunny at lookdev, 16 spp denoised, against 512 spp undenoised: PSNR
+43.6 dB (main view) and 41.4 dB (ice view), against 38.4 and 35.2 dB for the same 16 spp
+undenoised (`icefarm bench render` reports the denoiser's seconds per view).
 """
 
 from __future__ import annotations
