@@ -192,6 +192,43 @@ def test_the_usd_export_runs_beside_the_render_and_fails_its_own_step(tmp_path, 
         assert (tmp_path / name / "render.png").is_file() and not (tmp_path / name / "done.json").exists()
 
 
+@pytest.mark.slow  # two rendered jobs
+def test_the_measures_run_beside_the_render_and_fail_their_own_step(tmp_path, monkeypatch):
+    import threading
+
+    import icefarm.stages as stages
+    from icefarm.job import JobInputs, run_graph, step
+    from icefarm.job.pipeline import load_object, meshing_params
+
+    threads, real = [], stages.measure_icicles
+
+    def watched(*args, **kwargs):
+        threads.append(threading.current_thread())
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(stages, "measure_icicles", watched)
+    spec = _tiny_job(tmp_path)
+    outcome = run_job(spec, tmp_path / "job")
+    assert outcome.status == "done", outcome.error
+    assert len(threads) == 1 and threads[0] is not threading.main_thread()
+    timings = json.loads((tmp_path / "job" / "timings.json").read_text())
+    assert timings["measure_beside_seconds"] > 0 and "measure" in timings["seconds"]
+    assert list(timings["seconds"]).index("measure") > list(timings["seconds"]).index("render")
+    # the same figures as the graph measures on the same ice, one step after another
+    p, _ = meshing_params(spec)
+    inputs = JobInputs(load_object(spec), p, spec.seed)
+    expected = step("measure").figures(inputs, run_graph(inputs, measuring=True))
+    assert expected and json.loads(json.dumps(expected)) == {k: timings[k] for k in expected}
+
+    def broken(*args, **kwargs):
+        raise OSError("no memory left")
+
+    monkeypatch.setattr(stages, "measure_icicles", broken)
+    failed = run_job(_tiny_job(tmp_path), tmp_path / "broken")
+    assert failed.status == "failed" and failed.failed_stage == "measure" and "no memory left" in (failed.error or "")
+    assert (tmp_path / "broken" / "render.png").is_file() and not (tmp_path / "broken" / "done.json").exists()
+
+
 def test_up_axis_follows_gravity_to_the_nearest_of_y_and_z():
     assert up_axis((0, -1, 0)) == "Y" and up_axis((0, 0, -1)) == "Z"
     assert up_axis((0.2, -0.9, 0.3)) == "Y" and up_axis((0.3, 0.2, -0.9)) == "Z"

@@ -154,7 +154,8 @@ def bench_job(mesh, size_m, render, seed, repeat, assignments):
     Every run starts from nothing (no stage cache): the object's preparation, the four
     stages, the measures, the render and the USD export, each timed as the job's
     timings.json times it, with the job's wall-clock total and this process's peak memory.
-    The USD export is written while Mitsuba renders: its own seconds are printed apart.
+    The USD export is written and the ice measured while Mitsuba renders: their own seconds
+    are printed apart.
     The first run also compiles the render's kernels (Dr.Jit caches them on disk).
     """
     from tqdm import tqdm
@@ -179,6 +180,9 @@ def bench_job(mesh, size_m, render, seed, repeat, assignments):
     if runs.usd_write:
         click.echo(f"  {'usd beside':<13} {med(runs.usd_write):8.3f} s  {min(runs.usd_write):8.3f} s  "
                    "(written while Mitsuba rendered; the usd step is the wait after it)")
+    if runs.measure_beside:
+        click.echo(f"  {'measure beside':<13} {med(runs.measure_beside):8.3f} s  {min(runs.measure_beside):8.3f} s  "
+                   "(taken while Mitsuba rendered; the measure step is the wait after it)")
     click.echo(f"  {'job':<13} {med(runs.total):8.3f} s  {min(runs.total):8.3f} s")
     click.echo(f"  peak memory of this process: {peak_memory_gb():.2f} GB")
 

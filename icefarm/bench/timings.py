@@ -174,12 +174,16 @@ class JobRuns:
     usd_write : tuple of float
         Each job's USD export, written in the render's writer thread while Mitsuba renders
         (its ``usd`` step is what was left to wait for after the render); empty without a render.
+    measure_beside : tuple of float
+        Each job's measures, taken in a thread of their own while it rendered (its ``measure``
+        step is the wait after the render); empty without a render.
     """
 
     ice_faces: int
     steps: dict
     total: tuple
     usd_write: tuple = ()
+    measure_beside: tuple = ()
 
 
 def job_timings(mesh: str, size_m: float | None, p: Params, render_config: str | None, repeat: int,
@@ -193,7 +197,7 @@ def job_timings(mesh: str, size_m: float | None, p: Params, render_config: str |
         mesh = str(Path(mesh).resolve())
     spec = JobSpec(object_id=Path(mesh).stem, mesh=mesh, size_m=size_m, params=p, seed=seed, render=render_config)
     steps: dict[str, list[float]] = {}
-    total, usd_write, faces = [], [], 0
+    total, usd_write, measure_beside, faces = [], [], [], 0
     with tempfile.TemporaryDirectory(prefix="icefarm-bench-") as tmp:
         for run in range(repeat):
             job_dir = Path(tmp) / f"job{run}"
@@ -208,11 +212,13 @@ def job_timings(mesh: str, size_m: float | None, p: Params, render_config: str |
             faces = int(stats.get("ice_faces", 0))
             if "usd_write_seconds" in stats:
                 usd_write.append(float(stats["usd_write_seconds"]))
+            if "measure_beside_seconds" in stats:
+                measure_beside.append(float(stats["measure_beside_seconds"]))
             shutil.rmtree(job_dir)
             if on_run is not None:
                 on_run()
     return JobRuns(ice_faces=faces, steps={k: tuple(v) for k, v in steps.items()}, total=tuple(total),
-                   usd_write=tuple(usd_write))
+                   usd_write=tuple(usd_write), measure_beside=tuple(measure_beside))
 
 
 def peak_memory_gb() -> float:

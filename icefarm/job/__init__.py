@@ -12,8 +12,8 @@ import lazy_loader as _lazy
 
 __getattr__, __dir__, __all__ = _lazy.attach(__name__, submod_attrs={
     "figures": ["finite", "finite_list", "ice_mesh", "storm_figures"],
-    "graph": ["STEPS", "STEP_NAMES", "SURFACE_STEP", "Input", "Step", "When", "ancestors", "cached_steps",
-              "overridable", "read_values", "runs", "share_digest", "step", "step_keys"],
+    "graph": ["STEPS", "STEP_NAMES", "SURFACE_STEP", "Input", "Step", "When", "ancestors", "beside_render",
+              "cached_steps", "overridable", "read_values", "runs", "share_digest", "step", "step_keys"],
     "records": ["STAGE_ORDER", "JobInputs", "Stage", "StageResults", "stage_rng", "stops"],
     "runner": ["StepRunner", "run_graph", "run_stages", "run_step"],
     "stats": ["JobStats"],

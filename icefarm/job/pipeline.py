@@ -12,6 +12,7 @@ import contextlib
 import time
 import traceback
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -41,7 +42,19 @@ from ..mesh import PreparedMesh, prepare
 from ..params import Params
 from ..progress import ProgressMode, StepProgress, step_progress
 from ..scene.material import Material
-from . import JobInputs, Stage, StageResults, Step, build_surface, ice_mesh, run_graph, stage_rng, stops
+from . import (
+    JobInputs,
+    Stage,
+    StageResults,
+    Step,
+    beside_render,
+    build_surface,
+    ice_mesh,
+    run_graph,
+    run_step,
+    stage_rng,
+    stops,
+)
 from .cache import StageCache, digest as _digest, file_digest as _file_digest
 from .render import render_step
 from .stats import JobStats, write_record
@@ -307,13 +320,22 @@ def _run_stages(spec: JobSpec, job_dir: Path, run: _Run, cache: StageCache, unti
         if s.figures is not None:
             stats.update(s.figures(inputs, results))
 
-    r = run_graph(inputs, until=until, step=step, on_step=on_step, measuring=True)
+    rendering = spec.render is not None and not stops(until, Stage.SURFACE) and not defer_render
+    beside = beside_render(inputs) if rendering else ()
+    r = run_graph(inputs, until=until, step=step, on_step=on_step, measuring=True, skip={s.name for s in beside})
     if r.ice is None:
         return stats
-    if spec.render is not None and not stops(until, Stage.SURFACE) and not defer_render:
+    if rendering:
         assert r.trajectories is not None
-        stats.update(render_step(spec, job_dir, r.mesh, ice_mesh(r), r.trajectories.points, run.timed,
-                                 run.progress))
+        with ThreadPoolExecutor(1) as pool:
+            later = [(s, pool.submit(_timed_apart, s, inputs, r)) for s in beside]
+            stats.update(render_step(spec, job_dir, r.mesh, ice_mesh(r), r.trajectories.points, run.timed,
+                                     run.progress))
+            for s, future in later:  # the step's own time is the wait; a failure fails it there
+                value, seconds = run.timed(s.name, future.result)
+                r = replace(r, **{s.field: value})
+                on_step(s, r)
+                stats[f"{s.name}_beside_seconds"] = round(seconds, 3)
     if Path(spec.mesh).suffix.lower() in USD_SUFFIXES:  # rendered or not: the ice over the asset's file
         from ..export.ice_layer import write_ice_layer
 
@@ -325,6 +347,12 @@ def _run_stages(spec: JobSpec, job_dir: Path, run: _Run, cache: StageCache, unti
     if p.growth.frames and until is None:  # growth/: stages 1-3 as they are, stage 4 per frame
         stats.update(run.timed("growth", lambda: _growth(spec, job_dir, run, inputs, r), own_bars=True))
     return stats
+
+
+def _timed_apart(s: Step, inputs: JobInputs, r: StageResults) -> tuple[Any, float]:
+    """Step ``s`` run bare in a thread of its own, and its wall seconds there."""
+    start = time.perf_counter()
+    return run_step(s, inputs, r), time.perf_counter() - start
 
 
 def _growth(spec: JobSpec, job_dir: Path, run: _Run, inputs: JobInputs, r: StageResults) -> dict:

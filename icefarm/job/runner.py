@@ -6,7 +6,7 @@ through `run_graph`, so what they measure is what a job runs.
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from typing import Any
 
 from .graph import STEPS, Step, overridable, runs, step_keys
@@ -23,7 +23,8 @@ def _bare(s: Step, key: str | None, work: Work) -> Any:
 
 
 def run_graph(inputs: JobInputs, *, until: Stage | None = None, step: StepRunner = _bare,
-              on_step: Callable[[Step, StageResults], None] | None = None, measuring: bool = False) -> StageResults:
+              on_step: Callable[[Step, StageResults], None] | None = None, measuring: bool = False,
+              skip: Collection[str] = ()) -> StageResults:
     """Run the declared steps on ``inputs`` in order, up to the stage ``until``.
 
     Parameters
@@ -39,6 +40,9 @@ def run_graph(inputs: JobInputs, *, until: Stage | None = None, step: StepRunner
         caller writes the step's artifact and figures.
     measuring : bool
         Run the steps that only measure (`When.MEASURING`).
+    skip : collection of str
+        Steps left to the caller, which runs them with `run_step` (a job runs those no step
+        reads beside its render: `graph.beside_render`).
 
     Returns
     -------
@@ -53,7 +57,7 @@ def run_graph(inputs: JobInputs, *, until: Stage | None = None, step: StepRunner
     for s in STEPS:
         if last is not None and STAGE_ORDER.index(s.stage) > last:
             break
-        if not runs(s, inputs, measuring):
+        if s.name in skip or not runs(s, inputs, measuring):
             continue
         value = run_step(s, inputs, results, step, keys[s.name])
         results = dataclasses.replace(results, keys={**results.keys, s.name: keys[s.name]}, **{s.field: value})
