@@ -223,6 +223,15 @@ def test_the_measures_run_beside_the_render_and_fail_their_own_step(tmp_path, mo
     def broken(*args, **kwargs):
         raise OSError("no memory left")
 
+    # a farm worker with one core measures first, in its own thread
+    threads.clear()
+    assert run_job(spec, tmp_path / "in_turn", measure_beside=False).status == "done"
+    assert threads == [threading.main_thread()]
+    in_turn = json.loads((tmp_path / "in_turn" / "timings.json").read_text())
+    assert "measure_beside_seconds" not in in_turn and {k: in_turn[k] for k in expected} == {
+        k: timings[k] for k in expected}
+    assert list(in_turn["seconds"]).index("measure") < list(in_turn["seconds"]).index("render")
+
     monkeypatch.setattr(stages, "measure_icicles", broken)
     failed = run_job(_tiny_job(tmp_path), tmp_path / "broken")
     assert failed.status == "failed" and failed.failed_stage == "measure" and "no memory left" in (failed.error or "")

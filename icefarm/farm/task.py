@@ -130,7 +130,8 @@ def execute(task: Task, defer_render: bool = False) -> tuple[Any, int]:
             _render_threads(task.threads)
         until = pipeline.Stage(task.until) if task.until else None
         cache = Path(task.cache_dir) if task.cache_dir else None
-        outcome = pipeline.run_job(task.spec, job_dir, cache_dir=cache, until=until, defer_render=defer_render)
+        outcome = pipeline.run_job(task.spec, job_dir, cache_dir=cache, until=until, defer_render=defer_render,
+                                   measure_beside=not task.threads or task.threads > 1)
     except Exception as exc:  # run_job reports job failures itself; this is a farm-level bug
         trace = traceback.format_exc()
         write_error(job_dir, f"{type(exc).__name__}: {exc}", None, trace)

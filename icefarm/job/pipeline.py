@@ -180,7 +180,7 @@ class _Run:
 
 def run_job(spec: JobSpec, job_dir: Path, cache_dir: Path | None = None,
             until: Stage | None = None, progress: bool | ProgressMode = False,
-            defer_render: bool = False) -> JobOutcome:
+            defer_render: bool = False, measure_beside: bool = True) -> JobOutcome:
     """Run one job into ``job_dir``; never raises for a failure of the job itself.
 
     What an earlier job wrote in ``job_dir`` is removed first (`icefarm.jobdir.clear_job`;
@@ -192,6 +192,9 @@ def run_job(spec: JobSpec, job_dir: Path, cache_dir: Path | None = None,
     ``defer_render`` stops a whole job with a render (and no growth frames) before its render:
     its files and ``timings.json`` are written, no ``done.json``, and the status is
     ``pending`` until `finish_render` renders it (on another machine of a farm).
+    ``measure_beside`` takes the measures while Mitsuba renders (`graph.beside_render`), for a
+    job with a core to spare beside the render's; a farm worker whose share is one core
+    measures first, as the render would only wait for the core.
 
     Raises
     ------
@@ -211,7 +214,7 @@ def run_job(spec: JobSpec, job_dir: Path, cache_dir: Path | None = None,
     cache = StageCache(Path(cache_dir) if cache_dir else None)
     defer = defer_render and renders_apart(spec, until)
     try:
-        figures = _run_stages(spec, job_dir, run, cache, until, defer)
+        figures = _run_stages(spec, job_dir, run, cache, until, defer, measure_beside)
     except Exception as exc:
         return _failed(job_dir, run, exc, tuple(cache.reused))
     stats = JobStats(run.seconds, figures, tuple(cache.reused), tuple(cache.warnings), render_pending=defer)
@@ -299,7 +302,7 @@ def meshing_params(spec: JobSpec) -> tuple[Params, dict]:
 
 
 def _run_stages(spec: JobSpec, job_dir: Path, run: _Run, cache: StageCache, until: Stage | None,
-                defer_render: bool = False) -> dict:
+                defer_render: bool = False, measure_beside: bool = True) -> dict:
     artifacts.write_yaml(job_dir / PARAMS, spec.params.as_dict())
     run.stage = "render config"  # read first: a bad one fails the job before its stages compute anything
     p, meshed = meshing_params(spec)
@@ -321,7 +324,7 @@ def _run_stages(spec: JobSpec, job_dir: Path, run: _Run, cache: StageCache, unti
             stats.update(s.figures(inputs, results))
 
     rendering = spec.render is not None and not stops(until, Stage.SURFACE) and not defer_render
-    beside = beside_render(inputs) if rendering else ()
+    beside = beside_render(inputs) if rendering and measure_beside else ()
     r = run_graph(inputs, until=until, step=step, on_step=on_step, measuring=True, skip={s.name for s in beside})
     if r.ice is None:
         return stats
