@@ -238,6 +238,30 @@ def test_the_measures_run_beside_the_render_and_fail_their_own_step(tmp_path, mo
     assert (tmp_path / "broken" / "render.png").is_file() and not (tmp_path / "broken" / "done.json").exists()
 
 
+@pytest.mark.slow  # two rendered jobs
+def test_a_farm_worker_with_one_core_measures_before_its_render(tmp_path):
+    """On a worker whose share is one core the render would only wait for the measures."""
+    import drjit as dr
+
+    from icefarm.farm.task import Task, execute
+
+    spec = _tiny_job(tmp_path)
+    pool = dr.thread_count()
+    try:
+        for threads in (1, 2):
+            job_dir = tmp_path / f"threads{threads}"
+            task = Task(spec, f"j{threads}", "sphere", str(job_dir), None, None, str(tmp_path / "running"), threads)
+            (tmp_path / "running").mkdir(exist_ok=True)
+            outcome, _ = execute(task)
+            assert outcome.status == "done", outcome.error
+            timings = json.loads((job_dir / "timings.json").read_text())
+            order = list(timings["seconds"])
+            assert ("measure_beside_seconds" in timings) is (threads > 1)
+            assert (order.index("measure") > order.index("render")) is (threads > 1)
+    finally:
+        dr.set_thread_count(pool)
+
+
 def test_up_axis_follows_gravity_to_the_nearest_of_y_and_z():
     assert up_axis((0, -1, 0)) == "Y" and up_axis((0, 0, -1)) == "Z"
     assert up_axis((0.2, -0.9, 0.3)) == "Y" and up_axis((0.3, 0.2, -0.9)) == "Z"
